@@ -1,0 +1,201 @@
+//! Chunk encoding: element bytes → byte-shuffle → zstd, with an xxh3 checksum
+//! of the decoded bytes (DESIGN.md section 3).
+
+use bincode::{Decode, Encode};
+use half::f16;
+
+/// Element type of a stored array.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Encode, Decode)]
+pub enum DType {
+    F16,
+    F32,
+    U32,
+    U8,
+}
+
+impl DType {
+    /// Bytes per element.
+    pub fn size(self) -> usize {
+        match self {
+            DType::F16 => 2,
+            DType::F32 | DType::U32 => 4,
+            DType::U8 => 1,
+        }
+    }
+
+    /// Lower-case name for display.
+    pub fn name(self) -> &'static str {
+        match self {
+            DType::F16 => "f16",
+            DType::F32 => "f32",
+            DType::U32 => "u32",
+            DType::U8 => "u8",
+        }
+    }
+}
+
+/// The decoded elements of one chunk, typed.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ChunkData {
+    F16(Vec<f16>),
+    F32(Vec<f32>),
+    U32(Vec<u32>),
+    U8(Vec<u8>),
+}
+
+impl ChunkData {
+    /// Heap bytes held (for the cache budget).
+    pub fn byte_len(&self) -> usize {
+        match self {
+            ChunkData::F16(v) => v.len() * 2,
+            ChunkData::F32(v) => v.len() * 4,
+            ChunkData::U32(v) => v.len() * 4,
+            ChunkData::U8(v) => v.len(),
+        }
+    }
+}
+
+/// A plain-old-data element type that an array can hold.
+pub trait Element: bytemuck::Pod + Send + Sync + 'static {
+    /// The stored dtype.
+    const DTYPE: DType;
+    /// Borrow typed elements out of decoded chunk data of the same dtype.
+    fn slice(data: &ChunkData) -> Option<&[Self]>;
+    /// Wrap a vector as chunk data.
+    fn wrap(v: Vec<Self>) -> ChunkData;
+}
+
+macro_rules! element {
+    ($t:ty, $variant:ident) => {
+        impl Element for $t {
+            const DTYPE: DType = DType::$variant;
+            fn slice(data: &ChunkData) -> Option<&[Self]> {
+                match data {
+                    ChunkData::$variant(v) => Some(v),
+                    _ => None,
+                }
+            }
+            fn wrap(v: Vec<Self>) -> ChunkData {
+                ChunkData::$variant(v)
+            }
+        }
+    };
+}
+element!(f16, F16);
+element!(f32, F32);
+element!(u32, U32);
+element!(u8, U8);
+
+#[cfg(target_endian = "big")]
+compile_error!("btfquilt containers store little-endian elements; big-endian targets are not supported");
+
+/// A chunk ready to be written: compressed bytes plus the checksum of the
+/// decoded bytes.
+#[derive(Debug, Clone)]
+pub struct EncodedChunk {
+    pub(crate) bytes: Vec<u8>,
+    pub(crate) checksum: u64,
+    pub(crate) dtype: DType,
+    pub(crate) elements: u64,
+}
+
+/// Checksum of decoded bytes (xxh3, 64-bit).
+pub fn checksum(bytes: &[u8]) -> u64 {
+    xxhash_rust::xxh3::xxh3_64(bytes)
+}
+
+/// Groups byte `b` of every element together: `out[b * n + i] = raw[i * size + b]`.
+/// Neighbouring f16 values share their high bytes, which zstd then finds.
+pub fn shuffle(raw: &[u8], size: usize) -> Vec<u8> {
+    if size == 1 {
+        return raw.to_vec();
+    }
+    let n = raw.len() / size;
+    let mut out = vec![0u8; raw.len()];
+    for (i, elem) in raw.chunks_exact(size).enumerate() {
+        for (b, &byte) in elem.iter().enumerate() {
+            out[b * n + i] = byte;
+        }
+    }
+    out
+}
+
+/// Inverse of [`shuffle`], writing into `out` (same length as `shuffled`).
+pub fn unshuffle(shuffled: &[u8], size: usize, out: &mut [u8]) {
+    if size == 1 {
+        out.copy_from_slice(shuffled);
+        return;
+    }
+    let n = shuffled.len() / size;
+    for (i, elem) in out.chunks_exact_mut(size).enumerate() {
+        for (b, byte) in elem.iter_mut().enumerate() {
+            *byte = shuffled[b * n + i];
+        }
+    }
+}
+
+/// Encodes elements: shuffle, zstd at `level` (1-3 recommended), checksum.
+pub fn encode<T: Element>(values: &[T], level: i32) -> EncodedChunk {
+    let raw: &[u8] = bytemuck::cast_slice(values);
+    let shuffled = shuffle(raw, T::DTYPE.size());
+    let bytes =
+        zstd::bulk::compress(&shuffled, level).expect("zstd compression of an in-memory buffer cannot fail");
+    EncodedChunk {
+        bytes,
+        checksum: checksum(raw),
+        dtype: T::DTYPE,
+        elements: values.len() as u64,
+    }
+}
+
+/// Decodes a stored chunk of `elements` values of `dtype`, verifying the
+/// checksum. The error string says what is wrong (the caller adds file,
+/// array and chunk).
+pub fn decode(stored: &[u8], dtype: DType, elements: usize, expect: u64) -> Result<ChunkData, String> {
+    let raw_len = elements * dtype.size();
+    let shuffled = zstd::bulk::decompress(stored, raw_len).map_err(|e| format!("zstd: {e}"))?;
+    if shuffled.len() != raw_len {
+        return Err(format!("decoded {} bytes, expected {raw_len}", shuffled.len()));
+    }
+    fn typed<T: Element>(shuffled: &[u8], n: usize, expect: u64) -> Result<ChunkData, String> {
+        let mut v = vec![T::zeroed(); n];
+        let out: &mut [u8] = bytemuck::cast_slice_mut(&mut v);
+        unshuffle(shuffled, T::DTYPE.size(), out);
+        let got = checksum(out);
+        if got != expect {
+            return Err(format!("checksum mismatch (stored {expect:016x}, decoded bytes hash to {got:016x}): the file is corrupt"));
+        }
+        Ok(T::wrap(v))
+    }
+    match dtype {
+        DType::F16 => typed::<f16>(&shuffled, elements, expect),
+        DType::F32 => typed::<f32>(&shuffled, elements, expect),
+        DType::U32 => typed::<u32>(&shuffled, elements, expect),
+        DType::U8 => typed::<u8>(&shuffled, elements, expect),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shuffle_round_trips_and_groups_bytes() {
+        let raw: Vec<u8> = (0..40u8).collect();
+        let s = shuffle(&raw, 4);
+        assert_eq!(&s[..10], &[0, 4, 8, 12, 16, 20, 24, 28, 32, 36]);
+        let mut back = vec![0; 40];
+        unshuffle(&s, 4, &mut back);
+        assert_eq!(back, raw);
+    }
+
+    #[test]
+    fn encode_decode_round_trip_and_checksum_detects_change() {
+        let v: Vec<f32> = (0..1000).map(|i| (i as f32).sin()).collect();
+        let e = encode(&v, 3);
+        let d = decode(&e.bytes, DType::F32, v.len(), e.checksum).unwrap();
+        assert_eq!(d, ChunkData::F32(v.clone()));
+        let err = decode(&e.bytes, DType::F32, v.len(), e.checksum ^ 1).unwrap_err();
+        assert!(err.contains("checksum"), "{err}");
+    }
+}

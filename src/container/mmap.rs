@@ -1,0 +1,99 @@
+//! The byte source under a container reader: a read-only memory map, with
+//! plain positioned reads as the fallback.
+//!
+//! This module holds the crate's only `unsafe` code.
+//!
+//! # Safety contract
+//!
+//! Mapping a file is only sound while no one truncates or rewrites it; a
+//! truncated mapping raises `SIGBUS` and a rewritten one changes bytes under a
+//! `&[u8]`. btfquilt upholds its side: a finished artifact is never modified in
+//! place (every writer writes a temporary file and renames it over the
+//! destination, which leaves the inode that readers have mapped untouched).
+//! Other programs must not modify an artifact while btfquilt reads it, the same
+//! contract as any memory-mapping tool. Whatever the mapping yields is still
+//! checked: every chunk's decoded bytes are verified against their checksum.
+//! Set `BTFQUILT_NO_MMAP=1` to use plain reads instead (slower on random access,
+//! no contract needed).
+#![allow(unsafe_code)]
+
+use std::fs::File;
+use std::path::Path;
+
+use memmap2::{Mmap, UncheckedAdvice};
+
+/// Read-only random access to the bytes of one file.
+pub(crate) enum ByteSource {
+    /// The whole file mapped read-only.
+    Mapped(Mmap),
+    /// Positioned reads (`pread`) on the open file.
+    Plain(File),
+}
+
+impl ByteSource {
+    /// Opens `file` for reading: a memory map unless `BTFQUILT_NO_MMAP` is set
+    /// or mapping fails (then plain reads).
+    pub(crate) fn new(file: File, _path: &Path) -> ByteSource {
+        let no_mmap = std::env::var_os("BTFQUILT_NO_MMAP").is_some_and(|v| v != "0");
+        if !no_mmap {
+            // SAFETY: the file is opened read-only and the module's safety
+            // contract above holds: btfquilt never modifies a finished artifact
+            // in place, and the mapping is only ever read through `&[u8]`.
+            if let Ok(map) = unsafe { Mmap::map(&file) } {
+                return ByteSource::Mapped(map);
+            }
+        }
+        ByteSource::Plain(file)
+    }
+
+    /// Calls `f` with the bytes `[offset, offset + len)`. The caller has
+    /// checked the range against the file length.
+    pub(crate) fn with_bytes<R>(
+        &self,
+        offset: u64,
+        len: usize,
+        f: impl FnOnce(&[u8]) -> R,
+    ) -> std::io::Result<R> {
+        match self {
+            ByteSource::Mapped(map) => {
+                let start = offset as usize;
+                let bytes = map.get(start..start + len).ok_or_else(|| {
+                    std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "range past end of file")
+                })?;
+                let out = f(bytes);
+                // The decoded chunk now lives in the cache; let the kernel drop
+                // the mapped pages from this process so resident memory stays
+                // bounded by the cache budget, not by the file size.
+                // SAFETY: MADV_DONTNEED on a read-only, file-backed mapping only
+                // discards this process's page-table entries; the next access
+                // faults the unchanged file contents back in. No Rust reference
+                // into the range outlives `f`.
+                let _ = unsafe { map.unchecked_advise_range(UncheckedAdvice::DontNeed, start, len) };
+                Ok(out)
+            }
+            ByteSource::Plain(file) => {
+                let mut buf = vec![0u8; len];
+                read_exact_at(file, &mut buf, offset)?;
+                Ok(f(&buf))
+            }
+        }
+    }
+
+    /// Whether reads go through a memory map (for `info`).
+    pub(crate) fn is_mapped(&self) -> bool {
+        matches!(self, ByteSource::Mapped(_))
+    }
+}
+
+#[cfg(unix)]
+fn read_exact_at(file: &File, buf: &mut [u8], offset: u64) -> std::io::Result<()> {
+    std::os::unix::fs::FileExt::read_exact_at(file, buf, offset)
+}
+
+#[cfg(not(unix))]
+fn read_exact_at(file: &File, buf: &mut [u8], offset: u64) -> std::io::Result<()> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = file.try_clone()?;
+    f.seek(SeekFrom::Start(offset))?;
+    f.read_exact(buf)
+}

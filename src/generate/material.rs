@@ -1,0 +1,1093 @@
+//! Procedural, tileable mesostructure for synthetic BTFs.
+//!
+//! Every field is a pure function of the texel coordinate and the seed
+//! (seeded hash value noise, fBm and periodic Voronoi), evaluated in parallel
+//! rows, so the result is bit-identical whatever the rayon thread count.
+//! All fields are periodic over `width × height`; feature sizes are given in
+//! texels, so a larger sample shows more elements of the same size.
+
+use rayon::prelude::*;
+
+/// The material family of a synthetic sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Family {
+    /// Running-bond brick wall with recessed mortar.
+    Bricks,
+    /// Plain-woven fabric (warp/weft over/under).
+    Weave,
+    /// Cracked paint flakes over a dark substrate (bark-like).
+    Cracked,
+    /// Rounded pebbles with dark gaps.
+    Pebbles,
+}
+
+impl Family {
+    /// All families, in a fixed order.
+    pub const ALL: [Family; 4] = [Family::Bricks, Family::Weave, Family::Cracked, Family::Pebbles];
+
+    /// Lower-case name used on the command line and in metadata.
+    pub fn name(self) -> &'static str {
+        match self {
+            Family::Bricks => "bricks",
+            Family::Weave => "weave",
+            Family::Cracked => "cracked",
+            Family::Pebbles => "pebbles",
+        }
+    }
+
+    /// Inverse of [`Family::name`] (case-insensitive).
+    pub fn parse(s: &str) -> Option<Family> {
+        let s = s.trim();
+        Self::ALL.into_iter().find(|f| f.name().eq_ignore_ascii_case(s))
+    }
+}
+
+/// An imperfection layer painted over any family.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Imperfection {
+    /// No imperfection (mask all zero).
+    None,
+    /// Thin meandering dark grooves.
+    Cracks,
+    /// Irregular discoloured blobs (albedo/roughness only).
+    Stains,
+    /// A few long, straight, thin shallow grooves.
+    Scratches,
+}
+
+impl Imperfection {
+    /// All imperfections, in a fixed order.
+    pub const ALL: [Imperfection; 4] = [
+        Imperfection::None,
+        Imperfection::Cracks,
+        Imperfection::Stains,
+        Imperfection::Scratches,
+    ];
+
+    /// Lower-case name used on the command line and in metadata.
+    pub fn name(self) -> &'static str {
+        match self {
+            Imperfection::None => "none",
+            Imperfection::Cracks => "cracks",
+            Imperfection::Stains => "stains",
+            Imperfection::Scratches => "scratches",
+        }
+    }
+
+    /// Inverse of [`Imperfection::name`] (case-insensitive).
+    pub fn parse(s: &str) -> Option<Imperfection> {
+        let s = s.trim();
+        Self::ALL.into_iter().find(|f| f.name().eq_ignore_ascii_case(s))
+    }
+}
+
+/// Everything that determines a generated mesostructure.
+#[derive(Clone, Debug)]
+pub struct MaterialParams {
+    pub family: Family,
+    pub imperfection: Imperfection,
+    pub width: usize,
+    pub height: usize,
+    pub seed: u64,
+}
+
+/// Struct-of-arrays mesostructure, row-major `y * width + x`.
+///
+/// Sample `i = y * width + x` sits at the continuous position `(x, y)`;
+/// [`Mesostructure::height_at`] interpolates between samples with toroidal wrap.
+pub struct Mesostructure {
+    pub width: usize,
+    pub height: usize,
+    /// Height in texel units (1.0 == one texel spacing), roughly `[0, 3]`.
+    pub height_field: Vec<f32>,
+    /// Linear RGB diffuse albedo, 0..1.
+    pub albedo: Vec<[f32; 3]>,
+    /// Specular weight ks, 0..1.
+    pub specular: Vec<f32>,
+    /// GGX alpha, ~0.05..1.
+    pub roughness: Vec<f32>,
+    /// Imperfection foreground, 0..1 (all 0 for [`Imperfection::None`]).
+    pub mask: Vec<f32>,
+    pub max_height: f32,
+    pub min_height: f32,
+}
+
+impl Mesostructure {
+    /// Generate the mesostructure for `p`. Deterministic: the same params give
+    /// bit-identical fields whatever the rayon thread count.
+    ///
+    /// Panics if `width` or `height` is zero.
+    pub fn generate(p: &MaterialParams) -> Mesostructure {
+        assert!(p.width > 0 && p.height > 0, "mesostructure size must be positive");
+        let (w, h) = (p.width, p.height);
+        let gen = Gen::new(p);
+        let mut texels = vec![Texel::default(); w * h];
+        texels.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            for (x, t) in row.iter_mut().enumerate() {
+                *t = gen.texel(x as f32, y as f32);
+            }
+        });
+        if p.imperfection == Imperfection::Stains {
+            // `mask` holds the raw stain field here; threshold it at a quantile
+            // so the coverage is controlled (and independent of the noise statistics).
+            let mut vals: Vec<f32> = texels.iter().map(|t| t.m).collect();
+            let cover = 0.07 + 0.1 * unit(hash2(gen.iseed, 11, 3));
+            let k = (((1.0 - cover) * vals.len() as f32) as usize).min(vals.len() - 1);
+            let (_, thr, _) = vals.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+            let thr = *thr;
+            texels.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+                for (x, t) in row.iter_mut().enumerate() {
+                    gen.apply_stain(t, x as f32, y as f32, thr);
+                }
+            });
+        }
+        let mut m = Mesostructure {
+            width: w,
+            height: h,
+            height_field: Vec::with_capacity(w * h),
+            albedo: Vec::with_capacity(w * h),
+            specular: Vec::with_capacity(w * h),
+            roughness: Vec::with_capacity(w * h),
+            mask: Vec::with_capacity(w * h),
+            max_height: f32::MIN,
+            min_height: f32::MAX,
+        };
+        for t in &texels {
+            let hh = t.h.max(0.0);
+            m.max_height = m.max_height.max(hh);
+            m.min_height = m.min_height.min(hh);
+            m.height_field.push(hh);
+            m.albedo.push(t.a.map(|c| c.clamp(0.0, 1.0)));
+            m.specular.push(t.ks.clamp(0.0, 1.0));
+            m.roughness.push(t.r.clamp(0.05, 1.0));
+            m.mask.push(t.m.clamp(0.0, 1.0));
+        }
+        m
+    }
+
+    /// Bilinearly interpolated height at the continuous position `(x, y)`
+    /// (sample `(i, j)` sits at `(i, j)`), wrapping toroidally.
+    #[inline]
+    pub fn height_at(&self, x: f32, y: f32) -> f32 {
+        let (i0, i1, tx) = wrap_pair(x, self.width);
+        let (j0, j1, ty) = wrap_pair(y, self.height);
+        let r0 = j0 * self.width;
+        let r1 = j1 * self.width;
+        let hf = &self.height_field;
+        let a = lerp(hf[r0 + i0], hf[r0 + i1], tx);
+        let b = lerp(hf[r1 + i0], hf[r1 + i1], tx);
+        lerp(a, b, ty)
+    }
+}
+
+/// Split a continuous coordinate into the two wrapped sample indices around it
+/// and the fraction between them.
+#[inline]
+pub(crate) fn wrap_pair(x: f32, n: usize) -> (usize, usize, f32) {
+    let f = x.floor();
+    let t = x - f;
+    let i0 = (f as i64).rem_euclid(n as i64) as usize;
+    let i1 = if i0 + 1 == n { 0 } else { i0 + 1 };
+    (i0, i1, t)
+}
+
+#[inline]
+pub(crate) fn lerp(a: f32, b: f32, t: f32) -> f32 {
+    a + (b - a) * t
+}
+
+#[inline]
+fn lerp3(a: [f32; 3], b: [f32; 3], t: f32) -> [f32; 3] {
+    [lerp(a[0], b[0], t), lerp(a[1], b[1], t), lerp(a[2], b[2], t)]
+}
+
+#[inline]
+fn scale3(a: [f32; 3], s: f32) -> [f32; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
+#[inline]
+fn mul3(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] * b[0], a[1] * b[1], a[2] * b[2]]
+}
+
+#[inline]
+fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+// ---------------------------------------------------------------------------
+// Hashing and noise
+// ---------------------------------------------------------------------------
+
+const GOLDEN: u64 = 0x9e37_79b9_7f4a_7c15;
+
+/// splitmix64 finaliser: a bijective 64-bit mixer with good avalanche.
+#[inline]
+fn mix64(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Hash of a seed and two integer coordinates.
+#[inline]
+fn hash2(seed: u64, a: i64, b: i64) -> u64 {
+    let h = mix64(seed.wrapping_add(GOLDEN) ^ 0x243f_6a88_85a3_08d3);
+    let h = mix64(h.wrapping_add((a as u64).wrapping_mul(GOLDEN)));
+    mix64(h ^ (b as u64).wrapping_add(0x1319_8a2e_0370_7344))
+}
+
+/// Derive an independent sub-seed.
+#[inline]
+fn derive(seed: u64, salt: u64) -> u64 {
+    mix64(seed ^ mix64(salt.wrapping_mul(GOLDEN)))
+}
+
+/// Top 24 bits of a hash as a float in `[0, 1)`.
+#[inline]
+fn unit(h: u64) -> f32 {
+    (h >> 40) as f32 * (1.0 / 16_777_216.0)
+}
+
+/// Second independent float in `[0, 1)` from the low bits of a hash.
+#[inline]
+fn unit_lo(h: u64) -> f32 {
+    ((h >> 8) & 0xff_ffff) as f32 * (1.0 / 16_777_216.0)
+}
+
+#[inline]
+fn fade(t: f32) -> f32 {
+    t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
+}
+
+/// Periodic value noise in `[0, 1)` on a lattice of `px × py` cells; `(u, v)`
+/// are in cell units.
+#[inline]
+fn value_noise(u: f32, v: f32, px: i64, py: i64, seed: u64) -> f32 {
+    let fu = u.floor();
+    let fv = v.floor();
+    let su = fade(u - fu);
+    let sv = fade(v - fv);
+    let i0 = (fu as i64).rem_euclid(px);
+    let j0 = (fv as i64).rem_euclid(py);
+    let i1 = (i0 + 1) % px;
+    let j1 = (j0 + 1) % py;
+    let a = unit(hash2(seed, i0, j0));
+    let b = unit(hash2(seed, i1, j0));
+    let c = unit(hash2(seed, i0, j1));
+    let d = unit(hash2(seed, i1, j1));
+    lerp(lerp(a, b, su), lerp(c, d, su), sv)
+}
+
+/// The periodic domain `[0, w) × [0, h)` with feature-size based noise.
+#[derive(Clone, Copy)]
+struct Domain {
+    w: f32,
+    h: f32,
+}
+
+impl Domain {
+    /// Number of lattice cells so that one cell is about `feature` texels.
+    fn cells(extent: f32, feature: f32) -> i64 {
+        ((extent / feature).round() as i64).max(1)
+    }
+
+    /// Anisotropic periodic fBm in `[0, 1)`, features `fx × fy` texels at the
+    /// coarsest octave.
+    fn fbm2(&self, x: f32, y: f32, fx: f32, fy: f32, octaves: u32, seed: u64) -> f32 {
+        let cx = Self::cells(self.w, fx);
+        let cy = Self::cells(self.h, fy);
+        let mut sum = 0.0;
+        let mut norm = 0.0;
+        let mut amp = 1.0;
+        for o in 0..octaves {
+            let px = cx << o;
+            let py = cy << o;
+            let u = x * px as f32 / self.w;
+            let v = y * py as f32 / self.h;
+            sum += amp * value_noise(u, v, px, py, seed.wrapping_add(o as u64 * GOLDEN));
+            norm += amp;
+            amp *= 0.5;
+        }
+        sum / norm
+    }
+
+    /// Isotropic periodic fBm in `[0, 1)`.
+    fn fbm(&self, x: f32, y: f32, feature: f32, octaves: u32, seed: u64) -> f32 {
+        self.fbm2(x, y, feature, feature, octaves, seed)
+    }
+}
+
+/// Result of a periodic Voronoi query.
+struct VorHit {
+    /// Hash identifying the (wrapped) cell.
+    id: u64,
+    /// Nearest site, unwrapped (near the query point), in texels.
+    site: [f32; 2],
+    /// Distance to the nearest site.
+    d1: f32,
+    /// Distance to the nearest cell border.
+    edge: f32,
+}
+
+/// Periodic jittered-grid Voronoi diagram.
+struct Cells {
+    nx: i64,
+    ny: i64,
+    cw: f32,
+    ch: f32,
+    seed: u64,
+}
+
+impl Cells {
+    fn new(dom: &Domain, feature: f32, seed: u64) -> Cells {
+        let nx = Domain::cells(dom.w, feature);
+        let ny = Domain::cells(dom.h, feature);
+        Cells {
+            nx,
+            ny,
+            cw: dom.w / nx as f32,
+            ch: dom.h / ny as f32,
+            seed,
+        }
+    }
+
+    #[inline]
+    fn site(&self, i: i64, j: i64) -> [f32; 2] {
+        let h = hash2(self.seed, i.rem_euclid(self.nx), j.rem_euclid(self.ny));
+        let jx = 0.8 * (unit(h) - 0.5);
+        let jy = 0.8 * (unit_lo(h) - 0.5);
+        [(i as f32 + 0.5 + jx) * self.cw, (j as f32 + 0.5 + jy) * self.ch]
+    }
+
+    fn query(&self, x: f32, y: f32) -> VorHit {
+        let ci = (x / self.cw).floor() as i64;
+        let cj = (y / self.ch).floor() as i64;
+        let mut best = (f32::MAX, ci, cj, [0.0f32; 2]);
+        for j in cj - 1..=cj + 1 {
+            for i in ci - 1..=ci + 1 {
+                let s = self.site(i, j);
+                let d2 = (s[0] - x).powi(2) + (s[1] - y).powi(2);
+                if d2 < best.0 {
+                    best = (d2, i, j, s);
+                }
+            }
+        }
+        let (d2, bi, bj, s) = best;
+        let mut edge = f32::MAX;
+        for j in bj - 2..=bj + 2 {
+            for i in bi - 2..=bi + 2 {
+                if i == bi && j == bj {
+                    continue;
+                }
+                let o = self.site(i, j);
+                let (ex, ey) = (o[0] - s[0], o[1] - s[1]);
+                let len = (ex * ex + ey * ey).sqrt().max(1e-6);
+                let (mx, my) = (0.5 * (o[0] + s[0]), 0.5 * (o[1] + s[1]));
+                edge = edge.min(((mx - x) * ex + (my - y) * ey) / len);
+            }
+        }
+        VorHit {
+            id: hash2(
+                self.seed ^ 0x5bd1_e995,
+                bi.rem_euclid(self.nx),
+                bj.rem_euclid(self.ny),
+            ),
+            site: s,
+            d1: d2.sqrt(),
+            edge: edge.max(0.0),
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Generator
+// ---------------------------------------------------------------------------
+
+/// All fields of one texel.
+#[derive(Clone, Copy, Default)]
+struct Texel {
+    h: f32,
+    a: [f32; 3],
+    ks: f32,
+    r: f32,
+    m: f32,
+}
+
+/// 1-D value-noise fBm in `[0, 1)` (not periodic), `t` in lattice units.
+fn fbm1(t: f32, octaves: u32, seed: u64) -> f32 {
+    let mut sum = 0.0;
+    let mut norm = 0.0;
+    let mut amp = 1.0;
+    let mut f = 1.0;
+    for o in 0..octaves {
+        let u = t * f;
+        let i = u.floor();
+        let s = seed.wrapping_add(o as u64 * GOLDEN);
+        let a = unit(hash2(s, i as i64, 0));
+        let b = unit(hash2(s, i as i64 + 1, 0));
+        sum += amp * lerp(a, b, fade(u - i));
+        norm += amp;
+        amp *= 0.5;
+        f *= 2.0;
+    }
+    sum / norm
+}
+
+/// A meandering crack: a segment whose centre line is displaced sideways by
+/// 1-D noise of the distance along it.
+struct Crack {
+    p: [f32; 2],
+    d: [f32; 2],
+    len: f32,
+    half_width: f32,
+    amp: f32,
+    seed: u64,
+}
+
+impl Crack {
+    /// Sideways displacement of the centre line at distance `a` (0 at the start).
+    fn offset(&self, a: f32) -> f32 {
+        let raw = |a: f32| {
+            2.0 * self.amp * (fbm1(a / 28.0, 2, self.seed) - 0.5)
+                + 2.5 * (fbm1(a / 3.5, 2, self.seed ^ 1) - 0.5)
+        };
+        raw(a) - raw(0.0)
+    }
+
+    /// Centre-line point at distance `a`.
+    fn center(&self, a: f32) -> [f32; 2] {
+        let o = self.offset(a);
+        [
+            self.p[0] + a * self.d[0] - o * self.d[1],
+            self.p[1] + a * self.d[1] + o * self.d[0],
+        ]
+    }
+}
+
+/// A straight scratch segment.
+struct Scratch {
+    p: [f32; 2],
+    d: [f32; 2],
+    len: f32,
+    half_width: f32,
+    bright: bool,
+}
+
+const BRICK_TONES: [[f32; 3]; 5] = [
+    [0.46, 0.16, 0.09],
+    [0.38, 0.20, 0.12],
+    [0.56, 0.30, 0.17],
+    [0.30, 0.12, 0.08],
+    [0.50, 0.24, 0.14],
+];
+
+const YARN_PAIRS: [[[f32; 3]; 2]; 5] = [
+    [[0.05, 0.08, 0.24], [0.58, 0.49, 0.34]],
+    [[0.45, 0.06, 0.05], [0.72, 0.66, 0.55]],
+    [[0.10, 0.25, 0.10], [0.50, 0.40, 0.25]],
+    [[0.30, 0.30, 0.32], [0.06, 0.06, 0.07]],
+    [[0.12, 0.20, 0.40], [0.76, 0.75, 0.72]],
+];
+
+const PAINTS: [[f32; 3]; 6] = [
+    [0.78, 0.76, 0.70],
+    [0.20, 0.45, 0.45],
+    [0.52, 0.12, 0.08],
+    [0.70, 0.55, 0.20],
+    [0.45, 0.60, 0.72],
+    [0.25, 0.42, 0.20],
+];
+
+const STONES: [[f32; 3]; 6] = [
+    [0.45, 0.44, 0.42],
+    [0.35, 0.30, 0.25],
+    [0.58, 0.52, 0.44],
+    [0.24, 0.24, 0.25],
+    [0.50, 0.38, 0.28],
+    [0.66, 0.64, 0.60],
+];
+
+struct Gen {
+    family: Family,
+    imp: Imperfection,
+    dom: Domain,
+    /// Family seed.
+    seed: u64,
+    /// Imperfection seed.
+    iseed: u64,
+    cells: Cells,
+    /// Grid for bricks / yarn cells.
+    gx: i64,
+    gy: i64,
+    gw: f32,
+    gh: f32,
+    tone: usize,
+    scratches: Vec<Scratch>,
+    cracks: Vec<Crack>,
+}
+
+impl Gen {
+    fn new(p: &MaterialParams) -> Gen {
+        let dom = Domain {
+            w: p.width as f32,
+            h: p.height as f32,
+        };
+        let seed = derive(p.seed, 1 + p.family as u64);
+        let iseed = derive(p.seed, 100 + p.imperfection as u64);
+        let (fx, fy, even) = match p.family {
+            Family::Bricks => (32.0, 14.0, true),
+            Family::Weave => (8.0, 8.0, true),
+            _ => (16.0, 16.0, false),
+        };
+        let mut gx = Domain::cells(dom.w, fx);
+        let mut gy = Domain::cells(dom.h, fy);
+        if even {
+            // Running bond and plain weave repeat every two rows/columns.
+            gx += gx & 1;
+            gy += gy & 1;
+        }
+        let cell_feature = match p.family {
+            Family::Cracked => 18.0,
+            _ => 16.0,
+        };
+        let scratches = if p.imperfection == Imperfection::Scratches {
+            Self::make_scratches(&dom, iseed)
+        } else {
+            Vec::new()
+        };
+        let cracks = if p.imperfection == Imperfection::Cracks {
+            Self::make_cracks(&dom, iseed)
+        } else {
+            Vec::new()
+        };
+        Gen {
+            cracks,
+            family: p.family,
+            imp: p.imperfection,
+            dom,
+            seed,
+            iseed,
+            cells: Cells::new(&dom, cell_feature, derive(seed, 7)),
+            gx,
+            gy,
+            gw: dom.w / gx as f32,
+            gh: dom.h / gy as f32,
+            tone: (mix64(seed ^ 77) % 1000) as usize,
+            scratches,
+        }
+    }
+
+    fn make_scratches(dom: &Domain, seed: u64) -> Vec<Scratch> {
+        let area = dom.w * dom.h / (128.0 * 128.0);
+        let n = ((8.0 + 6.0 * unit(hash2(seed, -1, 0))) * area).round().max(3.0) as i64;
+        let min_side = dom.w.min(dom.h);
+        (0..n)
+            .map(|k| {
+                let a = hash2(seed, k, 1);
+                let b = hash2(seed, k, 2);
+                let ang = std::f32::consts::PI * unit(a);
+                Scratch {
+                    p: [dom.w * unit_lo(a), dom.h * unit(b)],
+                    d: [ang.cos(), ang.sin()],
+                    len: (40.0 + 80.0 * unit_lo(b)).min(0.9 * min_side),
+                    half_width: 0.55 + 0.4 * unit(hash2(seed, k, 3)),
+                    bright: hash2(seed, k, 4) & 1 == 0,
+                }
+            })
+            .collect()
+    }
+
+    fn texel(&self, x: f32, y: f32) -> Texel {
+        let mut t = match self.family {
+            Family::Bricks => self.bricks(x, y),
+            Family::Weave => self.weave(x, y),
+            Family::Cracked => self.cracked(x, y),
+            Family::Pebbles => self.pebbles(x, y),
+        };
+        match self.imp {
+            Imperfection::None => t.m = 0.0,
+            Imperfection::Cracks => self.apply_cracks(&mut t, x, y),
+            Imperfection::Stains => t.m = self.stain_field(x, y),
+            Imperfection::Scratches => self.apply_scratches(&mut t, x, y),
+        }
+        t
+    }
+
+    fn bricks(&self, x: f32, y: f32) -> Texel {
+        let d = &self.dom;
+        let s = self.seed;
+        let row = ((y / self.gh).floor() as i64).rem_euclid(self.gy);
+        let y = y - ((y / self.gh).floor() as i64 - row) as f32 * self.gh;
+        let shift = if row & 1 == 1 { 0.5 * self.gw } else { 0.0 };
+        let xs = x + shift;
+        let col = (xs / self.gw).floor() as i64;
+        let u = xs - col as f32 * self.gw;
+        let v = y - row as f32 * self.gh;
+        let col = col.rem_euclid(self.gx);
+        let hb = hash2(s, col, row);
+        // Distance to the brick outline, roughened for chipped edges.
+        let edge = u.min(self.gw - u).min(v).min(self.gh - v) + 1.2 * (d.fbm(x, y, 5.0, 3, s ^ 1) - 0.5);
+        let mortar_half = 1.2;
+        let t = smoothstep(mortar_half, mortar_half + 1.6, edge);
+
+        let tilt =
+            0.25 * (unit(hb) - 0.5) * (u / self.gw - 0.5) + 0.2 * (unit_lo(hb) - 0.5) * (v / self.gh - 0.5);
+        let rough_surf = d.fbm(x, y, 6.0, 4, s ^ 2);
+        let pits = smoothstep(0.32, 0.22, d.fbm(x, y, 2.5, 2, s ^ 3));
+        let brick_h = 2.6 + 0.3 * (unit(hash2(s, col, row + 1000)) - 0.5) + tilt + 0.45 * (rough_surf - 0.5)
+            - 0.3 * pits;
+        let mortar_h = 0.35 + 0.35 * d.fbm(x, y, 3.0, 3, s ^ 4);
+
+        let base = BRICK_TONES[self.tone % BRICK_TONES.len()];
+        let other = BRICK_TONES[(hb >> 3) as usize % BRICK_TONES.len()];
+        let mut brick = lerp3(base, other, 0.6 * unit(hash2(s, col, row + 2000)));
+        let bright = 0.75 + 0.45 * unit(hash2(s, col, row + 3000));
+        let burnt = if unit(hash2(s, col, row + 4000)) < 0.1 {
+            0.55
+        } else {
+            1.0
+        };
+        brick = scale3(
+            brick,
+            bright * burnt * (0.8 + 0.4 * d.fbm(x, y, 4.0, 3, s ^ 5)) * (1.0 - 0.35 * pits),
+        );
+        let mortar = scale3([0.50, 0.48, 0.44], 0.7 + 0.5 * d.fbm(x, y, 3.0, 2, s ^ 6));
+        Texel {
+            h: lerp(mortar_h, brick_h, t),
+            a: lerp3(mortar, brick, t),
+            ks: lerp(0.15, 0.45, t),
+            r: lerp(0.9, 0.6 + 0.15 * rough_surf, t),
+            m: 0.0,
+        }
+    }
+
+    fn weave(&self, x: f32, y: f32) -> Texel {
+        use std::f32::consts::PI;
+        let d = &self.dom;
+        let s = self.seed;
+        let gu = x / self.gw; // continuous column coordinate
+        let gv = y / self.gh; // continuous row coordinate
+        let i = gu.floor();
+        let j = gv.floor();
+        let (u, v) = (gu - i, gv - j);
+        let (ii, jj) = (i as i64, j as i64);
+        let amp = 0.55;
+        let half = 0.43;
+        // Warp yarn `i` runs along y, weft yarn `j` along x; they swap
+        // over/under every cell.
+        let aw = (u - 0.5) / half;
+        let af = (v - 0.5) / half;
+        let pw = (1.0 - aw * aw).max(0.0).sqrt();
+        let pf = (1.0 - af * af).max(0.0).sqrt();
+        let zw = amp * (PI * (gv - 0.5 + ii as f32)).cos();
+        let zf = -amp * (PI * (gu - 0.5 + jj as f32)).cos();
+        // Twisted-ply stripes along each yarn and fibre streaks.
+        let ply_w = (2.0 * PI * (1.5 * u + 2.0 * gv)).cos();
+        let ply_f = (2.0 * PI * (1.5 * v + 2.0 * gu)).cos();
+        let streak_w = d.fbm2(x, y, 1.0, 10.0, 2, s ^ 1);
+        let streak_f = d.fbm2(x, y, 10.0, 1.0, 2, s ^ 2);
+        let hw = 1.2 + zw + 0.9 * pw.powf(0.7) + 0.08 * ply_w * pw + 0.1 * (streak_w - 0.5);
+        let hf = 1.2 + zf + 0.9 * pf.powf(0.7) + 0.08 * ply_f * pf + 0.1 * (streak_f - 0.5);
+        let pair = YARN_PAIRS[(self.tone / 7) % YARN_PAIRS.len()];
+        let fuzz = 0.9 + 0.2 * d.fbm(x, y, 3.0, 2, s ^ 3);
+        let yarn = |col: [f32; 3], id: i64, ply: f32, streak: f32, p: f32, salt: u64| {
+            let var = 0.9 + 0.2 * unit(hash2(s ^ salt, id, 0));
+            let shade = var * fuzz * (0.88 + 0.12 * ply) * (0.75 + 0.5 * streak);
+            // Slightly darker towards the yarn flanks (fibre occlusion).
+            scale3(col, shade * (0.7 + 0.3 * p))
+        };
+        let floor_h = 0.15 + 0.1 * d.fbm(x, y, 2.0, 2, s ^ 4);
+        let warp_vis = pw > 0.0 && (hw >= hf || pf <= 0.0);
+        let (h, a, r) = if warp_vis {
+            (
+                hw,
+                yarn(pair[0], ii.rem_euclid(self.gx), ply_w, streak_w, pw, 11),
+                0.35,
+            )
+        } else if pf > 0.0 {
+            (
+                hf,
+                yarn(pair[1], jj.rem_euclid(self.gy), ply_f, streak_f, pf, 12),
+                0.35,
+            )
+        } else {
+            (floor_h, scale3(lerp3(pair[0], pair[1], 0.5), 0.3), 0.8)
+        };
+        let on_yarn = r < 0.5;
+        Texel {
+            h: h.max(floor_h),
+            a,
+            ks: if on_yarn { 0.8 } else { 0.1 },
+            r: r + 0.1 * (streak_w - 0.5),
+            m: 0.0,
+        }
+    }
+
+    fn cracked(&self, x: f32, y: f32) -> Texel {
+        let d = &self.dom;
+        let s = self.seed;
+        // Warp the lookup slightly so flake borders are not straight.
+        let wx = x + 1.5 * (d.fbm(x, y, 7.0, 2, s ^ 1) - 0.5);
+        let wy = y + 1.5 * (d.fbm(x, y, 7.0, 2, s ^ 2) - 0.5);
+        let c = self.cells.query(wx, wy);
+        let crack = 0.35 + 0.6 * d.fbm(x, y, 10.0, 2, s ^ 3);
+        let e = c.edge - crack;
+        let t = smoothstep(0.0, 0.7, e);
+        let curl = 0.45 * (-(e.max(0.0)) / 1.3).exp() * (0.5 + unit(c.id));
+        let tilt_dir = 2.0 * std::f32::consts::PI * unit_lo(c.id);
+        let tilt = 0.03 * ((wx - c.site[0]) * tilt_dir.cos() + (wy - c.site[1]) * tilt_dir.sin());
+        let paint_h = 2.1 + 0.15 * d.fbm(x, y, 6.0, 3, s ^ 4) + curl + tilt;
+        let sub_h = 0.3 + 0.25 * d.fbm(x, y, 3.0, 3, s ^ 5);
+        let paint = PAINTS[(self.tone / 3) % PAINTS.len()];
+        let grime = d.fbm(x, y, 12.0, 4, s ^ 6);
+        let flake_var = 0.9 + 0.2 * unit(c.id >> 5);
+        let edge_dirt = 1.0 - 0.3 * (-(e.max(0.0)) / 1.5).exp();
+        let paint_c = scale3(paint, flake_var * (0.75 + 0.45 * grime) * edge_dirt);
+        let sub_c = scale3([0.12, 0.08, 0.05], 0.8 + 0.4 * d.fbm(x, y, 2.0, 2, s ^ 7));
+        Texel {
+            h: lerp(sub_h, paint_h, t),
+            a: lerp3(sub_c, paint_c, t),
+            ks: lerp(0.1, 0.6, t),
+            r: lerp(0.95, 0.3 + 0.25 * grime, t),
+            m: 0.0,
+        }
+    }
+
+    fn pebbles(&self, x: f32, y: f32) -> Texel {
+        let d = &self.dom;
+        let s = self.seed;
+        let wx = x + 2.0 * (d.fbm(x, y, 9.0, 2, s ^ 1) - 0.5);
+        let wy = y + 2.0 * (d.fbm(x, y, 9.0, 2, s ^ 2) - 0.5);
+        let c = self.cells.query(wx, wy);
+        let gap = 0.5 + 0.4 * d.fbm(x, y, 8.0, 2, s ^ 3);
+        let e = c.edge - gap;
+        // Radial coordinate adapted to the cell shape: 0 at the site, 1 at the
+        // gap. Cutting it below 1 rounds off the polygon corners.
+        let r = c.d1 / (c.d1 + e.max(0.0) + 1e-3);
+        let rim = 0.8 + 0.12 * unit_lo(c.id >> 11);
+        let rr = (r / rim).min(1.0);
+        let dome = (1.0 - rr * rr).max(0.0).sqrt().powf(0.7);
+        let t = smoothstep(1.0, 0.93, r / rim) * smoothstep(0.0, 0.6, e);
+        let ph = 1.6 + 1.1 * unit(c.id);
+        let floor_h = 0.1 + 0.2 * d.fbm(x, y, 3.0, 2, s ^ 4);
+        let grain = d.fbm(x, y, 3.0, 3, s ^ 5);
+        let h = floor_h + t * (ph * dome + 0.12 * (grain - 0.5));
+        let base = STONES[(c.id >> 7) as usize % STONES.len()];
+        let other = STONES[(c.id >> 17) as usize % STONES.len()];
+        let mut col = lerp3(base, other, 0.4 * unit_lo(c.id));
+        let vein_n = d.fbm(x, y, 10.0, 3, s ^ (c.id & 0xffff));
+        let vein = smoothstep(0.025, 0.0, (vein_n - 0.5).abs()) * if c.id & 3 == 0 { 1.0 } else { 0.0 };
+        col = scale3(col, (0.8 + 0.4 * grain) * (0.8 + 0.4 * unit(c.id >> 24)));
+        col = lerp3(col, [0.8, 0.78, 0.74], 0.6 * vein);
+        let gap_c = scale3([0.06, 0.05, 0.045], 0.8 + 0.4 * grain);
+        Texel {
+            h,
+            a: lerp3(gap_c, col, t),
+            ks: lerp(0.05, 0.5, t),
+            r: lerp(1.0, 0.25 + 0.45 * unit_lo(c.id >> 3), t),
+            m: 0.0,
+        }
+    }
+
+    fn make_cracks(dom: &Domain, seed: u64) -> Vec<Crack> {
+        let area = dom.w * dom.h / (128.0 * 128.0);
+        let n = ((5.0 + 4.0 * unit(hash2(seed, -1, 0))) * area).round().max(2.0) as i64;
+        let min_side = dom.w.min(dom.h);
+        let mut out = Vec::new();
+        for k in 0..n {
+            let a = hash2(seed, k, 1);
+            let b = hash2(seed, k, 2);
+            let ang = 2.0 * std::f32::consts::PI * unit(a);
+            let parent = Crack {
+                p: [dom.w * unit_lo(a), dom.h * unit(b)],
+                d: [ang.cos(), ang.sin()],
+                len: (50.0 + 60.0 * unit_lo(b)).min(0.9 * min_side),
+                half_width: 0.6 + 0.5 * unit(hash2(seed, k, 3)),
+                amp: 4.0 + 5.0 * unit_lo(hash2(seed, k, 3)),
+                seed: hash2(seed, k, 4),
+            };
+            let c = hash2(seed, k, 5);
+            if unit(c) < 0.6 {
+                // A thinner branch leaving the crack at a random point.
+                let at = parent.len * (0.2 + 0.6 * unit_lo(c));
+                let side = if c & 1 == 0 { 1.0 } else { -1.0 };
+                let bang = ang + side * (0.5 + 0.6 * unit(hash2(seed, k, 6)));
+                out.push(Crack {
+                    p: parent.center(at),
+                    d: [bang.cos(), bang.sin()],
+                    len: parent.len * (0.3 + 0.3 * unit_lo(hash2(seed, k, 6))),
+                    half_width: 0.7 * parent.half_width,
+                    amp: 0.6 * parent.amp,
+                    seed: hash2(seed, k, 7),
+                });
+            }
+            out.push(parent);
+        }
+        out
+    }
+
+    fn apply_cracks(&self, t: &mut Texel, x: f32, y: f32) {
+        let (w, h) = (self.dom.w, self.dom.h);
+        let (x, y) = (x.rem_euclid(w), y.rem_euclid(h));
+        let mut m = 0.0f32;
+        for c in &self.cracks {
+            for oy in [-h, 0.0, h] {
+                for ox in [-w, 0.0, w] {
+                    let rx = x + ox - c.p[0];
+                    let ry = y + oy - c.p[1];
+                    let along = rx * c.d[0] + ry * c.d[1];
+                    let across = -rx * c.d[1] + ry * c.d[0];
+                    if across.abs() > c.amp + c.half_width + 4.0 || along < -3.0 || along > c.len + 3.0 {
+                        continue;
+                    }
+                    let a = along.clamp(0.0, c.len);
+                    let off = c.offset(a);
+                    let slope = c.offset(a + 0.5) - c.offset(a - 0.5);
+                    let dist =
+                        ((along - a).powi(2) + (across - off).powi(2)).sqrt() / (1.0 + slope * slope).sqrt();
+                    let u = 2.0 * a / c.len - 1.0;
+                    let taper = (1.0 - u * u * u * u).max(0.0).sqrt();
+                    let hw = c.half_width * (0.3 + 0.7 * taper);
+                    m = m.max(1.0 - smoothstep(0.6 * hw, hw + 0.5, dist));
+                }
+            }
+        }
+        t.m = m;
+        t.h -= 1.3 * m;
+        t.a = scale3(t.a, 1.0 - 0.75 * m);
+        t.r = lerp(t.r, 0.95, m);
+        t.ks *= 1.0 - 0.7 * m;
+    }
+
+    /// Raw (unthresholded) stain field.
+    fn stain_field(&self, x: f32, y: f32) -> f32 {
+        let d = &self.dom;
+        let s = self.iseed;
+        let wx = x + 10.0 * (d.fbm(x, y, 24.0, 2, s ^ 1) - 0.5);
+        let wy = y + 10.0 * (d.fbm(x, y, 24.0, 2, s ^ 2) - 0.5);
+        d.fbm(wx, wy, 40.0, 4, s ^ 3)
+    }
+
+    fn apply_stain(&self, t: &mut Texel, x: f32, y: f32, thr: f32) {
+        let d = &self.dom;
+        let s = self.iseed;
+        let v = t.m;
+        let m = smoothstep(thr - 0.015, thr + 0.015, v);
+        // Darker "coffee ring" at the stain border.
+        let ring = smoothstep(thr + 0.04, thr, v) * m;
+        let tints: [[f32; 3]; 3] = [[0.55, 0.42, 0.25], [0.45, 0.45, 0.40], [0.60, 0.50, 0.30]];
+        let tint = tints[(mix64(s) % 3) as usize];
+        let inner = 0.8 + 0.3 * d.fbm(x, y, 6.0, 3, s ^ 4);
+        let stained = scale3(mul3(t.a, tint), inner * (1.0 - 0.35 * ring));
+        t.a = lerp3(t.a, stained, m);
+        t.r = lerp(t.r, t.r * 0.7, m);
+        t.ks = lerp(t.ks, (t.ks + 0.2).min(1.0), m);
+        t.m = m;
+    }
+
+    fn apply_scratches(&self, t: &mut Texel, x: f32, y: f32) {
+        let (w, h) = (self.dom.w, self.dom.h);
+        let (x, y) = (x.rem_euclid(w), y.rem_euclid(h));
+        let mut best = 0.0f32;
+        let mut bright = false;
+        for sc in &self.scratches {
+            let mut dist = f32::MAX;
+            for oy in [-h, 0.0, h] {
+                for ox in [-w, 0.0, w] {
+                    let rx = x + ox - sc.p[0];
+                    let ry = y + oy - sc.p[1];
+                    let along = (rx * sc.d[0] + ry * sc.d[1]).clamp(0.0, sc.len);
+                    let dx = rx - along * sc.d[0];
+                    let dy = ry - along * sc.d[1];
+                    dist = dist.min((dx * dx + dy * dy).sqrt());
+                }
+            }
+            let m = 1.0 - smoothstep(0.5 * sc.half_width, sc.half_width + 0.4, dist);
+            if m > best {
+                best = m;
+                bright = sc.bright;
+            }
+        }
+        if best > 0.0 {
+            t.h -= 0.35 * best;
+            let target = if bright {
+                let a = t.a;
+                [
+                    (a[0] * 1.5 + 0.12).min(1.0),
+                    (a[1] * 1.5 + 0.12).min(1.0),
+                    (a[2] * 1.5 + 0.12).min(1.0),
+                ]
+            } else {
+                scale3(t.a, 0.5)
+            };
+            t.a = lerp3(t.a, target, best);
+            t.r = lerp(t.r, 0.12, best);
+            t.ks = lerp(t.ks, 0.9, best);
+        }
+        t.m = best;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn params(family: Family, imperfection: Imperfection, n: usize, seed: u64) -> MaterialParams {
+        MaterialParams {
+            family,
+            imperfection,
+            width: n,
+            height: n,
+            seed,
+        }
+    }
+
+    fn bits(m: &Mesostructure) -> Vec<u32> {
+        let mut v = Vec::new();
+        for i in 0..m.width * m.height {
+            v.push(m.height_field[i].to_bits());
+            v.extend(m.albedo[i].iter().map(|c| c.to_bits()));
+            v.push(m.specular[i].to_bits());
+            v.push(m.roughness[i].to_bits());
+            v.push(m.mask[i].to_bits());
+        }
+        v
+    }
+
+    #[test]
+    fn names_round_trip() {
+        for f in Family::ALL {
+            assert_eq!(Family::parse(f.name()), Some(f));
+        }
+        for i in Imperfection::ALL {
+            assert_eq!(Imperfection::parse(i.name()), Some(i));
+        }
+        assert_eq!(Family::parse("Bricks"), Some(Family::Bricks));
+        assert_eq!(Family::parse("marble"), None);
+        assert_eq!(Imperfection::parse("dust"), None);
+    }
+
+    #[test]
+    fn deterministic_across_thread_counts() {
+        for f in Family::ALL {
+            let p = params(f, Imperfection::Stains, 64, 42);
+            let a = Mesostructure::generate(&p);
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+            let b = pool.install(|| Mesostructure::generate(&p));
+            let pool3 = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+            let c = pool3.install(|| Mesostructure::generate(&p));
+            assert_eq!(bits(&a), bits(&b), "{f:?}");
+            assert_eq!(bits(&a), bits(&c), "{f:?}");
+            // A different seed gives a different sample.
+            let d = Mesostructure::generate(&params(f, Imperfection::Stains, 64, 43));
+            assert_ne!(bits(&a), bits(&d), "{f:?}");
+        }
+    }
+
+    #[test]
+    fn fields_in_range() {
+        for f in Family::ALL {
+            for imp in Imperfection::ALL {
+                let m = Mesostructure::generate(&params(f, imp, 96, 7));
+                let n = 96 * 96;
+                assert_eq!(m.height_field.len(), n);
+                assert!(m.min_height >= 0.0 && m.max_height <= 4.0, "{f:?} {imp:?}");
+                assert!(m.max_height - m.min_height > 1.0, "{f:?} {imp:?} too flat");
+                for i in 0..n {
+                    let h = m.height_field[i];
+                    assert!(h >= m.min_height && h <= m.max_height);
+                    assert!(m.albedo[i].iter().all(|c| (0.0..=1.0).contains(c)));
+                    assert!((0.0..=1.0).contains(&m.specular[i]));
+                    assert!((0.05..=1.0).contains(&m.roughness[i]));
+                    assert!((0.0..=1.0).contains(&m.mask[i]));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn mask_coverage() {
+        for f in Family::ALL {
+            for seed in [1u64, 2, 3] {
+                for n in [128usize, 256] {
+                    let m = Mesostructure::generate(&params(f, Imperfection::None, 64, seed));
+                    assert!(m.mask.iter().all(|&v| v == 0.0));
+                    for imp in [
+                        Imperfection::Cracks,
+                        Imperfection::Stains,
+                        Imperfection::Scratches,
+                    ] {
+                        let m = Mesostructure::generate(&params(f, imp, n, seed));
+                        let cover = m.mask.iter().filter(|&&v| v > 0.5).count() as f32 / m.mask.len() as f32;
+                        assert!(
+                            (0.02..=0.40).contains(&cover),
+                            "{f:?} {imp:?} seed {seed} n {n}: coverage {cover}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn fields_are_periodic() {
+        for f in Family::ALL {
+            for imp in Imperfection::ALL {
+                let (w, h) = (96usize, 80usize);
+                let p = MaterialParams {
+                    family: f,
+                    imperfection: imp,
+                    width: w,
+                    height: h,
+                    seed: 5,
+                };
+                // The generating functions repeat with period (w, h), up to
+                // float rounding of the shifted coordinates.
+                let g = Gen::new(&p);
+                let mut bad = 0;
+                let mut total = 0;
+                for y in (0..h).step_by(3) {
+                    for x in (0..w).step_by(3) {
+                        let (xf, yf) = (x as f32, y as f32);
+                        let a = g.texel(xf, yf);
+                        for b in [g.texel(xf + w as f32, yf), g.texel(xf, yf - h as f32)] {
+                            total += 1;
+                            let da = (0..3).map(|c| (a.a[c] - b.a[c]).abs()).fold(0.0, f32::max);
+                            if (a.h - b.h).abs() > 1e-3 || da > 1e-3 || (a.m - b.m).abs() > 1e-3 {
+                                bad += 1;
+                            }
+                        }
+                    }
+                }
+                assert!(bad * 100 <= total, "{f:?} {imp:?}: {bad} of {total} differ");
+                // height_at wraps and interpolates across the seam.
+                let m = Mesostructure::generate(&p);
+                for y in [0usize, 17, h - 1] {
+                    let a = m.height_field[y * w + w - 1];
+                    let b = m.height_field[y * w];
+                    let mid = m.height_at(-0.5, y as f32);
+                    assert!((mid - 0.5 * (a + b)).abs() < 1e-5);
+                    assert_eq!(m.height_at(w as f32, y as f32), b);
+                    assert_eq!(m.height_at(3.0, (y + h) as f32), m.height_field[y * w + 3]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn feature_size_is_in_texels() {
+        // Bricks: the number of brick rows scales with the sample height.
+        let a = Gen::new(&params(Family::Bricks, Imperfection::None, 128, 1));
+        let b = Gen::new(&params(Family::Bricks, Imperfection::None, 512, 1));
+        assert!((b.gy as f32 / (4 * a.gy) as f32 - 1.0).abs() < 0.1);
+        assert!((a.gh - b.gh).abs() < 1.5 && (a.gw - b.gw).abs() < 1.5);
+        assert!((12.0..=16.0).contains(&a.gh) && (28.0..=36.0).contains(&a.gw));
+        assert!(a.gx >= 4 && a.gy >= 8);
+        // Weave yarn spacing about 8 texels.
+        let w = Gen::new(&params(Family::Weave, Imperfection::None, 128, 1));
+        assert!((7.0..=9.0).contains(&w.gw));
+    }
+}

@@ -1,0 +1,217 @@
+//! `generate-btf`: streams a synthetic BTF to disk block by block.
+//!
+//! The texels are cut into blocks (64×64); for each block the light-dependent
+//! work (shadow maps) is prepared once, then views are rendered in parallel in
+//! small groups, cut into the container's texel tiles, encoded in parallel and
+//! written in a fixed order (block, view, tile). Memory is bounded by one
+//! view group of one block, whatever the BTF size, and the bytes written do
+//! not depend on the thread count.
+
+use std::path::Path;
+use std::time::Instant;
+
+use half::f16;
+use rayon::prelude::*;
+
+use super::material::{Family, Imperfection, MaterialParams, Mesostructure};
+use super::render::{direction, BlockRenderer};
+use crate::btf::{Angles, BtfLayout, BtfWriter};
+use crate::container::{codec, human_bytes, MemoryBudget, Param, DEFAULT_ZSTD_LEVEL};
+use crate::progress::Progress;
+use crate::{imageio, Error, Result};
+
+/// Options of [`generate_btf`].
+#[derive(Clone, Debug)]
+pub struct GenerateConfig {
+    pub family: Family,
+    pub imperfection: Imperfection,
+    pub width: usize,
+    pub height: usize,
+    pub views: Vec<Angles>,
+    pub lights: Vec<Angles>,
+    pub seed: u64,
+    /// Bounds the rendered values held at once.
+    pub memory: MemoryBudget,
+    /// zstd level.
+    pub level: i32,
+    /// Edge of the render blocks in texels (a multiple of the tile edge).
+    pub block: usize,
+}
+
+impl Default for GenerateConfig {
+    fn default() -> Self {
+        GenerateConfig {
+            family: Family::Bricks,
+            imperfection: Imperfection::None,
+            width: 128,
+            height: 128,
+            views: crate::btf::default_grid(),
+            lights: crate::btf::default_grid(),
+            seed: 1,
+            memory: MemoryBudget::default(),
+            level: DEFAULT_ZSTD_LEVEL,
+            block: 64,
+        }
+    }
+}
+
+/// What [`generate_btf`] made.
+#[derive(Clone, Debug)]
+pub struct GenerateReport {
+    pub width: usize,
+    pub height: usize,
+    pub pairs: usize,
+    pub raw_bytes: u64,
+    pub stored_bytes: u64,
+    pub seconds: f64,
+    /// The imperfection mask PNG, when one was written.
+    pub mask: Option<std::path::PathBuf>,
+}
+
+impl std::fmt::Display for GenerateReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}×{} texels × {} direction pairs, raw {} f16, stored {} (ratio {:.2}), {:.1} s, {:.0} MB/s raw",
+            self.width,
+            self.height,
+            self.pairs,
+            human_bytes(self.raw_bytes),
+            human_bytes(self.stored_bytes),
+            self.raw_bytes as f64 / self.stored_bytes.max(1) as f64,
+            self.seconds,
+            self.raw_bytes as f64 / 1e6 / self.seconds.max(1e-9)
+        )?;
+        if let Some(m) = &self.mask {
+            write!(f, "; imperfection mask {}", m.display())?;
+        }
+        Ok(())
+    }
+}
+
+/// The path of the imperfection mask written beside a generated BTF:
+/// `sample.btf` → `sample.mask.png`.
+pub fn mask_path(out: &Path) -> std::path::PathBuf {
+    out.with_extension("mask.png")
+}
+
+/// Generates a synthetic BTF into `out` (and its imperfection mask beside it).
+pub fn generate_btf(cfg: &GenerateConfig, out: &Path, progress: &dyn Progress) -> Result<GenerateReport> {
+    let start = Instant::now();
+    if cfg.width == 0 || cfg.height == 0 || cfg.width > 1 << 16 || cfg.height > 1 << 16 {
+        return Err(Error::Config(format!(
+            "BTF size {}×{} must be 1..=65536 texels per side",
+            cfg.width, cfg.height
+        )));
+    }
+    let mut layout = BtfLayout::new(cfg.width, cfg.height, cfg.views.clone(), cfg.lights.clone());
+    layout.band = cfg.lights.len(); // one view per band: a chunk is one view's lights
+    let block = (cfg.block.max(layout.tile) / layout.tile) * layout.tile;
+    let mut writer = BtfWriter::create(out, layout.clone())?;
+    writer.container().set_level(cfg.level);
+    writer.container().set_seed(cfg.seed);
+    writer
+        .container()
+        .set_param("generator", Param::Text("btfquilt generate-btf".into()));
+    writer
+        .container()
+        .set_param("family", Param::Text(cfg.family.name().into()));
+    writer
+        .container()
+        .set_param("imperfection", Param::Text(cfg.imperfection.name().into()));
+
+    let meso = Mesostructure::generate(&MaterialParams {
+        family: cfg.family,
+        imperfection: cfg.imperfection,
+        width: cfg.width,
+        height: cfg.height,
+        seed: cfg.seed,
+    });
+    let lights: Vec<[f32; 3]> = cfg.lights.iter().map(|a| direction(a.theta, a.phi)).collect();
+    let views: Vec<[f32; 3]> = cfg.views.iter().map(|a| direction(a.theta, a.phi)).collect();
+    let nl = lights.len();
+
+    // views rendered at once: bounded by a quarter of the budget (f32 values)
+    let per_view = (block * block * nl * 3 * 4) as u64;
+    let group = ((cfg.memory.bytes() / 4 / per_view.max(1)) as usize).clamp(1, 16);
+
+    let nbx = cfg.width.div_ceil(block);
+    let nby = cfg.height.div_ceil(block);
+    progress.begin("generate", (nbx * nby * views.len()) as u64);
+    let mut stored = 0u64;
+    for by in 0..nby {
+        for bx in 0..nbx {
+            let (x0, y0) = (bx * block, by * block);
+            let bw = block.min(cfg.width - x0);
+            let bh = block.min(cfg.height - y0);
+            let renderer = BlockRenderer::new(&meso, x0, y0, bw, bh, &lights);
+            for v0 in (0..views.len()).step_by(group) {
+                let v1 = (v0 + group).min(views.len());
+                let encoded: Vec<Vec<(usize, usize, codec::EncodedChunk)>> = (v0..v1)
+                    .into_par_iter()
+                    .map(|v| {
+                        let mut values = vec![0f32; bw * bh * nl * 3];
+                        renderer.render_view(views[v], &mut values);
+                        block_tiles(&layout, x0, y0, bw, bh, nl, &values)
+                            .into_par_iter()
+                            .map(|(tx, ty, chunk)| (tx, ty, codec::encode(&chunk, cfg.level)))
+                            .collect()
+                    })
+                    .collect();
+                for (v, chunks) in (v0..v1).zip(encoded) {
+                    for (tx, ty, e) in chunks {
+                        stored += e.bytes.len() as u64;
+                        writer.write_encoded(tx, ty, v, e)?;
+                    }
+                }
+                progress.advance((v1 - v0) as u64);
+            }
+        }
+    }
+    writer.finish()?;
+    progress.end();
+    let mask = if cfg.imperfection != Imperfection::None {
+        let path = mask_path(out);
+        imageio::write_mask_png(&path, cfg.width, cfg.height, &meso.mask)?;
+        Some(path)
+    } else {
+        None
+    };
+    Ok(GenerateReport {
+        width: cfg.width,
+        height: cfg.height,
+        pairs: layout.pairs(),
+        raw_bytes: layout.raw_bytes(),
+        stored_bytes: stored,
+        seconds: start.elapsed().as_secs_f64(),
+        mask,
+    })
+}
+
+/// Cuts a block's rendered values `[y][x][light][rgb]` into the container's
+/// tiles (tile x, tile y, f16 values `[y][x][light][rgb]`), in row-major tile order.
+fn block_tiles(
+    layout: &BtfLayout,
+    x0: usize,
+    y0: usize,
+    bw: usize,
+    bh: usize,
+    nl: usize,
+    values: &[f32],
+) -> Vec<(usize, usize, Vec<f16>)> {
+    let t = layout.tile;
+    let mut out = Vec::new();
+    for ty0 in (0..bh).step_by(t) {
+        for tx0 in (0..bw).step_by(t) {
+            let tw = t.min(bw - tx0);
+            let th = t.min(bh - ty0);
+            let mut chunk = Vec::with_capacity(tw * th * nl * 3);
+            for y in ty0..ty0 + th {
+                let row = ((y * bw + tx0) * nl * 3)..((y * bw + tx0 + tw) * nl * 3);
+                chunk.extend(values[row].iter().map(|&v| f16::from_f32(v)));
+            }
+            out.push(((x0 + tx0) / t, (y0 + ty0) / t, chunk));
+        }
+    }
+    out
+}

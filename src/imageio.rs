@@ -1,0 +1,820 @@
+//! Images in and out as linear-light float RGB: PNG, JPEG, TIFF and OpenEXR.
+//!
+//! 8/16-bit formats are treated as sRGB-encoded; OpenEXR is linear. Every
+//! write goes to a temporary file in the destination directory that is
+//! renamed into place only once it is complete ([`write_atomic`]).
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Write};
+use std::path::Path;
+use std::sync::OnceLock;
+
+use exr::prelude as x;
+use exr::prelude::{ReadChannels, ReadLayers, WritableImage};
+use half::f16;
+use image::{DynamicImage, ImageFormat};
+
+use crate::{Error, Result};
+
+/// A linear-light RGB image, row-major, 3 f32 per pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RgbImage {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f32>,
+}
+
+impl RgbImage {
+    /// A black image of the given size.
+    pub fn new(width: usize, height: usize) -> Self {
+        RgbImage {
+            width,
+            height,
+            data: vec![0.0; width * height * 3],
+        }
+    }
+}
+
+/// Bit depth for PNG output.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PngDepth {
+    Eight,
+    Sixteen,
+}
+
+/// The file kinds this module reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    Raster(ImageFormat),
+    Exr,
+}
+
+/// Picks the format from the (case-insensitive) extension.
+fn kind_of(path: &Path) -> Result<Kind> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "png" => Ok(Kind::Raster(ImageFormat::Png)),
+        "jpg" | "jpeg" => Ok(Kind::Raster(ImageFormat::Jpeg)),
+        "tif" | "tiff" => Ok(Kind::Raster(ImageFormat::Tiff)),
+        "exr" => Ok(Kind::Exr),
+        _ => Err(Error::input(
+            path,
+            format!("unsupported image extension '{ext}' (expected .png, .jpg, .jpeg, .tif, .tiff or .exr)"),
+        )),
+    }
+}
+
+/// Opens a file for buffered reading; a missing file is an I/O error.
+fn open(path: &Path) -> Result<BufReader<File>> {
+    File::open(path)
+        .map(BufReader::new)
+        .map_err(|e| Error::io(path, e))
+}
+
+/// Maps an `image` error: I/O stays I/O, everything else is bad input.
+fn image_err(path: &Path, e: image::ImageError) -> Error {
+    match e {
+        image::ImageError::IoError(io) => Error::io(path, io),
+        other => Error::input(path, format!("cannot decode image: {other}")),
+    }
+}
+
+/// Maps an `exr` error: I/O stays I/O, everything else is bad input.
+fn exr_err(path: &Path, e: x::Error) -> Error {
+    match e {
+        x::Error::Io(io) => Error::io(path, io),
+        other => Error::input(path, format!("OpenEXR: {other}")),
+    }
+}
+
+/// Decodes a PNG/JPEG/TIFF into a `DynamicImage`.
+fn decode_raster(path: &Path, format: ImageFormat) -> Result<DynamicImage> {
+    let mut reader = image::ImageReader::with_format(open(path)?, format);
+    reader.no_limits();
+    reader.decode().map_err(|e| image_err(path, e))
+}
+
+/// Pixel count of a `width` x `height` image times `channels`, checked.
+fn sample_count(path: &Path, width: usize, height: usize, channels: usize) -> Result<usize> {
+    width
+        .checked_mul(height)
+        .and_then(|n| n.checked_mul(channels))
+        .ok_or_else(|| Error::input(path, format!("image size {width}x{height} is too large")))
+}
+
+/// Exact sRGB decoding of an 8-bit code value, via a table.
+fn srgb8_table() -> &'static [f32; 256] {
+    static T: OnceLock<[f32; 256]> = OnceLock::new();
+    T.get_or_init(|| std::array::from_fn(|i| srgb_to_linear(i as f32 / 255.0)))
+}
+
+/// Exact sRGB decoding of a 16-bit code value, via a table.
+fn srgb16_table() -> &'static [f32] {
+    static T: OnceLock<Vec<f32>> = OnceLock::new();
+    T.get_or_init(|| {
+        (0..=u16::MAX)
+            .map(|i| srgb_to_linear(i as f32 / 65535.0))
+            .collect()
+    })
+}
+
+/// True if the decoded image stores floats (e.g. a float TIFF).
+fn is_float(img: &DynamicImage) -> bool {
+    let c = img.color();
+    c.bytes_per_pixel() / c.channel_count() == 4
+}
+
+/// True if the decoded image has 8 bits per channel.
+fn is_8bit(img: &DynamicImage) -> bool {
+    let c = img.color();
+    c.bytes_per_pixel() / c.channel_count() == 1
+}
+
+/// Read PNG (8/16-bit, grey/grey-alpha/RGB/RGBA), JPEG, TIFF, or OpenEXR into linear RGB.
+///
+/// PNG/JPEG/TIFF are decoded from sRGB with the exact transfer function
+/// (a float TIFF is taken as already linear); EXR is read as is. Alpha is
+/// dropped; a grey image or a single-channel EXR is replicated into R, G, B.
+pub fn read_rgb(path: &Path) -> Result<RgbImage> {
+    match kind_of(path)? {
+        Kind::Exr => read_exr_rgb(path),
+        Kind::Raster(format) => {
+            let img = decode_raster(path, format)?;
+            let (width, height) = (img.width() as usize, img.height() as usize);
+            let data: Vec<f32> = if is_float(&img) {
+                img.to_rgb32f().into_raw()
+            } else if is_8bit(&img) {
+                let t = srgb8_table();
+                img.to_rgb8()
+                    .into_raw()
+                    .into_iter()
+                    .map(|v| t[v as usize])
+                    .collect()
+            } else {
+                let t = srgb16_table();
+                img.to_rgb16()
+                    .into_raw()
+                    .into_iter()
+                    .map(|v| t[v as usize])
+                    .collect()
+            };
+            Ok(RgbImage { width, height, data })
+        }
+    }
+}
+
+/// Reads the first valid layer of an EXR with all its channels.
+fn read_exr_layer(path: &Path) -> Result<x::Layer<x::AnyChannels<x::FlatSamples>>> {
+    let image = x::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(open(path)?)
+        .map_err(|e| exr_err(path, e))?;
+    Ok(image.layer_data)
+}
+
+/// Finds a channel by name: exact (case-insensitive) or as the unique `layer.NAME`.
+fn find_channel<'a>(channels: &'a [x::AnyChannel<x::FlatSamples>], name: &str) -> Option<&'a x::FlatSamples> {
+    let exact = channels
+        .iter()
+        .find(|c| c.name.to_string().eq_ignore_ascii_case(name));
+    if let Some(c) = exact {
+        return Some(&c.sample_data);
+    }
+    let suffix = format!(".{}", name.to_ascii_lowercase());
+    let mut hits = channels
+        .iter()
+        .filter(|c| c.name.to_string().to_ascii_lowercase().ends_with(&suffix));
+    match (hits.next(), hits.next()) {
+        (Some(c), None) => Some(&c.sample_data),
+        _ => None,
+    }
+}
+
+/// Reads R,G,B (or a single grey/Y channel) from an EXR as linear f32.
+fn read_exr_rgb(path: &Path) -> Result<RgbImage> {
+    let layer = read_exr_layer(path)?;
+    let (width, height) = (layer.size.width(), layer.size.height());
+    let n = sample_count(path, width, height, 1)?;
+    let list = &layer.channel_data.list;
+    let names = || {
+        list.iter()
+            .map(|c| c.name.to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let rgb = ["R", "G", "B"].map(|c| find_channel(list, c));
+    let sources: [&x::FlatSamples; 3] = match rgb {
+        [Some(r), Some(g), Some(b)] => [r, g, b],
+        [None, None, None] => {
+            let named = |n: &str| {
+                list.iter()
+                    .find(|c| c.name.to_string().eq_ignore_ascii_case(n))
+                    .map(|c| &c.sample_data)
+            };
+            let grey = named("Y")
+                .or_else(|| named("grey"))
+                .or_else(|| named("gray"))
+                .or_else(|| (list.len() == 1).then(|| &list[0].sample_data));
+            match grey {
+                Some(y) => [y, y, y],
+                None => {
+                    return Err(Error::input(
+                        path,
+                        format!(
+                            "OpenEXR has no R,G,B or single grey channel (channels: {})",
+                            names()
+                        ),
+                    ))
+                }
+            }
+        }
+        _ => {
+            return Err(Error::input(
+                path,
+                format!("OpenEXR lacks one of the R,G,B channels (channels: {})", names()),
+            ))
+        }
+    };
+    if sources.iter().any(|s| s.len() != n) {
+        return Err(Error::input(
+            path,
+            "OpenEXR channel is subsampled or has the wrong number of samples",
+        ));
+    }
+    let planes: Vec<Vec<f32>> = sources
+        .iter()
+        .map(|s| match s {
+            x::FlatSamples::F32(v) => v.clone(),
+            other => other.values_as_f32().collect(),
+        })
+        .collect();
+    let mut data = Vec::with_capacity(n * 3);
+    for ((r, g), b) in planes[0].iter().zip(&planes[1]).zip(&planes[2]) {
+        data.extend_from_slice(&[*r, *g, *b]);
+    }
+    Ok(RgbImage { width, height, data })
+}
+
+/// Only the size, cheaply (header only where the decoder allows).
+pub fn image_size(path: &Path) -> Result<(usize, usize)> {
+    match kind_of(path)? {
+        Kind::Exr => {
+            let meta = x::MetaData::read_from_buffered(open(path)?, false).map_err(|e| exr_err(path, e))?;
+            let header = meta
+                .headers
+                .first()
+                .ok_or_else(|| Error::input(path, "OpenEXR file has no layers"))?;
+            Ok((header.layer_size.width(), header.layer_size.height()))
+        }
+        Kind::Raster(format) => {
+            let (w, h) = image::ImageReader::with_format(open(path)?, format)
+                .into_dimensions()
+                .map_err(|e| image_err(path, e))?;
+            Ok((w as usize, h as usize))
+        }
+    }
+}
+
+/// Read a single-channel mask as values in 0..1 (no sRGB decoding; RGB averaged).
+///
+/// EXR masks are read as stored (not clamped).
+pub fn read_mask(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
+    let (width, height, rgb) = match kind_of(path)? {
+        Kind::Exr => {
+            let img = read_exr_rgb(path)?;
+            (img.width, img.height, img.data)
+        }
+        Kind::Raster(format) => {
+            let img = decode_raster(path, format)?;
+            let (w, h) = (img.width() as usize, img.height() as usize);
+            (w, h, img.to_rgb32f().into_raw())
+        }
+    };
+    let values = rgb.chunks_exact(3).map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
+    Ok((width, height, values))
+}
+
+/// Checks dimensions and buffer length before writing.
+fn check_write(path: &Path, width: usize, height: usize, channels: usize, len: usize) -> Result<()> {
+    if width == 0 || height == 0 {
+        return Err(Error::input(
+            path,
+            format!("cannot write an empty {width}x{height} image"),
+        ));
+    }
+    let n = sample_count(path, width, height, channels)?;
+    if len != n {
+        return Err(Error::input(
+            path,
+            format!("image buffer has {len} values, {width}x{height}x{channels} expected"),
+        ));
+    }
+    Ok(())
+}
+
+/// Image dimensions as u32 for the `image` encoders.
+fn dims_u32(path: &Path, width: usize, height: usize) -> Result<(u32, u32)> {
+    match (u32::try_from(width), u32::try_from(height)) {
+        (Ok(w), Ok(h)) => Ok((w, h)),
+        _ => Err(Error::input(
+            path,
+            format!("image size {width}x{height} is too large for PNG"),
+        )),
+    }
+}
+
+/// Linear value to a clamped, rounded sRGB code value in 0..=max.
+fn encode_srgb(v: f32, max: f32) -> f32 {
+    let s = linear_to_srgb(v);
+    let s = if s.is_nan() { 0.0 } else { s.clamp(0.0, 1.0) };
+    (s * max).round()
+}
+
+/// Write PNG: linear -> sRGB encode, clamp to [0,1], round to nearest, 8 or 16 bit RGB.
+pub fn write_png(path: &Path, img: &RgbImage, depth: PngDepth) -> Result<()> {
+    check_write(path, img.width, img.height, 3, img.data.len())?;
+    let (w, h) = dims_u32(path, img.width, img.height)?;
+    match depth {
+        PngDepth::Eight => {
+            let raw: Vec<u8> = img.data.iter().map(|&v| encode_srgb(v, 255.0) as u8).collect();
+            let buf = image::ImageBuffer::<image::Rgb<u8>, _>::from_raw(w, h, raw)
+                .ok_or_else(|| Error::input(path, "image buffer size mismatch"))?;
+            write_atomic(path, |out| {
+                buf.write_with_encoder(image::codecs::png::PngEncoder::new(out))
+                    .map_err(|e| image_err(path, e))
+            })
+        }
+        PngDepth::Sixteen => {
+            let raw: Vec<u16> = img.data.iter().map(|&v| encode_srgb(v, 65535.0) as u16).collect();
+            let buf = image::ImageBuffer::<image::Rgb<u16>, _>::from_raw(w, h, raw)
+                .ok_or_else(|| Error::input(path, "image buffer size mismatch"))?;
+            write_atomic(path, |out| {
+                buf.write_with_encoder(image::codecs::png::PngEncoder::new(out))
+                    .map_err(|e| image_err(path, e))
+            })
+        }
+    }
+}
+
+/// Write an 8-bit grey PNG from values 0..1 (clamped, rounded), no sRGB encoding.
+pub fn write_mask_png(path: &Path, width: usize, height: usize, values: &[f32]) -> Result<()> {
+    check_write(path, width, height, 1, values.len())?;
+    let (w, h) = dims_u32(path, width, height)?;
+    let raw: Vec<u8> = values
+        .iter()
+        .map(|&v| {
+            let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
+            (v * 255.0).round() as u8
+        })
+        .collect();
+    let buf = image::ImageBuffer::<image::Luma<u8>, _>::from_raw(w, h, raw)
+        .ok_or_else(|| Error::input(path, "image buffer size mismatch"))?;
+    write_atomic(path, |out| {
+        buf.write_with_encoder(image::codecs::png::PngEncoder::new(out))
+            .map_err(|e| image_err(path, e))
+    })
+}
+
+/// Write OpenEXR with R,G,B channels as f16 (`half`) or f32, linear, ZIP-compressed.
+pub fn write_exr(path: &Path, img: &RgbImage, half: bool) -> Result<()> {
+    check_write(path, img.width, img.height, 3, img.data.len())?;
+    let channels: Vec<(String, Vec<f32>)> = ["R", "G", "B"]
+        .iter()
+        .enumerate()
+        .map(|(c, name)| {
+            let plane = img.data.iter().skip(c).step_by(3).copied().collect();
+            (name.to_string(), plane)
+        })
+        .collect();
+    write_exr_channels(path, img.width, img.height, &channels, half)
+}
+
+/// Write an OpenEXR with arbitrary named channels: `channels[i]` is (name, width*height values).
+///
+/// Channels are stored as f16 when `half` (values rounded to nearest), else f32.
+pub fn write_exr_channels(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: &[(String, Vec<f32>)],
+    half: bool,
+) -> Result<()> {
+    if channels.is_empty() {
+        return Err(Error::input(
+            path,
+            "cannot write an OpenEXR file without channels",
+        ));
+    }
+    let mut list = x::SmallVec::<[x::AnyChannel<x::FlatSamples>; 4]>::new();
+    for (i, (name, values)) in channels.iter().enumerate() {
+        check_write(path, width, height, 1, values.len())?;
+        if name.is_empty() || channels[..i].iter().any(|(n, _)| n == name) {
+            return Err(Error::input(
+                path,
+                format!("OpenEXR channel name '{name}' is empty or repeated"),
+            ));
+        }
+        let text = x::Text::new_or_none(name)
+            .ok_or_else(|| Error::input(path, format!("OpenEXR channel name '{name}' is not Latin-1")))?;
+        let samples = if half {
+            x::FlatSamples::F16(values.iter().map(|&v| f16::from_f32(v)).collect())
+        } else {
+            x::FlatSamples::F32(values.clone())
+        };
+        list.push(x::AnyChannel::new(text, samples));
+    }
+    let layer = x::Layer::new(
+        (width, height),
+        x::LayerAttributes::default(),
+        x::Encoding::SMALL_LOSSLESS,
+        x::AnyChannels::sort(list),
+    );
+    let image = x::Image::from_layer(layer);
+    write_atomic(path, |out| {
+        image.write().to_buffered(out).map_err(|e| exr_err(path, e))
+    })
+}
+
+/// Write by extension: .png (8-bit sRGB) or .exr (f16). Other extensions are an input error.
+pub fn write_rgb(path: &Path, img: &RgbImage) -> Result<()> {
+    match kind_of(path)? {
+        Kind::Raster(ImageFormat::Png) => write_png(path, img, PngDepth::Eight),
+        Kind::Exr => write_exr(path, img, true),
+        _ => Err(Error::input(path, "can only write .png or .exr images")),
+    }
+}
+
+/// Writes a file atomically: `write` fills a temporary file in the same
+/// directory, which is flushed and renamed onto `path` only on success. On any
+/// error the temporary file is removed and `path` is left untouched.
+pub fn write_atomic<F>(path: &Path, write: F) -> Result<()>
+where
+    F: FnOnce(&mut BufWriter<&mut File>) -> Result<()>,
+{
+    if path.file_name().is_none() {
+        return Err(Error::input(path, "not a file path"));
+    }
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".btfquilt-").suffix(".tmp");
+    #[cfg(unix)]
+    {
+        // The usual mode for new files (the umask still applies), not tempfile's 0600.
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let mut tmp = builder.tempfile_in(dir).map_err(|e| Error::io(path, e))?;
+    {
+        let mut out = BufWriter::new(tmp.as_file_mut());
+        write(&mut out)?;
+        out.flush().map_err(|e| Error::io(path, e))?;
+    }
+    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
+    Ok(())
+}
+
+/// The sRGB decoding function (IEC 61966-2-1): encoded value -> linear.
+pub fn srgb_to_linear(v: f32) -> f32 {
+    let v = f64::from(v);
+    let l = if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    };
+    l as f32
+}
+
+/// The sRGB encoding function (IEC 61966-2-1): linear -> encoded value.
+pub fn linear_to_srgb(v: f32) -> f32 {
+    let v = f64::from(v);
+    let s = if v <= 0.0031308 {
+        v * 12.92
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    };
+    s as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic pseudo-random numbers (xorshift64*).
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        }
+        fn unit(&mut self) -> f32 {
+            (self.next() >> 40) as f32 / (1u64 << 24) as f32
+        }
+    }
+
+    fn random_image(w: usize, h: usize, seed: u64) -> RgbImage {
+        let mut rng = Rng(seed);
+        RgbImage {
+            width: w,
+            height: h,
+            data: (0..w * h * 3).map(|_| rng.unit()).collect(),
+        }
+    }
+
+    fn files_in(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn srgb_functions_are_inverse_and_standard() {
+        assert_eq!(srgb_to_linear(0.0), 0.0);
+        assert!((srgb_to_linear(1.0) - 1.0).abs() < 1e-7);
+        // Known value: sRGB 0.5 is about 0.214041 linear.
+        assert!((srgb_to_linear(0.5) - 0.214_041_14).abs() < 1e-6);
+        for i in 0..=1000 {
+            let v = i as f32 / 1000.0;
+            assert!((linear_to_srgb(srgb_to_linear(v)) - v).abs() < 1e-6, "{v}");
+        }
+        // Monotone across the segment boundary.
+        let mut prev = -1.0;
+        for i in 0..=4096 {
+            let s = linear_to_srgb(i as f32 / 4096.0);
+            assert!(s > prev);
+            prev = s;
+        }
+    }
+
+    #[test]
+    fn exr_half_round_trip_is_bit_exact() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.exr");
+        let mut rng = Rng(7);
+        let (w, h) = (13, 9);
+        let data: Vec<f32> = (0..w * h * 3)
+            .map(|_| loop {
+                let v = f16::from_bits(rng.next() as u16);
+                if v.is_finite() {
+                    break v.to_f32();
+                }
+            })
+            .collect();
+        let img = RgbImage {
+            width: w,
+            height: h,
+            data,
+        };
+        write_exr(&path, &img, true).unwrap();
+        let back = read_rgb(&path).unwrap();
+        assert_eq!((back.width, back.height), (w, h));
+        let a: Vec<u32> = img.data.iter().map(|v| v.to_bits()).collect();
+        let b: Vec<u32> = back.data.iter().map(|v| v.to_bits()).collect();
+        assert_eq!(a, b);
+        assert_eq!(image_size(&path).unwrap(), (w, h));
+    }
+
+    #[test]
+    fn exr_f32_round_trip_is_exact() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("b.EXR");
+        let mut img = random_image(17, 5, 3);
+        img.data[0] = -3.5e7;
+        img.data[1] = 1e-30;
+        write_exr(&path, &img, false).unwrap();
+        assert_eq!(read_rgb(&path).unwrap(), img);
+        // write_rgb on .exr stores half.
+        write_rgb(&path, &img).unwrap();
+        let back = read_rgb(&path).unwrap();
+        for (a, b) in img.data.iter().zip(&back.data).skip(2) {
+            assert_eq!(*b, f16::from_f32(*a).to_f32());
+        }
+    }
+
+    #[test]
+    fn png16_round_trip_within_one_code() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.png");
+        let img = random_image(11, 7, 5);
+        write_png(&path, &img, PngDepth::Sixteen).unwrap();
+        let back = read_rgb(&path).unwrap();
+        assert_eq!((back.width, back.height), (11, 7));
+        for (a, b) in img.data.iter().zip(&back.data) {
+            let d = (linear_to_srgb(*a) - linear_to_srgb(*b)).abs();
+            assert!(d <= 0.5 / 65535.0 + 1e-6, "{a} {b} {d}");
+        }
+        assert_eq!(image_size(&path).unwrap(), (11, 7));
+    }
+
+    #[test]
+    fn png8_round_trip_within_one_code_and_clamps() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("d.png");
+        let mut img = random_image(6, 10, 9);
+        img.data[0] = -1.0;
+        img.data[1] = 7.0;
+        img.data[2] = f32::NAN;
+        write_rgb(&path, &img).unwrap();
+        let back = read_rgb(&path).unwrap();
+        assert_eq!(&back.data[..3], &[0.0, 1.0, 0.0]);
+        for (a, b) in img.data.iter().zip(&back.data).skip(3) {
+            let d = (linear_to_srgb(*a) - linear_to_srgb(*b)).abs();
+            assert!(d <= 0.5 / 255.0 + 1e-6, "{a} {b} {d}");
+        }
+    }
+
+    #[test]
+    fn mask_png_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.png");
+        let values: Vec<f32> = (0..256).map(|i| i as f32 / 255.0).collect();
+        write_mask_png(&path, 16, 16, &values).unwrap();
+        let (w, h, back) = read_mask(&path).unwrap();
+        assert_eq!((w, h), (16, 16));
+        for (a, b) in values.iter().zip(&back) {
+            assert!((a - b).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn grey_png_reads_as_equal_rgb() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("g.png");
+        let values: Vec<f32> = (0..20).map(|i| i as f32 / 19.0).collect();
+        write_mask_png(&path, 5, 4, &values).unwrap();
+        let img = read_rgb(&path).unwrap();
+        for (p, v) in img.data.chunks_exact(3).zip(&values) {
+            assert_eq!(p[0], p[1]);
+            assert_eq!(p[1], p[2]);
+            // Grey PNG is sRGB-decoded like any other.
+            assert!((p[0] - srgb_to_linear((v * 255.0).round() / 255.0)).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn reads_grey_alpha_rgba_tiff_and_jpeg() {
+        let dir = tempfile::tempdir().unwrap();
+        // 16-bit grey + alpha PNG: alpha dropped, grey replicated, sRGB-decoded.
+        let la: Vec<u16> = (0..12u16).flat_map(|i| [i * 5000, 123]).collect();
+        let p = dir.path().join("la.png");
+        image::ImageBuffer::<image::LumaA<u16>, _>::from_raw(4, 3, la.clone())
+            .unwrap()
+            .save(&p)
+            .unwrap();
+        let img = read_rgb(&p).unwrap();
+        for (px, g) in img.data.chunks_exact(3).zip(la.chunks_exact(2)) {
+            assert_eq!(px, &[srgb_to_linear(g[0] as f32 / 65535.0); 3]);
+        }
+        // 8-bit RGBA PNG and RGB TIFF.
+        let rgba: Vec<u8> = (0..24u8).map(|i| i * 10).collect();
+        let rgb: Vec<u8> = rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
+        let p = dir.path().join("rgba.png");
+        image::ImageBuffer::<image::Rgba<u8>, _>::from_raw(3, 2, rgba)
+            .unwrap()
+            .save(&p)
+            .unwrap();
+        let t = dir.path().join("rgb.TIF");
+        image::ImageBuffer::<image::Rgb<u8>, _>::from_raw(3, 2, rgb.clone())
+            .unwrap()
+            .save_with_format(&t, ImageFormat::Tiff)
+            .unwrap();
+        let want: Vec<f32> = rgb.iter().map(|&v| srgb_to_linear(v as f32 / 255.0)).collect();
+        assert_eq!(read_rgb(&p).unwrap().data, want);
+        assert_eq!(read_rgb(&t).unwrap().data, want);
+        assert_eq!(image_size(&t).unwrap(), (3, 2));
+        // JPEG of a flat mid grey decodes close to it.
+        let j = dir.path().join("flat.jpeg");
+        image::ImageBuffer::<image::Rgb<u8>, _>::from_pixel(16, 8, image::Rgb([128, 128, 128]))
+            .save_with_format(&j, ImageFormat::Jpeg)
+            .unwrap();
+        let img = read_rgb(&j).unwrap();
+        assert_eq!((img.width, img.height), (16, 8));
+        let mid = srgb_to_linear(128.0 / 255.0);
+        assert!(img.data.iter().all(|v| (v - mid).abs() < 0.01));
+        assert_eq!(image_size(&j).unwrap(), (16, 8));
+    }
+
+    #[test]
+    fn exr_channels_round_trip_with_exr_crate() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("geo.exr");
+        let (w, h) = (7, 3);
+        let chans: Vec<(String, Vec<f32>)> = ["pos.x", "pos.y", "depth"]
+            .iter()
+            .enumerate()
+            .map(|(k, n)| {
+                (
+                    n.to_string(),
+                    (0..w * h).map(|i| i as f32 * 0.37 + k as f32).collect(),
+                )
+            })
+            .collect();
+        write_exr_channels(&path, w, h, &chans, false).unwrap();
+        let img = x::read_first_flat_layer_from_file(&path).unwrap();
+        let layer = img.layer_data;
+        assert_eq!((layer.size.width(), layer.size.height()), (w, h));
+        assert_eq!(layer.channel_data.list.len(), 3);
+        for (name, values) in &chans {
+            let c = layer
+                .channel_data
+                .list
+                .iter()
+                .find(|c| c.name.to_string() == *name)
+                .unwrap();
+            let back: Vec<f32> = c.sample_data.values_as_f32().collect();
+            assert_eq!(&back, values);
+        }
+        // A single non-RGB channel reads as grey.
+        let path1 = dir.path().join("one.exr");
+        write_exr_channels(&path1, w, h, &chans[2..], true).unwrap();
+        let grey = read_rgb(&path1).unwrap();
+        for (p, v) in grey.data.chunks_exact(3).zip(&chans[2].1) {
+            assert_eq!(p, &[f16::from_f32(*v).to_f32(); 3]);
+        }
+        // Two non-RGB channels are ambiguous.
+        let err = read_rgb(&path).unwrap_err().to_string();
+        assert!(err.contains("geo.exr") && err.contains("depth"), "{err}");
+        // Duplicate names are refused.
+        let dup = vec![chans[0].clone(), chans[0].clone()];
+        assert!(write_exr_channels(&path1, w, h, &dup, false).is_err());
+    }
+
+    #[test]
+    fn missing_directory_is_io_error_naming_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("nope").join("x.png");
+        let err = write_png(&path, &random_image(2, 2, 1), PngDepth::Eight).unwrap_err();
+        assert!(matches!(err, Error::Io { .. }), "{err:?}");
+        assert!(err.to_string().contains("x.png"));
+        assert!(!path.exists());
+    }
+
+    #[test]
+    fn failed_write_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("out.png");
+        let err = write_atomic(&path, |w| {
+            w.write_all(&[1u8; 100_000]).unwrap();
+            Err(Error::input(&path, "boom"))
+        })
+        .unwrap_err();
+        assert!(err.to_string().contains("boom"));
+        assert!(files_in(dir.path()).is_empty());
+        // Bad buffer: refused before anything is created.
+        let bad = RgbImage {
+            width: 4,
+            height: 4,
+            data: vec![0.0; 5],
+        };
+        assert!(write_exr(&path, &bad, true).is_err());
+        assert!(files_in(dir.path()).is_empty());
+        // Rename onto a directory fails; the temp file is cleaned up.
+        let sub = dir.path().join("taken.exr");
+        std::fs::create_dir(&sub).unwrap();
+        let err = write_exr(&sub, &random_image(3, 3, 2), true).unwrap_err();
+        assert!(matches!(err, Error::Io { .. }));
+        assert_eq!(files_in(dir.path()), vec!["taken.exr".to_string()]);
+        assert!(sub.is_dir());
+        // A successful write over an existing file replaces it.
+        write_png(&path, &random_image(2, 3, 4), PngDepth::Eight).unwrap();
+        write_png(&path, &random_image(5, 1, 4), PngDepth::Eight).unwrap();
+        assert_eq!(image_size(&path).unwrap(), (5, 1));
+        assert_eq!(files_in(dir.path()).len(), 2);
+    }
+
+    #[test]
+    fn read_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("missing.png");
+        assert!(matches!(read_rgb(&missing), Err(Error::Io { .. })));
+        assert!(matches!(image_size(&missing), Err(Error::Io { .. })));
+        let odd = dir.path().join("pic.bmp");
+        std::fs::write(&odd, b"BM").unwrap();
+        let err = read_rgb(&odd).unwrap_err();
+        assert!(matches!(err, Error::Input { .. }) && err.to_string().contains("pic.bmp"));
+        assert!(write_rgb(&odd, &random_image(1, 1, 1)).is_err());
+        for name in ["junk.png", "junk.exr", "junk.jpg", "junk.tif"] {
+            let p = dir.path().join(name);
+            std::fs::write(&p, b"definitely not an image").unwrap();
+            let err = read_rgb(&p).unwrap_err();
+            assert!(matches!(err, Error::Input { .. }), "{name}: {err:?}");
+            assert!(err.to_string().contains(name));
+            assert!(image_size(&p).is_err());
+        }
+    }
+}

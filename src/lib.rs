@@ -1,0 +1,19 @@
+//! btfquilt: decorate triangle meshes with textures and bidirectional texture
+//! functions (BTFs), as a streaming pipeline over disk-backed tiles.
+//!
+//! Every stage is a function from typed artifacts on disk (see [`container`])
+//! plus a config struct and a [`progress::Progress`] sink to a new artifact on
+//! disk. The only `unsafe` code is the memory map in `container::mmap`.
+#![deny(unsafe_code)]
+
+pub mod btf;
+pub mod container;
+pub mod demo;
+pub mod error;
+pub mod generate;
+pub mod imageio;
+pub mod ingest;
+pub mod naming;
+pub mod progress;
+
+pub use error::{Error, Result};

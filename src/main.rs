@@ -1,0 +1,304 @@
+//! The `btfquilt` command line: parses arguments and calls the library.
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use btfquilt::btf::{self, Angles, Btf};
+use btfquilt::container::{Container, MemoryBudget};
+use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
+use btfquilt::ingest::{self, ImageFormat, IngestConfig};
+use btfquilt::progress::Progress;
+
+#[derive(Parser)]
+#[command(
+    name = "btfquilt",
+    version,
+    about = "Decorate meshes with textures and BTFs by graphcut quilting"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// Options shared by the stages that process data.
+#[derive(Args, Clone)]
+struct Resources {
+    /// Worker threads (default: all cores). Results do not depend on it.
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    /// Memory budget for decoded tiles, e.g. 512MiB or 2GiB.
+    #[arg(long, global = true, default_value = "1GiB")]
+    memory: String,
+    /// Hide progress bars.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print an artifact's metadata, arrays, chunking and compression.
+    Info {
+        file: PathBuf,
+        /// Also decode every chunk and check its checksum.
+        #[arg(long)]
+        verify: bool,
+    },
+    /// Generate a synthetic BTF (procedural mesostructure, ray-marched).
+    GenerateBtf {
+        /// bricks, weave, cracked or pebbles.
+        #[arg(long, default_value = "bricks")]
+        family: String,
+        /// none, cracks, stains or scratches (its mask is written beside the output as *.mask.png).
+        #[arg(long, default_value = "none")]
+        imperfection: String,
+        /// Texels per side (width = height).
+        #[arg(long, default_value_t = 128)]
+        size: usize,
+        /// View directions as PHIxTHETA.
+        #[arg(long, default_value = "12x8")]
+        views: String,
+        /// Light directions as PHIxTHETA.
+        #[arg(long, default_value = "12x8")]
+        lights: String,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Build a BTF from a folder of Bonn/UTIA-named images or a CSV manifest.
+    Ingest {
+        /// Folder of `…_tlΘ_plΦ_tvΘ_pvΦ.png|exr` images, or a manifest.csv (file,theta_v,phi_v,theta_l,phi_l).
+        input: PathBuf,
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Write one image of a BTF (--view/--light), or all of them (--all DIR).
+    ExportBtf {
+        file: PathBuf,
+        /// View direction θ,φ in degrees.
+        #[arg(long, allow_hyphen_values = true)]
+        view: Option<String>,
+        /// Light direction θ,φ in degrees.
+        #[arg(long, allow_hyphen_values = true)]
+        light: Option<String>,
+        /// Output image (.png or .exr).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Write every image into this folder, named the way `ingest` reads.
+        #[arg(long)]
+        all: Option<PathBuf>,
+        /// Format for --all: exr (exact f16) or png (16-bit sRGB).
+        #[arg(long, default_value = "exr")]
+        format: String,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Run the pipeline on the embedded default data and write pictures.
+    Demo {
+        /// Output folder.
+        #[arg(short, long, default_value = "demo-out")]
+        output: PathBuf,
+        #[command(flatten)]
+        res: Resources,
+    },
+}
+
+/// Progress bars on stderr.
+struct Bars {
+    quiet: bool,
+    bar: Mutex<Option<ProgressBar>>,
+}
+
+impl Bars {
+    fn new(quiet: bool) -> Bars {
+        Bars {
+            quiet,
+            bar: Mutex::new(None),
+        }
+    }
+}
+
+impl Progress for Bars {
+    fn begin(&self, stage: &str, total: u64) {
+        if self.quiet {
+            return;
+        }
+        let bar = ProgressBar::new(total);
+        bar.set_style(
+            ProgressStyle::with_template("{prefix:>10} [{bar:40}] {pos}/{len} {elapsed_precise} eta {eta}")
+                .expect("valid template")
+                .progress_chars("=> "),
+        );
+        bar.set_prefix(stage.to_string());
+        *self.bar.lock().unwrap() = Some(bar);
+    }
+    fn advance(&self, n: u64) {
+        if let Some(b) = &*self.bar.lock().unwrap() {
+            b.inc(n);
+        }
+    }
+    fn end(&self) {
+        if let Some(b) = self.bar.lock().unwrap().take() {
+            b.finish_and_clear();
+        }
+    }
+    fn note(&self, line: &str) {
+        match &*self.bar.lock().unwrap() {
+            Some(b) => b.println(line),
+            None => eprintln!("{line}"),
+        }
+    }
+}
+
+fn parse_angles(s: &str, what: &str) -> Result<Angles> {
+    let (t, p) = s
+        .split_once(',')
+        .with_context(|| format!("--{what} '{s}': expected θ,φ in degrees"))?;
+    let theta: f32 = t
+        .trim()
+        .parse()
+        .with_context(|| format!("--{what} '{s}': θ is not a number"))?;
+    let phi: f32 = p
+        .trim()
+        .parse()
+        .with_context(|| format!("--{what} '{s}': φ is not a number"))?;
+    Ok(Angles { theta, phi })
+}
+
+impl Resources {
+    fn apply(&self) -> Result<(MemoryBudget, Bars)> {
+        if let Some(n) = self.threads {
+            if n == 0 {
+                bail!("--threads must be at least 1");
+            }
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build_global()
+                .context("starting the thread pool")?;
+        }
+        Ok((MemoryBudget::parse(&self.memory)?, Bars::new(self.quiet)))
+    }
+}
+
+fn main() {
+    if let Err(e) = run(Cli::parse()) {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Info { file, verify } => {
+            let c = Container::open(&file, MemoryBudget::default())?;
+            print!("{}", c.describe());
+            if c.metadata().kind == btf::KIND {
+                let b = Btf::open(&file, MemoryBudget::default())?;
+                let l = b.layout();
+                println!(
+                    "btf:       {}×{} texels, {} views × {} lights = {} pairs, tile {}, band {}",
+                    l.width,
+                    l.height,
+                    l.views.len(),
+                    l.lights.len(),
+                    l.pairs(),
+                    l.tile,
+                    l.band
+                );
+            }
+            if verify {
+                c.verify()?;
+                println!("verify:    every chunk decodes and matches its checksum");
+            }
+        }
+        Command::GenerateBtf {
+            family,
+            imperfection,
+            size,
+            views,
+            lights,
+            seed,
+            output,
+            res,
+        } => {
+            let (memory, bars) = res.apply()?;
+            let cfg = GenerateConfig {
+                family: Family::parse(&family).with_context(|| {
+                    format!("--family '{family}': expected bricks, weave, cracked or pebbles")
+                })?,
+                imperfection: Imperfection::parse(&imperfection).with_context(|| {
+                    format!("--imperfection '{imperfection}': expected none, cracks, stains or scratches")
+                })?,
+                width: size,
+                height: size,
+                views: btf::parse_grid(&views)?,
+                lights: btf::parse_grid(&lights)?,
+                seed,
+                memory,
+                ..GenerateConfig::default()
+            };
+            let report = generate::generate_btf(&cfg, &output, &bars)?;
+            println!("wrote {} ({})", output.display(), report);
+        }
+        Command::Ingest { input, output, res } => {
+            let (memory, bars) = res.apply()?;
+            let cfg = IngestConfig {
+                memory,
+                ..IngestConfig::default()
+            };
+            let r = ingest::ingest(&input, &output, &cfg, &bars)?;
+            println!(
+                "wrote {}: {}×{} texels, {} views × {} lights",
+                output.display(),
+                r.width,
+                r.height,
+                r.views,
+                r.lights
+            );
+        }
+        Command::ExportBtf {
+            file,
+            view,
+            light,
+            output,
+            all,
+            format,
+            res,
+        } => {
+            let (memory, bars) = res.apply()?;
+            let b = Btf::open(&file, memory)?;
+            match (all, output) {
+                (Some(dir), None) => {
+                    let n = ingest::export_all(&b, &dir, ImageFormat::parse(&format)?, memory, &bars)?;
+                    println!("wrote {n} images and manifest.csv into {}", dir.display());
+                }
+                (None, Some(out)) => {
+                    let view =
+                        parse_angles(view.as_deref().context("--view θ,φ is required with -o")?, "view")?;
+                    let light = parse_angles(
+                        light.as_deref().context("--light θ,φ is required with -o")?,
+                        "light",
+                    )?;
+                    let img = ingest::pair_image(&b, view, light)?;
+                    btfquilt::imageio::write_rgb(&out, &img)?;
+                    println!("wrote {}", out.display());
+                }
+                _ => bail!("give either -o IMAGE (with --view and --light) or --all DIR"),
+            }
+        }
+        Command::Demo { output, res } => {
+            let (memory, bars) = res.apply()?;
+            let report = btfquilt::demo::run(&output, memory, &bars)?;
+            println!("{report}");
+        }
+    }
+    Ok(())
+}

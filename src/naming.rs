@@ -1,0 +1,795 @@
+//! BTF image folders: Bonn/UTIA style file names, CSV manifests, and
+//! organising (view, light) pairs into a full view × light grid.
+
+use std::io::Write;
+use std::path::{Component, Path, PathBuf};
+
+use crate::imageio::write_atomic;
+use crate::{Error, Result};
+
+/// A direction: polar angle θ and azimuth φ, in degrees.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Angles {
+    pub theta: f32,
+    pub phi: f32,
+}
+
+/// One BTF image: the file and its view and light directions.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairFile {
+    pub path: PathBuf,
+    pub view: Angles,
+    pub light: Angles,
+}
+
+/// Extensions (lower case) of image files that make up a BTF folder.
+const IMAGE_EXTENSIONS: [&str; 6] = ["png", "exr", "jpg", "jpeg", "tif", "tiff"];
+
+/// Angular tolerance (degrees) under which two directions are the same.
+const SAME_DIR_EPS: f32 = 1e-3;
+
+/// The manifest header, field by field.
+const MANIFEST_HEADER: [&str; 5] = ["file", "theta_v", "phi_v", "theta_l", "phi_l"];
+
+/// Parses a non-negative decimal `digits[.digits]`.
+fn parse_decimal(s: &str) -> Option<f32> {
+    let (int, frac) = match s.split_once('.') {
+        Some((i, f)) => (i, Some(f)),
+        None => (s, None),
+    };
+    let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+    if !digits(int) || frac.is_some_and(|f| !digits(f)) {
+        return None;
+    }
+    s.parse::<f32>().ok().filter(|v| v.is_finite())
+}
+
+/// Parse a Bonn/UTIA style name like `bricks_tl015_pl000_tv030_pv045.png`; returns (view, light).
+///
+/// Tokens separated by `_` that start with `tl`, `pl`, `tv` or `pv`
+/// (case-insensitive) followed by a digit or `.` must be non-negative decimals;
+/// all four are required exactly once. Other tokens (the prefix) are ignored.
+/// A trailing `.ext` is stripped when it starts with a letter.
+pub fn parse_pair_name(file_name: &str) -> std::result::Result<(Angles, Angles), String> {
+    let stem = match file_name.rsplit_once('.') {
+        Some((stem, ext)) if ext.starts_with(|c: char| c.is_ascii_alphabetic()) => stem,
+        _ => file_name,
+    };
+    const KEYS: [&str; 4] = ["tl", "pl", "tv", "pv"];
+    let mut found: [Option<f32>; 4] = [None; 4];
+    for token in stem.split('_') {
+        let lower = token.to_ascii_lowercase();
+        let Some(k) = KEYS.iter().position(|key| lower.starts_with(key)) else {
+            continue;
+        };
+        let rest = &token[2..];
+        if !rest.starts_with(|c: char| c.is_ascii_digit() || c == '.' || c == '-' || c == '+') {
+            // An ordinary word such as "plaster" or "tvshow".
+            continue;
+        }
+        let value = parse_decimal(rest).ok_or_else(|| {
+            format!(
+                "'{token}' in '{file_name}': {} angle '{rest}' is not a non-negative decimal number",
+                KEYS[k]
+            )
+        })?;
+        if found[k].is_some() {
+            return Err(format!("'{file_name}': {} appears more than once", KEYS[k]));
+        }
+        found[k] = Some(value);
+    }
+    match found {
+        [Some(tl), Some(pl), Some(tv), Some(pv)] => {
+            Ok((Angles { theta: tv, phi: pv }, Angles { theta: tl, phi: pl }))
+        }
+        _ => {
+            let missing: Vec<&str> = KEYS
+                .iter()
+                .zip(&found)
+                .filter(|(_, v)| v.is_none())
+                .map(|(k, _)| *k)
+                .collect();
+            Err(format!(
+                "'{file_name}': missing {} (expected a name like prefix_tl015_pl000_tv030_pv045.png)",
+                missing.join(", ")
+            ))
+        }
+    }
+}
+
+/// Formats one angle: `{:03}` when integral, else up to 3 fraction digits (`007.5`).
+fn format_angle(v: f32) -> String {
+    if !v.is_finite() || v < 0.0 {
+        return format!("{v}");
+    }
+    if v.fract() == 0.0 && v < 1e15 {
+        return format!("{:03}", v as u64);
+    }
+    let s = format!("{v:.3}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    match s.split_once('.') {
+        Some((int, frac)) => format!("{int:0>3}.{frac}"),
+        None => format!("{s:0>3}"),
+    }
+}
+
+/// Format the canonical name `{prefix}_tl{θl}_pl{φl}_tv{θv}_pv{φv}.{ext}`.
+///
+/// Angles are `{:03}` integers when integral, otherwise decimals with up to
+/// 3 fraction digits (`tl007.5`); angles with at most 3 decimals parse back
+/// exactly. An empty prefix or extension is left out with its separator.
+pub fn format_pair_name(prefix: &str, view: Angles, light: Angles, ext: &str) -> String {
+    let mut s = String::new();
+    if !prefix.is_empty() {
+        s.push_str(prefix);
+        s.push('_');
+    }
+    s.push_str(&format!(
+        "tl{}_pl{}_tv{}_pv{}",
+        format_angle(light.theta),
+        format_angle(light.phi),
+        format_angle(view.theta),
+        format_angle(view.phi)
+    ));
+    let ext = ext.trim_start_matches('.');
+    if !ext.is_empty() {
+        s.push('.');
+        s.push_str(ext);
+    }
+    s
+}
+
+/// True if the path has one of the BTF image extensions (case-insensitive).
+fn has_image_extension(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| IMAGE_EXTENSIONS.iter().any(|x| e.eq_ignore_ascii_case(x)))
+}
+
+/// Scan a directory for BTF image files whose names parse, sorted by file name.
+///
+/// Files with other extensions, hidden files (names starting with `.`) and
+/// subdirectories are ignored; an image file whose name does not parse is an
+/// error, as is a folder without images.
+pub fn scan_folder(dir: &Path) -> Result<Vec<PairFile>> {
+    let entries = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
+    let mut named = Vec::new();
+    for entry in entries {
+        let entry = entry.map_err(|e| Error::io(dir, e))?;
+        let path = entry.path();
+        if path.is_dir() || !has_image_extension(&path) {
+            continue;
+        }
+        let Some(name) = entry.file_name().to_str().map(str::to_owned) else {
+            return Err(Error::input(&path, "file name is not valid UTF-8"));
+        };
+        if name.starts_with('.') {
+            continue;
+        }
+        named.push((name, path));
+    }
+    named.sort();
+    if named.is_empty() {
+        return Err(Error::input(
+            dir,
+            "no BTF images found (expected .png/.exr/.jpg/.jpeg/.tif/.tiff files named like prefix_tl015_pl000_tv030_pv045.png)",
+        ));
+    }
+    named
+        .into_iter()
+        .map(|(name, path)| match parse_pair_name(&name) {
+            Ok((view, light)) => Ok(PairFile { path, view, light }),
+            Err(reason) => Err(Error::input(&path, reason)),
+        })
+        .collect()
+}
+
+/// Splits one CSV line into trimmed fields; `"..."` quoting with `""` escapes.
+fn split_csv(line: &str) -> std::result::Result<Vec<String>, String> {
+    let mut fields = Vec::new();
+    let mut chars = line.chars().peekable();
+    loop {
+        while chars.next_if(|c| *c == ' ' || *c == '\t').is_some() {}
+        let mut field = String::new();
+        if chars.next_if_eq(&'"').is_some() {
+            loop {
+                match chars.next() {
+                    Some('"') if chars.next_if_eq(&'"').is_some() => field.push('"'),
+                    Some('"') => break,
+                    Some(c) => field.push(c),
+                    None => return Err("unterminated quoted field".into()),
+                }
+            }
+            while chars.next_if(|c| *c == ' ' || *c == '\t').is_some() {}
+            match chars.next() {
+                None => {
+                    fields.push(field);
+                    return Ok(fields);
+                }
+                Some(',') => fields.push(field),
+                Some(c) => return Err(format!("unexpected '{c}' after a quoted field")),
+            }
+        } else {
+            loop {
+                match chars.next() {
+                    None => {
+                        fields.push(field.trim().to_string());
+                        return Ok(fields);
+                    }
+                    Some(',') => break,
+                    Some(c) => field.push(c),
+                }
+            }
+            fields.push(field.trim().to_string());
+        }
+    }
+}
+
+/// Quotes a manifest field when needed.
+fn quote_csv(field: &str) -> String {
+    let plain =
+        !field.is_empty() && !field.contains([',', '"']) && field.trim() == field && !field.starts_with('#');
+    if plain {
+        field.to_string()
+    } else {
+        format!("\"{}\"", field.replace('"', "\"\""))
+    }
+}
+
+/// Parses one manifest angle field.
+fn parse_manifest_angle(field: &str, name: &str) -> std::result::Result<f32, String> {
+    let v: f32 = field
+        .parse()
+        .map_err(|_| format!("{name} '{field}' is not a number"))?;
+    if !v.is_finite() {
+        return Err(format!("{name} '{field}' is not finite"));
+    }
+    if v < 0.0 {
+        return Err(format!("{name} {v} is negative"));
+    }
+    if name.starts_with("theta") && v > 90.0 {
+        return Err(format!("{name} {v} is outside [0, 90]"));
+    }
+    Ok(v)
+}
+
+/// Read a CSV manifest with header `file,theta_v,phi_v,theta_l,phi_l`.
+///
+/// Whitespace around fields is allowed, blank lines and `#` lines are
+/// ignored, and files are relative to the manifest's directory. Errors name
+/// the manifest and the line number.
+pub fn read_manifest(path: &Path) -> Result<Vec<PairFile>> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let text = String::from_utf8(bytes).map_err(|_| Error::input(path, "manifest is not valid UTF-8"))?;
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    let base = path.parent().unwrap_or(Path::new(""));
+    let mut header_seen = false;
+    let mut files = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let n = i + 1;
+        let bad = |reason: String| Error::input(path, format!("line {n}: {reason}"));
+        let trimmed = line.trim();
+        if trimmed.is_empty() || trimmed.starts_with('#') {
+            continue;
+        }
+        let fields = split_csv(line).map_err(bad)?;
+        if !header_seen {
+            let ok = fields.len() == MANIFEST_HEADER.len()
+                && fields
+                    .iter()
+                    .zip(MANIFEST_HEADER)
+                    .all(|(f, h)| f.eq_ignore_ascii_case(h));
+            if !ok {
+                return Err(bad(format!(
+                    "bad header '{trimmed}', expected '{}'",
+                    MANIFEST_HEADER.join(",")
+                )));
+            }
+            header_seen = true;
+            continue;
+        }
+        if fields.len() != MANIFEST_HEADER.len() {
+            return Err(bad(format!(
+                "expected {} fields (file,theta_v,phi_v,theta_l,phi_l), found {}",
+                MANIFEST_HEADER.len(),
+                fields.len()
+            )));
+        }
+        if fields[0].is_empty() {
+            return Err(bad("empty file name".into()));
+        }
+        let mut a = [0.0f32; 4];
+        for (k, v) in a.iter_mut().enumerate() {
+            *v = parse_manifest_angle(&fields[k + 1], MANIFEST_HEADER[k + 1]).map_err(bad)?;
+        }
+        files.push(PairFile {
+            path: base.join(&fields[0]),
+            view: Angles {
+                theta: a[0],
+                phi: a[1],
+            },
+            light: Angles {
+                theta: a[2],
+                phi: a[3],
+            },
+        });
+    }
+    if !header_seen {
+        return Err(Error::input(
+            path,
+            format!(
+                "empty manifest: expected the header '{}'",
+                MANIFEST_HEADER.join(",")
+            ),
+        ));
+    }
+    if files.is_empty() {
+        return Err(Error::input(path, "manifest lists no images"));
+    }
+    Ok(files)
+}
+
+/// True if the path has no `.` or `..` components.
+fn is_normal(path: &Path) -> bool {
+    !path
+        .components()
+        .any(|c| matches!(c, Component::CurDir | Component::ParentDir))
+}
+
+/// `file` relative to `base`, or `file` unchanged when that is not possible.
+fn relative_to(file: &Path, base: &Path) -> PathBuf {
+    if let Ok(rel) = file.strip_prefix(base) {
+        return rel.to_path_buf();
+    }
+    let (Ok(f), Ok(b)) = (std::path::absolute(file), std::path::absolute(base)) else {
+        return file.to_path_buf();
+    };
+    if !is_normal(&f) || !is_normal(&b) {
+        return f;
+    }
+    let fc: Vec<Component> = f.components().collect();
+    let bc: Vec<Component> = b.components().collect();
+    let common = fc.iter().zip(&bc).take_while(|(x, y)| x == y).count();
+    // Only climb out of the base directory within the same root.
+    if common == 0 || matches!(fc.get(common), Some(Component::Prefix(_))) {
+        return f;
+    }
+    let mut rel = PathBuf::new();
+    for _ in common..bc.len() {
+        rel.push("..");
+    }
+    for c in &fc[common..] {
+        rel.push(c);
+    }
+    rel
+}
+
+/// Write a manifest (atomically) listing files relative to its directory.
+///
+/// Angles are written in the shortest form that reads back exactly.
+pub fn write_manifest(path: &Path, files: &[PairFile]) -> Result<()> {
+    let base = path.parent().unwrap_or(Path::new(""));
+    let mut text = MANIFEST_HEADER.join(",");
+    text.push('\n');
+    for f in files {
+        let rel = relative_to(&f.path, base);
+        let name = rel.to_str().ok_or_else(|| {
+            Error::input(
+                &f.path,
+                "file name is not valid UTF-8; cannot list it in a manifest",
+            )
+        })?;
+        if name.contains(['\n', '\r']) {
+            return Err(Error::input(
+                &f.path,
+                "file name contains a line break; cannot list it in a manifest",
+            ));
+        }
+        text.push_str(&format!(
+            "{},{},{},{},{}\n",
+            quote_csv(name),
+            f.view.theta,
+            f.view.phi,
+            f.light.theta,
+            f.light.phi
+        ));
+    }
+    write_atomic(path, |w| {
+        w.write_all(text.as_bytes()).map_err(|e| Error::io(path, e))
+    })
+}
+
+/// True if `a` and `b` are the same direction (within tolerance; φ wraps; the pole ignores φ).
+fn same_direction(a: Angles, b: Angles) -> bool {
+    if a.theta.abs() < SAME_DIR_EPS && b.theta.abs() < SAME_DIR_EPS {
+        return true;
+    }
+    let dphi = (a.phi - b.phi).abs();
+    (a.theta - b.theta).abs() < SAME_DIR_EPS && dphi.min(360.0 - dphi) < SAME_DIR_EPS
+}
+
+/// Index of the direction in `dirs` (sorted by θ) that is the same as `a`.
+fn find_direction(dirs: &[Angles], a: Angles) -> Option<usize> {
+    let start = dirs.partition_point(|d| d.theta <= a.theta - SAME_DIR_EPS);
+    dirs[start..]
+        .iter()
+        .take_while(|d| d.theta < a.theta + SAME_DIR_EPS)
+        .position(|d| same_direction(*d, a))
+        .map(|i| start + i)
+}
+
+/// The distinct directions, in order of first appearance after sorting by (θ, φ).
+fn distinct_directions(all: impl Iterator<Item = Angles>) -> Vec<Angles> {
+    let mut sorted: Vec<Angles> = all.collect();
+    sorted.sort_by(|a, b| a.theta.total_cmp(&b.theta).then(a.phi.total_cmp(&b.phi)));
+    let mut dirs: Vec<Angles> = Vec::new();
+    for a in sorted {
+        if find_direction(&dirs, a).is_none() {
+            dirs.push(a);
+        }
+    }
+    dirs
+}
+
+/// Short text for a direction.
+fn show(a: Angles) -> String {
+    format!("(θ={}, φ={})", a.theta, a.phi)
+}
+
+/// Checks a direction's range for `organise_pairs`.
+fn check_range(file: &PairFile, what: &str, a: Angles) -> Result<()> {
+    if !(0.0..=90.0).contains(&a.theta) {
+        return Err(Error::input(
+            &file.path,
+            format!("{what} θ = {} is outside [0, 90] degrees", a.theta),
+        ));
+    }
+    if !(0.0..360.0).contains(&a.phi) {
+        return Err(Error::input(
+            &file.path,
+            format!("{what} φ = {} is outside [0, 360) degrees", a.phi),
+        ));
+    }
+    Ok(())
+}
+
+/// Organise pairs into a full view × light product: returns (views, lights, grid).
+///
+/// `views`/`lights` are the distinct directions in order of first appearance
+/// after sorting by (θ, φ); `grid[v * lights.len() + l]` indexes `files`.
+/// Directions closer than 1e-3° in θ and φ are the same, and all directions
+/// with θ ≈ 0 are the pole. Errors: angles out of range, duplicate pairs
+/// (both files named), and missing pairs (up to 5 listed, with the count).
+pub fn organise_pairs(origin: &Path, files: &[PairFile]) -> Result<(Vec<Angles>, Vec<Angles>, Vec<usize>)> {
+    if files.is_empty() {
+        return Err(Error::input(origin, "no BTF images"));
+    }
+    for f in files {
+        check_range(f, "view", f.view)?;
+        check_range(f, "light", f.light)?;
+    }
+    let views = distinct_directions(files.iter().map(|f| f.view));
+    let lights = distinct_directions(files.iter().map(|f| f.light));
+    let nl = lights.len();
+    let mut grid = vec![usize::MAX; views.len() * nl];
+    for (i, f) in files.iter().enumerate() {
+        // Every direction was inserted above, so the lookups succeed.
+        let (Some(v), Some(l)) = (find_direction(&views, f.view), find_direction(&lights, f.light)) else {
+            return Err(Error::input(&f.path, "internal error: direction not found"));
+        };
+        let slot = &mut grid[v * nl + l];
+        if *slot != usize::MAX {
+            return Err(Error::input(
+                &f.path,
+                format!(
+                    "duplicate pair: view {} light {} is also given by {}",
+                    show(f.view),
+                    show(f.light),
+                    files[*slot].path.display()
+                ),
+            ));
+        }
+        *slot = i;
+    }
+    let missing: Vec<usize> = (0..grid.len()).filter(|&s| grid[s] == usize::MAX).collect();
+    if !missing.is_empty() {
+        let examples: Vec<String> = missing
+            .iter()
+            .take(5)
+            .map(|&s| format!("view {} light {}", show(views[s / nl]), show(lights[s % nl])))
+            .collect();
+        return Err(Error::input(
+            origin,
+            format!(
+                "{} of the {} × {} view × light pairs are missing, e.g. {}",
+                missing.len(),
+                views.len(),
+                nl,
+                examples.join("; ")
+            ),
+        ));
+    }
+    Ok((views, lights, grid))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ang(theta: f32, phi: f32) -> Angles {
+        Angles { theta, phi }
+    }
+
+    fn pair(name: &str, view: Angles, light: Angles) -> PairFile {
+        PairFile {
+            path: PathBuf::from(name),
+            view,
+            light,
+        }
+    }
+
+    #[test]
+    fn parses_bonn_names() {
+        let (v, l) = parse_pair_name("bricks_tl015_pl000_tv030_pv045.png").unwrap();
+        assert_eq!((v, l), (ang(30.0, 45.0), ang(15.0, 0.0)));
+        let (v, l) = parse_pair_name("tl15.5_pl0_tv30_pv45.exr").unwrap();
+        assert_eq!((v, l), (ang(30.0, 45.0), ang(15.5, 0.0)));
+        let (v, l) = parse_pair_name("plaster_TV75_PV0_TL60_PL120.5.JPG").unwrap();
+        assert_eq!((v, l), (ang(75.0, 0.0), ang(60.0, 120.5)));
+        // No extension, fractional last angle.
+        let (v, _) = parse_pair_name("tl1_pl2_tv3_pv4.25").unwrap();
+        assert_eq!(v, ang(3.0, 4.25));
+    }
+
+    #[test]
+    fn name_errors_say_what_is_wrong() {
+        let e = parse_pair_name("x_tl015_pl000_tv030.png").unwrap_err();
+        assert!(e.contains("missing pv"), "{e}");
+        let e = parse_pair_name("x.png").unwrap_err();
+        assert!(e.contains("missing tl, pl, tv, pv"), "{e}");
+        let e = parse_pair_name("tl1_tl2_pl0_tv3_pv4.png").unwrap_err();
+        assert!(e.contains("tl appears more than once"), "{e}");
+        let e = parse_pair_name("tl-1_pl0_tv3_pv4.png").unwrap_err();
+        assert!(e.contains("not a non-negative decimal"), "{e}");
+        let e = parse_pair_name("tl1.2.3_pl0_tv3_pv4.png").unwrap_err();
+        assert!(e.contains("tl1.2.3"), "{e}");
+        let e = parse_pair_name("tl1e3_pl0_tv3_pv4.png").unwrap_err();
+        assert!(e.contains("1e3"), "{e}");
+    }
+
+    #[test]
+    fn format_parse_round_trip_exact() {
+        assert_eq!(
+            format_pair_name("bricks", ang(30.0, 45.0), ang(15.0, 0.0), "png"),
+            "bricks_tl015_pl000_tv030_pv045.png"
+        );
+        assert_eq!(
+            format_pair_name("", ang(0.0, 360.0 - 0.5), ang(7.5, 0.125), ".exr"),
+            "tl007.5_pl000.125_tv000_pv359.5.exr"
+        );
+        // Every angle with at most 3 decimals in [0, 360) at a stride of 0.001
+        // (thinned), plus all integers.
+        let mut checked = 0;
+        let mut k: u32 = 0;
+        while k < 360_000 {
+            let s = format!("{}.{:03}", k / 1000, k % 1000);
+            let a: f32 = s.parse().unwrap();
+            let b: f32 = format!("{}", (359_999 - k) as f32 / 1000.0).parse().unwrap();
+            let name = format_pair_name("p", ang(a, b), ang(b, a), "png");
+            let (v, l) = parse_pair_name(&name).unwrap();
+            assert_eq!(v.theta.to_bits(), a.to_bits(), "{name}");
+            assert_eq!(v.phi.to_bits(), b.to_bits(), "{name}");
+            assert_eq!((l.theta, l.phi), (b, a), "{name}");
+            checked += 1;
+            k += 7;
+        }
+        assert!(checked > 50_000);
+    }
+
+    #[test]
+    fn scan_folder_finds_and_sorts() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in [
+            "m_tl000_pl000_tv030_pv000.png",
+            "m_tl000_pl000_tv000_pv000.PNG",
+            "readme.txt",
+            ".hidden_tl1.png",
+        ] {
+            std::fs::write(dir.path().join(name), b"x").unwrap();
+        }
+        std::fs::create_dir(dir.path().join("sub.png")).unwrap();
+        let files = scan_folder(dir.path()).unwrap();
+        assert_eq!(files.len(), 2);
+        assert!(files[0].path.ends_with("m_tl000_pl000_tv000_pv000.PNG"));
+        assert_eq!(files[1].view, ang(30.0, 0.0));
+        // An image that does not parse is an error naming it.
+        std::fs::write(dir.path().join("cover.jpg"), b"x").unwrap();
+        let e = scan_folder(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("cover.jpg") && e.contains("missing"), "{e}");
+        // Empty folder.
+        let empty = tempfile::tempdir().unwrap();
+        let e = scan_folder(empty.path()).unwrap_err();
+        assert!(matches!(e, Error::Input { .. }) && e.to_string().contains("no BTF images"));
+        // Missing folder.
+        let e = scan_folder(&empty.path().join("gone")).unwrap_err();
+        assert!(matches!(e, Error::Io { .. }));
+    }
+
+    #[test]
+    fn manifest_round_trip_and_parsing() {
+        let dir = tempfile::tempdir().unwrap();
+        let m = dir.path().join("btf.csv");
+        let files = vec![
+            pair("a.png", ang(0.0, 0.0), ang(15.5, 0.1)),
+            pair("sub/b, \"c\".exr", ang(89.999, 359.75), ang(1.0 / 3.0, 7.0)),
+        ];
+        let files: Vec<PairFile> = files
+            .into_iter()
+            .map(|mut f| {
+                f.path = dir.path().join(&f.path);
+                f
+            })
+            .collect();
+        write_manifest(&m, &files).unwrap();
+        let text = std::fs::read_to_string(&m).unwrap();
+        assert!(
+            text.starts_with("file,theta_v,phi_v,theta_l,phi_l\na.png,"),
+            "{text}"
+        );
+        assert_eq!(read_manifest(&m).unwrap(), files);
+
+        std::fs::write(
+            &m,
+            "\u{feff}# comment\n\n file , theta_v,phi_v , theta_l,phi_l\n  x.png , 10 , 20.5, 30,40 \n",
+        )
+        .unwrap();
+        let got = read_manifest(&m).unwrap();
+        assert_eq!(
+            got,
+            vec![PairFile {
+                path: dir.path().join("x.png"),
+                view: ang(10.0, 20.5),
+                light: ang(30.0, 40.0)
+            }]
+        );
+    }
+
+    #[test]
+    fn manifest_errors_name_file_and_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let m = dir.path().join("list.csv");
+        let h = "file,theta_v,phi_v,theta_l,phi_l\n";
+        let cases = [
+            ("file,theta,phi\nx.png,1,2,3,4\n", "line 1", "bad header"),
+            (&format!("{h}x.png,1,2,3\n"), "line 2", "expected 5 fields"),
+            (
+                &format!("{h}\n# c\nx.png,1,abc,3,4\n"),
+                "line 4",
+                "phi_v 'abc' is not a number",
+            ),
+            (&format!("{h}x.png,1,2,-3,4\n"), "line 2", "negative"),
+            (&format!("{h}x.png,1,2,3,inf\n"), "line 2", "not finite"),
+            (&format!("{h}x.png,1,2,3,NaN\n"), "line 2", "not finite"),
+            (&format!("{h}x.png,91,2,3,4\n"), "line 2", "outside [0, 90]"),
+            (&format!("{h}\"x.png,1,2,3,4\n"), "line 2", "unterminated"),
+            ("# only a comment\n", "empty manifest", "header"),
+            (h, "lists no images", ""),
+        ];
+        for (text, a, b) in cases {
+            std::fs::write(&m, text).unwrap();
+            let e = read_manifest(&m).unwrap_err();
+            assert!(matches!(e, Error::Input { .. }));
+            let e = e.to_string();
+            assert!(e.contains("list.csv") && e.contains(a) && e.contains(b), "{e}");
+        }
+        let e = read_manifest(&dir.path().join("none.csv")).unwrap_err();
+        assert!(matches!(e, Error::Io { .. }));
+    }
+
+    #[test]
+    fn manifest_relative_paths_outside_directory() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("m")).unwrap();
+        let m = dir.path().join("m").join("list.csv");
+        let f = vec![PairFile {
+            path: dir.path().join("imgs").join("a.png"),
+            view: ang(0.0, 0.0),
+            light: ang(0.0, 0.0),
+        }];
+        write_manifest(&m, &f).unwrap();
+        let text = std::fs::read_to_string(&m).unwrap();
+        assert!(text.contains("\n../imgs/a.png,"), "{text}");
+        std::fs::create_dir(dir.path().join("imgs")).unwrap();
+        let back = read_manifest(&m).unwrap();
+        assert_eq!(
+            std::fs::canonicalize(back[0].path.parent().unwrap()).unwrap(),
+            std::fs::canonicalize(dir.path().join("imgs")).unwrap()
+        );
+        assert!(back[0].path.ends_with("m/../imgs/a.png"));
+    }
+
+    #[test]
+    fn organise_two_views_three_lights() {
+        let views = [ang(30.0, 90.0), ang(0.0, 0.0)];
+        let lights = [ang(45.0, 0.0), ang(15.0, 180.0), ang(15.0, 0.0)];
+        let mut files = Vec::new();
+        // Shuffled order; the pole view is given with different φ per file.
+        for (li, l) in lights.iter().enumerate().rev() {
+            for (vi, v) in views.iter().enumerate() {
+                let mut v = *v;
+                if v.theta == 0.0 {
+                    v.phi = 10.0 * li as f32;
+                }
+                files.push(pair(&format!("v{vi}l{li}.png"), v, *l));
+            }
+        }
+        let (vs, ls, grid) = organise_pairs(Path::new("btf"), &files).unwrap();
+        assert_eq!(vs.len(), 2);
+        assert_eq!(vs[0].theta, 0.0);
+        assert_eq!(vs[1], ang(30.0, 90.0));
+        assert_eq!(ls, vec![ang(15.0, 0.0), ang(15.0, 180.0), ang(45.0, 0.0)]);
+        assert_eq!(grid.len(), 6);
+        for v in 0..2 {
+            for l in 0..3 {
+                let f = &files[grid[v * 3 + l]];
+                assert!(same_direction(f.view, vs[v]));
+                assert_eq!(f.light, ls[l]);
+            }
+        }
+        // Tiny angle noise and φ wrap-around map to the same direction.
+        let mut noisy = files.clone();
+        noisy[0].light.theta += 4e-4;
+        noisy[1].view.phi = 90.0005;
+        let (vs2, ls2, grid2) = organise_pairs(Path::new("btf"), &noisy).unwrap();
+        assert_eq!((vs2.len(), ls2.len()), (2, 3));
+        assert_eq!(grid2, grid);
+        assert!(same_direction(ang(10.0, 359.9995), ang(10.0, 0.0)));
+    }
+
+    #[test]
+    fn organise_errors() {
+        let o = Path::new("folder_x");
+        let base = vec![
+            pair("a.png", ang(0.0, 0.0), ang(10.0, 0.0)),
+            pair("b.png", ang(0.0, 0.0), ang(20.0, 0.0)),
+            pair("c.png", ang(30.0, 0.0), ang(10.0, 0.0)),
+            pair("d.png", ang(30.0, 0.0), ang(20.0, 0.0)),
+        ];
+        assert!(organise_pairs(o, &base).is_ok());
+
+        // Duplicate: pole with a different φ is the same view.
+        let mut dup = base.clone();
+        dup.push(pair("e.png", ang(0.0, 45.0), ang(20.0, 0.0)));
+        let e = organise_pairs(o, &dup).unwrap_err().to_string();
+        assert!(
+            e.contains("e.png") && e.contains("b.png") && e.contains("duplicate"),
+            "{e}"
+        );
+
+        // Missing pairs: count and examples, naming the origin.
+        let mut gap = base.clone();
+        gap.remove(3);
+        gap.push(pair("f.png", ang(60.0, 0.0), ang(30.0, 0.0)));
+        gap.push(pair("h.png", ang(90.0, 0.0), ang(40.0, 0.0)));
+        let e = organise_pairs(o, &gap).unwrap_err().to_string();
+        assert!(e.starts_with("folder_x"), "{e}");
+        assert!(e.contains("11 of the 4 × 4"), "{e}");
+        assert!(e.contains("view (θ=30, φ=0) light (θ=20, φ=0)"), "{e}");
+        assert_eq!(e.matches("view (").count(), 5, "{e}");
+
+        // Ranges.
+        for (f, what) in [
+            (pair("g.png", ang(91.0, 0.0), ang(10.0, 0.0)), "view θ"),
+            (pair("g.png", ang(0.0, 0.0), ang(10.0, 360.0)), "light φ"),
+            (pair("g.png", ang(0.0, -1.0), ang(10.0, 0.0)), "view φ"),
+            (pair("g.png", ang(0.0, 0.0), ang(f32::NAN, 0.0)), "light θ"),
+        ] {
+            let e = organise_pairs(o, &[f]).unwrap_err().to_string();
+            assert!(
+                e.contains("g.png") && e.contains(what) && e.contains("outside"),
+                "{e}"
+            );
+        }
+        assert!(organise_pairs(o, &[]).is_err());
+    }
+}

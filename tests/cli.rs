@@ -1,0 +1,119 @@
+//! The command line: exit codes and messages a user sees.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn btfquilt(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_btfquilt"))
+        .args(args)
+        .output()
+        .expect("runs")
+}
+
+fn fails_clearly(out: &Output, needles: &[&str]) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "should fail: {stderr}");
+    assert!(!stderr.contains("panicked"), "panicked: {stderr}");
+    for n in needles {
+        assert!(stderr.contains(n), "'{n}' missing from: {stderr}");
+    }
+    stderr
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn generate_info_export_round() {
+    let dir = tempfile::tempdir().unwrap();
+    let btf = dir.path().join("tiny.btf");
+    let out = btfquilt(&[
+        "generate-btf",
+        "--family",
+        "pebbles",
+        "--imperfection",
+        "stains",
+        "--size",
+        "24",
+        "--views",
+        "4x2",
+        "--lights",
+        "6x2",
+        "--seed",
+        "5",
+        "--threads",
+        "1",
+        "-q",
+        "-o",
+        s(&btf),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(dir.path().join("tiny.mask.png").exists());
+    let info = btfquilt(&["info", s(&btf), "--verify"]);
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(info.status.success());
+    for needle in [
+        "kind:      btf",
+        "rgb",
+        "ratio",
+        "seed:      5",
+        "24×24 texels, 8 views × 12 lights",
+        "verify",
+    ] {
+        assert!(text.contains(needle), "'{needle}' missing from:\n{text}");
+    }
+    let png = dir.path().join("one.png");
+    let out = btfquilt(&[
+        "export-btf",
+        s(&btf),
+        "--view",
+        "25,0",
+        "--light",
+        "75,60",
+        "-o",
+        s(&png),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(btfquilt::imageio::image_size(&png).unwrap(), (24, 24));
+    let out = btfquilt(&[
+        "export-btf",
+        s(&btf),
+        "--view",
+        "10,0",
+        "--light",
+        "45,60",
+        "-o",
+        s(&png),
+    ]);
+    fails_clearly(&out, &["tiny.btf", "no view direction"]);
+}
+
+#[test]
+fn bad_inputs_exit_non_zero_with_the_file_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let junk = dir.path().join("junk.quilt");
+    std::fs::write(&junk, "junk").unwrap();
+    fails_clearly(
+        &btfquilt(&["info", s(&junk)]),
+        &["junk.quilt", "not a btfquilt container"],
+    );
+    let missing = dir.path().join("missing.btf");
+    fails_clearly(&btfquilt(&["info", s(&missing)]), &["missing.btf"]);
+    let out = dir.path().join("x.btf");
+    fails_clearly(
+        &btfquilt(&["generate-btf", "--family", "marble", "-o", s(&out)]),
+        &["--family 'marble'"],
+    );
+    fails_clearly(
+        &btfquilt(&["generate-btf", "--views", "12by8", "-o", s(&out)]),
+        &["12by8"],
+    );
+    fails_clearly(
+        &btfquilt(&["generate-btf", "--memory", "lots", "-o", s(&out)]),
+        &["--memory 'lots'"],
+    );
+    assert!(!out.exists());
+    fails_clearly(&btfquilt(&["ingest", s(&junk), "-o", s(&out)]), &["junk.quilt"]);
+    assert!(!out.exists());
+}
