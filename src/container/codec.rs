@@ -99,6 +99,13 @@ pub struct EncodedChunk {
     pub(crate) elements: u64,
 }
 
+impl EncodedChunk {
+    /// Compressed size in bytes.
+    pub fn stored_len(&self) -> usize {
+        self.bytes.len()
+    }
+}
+
 /// Checksum of decoded bytes (xxh3, 64-bit).
 pub fn checksum(bytes: &[u8]) -> u64 {
     xxhash_rust::xxh3::xxh3_64(bytes)

@@ -19,13 +19,18 @@
 
 use std::fs::File;
 use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use memmap2::{Mmap, UncheckedAdvice};
 
+/// After this many bytes read through the map, its pages are released.
+const RELEASE_EVERY: u64 = 32 << 20;
+
 /// Read-only random access to the bytes of one file.
 pub(crate) enum ByteSource {
-    /// The whole file mapped read-only.
-    Mapped(Mmap),
+    /// The whole file mapped read-only, and the bytes read since its pages
+    /// were last released.
+    Mapped(Mmap, AtomicU64),
     /// Positioned reads (`pread`) on the open file.
     Plain(File),
 }
@@ -40,7 +45,10 @@ impl ByteSource {
             // contract above holds: btfquilt never modifies a finished artifact
             // in place, and the mapping is only ever read through `&[u8]`.
             if let Ok(map) = unsafe { Mmap::map(&file) } {
-                return ByteSource::Mapped(map);
+                // Chunks are read in any order: no readahead into large folios
+                // that a fault would then map whole.
+                let _ = map.advise(memmap2::Advice::Random);
+                return ByteSource::Mapped(map, AtomicU64::new(0));
             }
         }
         ByteSource::Plain(file)
@@ -55,20 +63,26 @@ impl ByteSource {
         f: impl FnOnce(&[u8]) -> R,
     ) -> std::io::Result<R> {
         match self {
-            ByteSource::Mapped(map) => {
+            ByteSource::Mapped(map, since_release) => {
                 let start = offset as usize;
                 let bytes = map.get(start..start + len).ok_or_else(|| {
                     std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "range past end of file")
                 })?;
                 let out = f(bytes);
-                // The decoded chunk now lives in the cache; let the kernel drop
-                // the mapped pages from this process so resident memory stays
-                // bounded by the cache budget, not by the file size.
-                // SAFETY: MADV_DONTNEED on a read-only, file-backed mapping only
-                // discards this process's page-table entries; the next access
-                // faults the unchanged file contents back in. No Rust reference
-                // into the range outlives `f`.
-                let _ = unsafe { map.unchecked_advise_range(UncheckedAdvice::DontNeed, start, len) };
+                // Decoded chunks live in the cache; mapped pages would only
+                // add to resident memory (and the kernel maps whole page-cache
+                // folios around each fault, far beyond the chunk read). Every
+                // RELEASE_EVERY bytes, let the kernel drop them all, so resident
+                // memory stays bounded by the cache budget, not the file size.
+                if since_release.fetch_add(len as u64, Ordering::Relaxed) + len as u64 >= RELEASE_EVERY {
+                    since_release.store(0, Ordering::Relaxed);
+                    // SAFETY: MADV_DONTNEED on a read-only, file-backed mapping
+                    // only discards this process's page-table entries; the next
+                    // access faults the unchanged file contents back in, so a
+                    // range another thread is reading right now stays correct.
+                    // No Rust reference into the map outlives its `f` call.
+                    let _ = unsafe { map.unchecked_advise(UncheckedAdvice::DontNeed) };
+                }
                 Ok(out)
             }
             ByteSource::Plain(file) => {
@@ -81,7 +95,7 @@ impl ByteSource {
 
     /// Whether reads go through a memory map (for `info`).
     pub(crate) fn is_mapped(&self) -> bool {
-        matches!(self, ByteSource::Mapped(_))
+        matches!(self, ByteSource::Mapped(..))
     }
 }
 

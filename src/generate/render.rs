@@ -578,30 +578,4 @@ mod tests {
             assert!((q[2] - meso.height_at(q[0], q[1])).abs() < 0.02, "{q:?}");
         }
     }
-
-    /// Times a 128×128 block × 8 views × 96 lights (run with `--ignored --nocapture`).
-    #[test]
-    #[ignore]
-    fn timing() {
-        let m = meso(Family::Bricks, Imperfection::Cracks, 128, 1);
-        let lights = standard_lights();
-        let t0 = std::time::Instant::now();
-        let r = BlockRenderer::new(&m, 0, 0, 128, 128, &lights);
-        let t_new = t0.elapsed();
-        let mut out = vec![0.0; 128 * 128 * lights.len() * 3];
-        let t1 = std::time::Instant::now();
-        let views = 8;
-        for k in 0..views {
-            r.render_view(direction(5.0 + 10.0 * k as f32, 45.0 * k as f32), &mut out);
-        }
-        let t_views = t1.elapsed();
-        let values = (128 * 128 * lights.len() * views) as f64;
-        println!(
-            "new: {:.3} s, views: {:.3} s, {:.2} ns/value (render only, single thread), {:.2} ns/value incl. new",
-            t_new.as_secs_f64(),
-            t_views.as_secs_f64(),
-            t_views.as_secs_f64() * 1e9 / values,
-            (t_views + t_new).as_secs_f64() * 1e9 / values
-        );
-    }
 }

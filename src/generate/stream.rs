@@ -138,37 +138,52 @@ pub fn generate_btf(cfg: &GenerateConfig, out: &Path, progress: &dyn Progress) -
     let nbx = cfg.width.div_ceil(block);
     let nby = cfg.height.div_ceil(block);
     progress.begin("generate", (nbx * nby * views.len()) as u64);
-    let mut stored = 0u64;
-    for by in 0..nby {
-        for bx in 0..nbx {
-            let (x0, y0) = (bx * block, by * block);
-            let bw = block.min(cfg.width - x0);
-            let bh = block.min(cfg.height - y0);
-            let renderer = BlockRenderer::new(&meso, x0, y0, bw, bh, &lights);
-            for v0 in (0..views.len()).step_by(group) {
-                let v1 = (v0 + group).min(views.len());
-                let encoded: Vec<Vec<(usize, usize, codec::EncodedChunk)>> = (v0..v1)
-                    .into_par_iter()
-                    .map(|v| {
-                        let mut values = vec![0f32; bw * bh * nl * 3];
-                        renderer.render_view(views[v], &mut values);
-                        block_tiles(&layout, x0, y0, bw, bh, nl, &values)
-                            .into_par_iter()
-                            .map(|(tx, ty, chunk)| (tx, ty, codec::encode(&chunk, cfg.level)))
-                            .collect()
-                    })
-                    .collect();
-                for (v, chunks) in (v0..v1).zip(encoded) {
-                    for (tx, ty, e) in chunks {
-                        stored += e.bytes.len() as u64;
-                        writer.write_encoded(tx, ty, v, e)?;
-                    }
+    // Rendering and encoding run on the rayon pool while a writer thread
+    // appends the previous group's chunks; the bounded channel keeps at most
+    // two groups in flight and the write order fixed.
+    let (send, receive) = std::sync::mpsc::sync_channel::<Vec<(usize, usize, usize, codec::EncodedChunk)>>(2);
+    let stored = std::thread::scope(|scope| -> Result<u64> {
+        let writing = scope.spawn(move || -> Result<(BtfWriter, u64)> {
+            let mut stored = 0u64;
+            for group in receive {
+                for (tx, ty, v, e) in group {
+                    stored += e.bytes.len() as u64;
+                    writer.write_encoded(tx, ty, v, e)?;
                 }
-                progress.advance((v1 - v0) as u64);
+            }
+            Ok((writer, stored))
+        });
+        'blocks: for by in 0..nby {
+            for bx in 0..nbx {
+                let (x0, y0) = (bx * block, by * block);
+                let bw = block.min(cfg.width - x0);
+                let bh = block.min(cfg.height - y0);
+                let renderer = BlockRenderer::new(&meso, x0, y0, bw, bh, &lights);
+                for v0 in (0..views.len()).step_by(group) {
+                    let v1 = (v0 + group).min(views.len());
+                    let encoded: Vec<Vec<_>> = (v0..v1)
+                        .into_par_iter()
+                        .map(|v| {
+                            let mut values = vec![0f32; bw * bh * nl * 3];
+                            renderer.render_view(views[v], &mut values);
+                            block_tiles(&layout, x0, y0, bw, bh, nl, &values)
+                                .into_par_iter()
+                                .map(|(tx, ty, chunk)| (tx, ty, v, codec::encode(&chunk, cfg.level)))
+                                .collect()
+                        })
+                        .collect();
+                    if send.send(encoded.into_iter().flatten().collect()).is_err() {
+                        break 'blocks; // the writer failed: its error is reported below
+                    }
+                    progress.advance((v1 - v0) as u64);
+                }
             }
         }
-    }
-    writer.finish()?;
+        drop(send);
+        let (writer, stored) = writing.join().expect("the writer thread does not panic")?;
+        writer.finish()?;
+        Ok(stored)
+    })?;
     progress.end();
     let mask = if cfg.imperfection != Imperfection::None {
         let path = mask_path(out);
