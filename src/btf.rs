@@ -12,6 +12,7 @@ use std::ops::Range;
 use std::path::Path;
 
 use half::f16;
+use half::slice::HalfFloatSliceExt;
 
 use crate::container::{
     ArrayId, ArraySpec, Container, ContainerWriter, DType, EncodedChunk, MemoryBudget, Param,
@@ -334,13 +335,14 @@ impl Btf {
             &[0, 0, pairs.start as u64, 0],
             &[l.height as u64, l.width as u64, k as u64, 3],
         )?;
+        let mut values = vec![0f32; region.len()];
+        region.convert_to_f32_slice(&mut values);
         let texels = l.width * l.height;
         let mut out = vec![0f32; k * texels * 3];
         for t in 0..texels {
             for p in 0..k {
-                for c in 0..3 {
-                    out[(p * texels + t) * 3 + c] = region[(t * k + p) * 3 + c].to_f32();
-                }
+                let (src, dst) = ((t * k + p) * 3, (p * texels + t) * 3);
+                out[dst..dst + 3].copy_from_slice(&values[src..src + 3]);
             }
         }
         Ok(out)

@@ -9,6 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use half::f16;
+use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use crate::btf::{Angles, Btf, BtfLayout, BtfWriter};
@@ -154,15 +155,17 @@ fn tile_band_values(layout: &BtfLayout, images: &[RgbImage], tx: usize, ty: usiz
     let y0 = ty * layout.tile;
     let w = layout.tile.min(layout.width - x0);
     let h = layout.tile.min(layout.height - y0);
-    let mut out = Vec::with_capacity(w * h * images.len() * 3);
+    let mut values = Vec::with_capacity(w * h * images.len() * 3);
     for y in y0..y0 + h {
         for x in x0..x0 + w {
             let i = (y * layout.width + x) * 3;
             for img in images {
-                out.extend(img.data[i..i + 3].iter().map(|&v| f16::from_f32(v)));
+                values.extend_from_slice(&img.data[i..i + 3]);
             }
         }
     }
+    let mut out = vec![f16::ZERO; values.len()];
+    out.convert_from_f32_slice(&values);
     out
 }
 

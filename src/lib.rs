@@ -10,10 +10,12 @@ pub mod btf;
 pub mod container;
 pub mod demo;
 pub mod error;
+pub mod factorize;
 pub mod generate;
 pub mod imageio;
 pub mod ingest;
 pub mod naming;
 pub mod progress;
+mod rng;
 
 pub use error::{Error, Result};

@@ -9,6 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use btfquilt::btf::{self, Angles, Btf};
 use btfquilt::container::{Container, MemoryBudget};
+use btfquilt::factorize::{self, FactorizeConfig, SvdArtifact};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::ingest::{self, ImageFormat, IngestConfig};
 use btfquilt::progress::Progress;
@@ -98,6 +99,49 @@ enum Command {
         /// Format for --all: exr (exact f16) or png (16-bit sRGB).
         #[arg(long, default_value = "exr")]
         format: String,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Factorize a BTF (or a colour image) into geometry maps and appearance functions (randomized SVD).
+    Factorize {
+        /// A .btf, or a colour image (PNG/JPEG/TIFF/EXR) taken as a one-direction BTF.
+        input: PathBuf,
+        /// Number of terms n (default 40, or fewer if the matrix is smaller).
+        #[arg(long)]
+        terms: Option<usize>,
+        /// Oversampling p of the randomized SVD.
+        #[arg(long, default_value_t = 10)]
+        oversampling: usize,
+        /// Power iterations q of the randomized SVD.
+        #[arg(long, default_value_t = 2)]
+        power_iterations: usize,
+        /// Rotated copies of the geometry maps (5° steps for 72).
+        #[arg(long, default_value_t = 72)]
+        rotations: usize,
+        /// The sample wraps around: rotated copies sample it toroidally.
+        #[arg(long)]
+        tileable: bool,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Render one direction pair from a factorization and print its PSNR against the original.
+    Reconstruct {
+        file: PathBuf,
+        /// View direction θ,φ in degrees.
+        #[arg(long, allow_hyphen_values = true)]
+        view: String,
+        /// Light direction θ,φ in degrees.
+        #[arg(long, allow_hyphen_values = true)]
+        light: String,
+        /// The original BTF (default: the source recorded in the .svd, if unchanged).
+        #[arg(long)]
+        original: Option<PathBuf>,
+        #[arg(short, long)]
+        output: PathBuf,
         #[command(flatten)]
         res: Resources,
     },
@@ -292,6 +336,50 @@ fn run(cli: Cli) -> Result<()> {
                     println!("wrote {}", out.display());
                 }
                 _ => bail!("give either -o IMAGE (with --view and --light) or --all DIR"),
+            }
+        }
+        Command::Factorize {
+            input,
+            terms,
+            oversampling,
+            power_iterations,
+            rotations,
+            tileable,
+            seed,
+            output,
+            res,
+        } => {
+            let (memory, bars) = res.apply()?;
+            let cfg = FactorizeConfig {
+                terms,
+                oversampling,
+                power_iterations,
+                rotations,
+                tileable,
+                seed,
+                memory,
+                ..FactorizeConfig::default()
+            };
+            let report = factorize::factorize(&input, &output, &cfg, &bars)?;
+            println!("wrote {}: {report}", output.display());
+        }
+        Command::Reconstruct {
+            file,
+            view,
+            light,
+            original,
+            output,
+            res,
+        } => {
+            let (memory, _) = res.apply()?;
+            let svd = SvdArtifact::open(&file, memory)?;
+            let pair = svd.find_pair(parse_angles(&view, "view")?, parse_angles(&light, "light")?)?;
+            let img = svd.reconstruct_pair(pair)?;
+            btfquilt::imageio::write_rgb(&output, &img)?;
+            println!("wrote {}", output.display());
+            match svd.original_pair(pair, original.as_deref(), memory)? {
+                Some(orig) => println!("PSNR {:.2} dB against the original", factorize::psnr(&orig, &img)),
+                None => println!("PSNR: the original is not available (give --original FILE)"),
             }
         }
         Command::Demo { output, res } => {

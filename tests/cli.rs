@@ -117,3 +117,130 @@ fn bad_inputs_exit_non_zero_with_the_file_named() {
     fails_clearly(&btfquilt(&["ingest", s(&junk), "-o", s(&out)]), &["junk.quilt"]);
     assert!(!out.exists());
 }
+
+#[test]
+fn factorize_reconstruct_and_their_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let btf = dir.path().join("s.btf");
+    let ok = btfquilt(&[
+        "generate-btf",
+        "--size",
+        "20",
+        "--views",
+        "4x2",
+        "--lights",
+        "4x2",
+        "-q",
+        "-o",
+        s(&btf),
+    ]);
+    assert!(ok.status.success());
+    let svd = dir.path().join("s.svd");
+    let out = btfquilt(&[
+        "factorize",
+        s(&btf),
+        "--terms",
+        "8",
+        "--rotations",
+        "6",
+        "-q",
+        "-o",
+        s(&svd),
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(text.contains("relative Frobenius error"), "{text}");
+    let info = String::from_utf8_lossy(&btfquilt(&["info", s(&svd)]).stdout).into_owned();
+    for needle in [
+        "kind:      svd",
+        "geometry_maps",
+        "appearance",
+        "rotated_maps",
+        "relative_error",
+    ] {
+        assert!(info.contains(needle), "'{needle}' missing from:\n{info}");
+    }
+    let png = dir.path().join("r.png");
+    let out = btfquilt(&[
+        "reconstruct",
+        s(&svd),
+        "--view",
+        "25,90",
+        "--light",
+        "75,180",
+        "-o",
+        s(&png),
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && text.contains("PSNR") && text.contains("dB"),
+        "{text}"
+    );
+    let out = btfquilt(&[
+        "factorize",
+        s(&btf),
+        "--terms",
+        "500",
+        "-o",
+        s(&dir.path().join("x.svd")),
+    ]);
+    fails_clearly(&out, &["--terms 500", "s.btf"]);
+    fails_clearly(
+        &btfquilt(&["factorize", s(&svd), "-o", s(&dir.path().join("y.svd"))]),
+        &["s.svd", "'svd'"],
+    );
+    fails_clearly(
+        &btfquilt(&[
+            "reconstruct",
+            s(&btf),
+            "--view",
+            "0,0",
+            "--light",
+            "0,0",
+            "-o",
+            s(&png),
+        ]),
+        &["s.btf"],
+    );
+}
+
+#[test]
+fn a_killed_factorization_leaves_nothing_that_looks_finished() {
+    let dir = tempfile::tempdir().unwrap();
+    let btf = dir.path().join("k.btf");
+    assert!(btfquilt(&["generate-btf", "--size", "64", "-q", "-o", s(&btf)])
+        .status
+        .success());
+    let svd = dir.path().join("k.svd");
+    for delay_ms in [50u64, 400, 1200] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_btfquilt"))
+            .args(["factorize", s(&btf), "-q", "-o", s(&svd)])
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        let _ = child.kill();
+        let status = child.wait().unwrap();
+        if status.success() {
+            // finished before the kill: then it must be complete and valid
+            btfquilt::container::Container::open(&svd, Default::default())
+                .unwrap()
+                .verify()
+                .unwrap();
+            std::fs::remove_file(&svd).unwrap();
+            continue;
+        }
+        assert!(
+            !svd.exists(),
+            "killed after {delay_ms} ms but {} exists",
+            svd.display()
+        );
+        // a leftover temporary file is hidden and is not a finished container
+        for entry in std::fs::read_dir(dir.path()).unwrap() {
+            let path = entry.unwrap().path();
+            if path.to_string_lossy().ends_with(".partial") {
+                assert!(btfquilt::container::Container::open(&path, Default::default()).is_err());
+                std::fs::remove_file(&path).unwrap();
+            }
+        }
+    }
+}

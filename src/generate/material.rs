@@ -221,15 +221,7 @@ fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
 // Hashing and noise
 // ---------------------------------------------------------------------------
 
-const GOLDEN: u64 = 0x9e37_79b9_7f4a_7c15;
-
-/// splitmix64 finaliser: a bijective 64-bit mixer with good avalanche.
-#[inline]
-fn mix64(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
+use crate::rng::{derive, mix64, GOLDEN};
 
 /// Hash of a seed and two integer coordinates.
 #[inline]
@@ -237,12 +229,6 @@ fn hash2(seed: u64, a: i64, b: i64) -> u64 {
     let h = mix64(seed.wrapping_add(GOLDEN) ^ 0x243f_6a88_85a3_08d3);
     let h = mix64(h.wrapping_add((a as u64).wrapping_mul(GOLDEN)));
     mix64(h ^ (b as u64).wrapping_add(0x1319_8a2e_0370_7344))
-}
-
-/// Derive an independent sub-seed.
-#[inline]
-fn derive(seed: u64, salt: u64) -> u64 {
-    mix64(seed ^ mix64(salt.wrapping_mul(GOLDEN)))
 }
 
 /// Top 24 bits of a hash as a float in `[0, 1)`.

@@ -11,6 +11,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use half::f16;
+use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use super::material::{Family, Imperfection, MaterialParams, Mesostructure};
@@ -220,10 +221,11 @@ fn block_tiles(
         for tx0 in (0..bw).step_by(t) {
             let tw = t.min(bw - tx0);
             let th = t.min(bh - ty0);
-            let mut chunk = Vec::with_capacity(tw * th * nl * 3);
-            for y in ty0..ty0 + th {
-                let row = ((y * bw + tx0) * nl * 3)..((y * bw + tx0 + tw) * nl * 3);
-                chunk.extend(values[row].iter().map(|&v| f16::from_f32(v)));
+            let row_len = tw * nl * 3;
+            let mut chunk = vec![f16::ZERO; th * row_len];
+            for (y, out) in (ty0..ty0 + th).zip(chunk.chunks_exact_mut(row_len)) {
+                let start = (y * bw + tx0) * nl * 3;
+                out.convert_from_f32_slice(&values[start..start + row_len]);
             }
             out.push(((x0 + tx0) / t, (y0 + ty0) / t, chunk));
         }
