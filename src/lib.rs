@@ -6,16 +6,23 @@
 //! disk. The only `unsafe` code is the memory map in `container::mmap`.
 #![deny(unsafe_code)]
 
+pub mod atlas;
 pub mod btf;
 pub mod container;
 pub mod demo;
 pub mod error;
+pub mod export;
 pub mod factorize;
+pub mod field;
 pub mod generate;
+pub mod gim;
 pub mod imageio;
 pub mod ingest;
+pub mod json;
+pub mod mesh;
 pub mod naming;
 pub mod progress;
 mod rng;
+pub mod show;
 
 pub use error::{Error, Result};

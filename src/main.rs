@@ -11,8 +11,11 @@ use btfquilt::btf::{self, Angles, Btf};
 use btfquilt::container::{Container, MemoryBudget};
 use btfquilt::factorize::{self, FactorizeConfig, SvdArtifact};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
+use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::ingest::{self, ImageFormat, IngestConfig};
+use btfquilt::mesh::io::LoadOptions;
 use btfquilt::progress::Progress;
+use btfquilt::{export, show};
 
 #[derive(Parser)]
 #[command(
@@ -144,6 +147,44 @@ enum Command {
         output: PathBuf,
         #[command(flatten)]
         res: Resources,
+    },
+    /// Build the dense mesh: atlas charts, packing and the multi-chart geometry image.
+    Atlas {
+        /// A triangle mesh (.obj or .ply).
+        mesh: PathBuf,
+        /// Atlas edge in texels.
+        #[arg(long, default_value_t = 1024)]
+        resolution: usize,
+        /// Minimum empty texels between charts.
+        #[arg(long, default_value_t = 2)]
+        gutter: usize,
+        /// Vector-field keys: JSON [{"face": 12, "dir": [1, 0, 0]}, …].
+        #[arg(long)]
+        field: Option<PathBuf>,
+        /// Weld vertices closer than this fraction of the bounding-box diagonal.
+        #[arg(long, default_value_t = 1e-6)]
+        weld: f32,
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Debug picture of a geometry image: charts, normals or field.
+    Show {
+        file: PathBuf,
+        #[arg(long, default_value = "charts")]
+        what: String,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Export an artifact for other tools (a .gim: OBJ + MTL with atlas UVs).
+    Export {
+        file: PathBuf,
+        #[arg(long, default_value = "obj")]
+        format: String,
+        /// Output folder.
+        #[arg(short, long)]
+        output: PathBuf,
     },
     /// Run the pipeline on the embedded default data and write pictures.
     Demo {
@@ -381,6 +422,40 @@ fn run(cli: Cli) -> Result<()> {
                 Some(orig) => println!("PSNR {:.2} dB against the original", factorize::psnr(&orig, &img)),
                 None => println!("PSNR: the original is not available (give --original FILE)"),
             }
+        }
+        Command::Atlas {
+            mesh,
+            resolution,
+            gutter,
+            field,
+            weld,
+            output,
+            res,
+        } => {
+            let (_, bars) = res.apply()?;
+            let cfg = AtlasConfig {
+                resolution,
+                gutter,
+                field_keys: field,
+                load: LoadOptions { weld_tolerance: weld },
+                ..AtlasConfig::default()
+            };
+            let report = gim::build_gim(&mesh, &output, &cfg, &bars)?;
+            println!("{}: {}", mesh.display(), report.repair);
+            println!("wrote {}: {report}", output.display());
+        }
+        Command::Show { file, what, output } => {
+            let g = Gim::open(&file, MemoryBudget::default())?;
+            show::show(&g, what.parse()?, &output)?;
+            println!("wrote {}", output.display());
+        }
+        Command::Export { file, format, output } => {
+            if format != "obj" {
+                bail!("--format '{format}': only obj is available for a geometry image");
+            }
+            let g = Gim::open(&file, MemoryBudget::default())?;
+            let obj = export::export_gim_obj(&g, &output)?;
+            println!("wrote {} (+ mesh.mtl, charts.png)", obj.display());
         }
         Command::Demo { output, res } => {
             let (memory, bars) = res.apply()?;

@@ -1,0 +1,960 @@
+//! Segmentation of a mesh into few large disk-shaped charts, each
+//! parameterised by a least-squares conformal map (Lévy et al. 2002).
+//!
+//! The segmentation grows charts from seed faces over the dual graph, by
+//! geodesic distance penalised by normal deviation, with a normal-cone limit
+//! (in the spirit of D-Charts, Julius et al. 2005, and the iso-charts of Zhou
+//! et al. 2004), and moves the seeds to the chart centres for a few Lloyd
+//! iterations. Every chart is then checked to be a topological disk, mapped
+//! with LSCM, and split in two while it is not a disk, has a flipped triangle,
+//! or its texture stretch (Sander et al. 2001) exceeds the limit. Finally,
+//! smallest first, each chart is merged into one of its neighbours (longest
+//! shared border first) when the union is a disk with an unflipped map within
+//! the stretch limit and its faces stay within the normal cone of the union's
+//! mean normal; the cone is waived for tiny charts (under 1% of their
+//! component's area).
+
+use super::lscm::{local_frame, lscm, stretch};
+use crate::mesh::{Mesh, Topology, NO_FACE};
+use crate::{Error, Result};
+use rayon::prelude::*;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+const NONE: u32 = u32::MAX;
+/// Lloyd iterations (re-seeding at chart centres) of the segmentation.
+const LLOYD_ITERATIONS: usize = 3;
+/// Weight of the normal deviation (1 − cos) in the growth priority.
+const NORMAL_PENALTY: f64 = 4.0;
+/// Charts below this fraction of their component's area may merge into a
+/// neighbour regardless of the normal cone (the stretch limit still holds).
+const TINY_CHART: f64 = 0.01;
+/// Neighbours tried when merging a chart.
+const MERGE_CANDIDATES: usize = 3;
+
+/// Chart segmentation parameters.
+#[derive(Clone, Debug)]
+pub struct ChartConfig {
+    /// Faces join a chart only while their normal stays within this angle of
+    /// the chart's mean normal (degrees). Default 70.
+    pub max_normal_deviation: f32,
+    /// A chart whose L2 stretch exceeds this is split. Default 1.25.
+    pub max_stretch: f32,
+}
+
+impl Default for ChartConfig {
+    fn default() -> Self {
+        ChartConfig {
+            max_normal_deviation: 70.0,
+            max_stretch: 1.25,
+        }
+    }
+}
+
+/// One chart: a disk of faces with its own vertex copies and a conformal
+/// parameterisation.
+#[derive(Clone, Debug)]
+pub struct Chart {
+    /// Global face ids, ascending.
+    pub faces: Vec<u32>,
+    /// Local vertex -> global vertex id (ascending).
+    pub vertices: Vec<u32>,
+    /// Local vertex indices, same order as `faces`, same winding as the mesh.
+    pub triangles: Vec<[u32; 3]>,
+    /// Per local vertex, in surface units: scaled so the chart's uv area
+    /// equals its 3D area (uniform density across charts), rotated so the
+    /// chart's longest extent lies along u (the longer side of the
+    /// minimum-area bounding rectangle; PCA if the hull is degenerate),
+    /// translated so min u = min v = 0. Orientation is preserved: uv
+    /// triangles are counter-clockwise.
+    pub uv: Vec<[f32; 2]>,
+    /// L2 texture stretch (Sander et al. 2001) at uniform density.
+    pub l2_stretch: f32,
+    /// L∞ texture stretch (largest singular value of uv → 3D).
+    pub linf_stretch: f32,
+}
+
+/// Per-face geometry and the dual graph.
+struct Ctx<'a> {
+    mesh: &'a Mesh,
+    adj: &'a [[u32; 3]],
+    component: &'a [u32],
+    component_area: Vec<f64>,
+    normal: Vec<[f64; 3]>,
+    area: Vec<f64>,
+    /// Dual edge length across edge i: centroid → edge midpoint → centroid.
+    weight: Vec<[f64; 3]>,
+    cos_max: f64,
+    max_stretch: f64,
+}
+
+fn p64(p: [f32; 3]) -> [f64; 3] {
+    [p[0] as f64, p[1] as f64, p[2] as f64]
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn normalized(a: [f64; 3]) -> [f64; 3] {
+    let l = dot(a, a).sqrt();
+    if l > 0.0 {
+        [a[0] / l, a[1] / l, a[2] / l]
+    } else {
+        [0.0; 3]
+    }
+}
+
+/// Heap key for a non-negative finite f64 (bit order = numeric order).
+fn key(x: f64) -> u64 {
+    x.max(0.0).to_bits()
+}
+
+impl<'a> Ctx<'a> {
+    fn new(mesh: &'a Mesh, topology: &'a Topology, cfg: &ChartConfig) -> Self {
+        let nf = mesh.triangles.len();
+        let mut normal = Vec::with_capacity(nf);
+        let mut area = Vec::with_capacity(nf);
+        let mut centroid = Vec::with_capacity(nf);
+        for f in 0..nf {
+            let c = mesh.corners(f).map(p64);
+            let e1 = [c[1][0] - c[0][0], c[1][1] - c[0][1], c[1][2] - c[0][2]];
+            let e2 = [c[2][0] - c[0][0], c[2][1] - c[0][1], c[2][2] - c[0][2]];
+            let n = [
+                e1[1] * e2[2] - e1[2] * e2[1],
+                e1[2] * e2[0] - e1[0] * e2[2],
+                e1[0] * e2[1] - e1[1] * e2[0],
+            ];
+            area.push(0.5 * dot(n, n).sqrt());
+            normal.push(normalized(n));
+            centroid.push([
+                (c[0][0] + c[1][0] + c[2][0]) / 3.0,
+                (c[0][1] + c[1][1] + c[2][1]) / 3.0,
+                (c[0][2] + c[1][2] + c[2][2]) / 3.0,
+            ]);
+        }
+        let mut weight = vec![[0.0; 3]; nf];
+        for f in 0..nf {
+            let t = mesh.triangles[f];
+            for i in 0..3 {
+                let g = topology.face_adjacency[f][i];
+                if g == NO_FACE {
+                    continue;
+                }
+                let a = p64(mesh.positions[t[i] as usize]);
+                let b = p64(mesh.positions[t[(i + 1) % 3] as usize]);
+                let m = [(a[0] + b[0]) * 0.5, (a[1] + b[1]) * 0.5, (a[2] + b[2]) * 0.5];
+                weight[f][i] = dist(centroid[f], m) + dist(m, centroid[g as usize]);
+            }
+        }
+        let mut component_area = vec![0.0; topology.components];
+        for (f, &c) in topology.face_component.iter().enumerate() {
+            component_area[c as usize] += area[f];
+        }
+        Ctx {
+            mesh,
+            adj: &topology.face_adjacency,
+            component: &topology.face_component,
+            component_area,
+            normal,
+            area,
+            weight,
+            cos_max: (cfg.max_normal_deviation as f64).to_radians().cos(),
+            max_stretch: cfg.max_stretch as f64,
+        }
+    }
+}
+
+/// A set of faces with adjacency in local indices ([`NONE`] across the
+/// patch border).
+struct Patch {
+    faces: Vec<u32>,
+    adj: Vec<[u32; 3]>,
+}
+
+impl Patch {
+    fn whole(ctx: &Ctx) -> Patch {
+        let adj = ctx
+            .adj
+            .iter()
+            .map(|a| a.map(|g| if g == NO_FACE { NONE } else { g }))
+            .collect();
+        Patch {
+            faces: (0..ctx.adj.len() as u32).collect(),
+            adj,
+        }
+    }
+
+    /// `faces` must be sorted ascending.
+    fn new(ctx: &Ctx, faces: Vec<u32>) -> Patch {
+        let adj = faces
+            .iter()
+            .map(|&f| {
+                ctx.adj[f as usize].map(|g| {
+                    if g == NO_FACE {
+                        NONE
+                    } else {
+                        faces.binary_search(&g).map_or(NONE, |i| i as u32)
+                    }
+                })
+            })
+            .collect();
+        Patch { faces, adj }
+    }
+
+    fn len(&self) -> usize {
+        self.faces.len()
+    }
+
+    fn weight(&self, ctx: &Ctx, f: u32, i: usize) -> f64 {
+        ctx.weight[self.faces[f as usize] as usize][i]
+    }
+
+    /// Grows one region per seed simultaneously (Dijkstra over the dual graph
+    /// with the priority geodesic distance × (1 + k (1 − n·N)), N the region's
+    /// current mean normal). With a cone limit a face joins only if n·N ≥ cos
+    /// of the limit; faces nobody can take stay [`NONE`].
+    fn grow(&self, ctx: &Ctx, seeds: &[u32], cone: Option<f64>) -> Vec<u32> {
+        let mut label = vec![NONE; self.len()];
+        let mut sum = vec![[0.0f64; 3]; seeds.len()];
+        let mut mean = vec![[0.0f64; 3]; seeds.len()];
+        let mut heap = BinaryHeap::new();
+        for (r, &s) in seeds.iter().enumerate() {
+            heap.push(Reverse((0u64, s, r as u32, 0u64)));
+        }
+        while let Some(Reverse((_, f, r, d))) = heap.pop() {
+            if label[f as usize] != NONE {
+                continue;
+            }
+            let g = self.faces[f as usize] as usize;
+            let n = ctx.normal[g];
+            let ru = r as usize;
+            if let Some(c) = cone {
+                // faces without a normal (zero area) fit anywhere
+                if sum[ru] != [0.0; 3] && n != [0.0; 3] && dot(n, mean[ru]) < c {
+                    continue;
+                }
+            }
+            label[f as usize] = r;
+            let a = ctx.area[g].max(1e-300);
+            for k in 0..3 {
+                sum[ru][k] += a * n[k];
+            }
+            mean[ru] = normalized(sum[ru]);
+            let d = f64::from_bits(d);
+            for i in 0..3 {
+                let h = self.adj[f as usize][i];
+                if h == NONE || label[h as usize] != NONE {
+                    continue;
+                }
+                let dh = d + self.weight(ctx, f, i);
+                let nh = ctx.normal[self.faces[h as usize] as usize];
+                let prio = dh * (1.0 + NORMAL_PENALTY * (1.0 - dot(nh, mean[ru])));
+                heap.push(Reverse((key(prio), h, r, dh.to_bits())));
+            }
+        }
+        label
+    }
+
+    /// Connected components of equal-label faces: (component per face,
+    /// count), components numbered in order of their smallest face.
+    fn components(&self, label: &[u32]) -> (Vec<u32>, usize) {
+        let mut comp = vec![NONE; self.len()];
+        let mut count = 0u32;
+        let mut stack = Vec::new();
+        for s in 0..self.len() {
+            if comp[s] != NONE {
+                continue;
+            }
+            comp[s] = count;
+            stack.push(s as u32);
+            while let Some(f) = stack.pop() {
+                for &h in &self.adj[f as usize] {
+                    if h != NONE && comp[h as usize] == NONE && label[h as usize] == label[f as usize] {
+                        comp[h as usize] = count;
+                        stack.push(h);
+                    }
+                }
+            }
+            count += 1;
+        }
+        (comp, count as usize)
+    }
+
+    /// For every connected component of equal-label faces, the face farthest
+    /// (dual geodesic distance) from the component's border, or its first
+    /// face if it has no border. Returns (label, face) in component order.
+    fn centres(&self, ctx: &Ctx, label: &[u32]) -> Vec<(u32, u32)> {
+        let (comp, count) = self.components(label);
+        let mut d = vec![f64::INFINITY; self.len()];
+        let mut heap = BinaryHeap::new();
+        for f in 0..self.len() {
+            for i in 0..3 {
+                let h = self.adj[f][i];
+                if h == NONE || label[h as usize] != label[f] {
+                    // half the dual edge: distance to the border edge
+                    let w = if h == NONE {
+                        0.0
+                    } else {
+                        0.5 * self.weight(ctx, f as u32, i)
+                    };
+                    if w < d[f] {
+                        d[f] = w;
+                    }
+                }
+            }
+            if d[f].is_finite() {
+                heap.push(Reverse((key(d[f]), f as u32)));
+            }
+        }
+        while let Some(Reverse((k, f))) = heap.pop() {
+            if k != key(d[f as usize]) {
+                continue;
+            }
+            for i in 0..3 {
+                let h = self.adj[f as usize][i];
+                if h == NONE || label[h as usize] != label[f as usize] {
+                    continue;
+                }
+                let dh = d[f as usize] + self.weight(ctx, f, i);
+                if dh < d[h as usize] {
+                    d[h as usize] = dh;
+                    heap.push(Reverse((key(dh), h)));
+                }
+            }
+        }
+        let mut best: Vec<Option<(f64, u32)>> = vec![None; count];
+        for f in 0..self.len() {
+            let c = comp[f] as usize;
+            let df = if d[f].is_finite() { d[f] } else { -1.0 };
+            if best[c].map_or(true, |(bd, _)| df > bd) {
+                best[c] = Some((df, f as u32));
+            }
+        }
+        best.into_iter()
+            .map(|b| b.expect("component has a face").1)
+            .map(|f| (label[f as usize], f))
+            .collect()
+    }
+
+    /// The face farthest from `s` (dual geodesic distance within the patch).
+    fn farthest_from(&self, ctx: &Ctx, s: u32) -> u32 {
+        let mut d = vec![f64::INFINITY; self.len()];
+        d[s as usize] = 0.0;
+        let mut heap = BinaryHeap::new();
+        heap.push(Reverse((0u64, s)));
+        let mut far = (0.0, s);
+        while let Some(Reverse((k, f))) = heap.pop() {
+            let df = d[f as usize];
+            if k != key(df) {
+                continue;
+            }
+            if df > far.0 {
+                far = (df, f);
+            }
+            for i in 0..3 {
+                let h = self.adj[f as usize][i];
+                if h == NONE {
+                    continue;
+                }
+                let dh = df + self.weight(ctx, f, i);
+                if dh < d[h as usize] {
+                    d[h as usize] = dh;
+                    heap.push(Reverse((key(dh), h)));
+                }
+            }
+        }
+        far.1
+    }
+
+    /// Whether the patch is a topological disk: connected, every vertex on
+    /// at most one border fan (no pinch), and Euler characteristic 1.
+    fn is_disk(&self, ctx: &Ctx) -> bool {
+        let (_, count) = self.components(&vec![0; self.len()]);
+        if count != 1 {
+            return false;
+        }
+        let mut verts: Vec<u32> = Vec::with_capacity(self.len() * 3);
+        let mut border: Vec<u32> = Vec::new();
+        let mut interior_half = 0usize;
+        for (f, &g) in self.faces.iter().enumerate() {
+            let t = ctx.mesh.triangles[g as usize];
+            verts.extend_from_slice(&t);
+            for i in 0..3 {
+                if self.adj[f][i] == NONE {
+                    border.push(t[i]);
+                    border.push(t[(i + 1) % 3]);
+                } else {
+                    interior_half += 1;
+                }
+            }
+        }
+        if border.is_empty() {
+            return false;
+        }
+        verts.sort_unstable();
+        verts.dedup();
+        border.sort_unstable();
+        // a vertex on more than two border edges is a pinch
+        if border.windows(3).any(|w| w[0] == w[2]) {
+            return false;
+        }
+        let e = interior_half / 2 + border.len() / 2;
+        verts.len() as i64 - e as i64 + self.len() as i64 == 1
+    }
+
+    /// Splits the patch in two by growing from the two faces farthest apart.
+    fn split_in_two(&self, ctx: &Ctx) -> Vec<Vec<u32>> {
+        let a = self.farthest_from(ctx, 0);
+        let mut b = self.farthest_from(ctx, a);
+        if b == a {
+            b = if a == 0 { 1 } else { 0 };
+        }
+        let label = self.grow(ctx, &[a, b], None);
+        let mut parts = vec![Vec::new(), Vec::new()];
+        let mut rest = Vec::new();
+        for (f, &l) in label.iter().enumerate() {
+            match l {
+                0 | 1 => parts[l as usize].push(self.faces[f]),
+                _ => rest.push(self.faces[f]), // unreachable from both seeds
+            }
+        }
+        if !rest.is_empty() {
+            parts.push(rest);
+        }
+        parts
+    }
+
+    /// Faces grouped by component, in global ids.
+    fn split_components(&self) -> Vec<Vec<u32>> {
+        let (comp, count) = self.components(&vec![0; self.len()]);
+        let mut parts = vec![Vec::new(); count];
+        for (f, &c) in comp.iter().enumerate() {
+            parts[c as usize].push(self.faces[f]);
+        }
+        parts
+    }
+}
+
+/// Initial segmentation of the whole mesh: labels per face.
+fn segment(ctx: &Ctx) -> Vec<Vec<u32>> {
+    let whole = Patch::whole(ctx);
+    let nf = whole.len();
+    // one seed per mesh component, at its centre
+    let mut seeds: Vec<u32> = whole
+        .centres(ctx, &vec![0; nf])
+        .into_iter()
+        .map(|(_, f)| f)
+        .collect();
+    let mut label;
+    let mut iteration = 0;
+    loop {
+        loop {
+            label = whole.grow(ctx, &seeds, Some(ctx.cos_max));
+            if !label.contains(&NONE) {
+                break;
+            }
+            // a new seed at the centre of every uncovered area
+            seeds.extend(
+                whole
+                    .centres(ctx, &label)
+                    .into_iter()
+                    .filter(|&(l, _)| l == NONE)
+                    .map(|(_, f)| f),
+            );
+        }
+        if iteration == LLOYD_ITERATIONS {
+            break;
+        }
+        iteration += 1;
+        let mut centres = whole.centres(ctx, &label);
+        centres.sort_unstable();
+        seeds = centres.into_iter().map(|(_, f)| f).collect();
+    }
+    let mut regions = vec![Vec::new(); seeds.len()];
+    for (f, &l) in label.iter().enumerate() {
+        regions[l as usize].push(f as u32);
+    }
+    regions.retain(|r| !r.is_empty());
+    regions
+}
+
+/// LSCM of a set of faces (sorted), normalised to uniform density and
+/// oriented; `None` if LSCM fails or a triangle flips.
+fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
+    let mesh = ctx.mesh;
+    let mut vertices: Vec<u32> = faces.iter().flat_map(|&f| mesh.triangles[f as usize]).collect();
+    vertices.sort_unstable();
+    vertices.dedup();
+    let local = |v: u32| vertices.binary_search(&v).expect("vertex of the chart") as u32;
+    let triangles: Vec<[u32; 3]> = faces
+        .iter()
+        .map(|&f| mesh.triangles[f as usize].map(local))
+        .collect();
+    let positions: Vec<[f32; 3]> = vertices.iter().map(|&v| mesh.positions[v as usize]).collect();
+    let uv = if faces.len() == 1 {
+        // local vertices are sorted by global id; triangle corners may not be
+        let mut uv = vec![[0.0; 2]; 3];
+        let (q, _) = local_frame(triangles[0].map(|v| p64(positions[v as usize])));
+        for (k, &v) in triangles[0].iter().enumerate() {
+            uv[v as usize] = q[k];
+        }
+        uv
+    } else {
+        let uv = lscm(&positions, &triangles).ok()?;
+        for (&f, t) in faces.iter().zip(&triangles) {
+            let (a, b, c) = (uv[t[0] as usize], uv[t[1] as usize], uv[t[2] as usize]);
+            let s = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+            if !(s > 0.0 || ctx.area[f as usize] == 0.0) {
+                return None;
+            }
+        }
+        uv
+    };
+    let (l2, linf) = stretch(&positions, &triangles, &uv);
+    if faces.len() > 1 && (l2.is_nan() || l2 > ctx.max_stretch) {
+        return None;
+    }
+    let uv = normalize_uv(&positions, &triangles, &uv);
+    Some(Chart {
+        faces: faces.to_vec(),
+        vertices,
+        triangles,
+        uv,
+        l2_stretch: l2 as f32,
+        linf_stretch: linf as f32,
+    })
+}
+
+/// Scales uv to the 3D area, rotates the longer side of the minimum-area
+/// bounding rectangle onto u, and moves the minimum to the origin.
+fn normalize_uv(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) -> Vec<[f32; 2]> {
+    let mut a3 = 0.0;
+    let mut auv = 0.0;
+    for t in triangles {
+        let (_, a) = local_frame(t.map(|v| p64(positions[v as usize])));
+        a3 += a;
+        let (p, q, r) = (uv[t[0] as usize], uv[t[1] as usize], uv[t[2] as usize]);
+        auv += 0.5 * ((q[0] - p[0]) * (r[1] - p[1]) - (r[0] - p[0]) * (q[1] - p[1])).abs();
+    }
+    let s = if a3 > 0.0 && auv > 0.0 {
+        (a3 / auv).sqrt()
+    } else {
+        1.0
+    };
+    let n = uv.len() as f64;
+    let mean = uv
+        .iter()
+        .fold([0.0; 2], |m, p| [m[0] + p[0] / n, m[1] + p[1] / n]);
+    let (sin, cos) = orientation(uv).sin_cos();
+    let rotated: Vec<[f64; 2]> = uv
+        .iter()
+        .map(|p| {
+            let (x, y) = ((p[0] - mean[0]) * s, (p[1] - mean[1]) * s);
+            [cos * x + sin * y, -sin * x + cos * y]
+        })
+        .collect();
+    let lo = rotated
+        .iter()
+        .fold([f64::INFINITY; 2], |m, p| [m[0].min(p[0]), m[1].min(p[1])]);
+    rotated
+        .iter()
+        .map(|p| [(p[0] - lo[0]) as f32, (p[1] - lo[1]) as f32])
+        .collect()
+}
+
+/// Whether all faces lie within the normal cone around their area-weighted
+/// mean normal.
+fn within_cone(ctx: &Ctx, faces: &[u32]) -> bool {
+    let mut sum = [0.0; 3];
+    for &f in faces {
+        let (n, a) = (ctx.normal[f as usize], ctx.area[f as usize]);
+        for k in 0..3 {
+            sum[k] += a * n[k];
+        }
+    }
+    let mean = normalized(sum);
+    faces.iter().all(|&f| {
+        let n = ctx.normal[f as usize];
+        n == [0.0; 3] || dot(n, mean) >= ctx.cos_max
+    })
+}
+
+/// Angle of the direction to rotate onto +u: the longer side of the
+/// minimum-area bounding rectangle (one side lies on a convex-hull edge), or
+/// the principal axis (PCA) when the hull is degenerate.
+fn orientation(uv: &[[f64; 2]]) -> f64 {
+    let mut pts: Vec<[f64; 2]> = uv.to_vec();
+    pts.sort_unstable_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+    pts.dedup();
+    let cross =
+        |o: [f64; 2], a: [f64; 2], b: [f64; 2]| (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+    // Andrew's monotone chain
+    let mut hull: Vec<[f64; 2]> = Vec::with_capacity(pts.len() + 1);
+    for pass in 0..2 {
+        let start = hull.len();
+        let iter: Box<dyn Iterator<Item = &[f64; 2]>> = if pass == 0 {
+            Box::new(pts.iter())
+        } else {
+            Box::new(pts.iter().rev())
+        };
+        for &p in iter {
+            while hull.len() >= start + 2 && cross(hull[hull.len() - 2], hull[hull.len() - 1], p) <= 0.0 {
+                hull.pop();
+            }
+            hull.push(p);
+        }
+        hull.pop();
+    }
+    let mut best: Option<(f64, f64)> = None; // (area, angle)
+    if hull.len() >= 3 {
+        for i in 0..hull.len() {
+            let (a, b) = (hull[i], hull[(i + 1) % hull.len()]);
+            let d = [b[0] - a[0], b[1] - a[1]];
+            let l = (d[0] * d[0] + d[1] * d[1]).sqrt();
+            if l <= 0.0 {
+                continue;
+            }
+            let (ux, uy) = (d[0] / l, d[1] / l);
+            let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+            for p in &hull {
+                let (x, y) = (p[0] * ux + p[1] * uy, -p[0] * uy + p[1] * ux);
+                lo = [lo[0].min(x), lo[1].min(y)];
+                hi = [hi[0].max(x), hi[1].max(y)];
+            }
+            let (w, h) = (hi[0] - lo[0], hi[1] - lo[1]);
+            let area = w * h;
+            let mut angle = uy.atan2(ux);
+            if h > w {
+                angle += std::f64::consts::FRAC_PI_2;
+            }
+            if best.map_or(true, |(a, _)| area < a * (1.0 - 1e-9)) {
+                best = Some((area, angle));
+            }
+        }
+    }
+    if let Some((_, angle)) = best {
+        return angle;
+    }
+    let n = uv.len() as f64;
+    let mean = uv
+        .iter()
+        .fold([0.0; 2], |m, p| [m[0] + p[0] / n, m[1] + p[1] / n]);
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    for p in uv {
+        let (x, y) = (p[0] - mean[0], p[1] - mean[1]);
+        sxx += x * x;
+        sxy += x * y;
+        syy += y * y;
+    }
+    0.5 * (2.0 * sxy).atan2(sxx - syy)
+}
+
+enum Outcome {
+    Done(Chart),
+    Split(Vec<Vec<u32>>),
+}
+
+/// Checks and parameterises one region, or says how to split it.
+fn evaluate(ctx: &Ctx, faces: &[u32]) -> Outcome {
+    if faces.len() == 1 {
+        return Outcome::Done(parameterize(ctx, faces).expect("a single triangle always maps"));
+    }
+    let patch = Patch::new(ctx, faces.to_vec());
+    let parts = patch.split_components();
+    if parts.len() > 1 {
+        return Outcome::Split(parts);
+    }
+    if patch.is_disk(ctx) {
+        if let Some(chart) = parameterize(ctx, faces) {
+            return Outcome::Done(chart);
+        }
+    }
+    Outcome::Split(patch.split_in_two(ctx))
+}
+
+/// Merges charts into neighbours, smallest first, while the union stays a
+/// disk with an unflipped map within the stretch limit and within the normal
+/// cone (waived for tiny charts).
+fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
+    let mut owner = vec![NONE; ctx.adj.len()];
+    for (c, chart) in charts.iter().enumerate() {
+        for &f in &chart.faces {
+            owner[f as usize] = c as u32;
+        }
+    }
+    let area = |chart: &Chart| chart.faces.iter().map(|&f| ctx.area[f as usize]).sum::<f64>();
+    let mut order: Vec<(f64, u32, usize)> = charts
+        .iter()
+        .enumerate()
+        .map(|(c, ch)| (area(ch), ch.faces[0], c))
+        .collect();
+    order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let mut alive = vec![true; charts.len()];
+    for &(_, _, c) in &order {
+        let first = charts[c].faces[0] as usize;
+        let tiny = area(&charts[c]) < TINY_CHART * ctx.component_area[ctx.component[first] as usize];
+        let mut shared: Vec<(u32, u32)> = Vec::new(); // (neighbour, shared edges)
+        for &f in &charts[c].faces {
+            for &g in &ctx.adj[f as usize] {
+                if g != NO_FACE && owner[g as usize] != c as u32 {
+                    let o = owner[g as usize];
+                    match shared.iter_mut().find(|s| s.0 == o) {
+                        Some(s) => s.1 += 1,
+                        None => shared.push((o, 1)),
+                    }
+                }
+            }
+        }
+        shared.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+        shared.truncate(MERGE_CANDIDATES);
+        let tries: Vec<Option<Chart>> = shared
+            .par_iter()
+            .map(|&(n, _)| {
+                let mut faces = charts[c].faces.clone();
+                faces.extend_from_slice(&charts[n as usize].faces);
+                faces.sort_unstable();
+                if !tiny && !within_cone(ctx, &faces) {
+                    return None;
+                }
+                let patch = Patch::new(ctx, faces);
+                if !patch.is_disk(ctx) {
+                    return None;
+                }
+                parameterize(ctx, &patch.faces)
+            })
+            .collect();
+        if let Some((k, merged)) = tries.into_iter().enumerate().find_map(|(k, t)| t.map(|m| (k, m))) {
+            let n = shared[k].0 as usize;
+            for &f in &charts[c].faces {
+                owner[f as usize] = n as u32;
+            }
+            charts[n] = merged;
+            charts[c].faces.clear();
+            alive[c] = false;
+        }
+    }
+    charts
+        .into_iter()
+        .zip(alive)
+        .filter(|(_, a)| *a)
+        .map(|(c, _)| c)
+        .collect()
+}
+
+/// Segments the surface into few large disk-shaped charts and parameterises
+/// each with LSCM (Lévy et al. 2002); see the module documentation. Every face
+/// is in exactly one chart; a closed component yields at least two charts.
+/// Deterministic (independent of thread count); charts are ordered by their
+/// first face.
+pub fn build_charts(mesh: &Mesh, topology: &Topology, cfg: &ChartConfig) -> Result<Vec<Chart>> {
+    let nf = mesh.triangles.len();
+    if topology.face_adjacency.len() != nf
+        || topology.face_component.len() != nf
+        || topology
+            .face_component
+            .iter()
+            .any(|&c| c as usize >= topology.components)
+    {
+        return Err(Error::Config(format!(
+            "build_charts: topology has {} faces, mesh {nf}",
+            topology.face_adjacency.len()
+        )));
+    }
+    if topology
+        .face_adjacency
+        .iter()
+        .flatten()
+        .any(|&g| g != NO_FACE && g as usize >= nf)
+    {
+        return Err(Error::Config(
+            "build_charts: face adjacency names a face past the mesh".into(),
+        ));
+    }
+    if mesh.positions.iter().flatten().any(|c| !c.is_finite()) {
+        return Err(Error::Config("build_charts: non-finite vertex position".into()));
+    }
+    if mesh
+        .triangles
+        .iter()
+        .flatten()
+        .any(|&v| v as usize >= mesh.positions.len())
+    {
+        return Err(Error::Config(
+            "build_charts: a triangle indexes past the vertex list".into(),
+        ));
+    }
+    if mesh
+        .triangles
+        .iter()
+        .any(|t| t[0] == t[1] || t[1] == t[2] || t[2] == t[0])
+    {
+        return Err(Error::Config("build_charts: a triangle repeats a vertex".into()));
+    }
+    if !(cfg.max_normal_deviation > 0.0 && cfg.max_normal_deviation <= 180.0) {
+        return Err(Error::Config(format!(
+            "max_normal_deviation must be in (0, 180] degrees, got {}",
+            cfg.max_normal_deviation
+        )));
+    }
+    if cfg.max_stretch.is_nan() || cfg.max_stretch < 1.0 {
+        return Err(Error::Config(format!(
+            "max_stretch must be at least 1, got {}",
+            cfg.max_stretch
+        )));
+    }
+    if nf == 0 {
+        return Ok(Vec::new());
+    }
+    let ctx = Ctx::new(mesh, topology, cfg);
+    let mut pending = segment(&ctx);
+    let mut charts = Vec::new();
+    while !pending.is_empty() {
+        let outcomes: Vec<Outcome> = pending.par_iter().map(|faces| evaluate(&ctx, faces)).collect();
+        pending = Vec::new();
+        for o in outcomes {
+            match o {
+                Outcome::Done(c) => charts.push(c),
+                Outcome::Split(parts) => pending.extend(parts),
+            }
+        }
+    }
+    let mut charts = merge(&ctx, charts);
+    charts.sort_unstable_by_key(|c| c.faces[0]);
+    Ok(charts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mesh(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Mesh {
+        Mesh {
+            positions,
+            triangles,
+            ..Mesh::default()
+        }
+    }
+
+    fn cube() -> Mesh {
+        let p = (0..8)
+            .map(|i| [(i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32])
+            .collect();
+        // outward-facing quads (counter-clockwise seen from outside)
+        let quads = [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        let t = quads
+            .iter()
+            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+            .collect();
+        mesh(p, t)
+    }
+
+    fn coverage(m: &Mesh, charts: &[Chart]) -> Vec<u32> {
+        let mut seen = vec![0u32; m.triangles.len()];
+        for c in charts {
+            for (&f, t) in c.faces.iter().zip(&c.triangles) {
+                seen[f as usize] += 1;
+                assert_eq!(t.map(|v| c.vertices[v as usize]), m.triangles[f as usize]);
+            }
+        }
+        seen
+    }
+
+    #[test]
+    fn cube_sides_and_corners() {
+        let m = cube();
+        let cfg = ChartConfig::default();
+        let topo = m.topology();
+        // the segmentation keeps the sides apart (90° > 70°) ...
+        let ctx = Ctx::new(&m, &topo, &cfg);
+        assert_eq!(segment(&ctx).len(), 6);
+        // ... but three sides around a corner stay within 70° of their mean
+        // normal (54.7°), so merging may join them
+        let charts = build_charts(&m, &topo, &cfg).unwrap();
+        assert!((2..=6).contains(&charts.len()), "{}", charts.len());
+        assert!(coverage(&m, &charts).iter().all(|&s| s == 1));
+        for c in &charts {
+            assert!(c.l2_stretch <= cfg.max_stretch);
+        }
+        let sides = ChartConfig {
+            max_normal_deviation: 40.0,
+            ..cfg
+        };
+        let charts = build_charts(&m, &topo, &sides).unwrap();
+        assert_eq!(charts.len(), 6);
+        for c in &charts {
+            assert!((c.l2_stretch - 1.0).abs() < 1e-5 && (c.linf_stretch - 1.0).abs() < 1e-5);
+            let max =
+                c.uv.iter()
+                    .fold([0f32; 2], |m, p| [m[0].max(p[0]), m[1].max(p[1])]);
+            assert!(
+                (max[0] - 1.0).abs() < 1e-5 && (max[1] - 1.0).abs() < 1e-5,
+                "{max:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn two_components_and_a_sliver() {
+        // a cube plus a flat strip whose boundary edge carries a zero-area sliver
+        let mut m = cube();
+        let base = m.positions.len() as u32;
+        for i in 0..4 {
+            m.positions.push([3.0 + i as f32, 0.0, 0.0]);
+            m.positions.push([3.0 + i as f32, 1.0, 0.0]);
+        }
+        m.positions.push([3.5, 0.0, 0.0]); // midpoint of the first bottom edge
+        let (a, b, c, mid) = (base, base + 2, base + 1, base + 8);
+        m.triangles.push([a, mid, c]);
+        m.triangles.push([mid, b, c]);
+        m.triangles.push([a, b, mid]); // zero area
+        m.triangles.push([b, base + 3, c]);
+        for i in 1..3 {
+            let (p, q, r, s) = (base + 2 * i, base + 2 * i + 2, base + 2 * i + 3, base + 2 * i + 1);
+            m.triangles.push([p, q, r]);
+            m.triangles.push([p, r, s]);
+        }
+        let topo = m.topology();
+        assert_eq!(topo.components, 2);
+        let sides = ChartConfig {
+            max_normal_deviation: 40.0,
+            ..ChartConfig::default()
+        };
+        let charts = build_charts(&m, &topo, &sides).unwrap();
+        assert!(coverage(&m, &charts).iter().all(|&s| s == 1));
+        assert_eq!(charts.len(), 7, "six cube sides and the strip");
+    }
+
+    #[test]
+    fn bad_input() {
+        let m = cube();
+        let topo = m.topology();
+        let bad = ChartConfig {
+            max_stretch: 0.5,
+            ..ChartConfig::default()
+        };
+        assert!(build_charts(&m, &topo, &bad).is_err());
+        let bad = ChartConfig {
+            max_normal_deviation: 0.0,
+            ..ChartConfig::default()
+        };
+        assert!(build_charts(&m, &topo, &bad).is_err());
+        let other = mesh(vec![[0.0; 3]; 3], vec![[0, 1, 2]]);
+        assert!(build_charts(&other, &topo, &ChartConfig::default()).is_err());
+        let empty = Mesh::default();
+        assert!(build_charts(&empty, &empty.topology(), &ChartConfig::default())
+            .unwrap()
+            .is_empty());
+    }
+}

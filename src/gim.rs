@@ -1,0 +1,1044 @@
+//! `atlas`: from a mesh to the dense mesh M_d, a multi-chart geometry image
+//! (the paper's "GIM-based sampling", DESIGN.md section 2).
+//!
+//! The mesh is cut into charts and parameterised (`atlas::charts`), packed at
+//! one texel density into R×R (`atlas::pack`), and rasterized tile by tile:
+//! every covered atlas texel becomes a dense vertex with its chart, original
+//! face, barycentrics, 3D position, normal and tangent frame (tangent from the
+//! vector field). Coverage is conservative (texel centres within 0.75 texel
+//! of a chart triangle), so each chart's texels form a connected grid whose
+//! border runs along the chart's boundary. Chart boundaries are then
+//! zippered: each boundary texel links to the nearest boundary texel across
+//! the seam (in 3D, among nearby faces), which makes M_d one connected graph
+//! per surface component; strips of triangles stitch the zippers so work
+//! patches that cross charts can be flattened.
+//!
+//! The artifact stores the atlas arrays in 64×64 tiles, plus the mesh with
+//! its atlas UVs, the field and the zipper links and triangles.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use crate::atlas::charts::{build_charts, Chart, ChartConfig};
+use crate::atlas::pack::pack;
+use crate::container::{
+    codec, ArrayId, ArraySpec, Container, ContainerWriter, DType, Element, MemoryBudget, Param,
+};
+use crate::field::{self, FieldKey};
+use crate::mesh::io::{self, LoadOptions};
+use crate::mesh::repair::RepairReport;
+use crate::mesh::{cross, dot, normalize, sub, Mesh, NO_FACE};
+use crate::progress::Progress;
+use crate::{Error, Result};
+
+/// The artifact kind of a geometry image.
+pub const KIND: &str = "gim";
+/// Edge of the atlas tiles (chunks).
+pub const TILE: usize = 64;
+/// Chart id of an empty texel.
+pub const EMPTY: u32 = u32::MAX;
+/// Texel centres this close (in texels) to a chart triangle are covered.
+const COVER_RADIUS: f64 = 0.75;
+/// Longest zipper link, in texel sizes.
+pub const MAX_LINK: f64 = 2.5;
+
+/// A dense vertex: the atlas texel `y · R + x`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct TexelId(pub u32);
+
+/// Options of [`build_gim`].
+#[derive(Clone, Debug)]
+pub struct AtlasConfig {
+    /// Atlas edge R in texels.
+    pub resolution: usize,
+    /// Minimum empty texels between charts.
+    pub gutter: usize,
+    pub charts: ChartConfig,
+    pub load: LoadOptions,
+    /// Vector-field keys (JSON); `None` for the default field.
+    pub field_keys: Option<PathBuf>,
+    pub level: i32,
+}
+
+impl Default for AtlasConfig {
+    fn default() -> Self {
+        AtlasConfig {
+            resolution: 1024,
+            gutter: 2,
+            charts: ChartConfig::default(),
+            load: LoadOptions::default(),
+            field_keys: None,
+            level: crate::container::DEFAULT_ZSTD_LEVEL,
+        }
+    }
+}
+
+/// What [`build_gim`] made.
+#[derive(Clone, Debug)]
+pub struct AtlasReport {
+    pub repair: RepairReport,
+    pub charts: usize,
+    /// Area-weighted L2 texture stretch over all charts (Sander et al. 2001).
+    pub l2_stretch: f64,
+    /// Worst L∞ stretch of any chart.
+    pub linf_stretch: f64,
+    /// Covered texels / R².
+    pub utilization: f64,
+    pub texels: usize,
+    pub zipper_links: usize,
+    pub zipper_triangles: usize,
+    /// Surface length of one texel.
+    pub texel_size: f64,
+    pub seconds: f64,
+    /// (stage, seconds)
+    pub stages: Vec<(&'static str, f64)>,
+}
+
+impl std::fmt::Display for AtlasReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} charts, stretch L2 {:.3} L∞ {:.3}, utilization {:.1}%, {} dense vertices, {} zipper links, {} zipper triangles, texel {:.3e} units, {:.2} s (",
+            self.charts,
+            self.l2_stretch,
+            self.linf_stretch,
+            100.0 * self.utilization,
+            self.texels,
+            self.zipper_links,
+            self.zipper_triangles,
+            self.texel_size,
+            self.seconds
+        )?;
+        for (i, (s, t)) in self.stages.iter().enumerate() {
+            write!(f, "{}{s} {t:.2}", if i > 0 { ", " } else { "" })?;
+        }
+        write!(f, ")")
+    }
+}
+
+/// Per-face data the rasterizer needs.
+struct FaceRaster<'a> {
+    mesh: &'a Mesh,
+    face_chart: Vec<u32>,
+    /// Texel-space corners of each face.
+    corner_texel: Vec<[[f64; 2]; 3]>,
+    vertex_normals: Vec<[f32; 3]>,
+    field: Vec<[f32; 3]>,
+    resolution: usize,
+}
+
+/// The best triangle found for one texel.
+#[derive(Clone, Copy)]
+struct Cover {
+    dist: f64,
+    face: u32,
+    bary: [f64; 3],
+}
+
+const NO_COVER: Cover = Cover {
+    dist: f64::INFINITY,
+    face: NO_FACE,
+    bary: [0.0; 3],
+};
+
+/// Barycentrics of `q` in triangle `p`, and the distance from `q` to the
+/// triangle with the barycentrics of the closest point.
+fn closest_on_triangle(p: &[[f64; 2]; 3], q: [f64; 2]) -> Option<(f64, [f64; 3])> {
+    let v0 = [p[1][0] - p[0][0], p[1][1] - p[0][1]];
+    let v1 = [p[2][0] - p[0][0], p[2][1] - p[0][1]];
+    let v2 = [q[0] - p[0][0], q[1] - p[0][1]];
+    let d = v0[0] * v1[1] - v1[0] * v0[1];
+    if d.abs() < 1e-18 {
+        return None;
+    }
+    let l1 = (v2[0] * v1[1] - v1[0] * v2[1]) / d;
+    let l2 = (v0[0] * v2[1] - v2[0] * v0[1]) / d;
+    let l0 = 1.0 - l1 - l2;
+    if l0 >= 0.0 && l1 >= 0.0 && l2 >= 0.0 {
+        return Some((0.0, [l0, l1, l2]));
+    }
+    // closest point on the three edges
+    let mut best = (f64::INFINITY, [0.0; 3]);
+    for e in 0..3 {
+        let (a, b) = (p[e], p[(e + 1) % 3]);
+        let ab = [b[0] - a[0], b[1] - a[1]];
+        let len2 = ab[0] * ab[0] + ab[1] * ab[1];
+        let t = if len2 > 0.0 {
+            (((q[0] - a[0]) * ab[0] + (q[1] - a[1]) * ab[1]) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let c = [a[0] + t * ab[0], a[1] + t * ab[1]];
+        let dist = ((q[0] - c[0]).powi(2) + (q[1] - c[1]).powi(2)).sqrt();
+        if dist < best.0 {
+            let mut bary = [0.0; 3];
+            bary[e] = 1.0 - t;
+            bary[(e + 1) % 3] = t;
+            best = (dist, bary);
+        }
+    }
+    Some(best)
+}
+
+/// One rasterized tile plus a one-texel margin.
+struct TileRaster {
+    x0: usize,
+    y0: usize,
+    w: usize,
+    h: usize,
+    /// (w + 2) × (h + 2) covers, margin included.
+    cover: Vec<Cover>,
+}
+
+impl TileRaster {
+    fn at(&self, x: isize, y: isize) -> &Cover {
+        // x, y relative to the tile origin, -1..=w
+        &self.cover[((y + 1) as usize) * (self.w + 2) + (x + 1) as usize]
+    }
+}
+
+/// A boundary texel, for zippering.
+#[derive(Clone, Copy, Debug)]
+struct BoundaryTexel {
+    texel: u32,
+    chart: u32,
+    face: u32,
+    position: [f32; 3],
+}
+
+impl FaceRaster<'_> {
+    fn chart_of(&self, c: &Cover) -> u32 {
+        if c.face == NO_FACE {
+            EMPTY
+        } else {
+            self.face_chart[c.face as usize]
+        }
+    }
+
+    fn rasterize(&self, tx: usize, ty: usize, bucket: &[u32]) -> TileRaster {
+        let r = self.resolution;
+        let (x0, y0) = (tx * TILE, ty * TILE);
+        let (w, h) = (TILE.min(r - x0), TILE.min(r - y0));
+        let mut cover = vec![NO_COVER; (w + 2) * (h + 2)];
+        // region in absolute texels: [x0 - 1, x0 + w + 1)
+        let (rx0, ry0) = (x0 as isize - 1, y0 as isize - 1);
+        let (rx1, ry1) = ((x0 + w + 1) as isize, (y0 + h + 1) as isize);
+        for &f in bucket {
+            let p = &self.corner_texel[f as usize];
+            let lo_x = p.iter().map(|c| c[0]).fold(f64::INFINITY, f64::min) - COVER_RADIUS - 0.5;
+            let hi_x = p.iter().map(|c| c[0]).fold(f64::NEG_INFINITY, f64::max) + COVER_RADIUS - 0.5;
+            let lo_y = p.iter().map(|c| c[1]).fold(f64::INFINITY, f64::min) - COVER_RADIUS - 0.5;
+            let hi_y = p.iter().map(|c| c[1]).fold(f64::NEG_INFINITY, f64::max) + COVER_RADIUS - 0.5;
+            let xa = (lo_x.ceil() as isize).max(rx0).max(0);
+            let xb = (hi_x.floor() as isize + 1).min(rx1).min(r as isize);
+            let ya = (lo_y.ceil() as isize).max(ry0).max(0);
+            let yb = (hi_y.floor() as isize + 1).min(ry1).min(r as isize);
+            for y in ya..yb {
+                for x in xa..xb {
+                    let q = [x as f64 + 0.5, y as f64 + 0.5];
+                    let Some((dist, bary)) = closest_on_triangle(p, q) else {
+                        continue;
+                    };
+                    if dist > COVER_RADIUS {
+                        continue;
+                    }
+                    let slot = &mut cover[((y - ry0) as usize) * (w + 2) + (x - rx0) as usize];
+                    if dist < slot.dist - 1e-12 || (dist <= slot.dist + 1e-12 && f < slot.face) {
+                        *slot = Cover { dist, face: f, bary };
+                    }
+                }
+            }
+        }
+        TileRaster { x0, y0, w, h, cover }
+    }
+
+    /// The attributes of a covered texel: position, normal, tangent.
+    fn attributes(&self, c: &Cover) -> ([f32; 3], [f32; 3], [f32; 3]) {
+        let t = self.mesh.triangles[c.face as usize];
+        let mut pos = [0f64; 3];
+        let mut nrm = [0f32; 3];
+        for k in 0..3 {
+            let p = self.mesh.positions[t[k] as usize];
+            let n = self.vertex_normals[t[k] as usize];
+            for d in 0..3 {
+                pos[d] += c.bary[k] * p[d] as f64;
+                nrm[d] += c.bary[k] as f32 * n[d];
+            }
+        }
+        let mut n = normalize(nrm);
+        if dot(n, n) < 0.5 {
+            n = self.mesh.face_normal(c.face as usize);
+        }
+        let f = self.field[c.face as usize];
+        let fd = dot(f, n);
+        let mut t = normalize([f[0] - fd * n[0], f[1] - fd * n[1], f[2] - fd * n[2]]);
+        if dot(t, t) < 0.5 {
+            let other = if n[0].abs() < 0.9 {
+                [1.0, 0.0, 0.0]
+            } else {
+                [0.0, 1.0, 0.0]
+            };
+            t = normalize(cross(n, other));
+        }
+        ([pos[0] as f32, pos[1] as f32, pos[2] as f32], n, t)
+    }
+}
+
+/// The atlas arrays of one tile, ready to encode.
+struct TileArrays {
+    chart: Vec<u32>,
+    face: Vec<u32>,
+    bary: Vec<f32>,
+    position: Vec<f32>,
+    normal: Vec<f32>,
+    tangent: Vec<f32>,
+    boundary: Vec<BoundaryTexel>,
+    covered: usize,
+}
+
+fn tile_arrays(fr: &FaceRaster, t: &TileRaster) -> TileArrays {
+    let n = t.w * t.h;
+    let mut a = TileArrays {
+        chart: vec![EMPTY; n],
+        face: vec![NO_FACE; n],
+        bary: vec![0.0; n * 2],
+        position: vec![0.0; n * 3],
+        normal: vec![0.0; n * 3],
+        tangent: vec![0.0; n * 3],
+        boundary: Vec::new(),
+        covered: 0,
+    };
+    for y in 0..t.h {
+        for x in 0..t.w {
+            let c = t.at(x as isize, y as isize);
+            let chart = fr.chart_of(c);
+            if chart == EMPTY {
+                continue;
+            }
+            let i = y * t.w + x;
+            a.covered += 1;
+            a.chart[i] = chart;
+            a.face[i] = c.face;
+            a.bary[i * 2] = c.bary[1] as f32;
+            a.bary[i * 2 + 1] = c.bary[2] as f32;
+            let (p, nrm, tan) = fr.attributes(c);
+            a.position[i * 3..i * 3 + 3].copy_from_slice(&p);
+            a.normal[i * 3..i * 3 + 3].copy_from_slice(&nrm);
+            a.tangent[i * 3..i * 3 + 3].copy_from_slice(&tan);
+            let (xi, yi) = (x as isize, y as isize);
+            let on_border = [(-1, 0), (1, 0), (0, -1), (0, 1)]
+                .iter()
+                .any(|&(dx, dy)| fr.chart_of(t.at(xi + dx, yi + dy)) != chart);
+            if on_border {
+                a.boundary.push(BoundaryTexel {
+                    texel: ((t.y0 + y) * fr.resolution + t.x0 + x) as u32,
+                    chart,
+                    face: c.face,
+                    position: p,
+                });
+            }
+        }
+    }
+    a
+}
+
+/// Builds the geometry image of the mesh at `mesh_path` into `out`.
+pub fn build_gim(
+    mesh_path: &Path,
+    out: &Path,
+    cfg: &AtlasConfig,
+    progress: &dyn Progress,
+) -> Result<AtlasReport> {
+    let start = Instant::now();
+    let mut stages = Vec::new();
+    let mut lap = {
+        let mut t = Instant::now();
+        move |name: &'static str, stages: &mut Vec<(&'static str, f64)>| {
+            stages.push((name, t.elapsed().as_secs_f64()));
+            t = Instant::now();
+        }
+    };
+    let r = cfg.resolution;
+    if !(16..=32768).contains(&r) {
+        return Err(Error::Config(format!(
+            "--resolution {r}: must be between 16 and 32768"
+        )));
+    }
+    let (mesh, repair) = io::load(mesh_path, &cfg.load)?;
+    let topology = mesh.topology();
+    let keys: Vec<FieldKey> = match &cfg.field_keys {
+        Some(p) => field::read_keys(p, mesh.triangles.len())?,
+        None => Vec::new(),
+    };
+    lap("load", &mut stages);
+    let charts = build_charts(&mesh, &topology, &cfg.charts)?;
+    lap("charts", &mut stages);
+    let extents: Vec<[f64; 2]> = charts
+        .iter()
+        .map(|c| {
+            let mx =
+                c.uv.iter()
+                    .fold([0f64; 2], |m, p| [m[0].max(p[0] as f64), m[1].max(p[1] as f64)]);
+            [mx[0].max(1e-9), mx[1].max(1e-9)]
+        })
+        .collect();
+    let packing = pack(&extents, r, cfg.gutter);
+    if packing.scale <= 0.0 {
+        return Err(Error::input(
+            mesh_path,
+            format!("its {} charts do not fit a {r}² atlas", charts.len()),
+        ));
+    }
+    let nf = mesh.triangles.len();
+    let mut face_chart = vec![EMPTY; nf];
+    let mut corner_texel = vec![[[0f64; 2]; 3]; nf];
+    for (ci, c) in charts.iter().enumerate() {
+        let o = packing.offsets[ci];
+        for (k, &f) in c.faces.iter().enumerate() {
+            face_chart[f as usize] = ci as u32;
+            for j in 0..3 {
+                let uv = c.uv[c.triangles[k][j] as usize];
+                corner_texel[f as usize][j] = [
+                    o[0] + uv[0] as f64 * packing.scale,
+                    o[1] + uv[1] as f64 * packing.scale,
+                ];
+            }
+        }
+    }
+    if let Some(f) = face_chart.iter().position(|&c| c == EMPTY) {
+        return Err(Error::Config(format!(
+            "internal: face {f} was not assigned to a chart"
+        )));
+    }
+    let field = field::face_field(&mesh, &topology, &keys);
+    lap("pack+field", &mut stages);
+
+    let fr = FaceRaster {
+        mesh: &mesh,
+        face_chart,
+        corner_texel,
+        vertex_normals: mesh.vertex_normals(),
+        field,
+        resolution: r,
+    };
+    // bucket faces by the tiles their dilated texel bounding box touches
+    let nt = r.div_ceil(TILE);
+    let mut buckets: Vec<Vec<u32>> = vec![Vec::new(); nt * nt];
+    for (f, p) in fr.corner_texel.iter().enumerate() {
+        let lo = |k: usize| p.iter().map(|c| c[k]).fold(f64::INFINITY, f64::min) - COVER_RADIUS - 1.5;
+        let hi = |k: usize| p.iter().map(|c| c[k]).fold(f64::NEG_INFINITY, f64::max) + COVER_RADIUS + 1.5;
+        let t0 = |v: f64| ((v.max(0.0) as usize) / TILE).min(nt - 1);
+        for ty in t0(lo(1))..=t0(hi(1)) {
+            for tx in t0(lo(0))..=t0(hi(0)) {
+                buckets[ty * nt + tx].push(f as u32);
+            }
+        }
+    }
+
+    let mut w = ContainerWriter::create(out, KIND)?;
+    w.set_level(cfg.level);
+    let (ru, tu) = (r as u64, TILE as u64);
+    let arr = |w: &mut ContainerWriter, name: &str, dtype: DType, c: u64| -> Result<ArrayId> {
+        let (shape, chunk) = if c == 1 {
+            (vec![ru, ru], vec![tu, tu])
+        } else {
+            (vec![ru, ru, c], vec![tu, tu, c])
+        };
+        w.add_array(ArraySpec::new(name, dtype, &shape, &chunk)?)
+    };
+    let ids = [
+        arr(&mut w, "chart", DType::U32, 1)?,
+        arr(&mut w, "face", DType::U32, 1)?,
+        arr(&mut w, "bary", DType::F32, 2)?,
+        arr(&mut w, "position", DType::F32, 3)?,
+        arr(&mut w, "normal", DType::F32, 3)?,
+        arr(&mut w, "tangent", DType::F32, 3)?,
+    ];
+    progress.begin("atlas", (nt * nt) as u64);
+    let level = cfg.level;
+    let mut boundary = Vec::new();
+    let mut covered = 0usize;
+    let tiles: Vec<usize> = (0..nt * nt).collect();
+    for batch in tiles.chunks(16) {
+        let done: Vec<(Vec<codec::EncodedChunk>, Vec<BoundaryTexel>, usize)> = batch
+            .par_iter()
+            .map(|&t| {
+                let raster = fr.rasterize(t % nt, t / nt, &buckets[t]);
+                let a = tile_arrays(&fr, &raster);
+                let enc = vec![
+                    codec::encode(&a.chart, level),
+                    codec::encode(&a.face, level),
+                    codec::encode(&a.bary, level),
+                    codec::encode(&a.position, level),
+                    codec::encode(&a.normal, level),
+                    codec::encode(&a.tangent, level),
+                ];
+                (enc, a.boundary, a.covered)
+            })
+            .collect();
+        for (&t, (enc, b, n)) in batch.iter().zip(done) {
+            for (id, e) in ids.iter().zip(enc) {
+                w.write_encoded(*id, t as u64, e)?;
+            }
+            boundary.extend(b);
+            covered += n;
+        }
+        progress.advance(batch.len() as u64);
+    }
+    progress.end();
+    lap("rasterize", &mut stages);
+
+    let texel_size = 1.0 / packing.scale;
+    let links = zipper_links(&mesh, &fr.face_chart, &boundary, texel_size, r);
+    let zip_tris = zipper_triangles(&links, &boundary, r);
+    lap("zipper", &mut stages);
+
+    // stretch figures, area-weighted over charts
+    let areas: Vec<f64> = charts
+        .iter()
+        .map(|c| c.faces.iter().map(|&f| mesh.face_area(f as usize) as f64).sum())
+        .collect();
+    let total_area: f64 = areas.iter().sum::<f64>().max(1e-30);
+    let l2 = (charts
+        .iter()
+        .zip(&areas)
+        .map(|(c, a)| a * (c.l2_stretch as f64).powi(2))
+        .sum::<f64>()
+        / total_area)
+        .sqrt();
+    let linf = charts.iter().map(|c| c.linf_stretch as f64).fold(0.0, f64::max);
+    let utilization = covered as f64 / (r * r) as f64;
+
+    write_mesh_arrays(&mut w, &mesh, &fr, &charts, &links, &zip_tris)?;
+    w.add_input(&mesh_path.display().to_string(), hash_file(mesh_path)?);
+    if let Some(p) = &cfg.field_keys {
+        w.add_input(&p.display().to_string(), hash_file(p)?);
+    }
+    w.set_param("source", Param::Text(mesh_path.display().to_string()));
+    w.set_param("resolution", Param::Int(r as i64));
+    w.set_param("gutter", Param::Int(cfg.gutter as i64));
+    w.set_param("charts", Param::Int(charts.len() as i64));
+    w.set_param("texel_size", Param::Float(texel_size));
+    w.set_param("l2_stretch", Param::Float(l2));
+    w.set_param("linf_stretch", Param::Float(linf));
+    w.set_param("utilization", Param::Float(utilization));
+    w.set_param("dense_vertices", Param::Int(covered as i64));
+    w.set_param("repair", Param::Text(repair.to_string()));
+    w.set_param(
+        "field",
+        Param::Text(if keys.is_empty() {
+            "default".into()
+        } else {
+            format!("{} keys", keys.len())
+        }),
+    );
+    w.finish()?;
+    lap("write", &mut stages);
+    Ok(AtlasReport {
+        repair,
+        charts: charts.len(),
+        l2_stretch: l2,
+        linf_stretch: linf,
+        utilization,
+        texels: covered,
+        zipper_links: links.len(),
+        zipper_triangles: zip_tris.len(),
+        texel_size,
+        seconds: start.elapsed().as_secs_f64(),
+        stages,
+    })
+}
+
+fn hash_file(path: &Path) -> Result<u64> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    Ok(xxhash_rust::xxh3::xxh3_64(&bytes))
+}
+
+fn write_flat<T: Element>(
+    w: &mut ContainerWriter,
+    name: &str,
+    dtype: DType,
+    rows: usize,
+    cols: usize,
+    v: &[T],
+) -> Result<()> {
+    let chunk_rows = 65536u64.min(rows.max(1) as u64);
+    let id = w.add_array(ArraySpec::new(
+        name,
+        dtype,
+        &[rows as u64, cols as u64],
+        &[chunk_rows, cols as u64],
+    )?)?;
+    w.write_array(id, v)
+}
+
+fn write_mesh_arrays(
+    w: &mut ContainerWriter,
+    mesh: &Mesh,
+    fr: &FaceRaster,
+    charts: &[Chart],
+    links: &[[u32; 2]],
+    zip_tris: &[[u32; 3]],
+) -> Result<()> {
+    let (nv, nf, r) = (mesh.positions.len(), mesh.triangles.len(), fr.resolution as f64);
+    write_flat(
+        w,
+        "mesh_positions",
+        DType::F32,
+        nv,
+        3,
+        &mesh.positions.iter().flatten().copied().collect::<Vec<f32>>(),
+    )?;
+    write_flat(
+        w,
+        "mesh_triangles",
+        DType::U32,
+        nf,
+        3,
+        &mesh.triangles.iter().flatten().copied().collect::<Vec<u32>>(),
+    )?;
+    let uv: Vec<f32> = fr
+        .corner_texel
+        .iter()
+        .flatten()
+        .flat_map(|c| [(c[0] / r) as f32, (c[1] / r) as f32])
+        .collect();
+    write_flat(w, "corner_uv", DType::F32, nf * 3, 2, &uv)?;
+    write_flat(w, "face_chart", DType::U32, nf, 1, &fr.face_chart)?;
+    write_flat(
+        w,
+        "face_field",
+        DType::F32,
+        nf,
+        3,
+        &fr.field.iter().flatten().copied().collect::<Vec<f32>>(),
+    )?;
+    let stretch: Vec<f32> = charts
+        .iter()
+        .flat_map(|c| [c.l2_stretch, c.linf_stretch])
+        .collect();
+    write_flat(w, "chart_stretch", DType::F32, charts.len(), 2, &stretch)?;
+    write_flat(
+        w,
+        "zipper_links",
+        DType::U32,
+        links.len(),
+        2,
+        &links.iter().flatten().copied().collect::<Vec<u32>>(),
+    )?;
+    write_flat(
+        w,
+        "zipper_triangles",
+        DType::U32,
+        zip_tris.len(),
+        3,
+        &zip_tris.iter().flatten().copied().collect::<Vec<u32>>(),
+    )
+}
+
+/// Faces within two vertex-rings of `f` (sorted).
+fn two_ring(mesh: &Mesh, vertex_faces: &[Vec<u32>], f: u32) -> Vec<u32> {
+    let mut ring: Vec<u32> = mesh.triangles[f as usize]
+        .iter()
+        .flat_map(|&v| vertex_faces[v as usize].iter().copied())
+        .collect();
+    ring.sort_unstable();
+    ring.dedup();
+    let mut two: Vec<u32> = ring
+        .iter()
+        .flat_map(|&g| {
+            mesh.triangles[g as usize]
+                .iter()
+                .flat_map(|&v| vertex_faces[v as usize].iter().copied())
+        })
+        .collect();
+    two.sort_unstable();
+    two.dedup();
+    two
+}
+
+/// Links each boundary texel to the nearest boundary texel across its seam:
+/// of another chart (or of its own chart but far away in the atlas), within
+/// [`MAX_LINK`] texel sizes in 3D, on a face within two vertex-rings. Sorted,
+/// deduplicated pairs (lower texel id first).
+fn zipper_links(
+    mesh: &Mesh,
+    face_chart: &[u32],
+    boundary: &[BoundaryTexel],
+    texel: f64,
+    r: usize,
+) -> Vec<[u32; 2]> {
+    let mut vertex_faces = vec![Vec::new(); mesh.positions.len()];
+    for (f, t) in mesh.triangles.iter().enumerate() {
+        for &v in t {
+            vertex_faces[v as usize].push(f as u32);
+        }
+    }
+    let cell = MAX_LINK * texel;
+    let key = |p: [f32; 3]| -> [i64; 3] {
+        [
+            (p[0] as f64 / cell).floor() as i64,
+            (p[1] as f64 / cell).floor() as i64,
+            (p[2] as f64 / cell).floor() as i64,
+        ]
+    };
+    let mut grid: Vec<([i64; 3], u32)> = boundary
+        .iter()
+        .enumerate()
+        .map(|(i, b)| (key(b.position), i as u32))
+        .collect();
+    grid.sort_unstable();
+    // the 2-rings of the boundary faces, computed once per face
+    let mut faces: Vec<u32> = boundary.iter().map(|b| b.face).collect();
+    faces.sort_unstable();
+    faces.dedup();
+    let rings: BTreeMap<u32, Vec<u32>> = faces
+        .par_iter()
+        .map(|&f| (f, two_ring(mesh, &vertex_faces, f)))
+        .collect();
+    let mut links: Vec<[u32; 2]> = boundary
+        .par_iter()
+        .filter_map(|a| {
+            let k = key(a.position);
+            let ring = &rings[&a.face];
+            let (ax, ay) = ((a.texel as usize % r) as i64, (a.texel as usize / r) as i64);
+            let mut best: Option<(f64, u32)> = None;
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let c = [k[0] + dx, k[1] + dy, k[2] + dz];
+                        let lo = grid.partition_point(|e| e.0 < c);
+                        for e in grid[lo..].iter().take_while(|e| e.0 == c) {
+                            let b = &boundary[e.1 as usize];
+                            if b.texel == a.texel {
+                                continue;
+                            }
+                            if b.chart == a.chart {
+                                let (bx, by) = ((b.texel as usize % r) as i64, (b.texel as usize / r) as i64);
+                                if (ax - bx).abs().max((ay - by).abs()) <= 3 {
+                                    continue;
+                                }
+                            }
+                            let d = sub(a.position, b.position);
+                            let d = (dot(d, d) as f64).sqrt();
+                            if d > MAX_LINK * texel || ring.binary_search(&b.face).is_err() {
+                                continue;
+                            }
+                            if best.is_none_or(|(bd, bt)| d < bd || (d == bd && b.texel < bt)) {
+                                best = Some((d, b.texel));
+                            }
+                        }
+                    }
+                }
+            }
+            let _ = face_chart;
+            best.map(|(_, t)| [a.texel.min(t), a.texel.max(t)])
+        })
+        .collect();
+    links.sort_unstable();
+    links.dedup();
+    links
+}
+
+/// Stitches zippers into triangle strips: for two boundary texels a, a' that
+/// are grid neighbours in one chart and linked to b, b' across the seam, the
+/// quad (a, a', b', b) becomes two triangles (one if b = b'). Oriented to
+/// agree with the texels' normals is left to the reader; here triangles are
+/// sorted triples, deduplicated.
+fn zipper_triangles(links: &[[u32; 2]], boundary: &[BoundaryTexel], r: usize) -> Vec<[u32; 3]> {
+    let chart_of: BTreeMap<u32, u32> = boundary.iter().map(|b| (b.texel, b.chart)).collect();
+    let mut partners: BTreeMap<u32, Vec<u32>> = BTreeMap::new();
+    for &[a, b] in links {
+        partners.entry(a).or_default().push(b);
+        partners.entry(b).or_default().push(a);
+    }
+    let mut tris = Vec::new();
+    for (&a, pa) in &partners {
+        let (ax, ay) = (a as usize % r, a as usize / r);
+        for (nx, ny) in [(ax + 1, ay), (ax, ay + 1)] {
+            if nx >= r || ny >= r {
+                continue;
+            }
+            let a2 = (ny * r + nx) as u32;
+            if chart_of.get(&a2) != chart_of.get(&a) {
+                continue;
+            }
+            let Some(pa2) = partners.get(&a2) else { continue };
+            for &b in pa {
+                for &b2 in pa2 {
+                    if b == b2 {
+                        tris.push(sorted3([a, a2, b]));
+                    } else if chart_of.get(&b) == chart_of.get(&b2) {
+                        let (bx, by) = (b as i64 % r as i64, b as i64 / r as i64);
+                        let (cx, cy) = (b2 as i64 % r as i64, b2 as i64 / r as i64);
+                        if (bx - cx).abs() + (by - cy).abs() == 1 {
+                            tris.push(sorted3([a, a2, b2]));
+                            tris.push(sorted3([a, b2, b]));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    tris.sort_unstable();
+    tris.dedup();
+    tris
+}
+
+fn sorted3(mut t: [u32; 3]) -> [u32; 3] {
+    t.sort_unstable();
+    t
+}
+
+/// A geometry image opened for reading.
+pub struct Gim {
+    container: Container,
+    pub resolution: usize,
+    pub charts: usize,
+    pub texel_size: f64,
+}
+
+impl Gim {
+    /// Opens a `.gim`, checking its kind.
+    pub fn open(path: &Path, budget: MemoryBudget) -> Result<Gim> {
+        let container = Container::open_kind(path, KIND, budget)?;
+        let m = container.metadata();
+        let int = |k: &str| match m.param(k) {
+            Some(Param::Int(v)) if *v > 0 => Ok(*v as usize),
+            _ => Err(Error::input(path, format!("metadata parameter '{k}' is missing"))),
+        };
+        let texel_size = match m.param("texel_size") {
+            Some(Param::Float(v)) => *v,
+            _ => return Err(Error::input(path, "metadata parameter 'texel_size' is missing")),
+        };
+        Ok(Gim {
+            resolution: int("resolution")?,
+            charts: int("charts")?,
+            texel_size,
+            container,
+        })
+    }
+
+    /// The container underneath.
+    pub fn container(&self) -> &Container {
+        &self.container
+    }
+
+    /// A whole named array.
+    pub fn read<T: Element>(&self, name: &str) -> Result<Vec<T>> {
+        self.container.read_array(self.container.array(name)?)
+    }
+
+    /// The repaired input mesh.
+    pub fn mesh(&self) -> Result<Mesh> {
+        let p: Vec<f32> = self.read("mesh_positions")?;
+        let t: Vec<u32> = self.read("mesh_triangles")?;
+        Ok(Mesh {
+            positions: p.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+            triangles: t.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+            ..Mesh::default()
+        })
+    }
+
+    /// Atlas uv (0..1, y down) of every face corner.
+    pub fn corner_uv(&self) -> Result<Vec<[f32; 2]>> {
+        Ok(self
+            .read::<f32>("corner_uv")?
+            .chunks_exact(2)
+            .map(|c| [c[0], c[1]])
+            .collect())
+    }
+
+    /// Zipper links between texels.
+    pub fn zipper_links(&self) -> Result<Vec<[u32; 2]>> {
+        Ok(self
+            .read::<u32>("zipper_links")?
+            .chunks_exact(2)
+            .map(|c| [c[0], c[1]])
+            .collect())
+    }
+
+    /// Zipper triangles between texels.
+    pub fn zipper_triangles(&self) -> Result<Vec<[u32; 3]>> {
+        Ok(self
+            .read::<u32>("zipper_triangles")?
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect())
+    }
+
+    /// The dense mesh's graph: grid neighbours within a chart plus zipper links.
+    pub fn graph(&self) -> Result<DenseGraph> {
+        let chart: Vec<u32> = self.read("chart")?;
+        let links = self.zipper_links()?;
+        Ok(DenseGraph::new(self.resolution, chart, &links))
+    }
+}
+
+/// Adjacency of the dense mesh M_d: each covered texel's 4-neighbours of the
+/// same chart, plus its zipper partners (CSR).
+pub struct DenseGraph {
+    pub resolution: usize,
+    pub chart: Vec<u32>,
+    zip_start: Vec<u32>,
+    zip_to: Vec<u32>,
+    zip_index: Vec<u32>,
+}
+
+impl DenseGraph {
+    /// Builds the graph from the chart map and zipper links.
+    pub fn new(resolution: usize, chart: Vec<u32>, links: &[[u32; 2]]) -> DenseGraph {
+        let mut pairs: Vec<(u32, u32)> = links.iter().flat_map(|&[a, b]| [(a, b), (b, a)]).collect();
+        pairs.sort_unstable();
+        let zip_index: Vec<u32> = pairs.iter().map(|p| p.0).collect();
+        let mut zip_start = Vec::new();
+        let mut zip_to = Vec::with_capacity(pairs.len());
+        let mut last = u32::MAX;
+        for (i, &(a, b)) in pairs.iter().enumerate() {
+            if a != last {
+                zip_start.push(i as u32);
+                last = a;
+            }
+            zip_to.push(b);
+        }
+        let mut dedup_index = zip_index.clone();
+        dedup_index.dedup();
+        DenseGraph {
+            resolution,
+            chart,
+            zip_start,
+            zip_to,
+            zip_index: dedup_index,
+        }
+    }
+
+    /// Whether a texel is a dense vertex.
+    pub fn covered(&self, t: u32) -> bool {
+        self.chart[t as usize] != EMPTY
+    }
+
+    /// Calls `f` for every neighbour of texel `t`; `f`'s second argument says
+    /// whether the edge is a zipper link.
+    pub fn for_each_neighbour(&self, t: u32, mut f: impl FnMut(u32, bool)) {
+        let r = self.resolution;
+        let (x, y) = (t as usize % r, t as usize / r);
+        let c = self.chart[t as usize];
+        if c == EMPTY {
+            return;
+        }
+        let mut grid = |nx: usize, ny: usize| {
+            let n = (ny * r + nx) as u32;
+            if self.chart[n as usize] == c {
+                f(n, false);
+            }
+        };
+        if x > 0 {
+            grid(x - 1, y);
+        }
+        if x + 1 < r {
+            grid(x + 1, y);
+        }
+        if y > 0 {
+            grid(x, y - 1);
+        }
+        if y + 1 < r {
+            grid(x, y + 1);
+        }
+        if let Ok(k) = self.zip_index.binary_search(&t) {
+            let s = self.zip_start[k] as usize;
+            let e = self
+                .zip_start
+                .get(k + 1)
+                .map_or(self.zip_to.len(), |&v| v as usize);
+            for &n in &self.zip_to[s..e] {
+                f(n, true);
+            }
+        }
+    }
+
+    /// Breadth-first hop distances from `source` (u32::MAX where unreached).
+    pub fn bfs(&self, source: u32, max_hops: u32) -> Vec<u32> {
+        let mut dist = vec![u32::MAX; self.chart.len()];
+        let mut queue = std::collections::VecDeque::new();
+        dist[source as usize] = 0;
+        queue.push_back(source);
+        while let Some(t) = queue.pop_front() {
+            let d = dist[t as usize];
+            if d >= max_hops {
+                continue;
+            }
+            self.for_each_neighbour(t, |n, _| {
+                if dist[n as usize] == u32::MAX {
+                    dist[n as usize] = d + 1;
+                    queue.push_back(n);
+                }
+            });
+        }
+        dist
+    }
+
+    /// Number of connected components among covered texels.
+    pub fn components(&self) -> usize {
+        let mut seen = vec![false; self.chart.len()];
+        let mut count = 0;
+        let mut stack = Vec::new();
+        for s in 0..self.chart.len() as u32 {
+            if seen[s as usize] || !self.covered(s) {
+                continue;
+            }
+            count += 1;
+            seen[s as usize] = true;
+            stack.push(s);
+            while let Some(t) = stack.pop() {
+                self.for_each_neighbour(t, |n, _| {
+                    if !seen[n as usize] {
+                        seen[n as usize] = true;
+                        stack.push(n);
+                    }
+                });
+            }
+        }
+        count
+    }
+}
+
+/// Grid triangles of the dense mesh inside charts: two per 2×2 block of one
+/// chart, one where exactly three of the four texels are in one chart.
+pub fn grid_triangles(chart: &[u32], r: usize) -> Vec<[u32; 3]> {
+    let mut tris = Vec::new();
+    for y in 0..r.saturating_sub(1) {
+        for x in 0..r - 1 {
+            let id = |dx: usize, dy: usize| ((y + dy) * r + x + dx) as u32;
+            let (a, b, c, d) = (id(0, 0), id(1, 0), id(0, 1), id(1, 1));
+            let ch = |t: u32| chart[t as usize];
+            let same = |p: u32, q: u32| ch(p) != EMPTY && ch(p) == ch(q);
+            match (
+                same(a, b) && same(a, c) && same(a, d),
+                same(a, b),
+                same(a, c),
+                same(b, d),
+                same(c, d),
+            ) {
+                (true, ..) => {
+                    tris.push([a, b, d]);
+                    tris.push([a, d, c]);
+                }
+                _ => {
+                    if same(a, b) && same(b, d) && !same(a, c) {
+                        tris.push([a, b, d]);
+                    } else if same(a, b) && same(a, c) && !same(a, d) {
+                        tris.push([a, b, c]);
+                    } else if same(a, c) && same(c, d) && !same(a, b) {
+                        tris.push([a, d, c]);
+                    } else if same(b, d) && same(c, d) && !same(a, d) {
+                        tris.push([b, d, c]);
+                    }
+                }
+            }
+        }
+    }
+    tris
+}

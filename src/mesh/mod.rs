@@ -1,0 +1,187 @@
+//! Triangle meshes as flat vectors, with topology derived only when asked
+//! (`Mesh::topology`).
+//!
+//! After [`io::load`] (which repairs what can be repaired, see [`repair`]),
+//! every edge has at most two faces and every vertex a single fan, so face
+//! adjacency is well defined. Several components and open boundaries are fine.
+
+pub mod io;
+pub mod repair;
+
+/// Index of a face.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct FaceId(pub u32);
+
+/// Marks "no face" in adjacency tables.
+pub const NO_FACE: u32 = u32::MAX;
+
+/// A triangle mesh: positions and index triples, plus optional per-vertex
+/// paint (colours or scalar weights, as painted in a modeller).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Mesh {
+    pub positions: Vec<[f32; 3]>,
+    pub triangles: Vec<[u32; 3]>,
+    /// Per-vertex RGB in 0..1, if the file had vertex colours.
+    pub vertex_colors: Option<Vec<[f32; 3]>>,
+    /// Per-vertex scalar (PLY `quality`/`weight`/`value`), if present.
+    pub vertex_weights: Option<Vec<f32>>,
+}
+
+/// Derived adjacency of a manifold mesh.
+#[derive(Clone, Debug)]
+pub struct Topology {
+    /// For face f and edge i (from corner i to corner i+1), the face across
+    /// that edge, or [`NO_FACE`] on a boundary.
+    pub face_adjacency: Vec<[u32; 3]>,
+    /// Connected component of each face (faces connected through edges).
+    pub face_component: Vec<u32>,
+    /// Number of components.
+    pub components: usize,
+}
+
+pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+pub(crate) fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+pub(crate) fn length(a: [f32; 3]) -> f32 {
+    dot(a, a).sqrt()
+}
+
+pub(crate) fn normalize(a: [f32; 3]) -> [f32; 3] {
+    let l = length(a);
+    if l > 0.0 {
+        [a[0] / l, a[1] / l, a[2] / l]
+    } else {
+        [0.0, 0.0, 0.0]
+    }
+}
+
+impl Mesh {
+    /// The three corner positions of a face.
+    pub fn corners(&self, f: usize) -> [[f32; 3]; 3] {
+        let t = self.triangles[f];
+        [
+            self.positions[t[0] as usize],
+            self.positions[t[1] as usize],
+            self.positions[t[2] as usize],
+        ]
+    }
+
+    /// Unnormalised face normal (twice the area in length).
+    pub fn face_cross(&self, f: usize) -> [f32; 3] {
+        let [a, b, c] = self.corners(f);
+        cross(sub(b, a), sub(c, a))
+    }
+
+    /// Face area.
+    pub fn face_area(&self, f: usize) -> f32 {
+        0.5 * length(self.face_cross(f))
+    }
+
+    /// Unit face normal (zero for a degenerate face).
+    pub fn face_normal(&self, f: usize) -> [f32; 3] {
+        normalize(self.face_cross(f))
+    }
+
+    /// Area-weighted unit vertex normals.
+    pub fn vertex_normals(&self) -> Vec<[f32; 3]> {
+        let mut n = vec![[0f32; 3]; self.positions.len()];
+        for f in 0..self.triangles.len() {
+            let c = self.face_cross(f);
+            for &v in &self.triangles[f] {
+                let a = &mut n[v as usize];
+                a[0] += c[0];
+                a[1] += c[1];
+                a[2] += c[2];
+            }
+        }
+        n.into_iter().map(normalize).collect()
+    }
+
+    /// Length of the bounding-box diagonal.
+    pub fn bbox_diagonal(&self) -> f32 {
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in &self.positions {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        if self.positions.is_empty() {
+            0.0
+        } else {
+            length(sub(hi, lo))
+        }
+    }
+
+    /// Total surface area.
+    pub fn area(&self) -> f64 {
+        (0..self.triangles.len()).map(|f| self.face_area(f) as f64).sum()
+    }
+
+    /// Face adjacency and components. Edges shared by more than two faces
+    /// (which [`repair`] removes) are treated as boundaries.
+    pub fn topology(&self) -> Topology {
+        let nf = self.triangles.len();
+        // (min vertex, max vertex, face, edge) sorted: equal keys are one edge
+        let mut edges: Vec<(u32, u32, u32, u8)> = Vec::with_capacity(nf * 3);
+        for (f, t) in self.triangles.iter().enumerate() {
+            for i in 0..3 {
+                let (a, b) = (t[i], t[(i + 1) % 3]);
+                edges.push((a.min(b), a.max(b), f as u32, i as u8));
+            }
+        }
+        edges.sort_unstable();
+        let mut face_adjacency = vec![[NO_FACE; 3]; nf];
+        let mut i = 0;
+        while i < edges.len() {
+            let mut j = i + 1;
+            while j < edges.len() && edges[j].0 == edges[i].0 && edges[j].1 == edges[i].1 {
+                j += 1;
+            }
+            if j - i == 2 {
+                let (e0, e1) = (edges[i], edges[i + 1]);
+                face_adjacency[e0.2 as usize][e0.3 as usize] = e1.2;
+                face_adjacency[e1.2 as usize][e1.3 as usize] = e0.2;
+            }
+            i = j;
+        }
+        let mut face_component = vec![u32::MAX; nf];
+        let mut components = 0u32;
+        let mut stack = Vec::new();
+        for start in 0..nf {
+            if face_component[start] != u32::MAX {
+                continue;
+            }
+            face_component[start] = components;
+            stack.push(start as u32);
+            while let Some(f) = stack.pop() {
+                for &g in &face_adjacency[f as usize] {
+                    if g != NO_FACE && face_component[g as usize] == u32::MAX {
+                        face_component[g as usize] = components;
+                        stack.push(g);
+                    }
+                }
+            }
+            components += 1;
+        }
+        Topology {
+            face_adjacency,
+            face_component,
+            components: components as usize,
+        }
+    }
+}

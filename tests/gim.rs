@@ -1,0 +1,265 @@
+//! The dense mesh: a multi-chart geometry image of Spot (shipped in data/)
+//! and of every shared mesh, with its zippers checked in 3D and as a graph.
+
+use std::path::{Path, PathBuf};
+
+use btfquilt::container::MemoryBudget;
+use btfquilt::gim::{self, AtlasConfig, Gim, EMPTY};
+use btfquilt::progress::Silent;
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(name)
+}
+
+fn shared_meshes() -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/meshes");
+    if p.is_dir() {
+        Some(p)
+    } else {
+        eprintln!("skipping: {} is absent", p.display());
+        None
+    }
+}
+
+fn build(mesh: &Path, out: &Path, resolution: usize) -> gim::AtlasReport {
+    let cfg = AtlasConfig {
+        resolution,
+        ..AtlasConfig::default()
+    };
+    gim::build_gim(mesh, out, &cfg, &Silent).unwrap()
+}
+
+fn dist(a: &[f32], b: &[f32]) -> f64 {
+    (0..3).map(|k| ((a[k] - b[k]) as f64).powi(2)).sum::<f64>().sqrt()
+}
+
+#[test]
+fn spot_dense_mesh_is_zippered_and_uniform() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("spot.gim");
+    let report = build(&data("spot_5.8k.obj"), &out, 384);
+    eprintln!("{report}");
+    assert!(report.charts >= 2 && report.charts <= 80, "{}", report.charts);
+    assert!(report.l2_stretch < 1.3, "L2 stretch {}", report.l2_stretch);
+    assert!(report.utilization > 0.3, "utilization {}", report.utilization);
+    let g = Gim::open(&out, MemoryBudget::default()).unwrap();
+    let r = g.resolution;
+    let pos: Vec<f32> = g.read("position").unwrap();
+    let nrm: Vec<f32> = g.read("normal").unwrap();
+    let tan: Vec<f32> = g.read("tangent").unwrap();
+    let bary: Vec<f32> = g.read("bary").unwrap();
+    let graph = g.graph().unwrap();
+    let texel = g.texel_size;
+
+    // attributes: barycentrics inside the face, unit normal, unit tangent ⟂ normal
+    for t in 0..r * r {
+        if graph.chart[t] == EMPTY {
+            continue;
+        }
+        let (b1, b2) = (bary[t * 2], bary[t * 2 + 1]);
+        assert!(b1 >= -1e-5 && b2 >= -1e-5 && b1 + b2 <= 1.0 + 1e-5);
+        let n = &nrm[t * 3..t * 3 + 3];
+        let tv = &tan[t * 3..t * 3 + 3];
+        let dot = |a: &[f32], b: &[f32]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        assert!(
+            (dot(n, n) - 1.0).abs() < 1e-3 && (dot(tv, tv) - 1.0).abs() < 1e-3 && dot(n, tv).abs() < 1e-3
+        );
+    }
+
+    // every zipper link is short in 3D: about one texel
+    let links = g.zipper_links().unwrap();
+    assert!(links.len() > 100, "{} links", links.len());
+    let lens: Vec<f64> = links
+        .iter()
+        .map(|&[a, b]| dist(&pos[a as usize * 3..], &pos[b as usize * 3..]) / texel)
+        .collect();
+    let max = lens.iter().cloned().fold(0.0, f64::max);
+    let mean = lens.iter().sum::<f64>() / lens.len() as f64;
+    eprintln!("zipper links: {} mean {mean:.2} max {max:.2} texels", links.len());
+    assert!(max <= gim::MAX_LINK + 1e-6 && mean < 1.6, "mean {mean} max {max}");
+
+    // one connected graph for a one-component surface
+    assert_eq!(graph.components(), 1);
+
+    // uniform density: grid edges are about one texel long in 3D everywhere
+    let mut per_chart: std::collections::BTreeMap<u32, (f64, usize)> = Default::default();
+    for y in 0..r {
+        for x in 0..r - 1 {
+            let (a, b) = (y * r + x, y * r + x + 1);
+            if graph.chart[a] != EMPTY && graph.chart[a] == graph.chart[b] {
+                let e = per_chart.entry(graph.chart[a]).or_default();
+                e.0 += dist(&pos[a * 3..], &pos[b * 3..]) / texel;
+                e.1 += 1;
+            }
+        }
+    }
+    let means: Vec<f64> = per_chart
+        .values()
+        .filter(|v| v.1 > 50)
+        .map(|v| v.0 / v.1 as f64)
+        .collect();
+    let (lo, hi) = (
+        means.iter().cloned().fold(f64::INFINITY, f64::min),
+        means.iter().cloned().fold(0.0, f64::max),
+    );
+    eprintln!("grid edge length per chart: {lo:.3}..{hi:.3} texels");
+    assert!(lo > 0.6 && hi < 1.6, "{lo} {hi}");
+
+    // breadth-first distances across seams are close to those inside charts:
+    // hops per texel of 3D distance, for texels reached in another chart vs the same
+    let (mut same, mut other) = ((0.0, 0usize), (0.0, 0usize));
+    let covered: Vec<u32> = (0..(r * r) as u32).filter(|&t| graph.covered(t)).collect();
+    for k in 0..12 {
+        let s = covered[(k * 7919 * 13) % covered.len()];
+        let hops = graph.bfs(s, 40);
+        for (t, &h) in hops.iter().enumerate() {
+            if h == u32::MAX || h < 10 {
+                continue;
+            }
+            let d = dist(&pos[s as usize * 3..], &pos[t * 3..]) / texel;
+            let acc = if graph.chart[t] == graph.chart[s as usize] {
+                &mut same
+            } else {
+                &mut other
+            };
+            acc.0 += h as f64 / d;
+            acc.1 += 1;
+        }
+    }
+    assert!(other.1 > 100, "BFS never crossed a seam");
+    let (rs, ro) = (same.0 / same.1 as f64, other.0 / other.1 as f64);
+    eprintln!("hops per texel distance: inside charts {rs:.3}, across seams {ro:.3}");
+    assert!((ro / rs - 1.0).abs() < 0.3, "{rs} vs {ro}");
+
+    // dense triangles: grid triangles inside charts plus zipper strips
+    let grid = gim::grid_triangles(&graph.chart, r);
+    let zt = g.zipper_triangles().unwrap();
+    assert!(grid.len() > report.texels && !zt.is_empty());
+    for t in &zt {
+        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[0], t[2])] {
+            assert!(dist(&pos[a as usize * 3..], &pos[b as usize * 3..]) <= 2.0 * gim::MAX_LINK * texel);
+        }
+    }
+}
+
+#[test]
+fn geometry_image_is_identical_with_one_or_two_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let outs: Vec<PathBuf> = [1, 2]
+        .iter()
+        .map(|&t| {
+            let out = dir.path().join(format!("t{t}.gim"));
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+            pool.install(|| build(&data("spot_5.8k.obj"), &out, 200));
+            out
+        })
+        .collect();
+    assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
+}
+
+#[test]
+fn field_keys_orient_the_tangent_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let keys = dir.path().join("keys.json");
+    std::fs::write(
+        &keys,
+        r#"[{"face": 100, "dir": [0, 1, 0]}, {"face": 3000, "dir": [1, 0, 0]}]"#,
+    )
+    .unwrap();
+    let out = dir.path().join("k.gim");
+    let cfg = AtlasConfig {
+        resolution: 256,
+        field_keys: Some(keys),
+        ..AtlasConfig::default()
+    };
+    gim::build_gim(&data("spot_5.8k.obj"), &out, &cfg, &Silent).unwrap();
+    let g = Gim::open(&out, MemoryBudget::default()).unwrap();
+    let mesh = g.mesh().unwrap();
+    let field: Vec<f32> = g.read("face_field").unwrap();
+    for (f, want) in [(100usize, [0.0f32, 1.0, 0.0]), (3000, [1.0, 0.0, 0.0])] {
+        let n = mesh.face_normal(f);
+        let d = want[0] * n[0] + want[1] * n[1] + want[2] * n[2];
+        let p = [want[0] - d * n[0], want[1] - d * n[1], want[2] - d * n[2]];
+        let pl = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        let v = &field[f * 3..f * 3 + 3];
+        let cos = (v[0] * p[0] + v[1] * p[1] + v[2] * p[2]) / pl;
+        assert!(cos > 0.98, "face {f}: cos {cos}");
+    }
+}
+
+#[test]
+fn every_shared_mesh_builds_or_fails_clearly() {
+    let Some(dir) = shared_meshes() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let mut names: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "obj"))
+        .collect();
+    names.sort();
+    for mesh in names {
+        let out = tmp.path().join("m.gim");
+        let cfg = AtlasConfig {
+            resolution: 256,
+            ..AtlasConfig::default()
+        };
+        match gim::build_gim(&mesh, &out, &cfg, &Silent) {
+            Ok(report) => {
+                eprintln!("{}: {report}", mesh.display());
+                let g = Gim::open(&out, MemoryBudget::default()).unwrap();
+                let m = g.mesh().unwrap();
+                // one dense component per surface component (tiny components may
+                // rasterize to nothing at this resolution, never to more)
+                let comps = m.topology().components;
+                let dense = g.graph().unwrap().components();
+                assert!(
+                    dense >= 1 && dense <= comps,
+                    "{}: {dense} dense vs {comps} surface",
+                    mesh.display()
+                );
+            }
+            Err(e) => {
+                let msg = e.to_string();
+                eprintln!("{}: {msg}", mesh.display());
+                assert!(msg.contains(mesh.file_name().unwrap().to_str().unwrap()), "{msg}");
+                assert!(!out.exists());
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_inputs_are_refused_without_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.gim");
+    let empty = dir.path().join("empty.obj");
+    std::fs::write(&empty, "# nothing\n").unwrap();
+    let e = gim::build_gim(&empty, &out, &AtlasConfig::default(), &Silent)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("empty.obj"), "{e}");
+    let cfg = AtlasConfig {
+        resolution: 8,
+        ..AtlasConfig::default()
+    };
+    let e = gim::build_gim(&data("spot_5.8k.obj"), &out, &cfg, &Silent)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("--resolution 8"), "{e}");
+    let keys = dir.path().join("keys.json");
+    std::fs::write(&keys, r#"[{"face": 999999, "dir": [0, 1, 0]}]"#).unwrap();
+    let cfg = AtlasConfig {
+        resolution: 128,
+        field_keys: Some(keys),
+        ..AtlasConfig::default()
+    };
+    let e = gim::build_gim(&data("spot_5.8k.obj"), &out, &cfg, &Silent)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("keys.json") && e.contains("999999"), "{e}");
+    assert!(!out.exists());
+}
