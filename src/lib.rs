@@ -19,6 +19,7 @@ pub mod gim;
 pub mod imageio;
 pub mod ingest;
 pub mod json;
+pub mod maxflow;
 pub mod mesh;
 pub mod naming;
 pub mod progress;

@@ -244,3 +244,60 @@ fn a_killed_factorization_leaves_nothing_that_looks_finished() {
         }
     }
 }
+
+#[test]
+fn atlas_show_and_export_a_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let spot = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj");
+    let gim = dir.path().join("spot.gim");
+    let out = btfquilt(&["atlas", s(&spot), "--resolution", "256", "-q", "-o", s(&gim)]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for needle in [
+        "charts",
+        "stretch L2",
+        "utilization",
+        "zipper links",
+        "no repair needed",
+    ] {
+        assert!(text.contains(needle), "'{needle}' missing from {text}");
+    }
+    for what in ["charts", "normals", "field"] {
+        let png = dir.path().join(format!("{what}.png"));
+        let out = btfquilt(&["show", s(&gim), "--what", what, "-o", s(&png)]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert_eq!(btfquilt::imageio::image_size(&png).unwrap(), (256, 256));
+    }
+    let export = dir.path().join("export");
+    assert!(
+        btfquilt(&["export", s(&gim), "--format", "obj", "-o", s(&export)])
+            .status
+            .success()
+    );
+    let (models, _) = tobj::load_obj(export.join("mesh.obj"), &tobj::LoadOptions::default()).unwrap();
+    let m = &models[0].mesh;
+    assert_eq!(m.indices.len(), 5856 * 3);
+    assert!(!m.texcoords.is_empty() && m.texcoords.iter().all(|&t| (0.0..=1.0).contains(&t)));
+    assert!(export.join("mesh.mtl").exists() && export.join("charts.png").exists());
+    fails_clearly(
+        &btfquilt(&[
+            "show",
+            s(&gim),
+            "--what",
+            "stars",
+            "-o",
+            s(&dir.path().join("x.png")),
+        ]),
+        &["stars"],
+    );
+    let bad = dir.path().join("bad.obj");
+    std::fs::write(&bad, "v 0 0 0\nv 1 0 0\nv 0 1 nan\nf 1 2 3\n").unwrap();
+    fails_clearly(
+        &btfquilt(&["atlas", s(&bad), "-o", s(&dir.path().join("b.gim"))]),
+        &["bad.obj", "vertex 3"],
+    );
+    fails_clearly(
+        &btfquilt(&["show", s(&spot), "-o", s(&dir.path().join("y.png"))]),
+        &["spot_5.8k.obj"],
+    );
+}

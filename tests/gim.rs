@@ -78,6 +78,41 @@ fn spot_dense_mesh_is_zippered_and_uniform() {
     eprintln!("zipper links: {} mean {mean:.2} max {max:.2} texels", links.len());
     assert!(max <= gim::MAX_LINK + 1e-6 && mean < 1.6, "mean {mean} max {max}");
 
+    // every chart boundary of a closed surface is a seam: boundary texels are
+    // linked across it, or sit next to a linked texel
+    let mut linked = vec![false; r * r];
+    for &[a, b] in &links {
+        linked[a as usize] = true;
+        linked[b as usize] = true;
+    }
+    let (mut boundary, mut with_link, mut near_link) = (0usize, 0usize, 0usize);
+    for y in 1..r - 1 {
+        for x in 1..r - 1 {
+            let t = y * r + x;
+            let c = graph.chart[t];
+            if c == EMPTY {
+                continue;
+            }
+            let nb = [t - 1, t + 1, t - r, t + r];
+            if nb.iter().all(|&n| graph.chart[n] == c) {
+                continue;
+            }
+            boundary += 1;
+            if linked[t] {
+                with_link += 1;
+            } else if nb
+                .iter()
+                .chain(&[t - r - 1, t - r + 1, t + r - 1, t + r + 1])
+                .any(|&n| linked[n] && graph.chart[n] == c)
+            {
+                near_link += 1;
+            }
+        }
+    }
+    eprintln!("boundary texels {boundary}: linked {with_link}, next to a linked one {near_link}");
+    assert!(with_link as f64 > 0.6 * boundary as f64);
+    assert!((with_link + near_link) as f64 > 0.99 * boundary as f64);
+
     // one connected graph for a one-component surface
     assert_eq!(graph.components(), 1);
 

@@ -190,6 +190,13 @@ fn planar_patch_is_flattened_isometrically() {
         (l2 - 1.0).abs() < 1e-4 && (linf - 1.0).abs() < 1e-4,
         "stretch {l2} {linf}"
     );
+    println!(
+        "planar: {} triangles, fit error {:.2e} x diameter, L2 - 1 = {:.1e}, Linf - 1 = {:.1e}",
+        tris.len(),
+        err / diameter,
+        l2 - 1.0,
+        linf - 1.0
+    );
     assert!(signed_uv_areas(&uv, &tris).iter().all(|&a| a > 0.0));
     let ad = area_distortion(&positions, &tris, &uv);
     assert!((ad - 1.0).abs() < 1e-4, "area distortion {ad}");
@@ -512,8 +519,17 @@ fn run_with(name: &str, mesh: &Mesh, max_charts: usize, cfg: &ChartConfig) {
     let secs = start.elapsed().as_secs_f64();
     let (l2, linf) = check_charts(name, mesh, &charts, cfg.max_stretch as f64);
     let largest = charts.iter().map(|c| c.faces.len()).max().unwrap_or(0);
+    let distortion = charts
+        .iter()
+        .map(|c| {
+            let p: Vec<[f32; 3]> = c.vertices.iter().map(|&v| mesh.positions[v as usize]).collect();
+            let uv: Vec<[f64; 2]> = c.uv.iter().map(|q| [q[0] as f64, q[1] as f64]).collect();
+            area_distortion(&p, &c.triangles, &uv)
+        })
+        .fold(1.0, f64::max);
     println!(
-        "{name}: {} faces, {} components -> {} charts (largest {largest} faces), L2 {l2:.4}, Linf {linf:.3}, {secs:.3} s",
+        "{name}: {} faces, {} components -> {} charts (largest {largest} faces), L2 {l2:.4}, Linf {linf:.3}, \
+         area distortion {distortion:.2}, {secs:.3} s",
         mesh.triangles.len(),
         topo.components,
         charts.len()

@@ -440,7 +440,10 @@ impl Patch {
     }
 }
 
-/// Initial segmentation of the whole mesh: labels per face.
+/// Initial segmentation of the whole mesh into connected regions (face
+/// lists, ascending): grow from one seed per component, seed every area left
+/// uncovered by the normal cone at its centre and regrow, then
+/// [`LLOYD_ITERATIONS`] times move each seed to its region's centre.
 fn segment(ctx: &Ctx) -> Vec<Vec<u32>> {
     let whole = Patch::whole(ctx);
     let nf = whole.len();
