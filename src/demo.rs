@@ -22,7 +22,8 @@ use crate::gim::{self, AtlasConfig, Gim};
 use crate::imageio::{self, PngDepth, RgbImage};
 use crate::ingest;
 use crate::progress::Progress;
-use crate::{export, show};
+use crate::quilt::{self, TileConfig};
+use crate::{bake, evaluate, export, render, show};
 use crate::{Error, Result};
 
 /// The demo's samples: (family, imperfection, texels per side).
@@ -197,6 +198,83 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
          <td><img width=512 src=\"spot_charts.png\"><br>charts</td>\
          <td><img width=512 src=\"spot_normals.png\"><br>normals</td>\
          <td><img width=512 src=\"spot_field.png\"><br>vector field (yellow heads)</td></tr></table>"
+    );
+    // graphcut quilting (work in progress): Spot at 512² tiled with a crop of
+    // the shipped CC0 brick photo, baked and rendered from two sides
+    let t = Instant::now();
+    let spot512 = out_dir.join("spot512.gim");
+    gim::build_gim(
+        &spot,
+        &spot512,
+        &AtlasConfig {
+            resolution: 512,
+            ..AtlasConfig::default()
+        },
+        progress,
+    )?;
+    let brick = imageio::read_rgb(&spot.with_file_name("brick.png"))?;
+    let size = 192.min(brick.width).min(brick.height);
+    let mut crop = Vec::with_capacity(size * size * 3);
+    for y in 0..size {
+        let row = (y + (brick.height - size) / 2) * brick.width + (brick.width - size) / 2;
+        crop.extend_from_slice(&brick.data[row * 3..(row + size) * 3]);
+    }
+    let sample = out_dir.join("brick192.png");
+    imageio::write_png(
+        &sample,
+        &RgbImage {
+            width: size,
+            height: size,
+            data: crop,
+        },
+        PngDepth::Eight,
+    )?;
+    let quilt_path = out_dir.join("spot_brick.quilt");
+    let tiled = quilt::tile(
+        &spot512,
+        &sample,
+        &quilt_path,
+        &TileConfig {
+            memory,
+            ..TileConfig::default()
+        },
+        progress,
+    )?;
+    bake::bake(&quilt_path, None, &out_dir.join("spot_brick_atlas.png"), memory)?;
+    let views = [
+        (
+            "spot_brick_front.png",
+            render::Camera::parse("2.2,0.9,2.6,0,0.1,0,0,1,0,38")?,
+            [0.4, 0.8, 0.6],
+        ),
+        (
+            "spot_brick_back.png",
+            render::Camera::parse("-2.6,0.6,-1.8,0,0.1,0,0,1,0,38")?,
+            [-0.5, 0.7, -0.5],
+        ),
+    ];
+    for (file, cam, light) in views {
+        render::render(
+            &quilt_path,
+            Some(cam),
+            light,
+            640,
+            480,
+            &out_dir.join(file),
+            memory,
+        )?;
+    }
+    let figures = evaluate::evaluate(&quilt_path, None, None, memory)?;
+    let tile_s = t.elapsed().as_secs_f64();
+    lines.push(format!(
+        "spot tiled: {tiled}; with atlas, bake, renders and evaluation {tile_s:.1} s"
+    ));
+    let _ = write!(
+        html,
+        "<h2>Spot tiled with bricks by graphcut quilting (512² atlas; work in progress)</h2><p>{tiled}; {tile_s:.1} s \
+         with bake, renders and evaluation.</p><table><tr><td><img src=\"spot_brick_front.png\"></td>\
+         <td><img src=\"spot_brick_back.png\"></td><td><img width=384 src=\"spot_brick_atlas.png\"><br>baked atlas</td>\
+         </tr></table><pre>{figures}</pre>"
     );
     let index = out_dir.join("index.html");
     imageio::write_atomic(&index, |w| {

@@ -1011,34 +1011,30 @@ pub fn grid_triangles(chart: &[u32], r: usize) -> Vec<[u32; 3]> {
     let mut tris = Vec::new();
     for y in 0..r.saturating_sub(1) {
         for x in 0..r - 1 {
-            let id = |dx: usize, dy: usize| ((y + dy) * r + x + dx) as u32;
-            let (a, b, c, d) = (id(0, 0), id(1, 0), id(0, 1), id(1, 1));
-            let ch = |t: u32| chart[t as usize];
-            let same = |p: u32, q: u32| ch(p) != EMPTY && ch(p) == ch(q);
-            match (
-                same(a, b) && same(a, c) && same(a, d),
-                same(a, b),
-                same(a, c),
-                same(b, d),
-                same(c, d),
-            ) {
-                (true, ..) => {
-                    tris.push([a, b, d]);
-                    tris.push([a, d, c]);
-                }
-                _ => {
-                    if same(a, b) && same(b, d) && !same(a, c) {
-                        tris.push([a, b, d]);
-                    } else if same(a, b) && same(a, c) && !same(a, d) {
-                        tris.push([a, b, c]);
-                    } else if same(a, c) && same(c, d) && !same(a, b) {
-                        tris.push([a, d, c]);
-                    } else if same(b, d) && same(c, d) && !same(a, d) {
-                        tris.push([b, d, c]);
-                    }
-                }
-            }
+            tris.extend(block_triangles(chart, r, x, y));
         }
     }
     tris
+}
+
+/// The grid triangles of the 2×2 block whose top-left texel is (x, y)
+/// (x + 1 < r, y + 1 < r).
+pub fn block_triangles(chart: &[u32], r: usize, x: usize, y: usize) -> impl Iterator<Item = [u32; 3]> {
+    let id = |dx: usize, dy: usize| ((y + dy) * r + x + dx) as u32;
+    let (a, b, c, d) = (id(0, 0), id(1, 0), id(0, 1), id(1, 1));
+    let ch = |t: u32| chart[t as usize];
+    let same = |p: u32, q: u32| ch(p) != EMPTY && ch(p) == ch(q);
+    let mut out: [Option<[u32; 3]>; 2] = [None, None];
+    if same(a, b) && same(a, c) && same(a, d) {
+        out = [Some([a, b, d]), Some([a, d, c])];
+    } else if same(a, b) && same(b, d) && !same(a, c) {
+        out[0] = Some([a, b, d]);
+    } else if same(a, b) && same(a, c) && !same(a, d) {
+        out[0] = Some([a, b, c]);
+    } else if same(a, c) && same(c, d) && !same(a, b) {
+        out[0] = Some([a, d, c]);
+    } else if same(b, d) && same(c, d) && !same(a, d) {
+        out[0] = Some([b, d, c]);
+    }
+    out.into_iter().flatten()
 }

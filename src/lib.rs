@@ -7,10 +7,12 @@
 #![deny(unsafe_code)]
 
 pub mod atlas;
+pub mod bake;
 pub mod btf;
 pub mod container;
 pub mod demo;
 pub mod error;
+pub mod evaluate;
 pub mod export;
 pub mod factorize;
 pub mod field;
@@ -19,10 +21,13 @@ pub mod gim;
 pub mod imageio;
 pub mod ingest;
 pub mod json;
+pub mod matching;
 pub mod maxflow;
 pub mod mesh;
 pub mod naming;
 pub mod progress;
+pub mod quilt;
+pub mod render;
 mod rng;
 pub mod show;
 

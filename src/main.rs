@@ -15,7 +15,17 @@ use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::ingest::{self, ImageFormat, IngestConfig};
 use btfquilt::mesh::io::LoadOptions;
 use btfquilt::progress::Progress;
-use btfquilt::{export, show};
+use btfquilt::quilt::{self, TileConfig};
+use btfquilt::{bake, evaluate, export, render, show};
+
+/// Prints a line to stdout; a closed pipe (`btfquilt evaluate … | head`) is
+/// not an error.
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($t)*);
+    }};
+}
 
 #[derive(Parser)]
 #[command(
@@ -186,6 +196,60 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
+    /// Tile a geometry image with a sample by graphcut quilting.
+    Tile {
+        /// The dense mesh (from `atlas`).
+        #[arg(long)]
+        gim: PathBuf,
+        /// A colour image or a factorization (.svd).
+        #[arg(long)]
+        sample: PathBuf,
+        /// Work-patch radius r_w in texels (default 32 per 512 of atlas).
+        #[arg(long)]
+        patch_radius: Option<usize>,
+        /// T_c: accept a patch if its mean seam cost ≤ this × the sample's neighbour difference.
+        #[arg(long, default_value_t = 2.0)]
+        seam_threshold: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Bake a decorated surface's preview colour into an atlas texture (PNG/EXR).
+    Bake {
+        file: PathBuf,
+        /// The sample (default: the path recorded in the quilt).
+        #[arg(long)]
+        sample: Option<PathBuf>,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Print quality figures of a decorated surface as JSON.
+    Evaluate {
+        file: PathBuf,
+        #[arg(long)]
+        gim: Option<PathBuf>,
+        #[arg(long)]
+        sample: Option<PathBuf>,
+    },
+    /// Render a decorated mesh (baked preview colour, one light) to an image.
+    Render {
+        file: PathBuf,
+        /// eye,target,up,fov (10 numbers); default: a three-quarter view framing the mesh.
+        #[arg(long, allow_hyphen_values = true)]
+        camera: Option<String>,
+        /// Light direction x,y,z (towards the light).
+        #[arg(long, default_value = "0.4,0.8,0.6", allow_hyphen_values = true)]
+        light: String,
+        #[arg(long, default_value_t = 800)]
+        width: usize,
+        #[arg(long, default_value_t = 600)]
+        height: usize,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// Run the pipeline on the embedded default data and write pictures.
     Demo {
         /// Output folder.
@@ -237,8 +301,9 @@ impl Progress for Bars {
     }
     fn note(&self, line: &str) {
         match &*self.bar.lock().unwrap() {
-            Some(b) => b.println(line),
-            None => eprintln!("{line}"),
+            // a hidden bar (stderr not a terminal) drops println
+            Some(b) if !b.is_hidden() => b.println(line),
+            _ => eprintln!("{line}"),
         }
     }
 }
@@ -284,11 +349,11 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Info { file, verify } => {
             let c = Container::open(&file, MemoryBudget::default())?;
-            print!("{}", c.describe());
+            say!("{}", c.describe().trim_end());
             if c.metadata().kind == btf::KIND {
                 let b = Btf::open(&file, MemoryBudget::default())?;
                 let l = b.layout();
-                println!(
+                say!(
                     "btf:       {}×{} texels, {} views × {} lights = {} pairs, tile {}, band {}",
                     l.width,
                     l.height,
@@ -301,7 +366,7 @@ fn run(cli: Cli) -> Result<()> {
             }
             if verify {
                 c.verify()?;
-                println!("verify:    every chunk decodes and matches its checksum");
+                say!("verify:    every chunk decodes and matches its checksum");
             }
         }
         Command::GenerateBtf {
@@ -331,7 +396,7 @@ fn run(cli: Cli) -> Result<()> {
                 ..GenerateConfig::default()
             };
             let report = generate::generate_btf(&cfg, &output, &bars)?;
-            println!("wrote {} ({})", output.display(), report);
+            say!("wrote {} ({})", output.display(), report);
         }
         Command::Ingest { input, output, res } => {
             let (memory, bars) = res.apply()?;
@@ -340,7 +405,7 @@ fn run(cli: Cli) -> Result<()> {
                 ..IngestConfig::default()
             };
             let r = ingest::ingest(&input, &output, &cfg, &bars)?;
-            println!(
+            say!(
                 "wrote {}: {}×{} texels, {} views × {} lights",
                 output.display(),
                 r.width,
@@ -363,7 +428,7 @@ fn run(cli: Cli) -> Result<()> {
             match (all, output) {
                 (Some(dir), None) => {
                     let n = ingest::export_all(&b, &dir, ImageFormat::parse(&format)?, memory, &bars)?;
-                    println!("wrote {n} images and manifest.csv into {}", dir.display());
+                    say!("wrote {n} images and manifest.csv into {}", dir.display());
                 }
                 (None, Some(out)) => {
                     let view =
@@ -374,7 +439,7 @@ fn run(cli: Cli) -> Result<()> {
                     )?;
                     let img = ingest::pair_image(&b, view, light)?;
                     btfquilt::imageio::write_rgb(&out, &img)?;
-                    println!("wrote {}", out.display());
+                    say!("wrote {}", out.display());
                 }
                 _ => bail!("give either -o IMAGE (with --view and --light) or --all DIR"),
             }
@@ -402,7 +467,7 @@ fn run(cli: Cli) -> Result<()> {
                 ..FactorizeConfig::default()
             };
             let report = factorize::factorize(&input, &output, &cfg, &bars)?;
-            println!("wrote {}: {report}", output.display());
+            say!("wrote {}: {report}", output.display());
         }
         Command::Reconstruct {
             file,
@@ -417,10 +482,10 @@ fn run(cli: Cli) -> Result<()> {
             let pair = svd.find_pair(parse_angles(&view, "view")?, parse_angles(&light, "light")?)?;
             let img = svd.reconstruct_pair(pair)?;
             btfquilt::imageio::write_rgb(&output, &img)?;
-            println!("wrote {}", output.display());
+            say!("wrote {}", output.display());
             match svd.original_pair(pair, original.as_deref(), memory)? {
-                Some(orig) => println!("PSNR {:.2} dB against the original", factorize::psnr(&orig, &img)),
-                None => println!("PSNR: the original is not available (give --original FILE)"),
+                Some(orig) => say!("PSNR {:.2} dB against the original", factorize::psnr(&orig, &img)),
+                None => say!("PSNR: the original is not available (give --original FILE)"),
             }
         }
         Command::Atlas {
@@ -441,13 +506,13 @@ fn run(cli: Cli) -> Result<()> {
                 ..AtlasConfig::default()
             };
             let report = gim::build_gim(&mesh, &output, &cfg, &bars)?;
-            println!("{}: {}", mesh.display(), report.repair);
-            println!("wrote {}: {report}", output.display());
+            say!("{}: {}", mesh.display(), report.repair);
+            say!("wrote {}: {report}", output.display());
         }
         Command::Show { file, what, output } => {
             let g = Gim::open(&file, MemoryBudget::default())?;
             show::show(&g, what.parse()?, &output)?;
-            println!("wrote {}", output.display());
+            say!("wrote {}", output.display());
         }
         Command::Export { file, format, output } => {
             if format != "obj" {
@@ -455,12 +520,70 @@ fn run(cli: Cli) -> Result<()> {
             }
             let g = Gim::open(&file, MemoryBudget::default())?;
             let obj = export::export_gim_obj(&g, &output)?;
-            println!("wrote {} (+ mesh.mtl, charts.png)", obj.display());
+            say!("wrote {} (+ mesh.mtl, charts.png)", obj.display());
+        }
+        Command::Tile {
+            gim,
+            sample,
+            patch_radius,
+            seam_threshold,
+            seed,
+            output,
+            res,
+        } => {
+            let (memory, bars) = res.apply()?;
+            let cfg = TileConfig {
+                patch_radius,
+                seam_threshold,
+                seed,
+                memory,
+                ..TileConfig::default()
+            };
+            let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;
+            say!("wrote {}: {report}", output.display());
+        }
+        Command::Bake { file, sample, output } => {
+            bake::bake(&file, sample.as_deref(), &output, MemoryBudget::default())?;
+            say!("wrote {}", output.display());
+        }
+        Command::Evaluate { file, gim, sample } => {
+            say!(
+                "{}",
+                evaluate::evaluate(&file, gim.as_deref(), sample.as_deref(), MemoryBudget::default())?
+            );
+        }
+        Command::Render {
+            file,
+            camera,
+            light,
+            width,
+            height,
+            output,
+        } => {
+            let camera = camera.as_deref().map(render::Camera::parse).transpose()?;
+            let l: Vec<f32> = light
+                .split(',')
+                .map(|v| v.trim().parse())
+                .collect::<Result<_, _>>()
+                .with_context(|| format!("--light '{light}': expected x,y,z"))?;
+            if l.len() != 3 {
+                bail!("--light '{light}': expected x,y,z");
+            }
+            render::render(
+                &file,
+                camera,
+                [l[0], l[1], l[2]],
+                width,
+                height,
+                &output,
+                MemoryBudget::default(),
+            )?;
+            say!("wrote {}", output.display());
         }
         Command::Demo { output, res } => {
             let (memory, bars) = res.apply()?;
             let report = btfquilt::demo::run(&output, memory, &bars)?;
-            println!("{report}");
+            say!("{report}");
         }
     }
     Ok(())

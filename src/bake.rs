@@ -1,0 +1,167 @@
+//! `bake`: the decorated surface's preview colour in atlas space (the sample's
+//! preview, front-parallel view under head-on light, looked up at each
+//! texel's sample coordinate), with the empty gutter filled by dilation so no
+//! dark lines appear at chart borders when the texture is mipmapped.
+
+use std::path::{Path, PathBuf};
+
+use crate::container::MemoryBudget;
+use crate::factorize::{self, FactorizeConfig, SvdArtifact};
+use crate::imageio::{self, PngDepth, RgbImage};
+use crate::quilt::{Quilt, NO_PATCH};
+use crate::{Error, Result};
+
+/// Opens the sample a quilt was made from (`sample` overrides the recorded
+/// path; a colour image is factorized into a temporary `.svd`).
+pub fn open_sample(
+    quilt: &Quilt,
+    sample: Option<&Path>,
+    budget: MemoryBudget,
+) -> Result<(SvdArtifact, Option<tempfile::TempDir>)> {
+    let path: PathBuf = sample
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| quilt.sample.clone());
+    if !path.exists() {
+        return Err(Error::input(
+            quilt.container().path(),
+            format!("its sample {} is gone: give --sample", path.display()),
+        ));
+    }
+    if factorize::is_image_path(&path) {
+        let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+        let p = dir.path().join("sample.svd");
+        let cfg = FactorizeConfig {
+            rotations: 0,
+            ..FactorizeConfig::default()
+        };
+        factorize::factorize(&path, &p, &cfg, &crate::progress::Silent)?;
+        Ok((SvdArtifact::open(&p, budget)?, Some(dir)))
+    } else {
+        Ok((SvdArtifact::open(&path, budget)?, None))
+    }
+}
+
+/// Bilinear lookup in an RGB image at pixel coordinates (clamped).
+pub fn bilinear(img: &RgbImage, x: f32, y: f32) -> [f32; 3] {
+    let (w, h) = (img.width, img.height);
+    let x = x.clamp(0.0, (w - 1) as f32);
+    let y = y.clamp(0.0, (h - 1) as f32);
+    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let px = |x: usize, y: usize| &img.data[(y * w + x) * 3..(y * w + x) * 3 + 3];
+    let mut out = [0f32; 3];
+    for c in 0..3 {
+        let top = px(x0, y0)[c] + (px(x1, y0)[c] - px(x0, y0)[c]) * fx;
+        let bottom = px(x0, y1)[c] + (px(x1, y1)[c] - px(x0, y1)[c]) * fx;
+        out[c] = top + (bottom - top) * fy;
+    }
+    out
+}
+
+/// The atlas-space preview colour of a quilt: `(image, covered mask)`.
+pub fn atlas_colour(quilt: &Quilt, preview: &RgbImage) -> Result<(RgbImage, Vec<bool>)> {
+    let r = quilt.resolution;
+    let coords = quilt.coords()?;
+    let patches = quilt.patches()?;
+    let mut data = vec![0f32; r * r * 3];
+    let covered: Vec<bool> = patches.iter().map(|&p| p != NO_PATCH).collect();
+    for t in 0..r * r {
+        if covered[t] {
+            let c = bilinear(preview, coords[t][0], coords[t][1]);
+            data[t * 3..t * 3 + 3].copy_from_slice(&c);
+        }
+    }
+    Ok((
+        RgbImage {
+            width: r,
+            height: r,
+            data,
+        },
+        covered,
+    ))
+}
+
+/// Fills empty texels from their filled neighbours, ring by ring, so
+/// mipmapping never blends in the background; what is still empty after
+/// `passes` rings gets the mean colour.
+pub fn dilate(img: &mut RgbImage, covered: &[bool], passes: usize) {
+    let (w, h) = (img.width, img.height);
+    let mut filled = covered.to_vec();
+    for _ in 0..passes {
+        let mut next = filled.clone();
+        let mut any = false;
+        for y in 0..h {
+            for x in 0..w {
+                let t = y * w + x;
+                if filled[t] {
+                    continue;
+                }
+                let (mut s, mut c) = ([0f32; 3], 0);
+                for (dx, dy) in [
+                    (-1i32, 0i32),
+                    (1, 0),
+                    (0, -1),
+                    (0, 1),
+                    (-1, -1),
+                    (1, -1),
+                    (-1, 1),
+                    (1, 1),
+                ] {
+                    let (nx, ny) = (x as i32 + dx, y as i32 + dy);
+                    if nx < 0 || ny < 0 || nx >= w as i32 || ny >= h as i32 {
+                        continue;
+                    }
+                    let n = ny as usize * w + nx as usize;
+                    if filled[n] {
+                        for k in 0..3 {
+                            s[k] += img.data[n * 3 + k];
+                        }
+                        c += 1;
+                    }
+                }
+                if c > 0 {
+                    for k in 0..3 {
+                        img.data[t * 3 + k] = s[k] / c as f32;
+                    }
+                    next[t] = true;
+                    any = true;
+                }
+            }
+        }
+        filled = next;
+        if !any {
+            break;
+        }
+    }
+    let (mut mean, mut n) = ([0f64; 3], 0usize);
+    for t in 0..w * h {
+        if covered[t] {
+            for k in 0..3 {
+                mean[k] += img.data[t * 3 + k] as f64;
+            }
+            n += 1;
+        }
+    }
+    for t in 0..w * h {
+        if !filled[t] {
+            for k in 0..3 {
+                img.data[t * 3 + k] = (mean[k] / n.max(1) as f64) as f32;
+            }
+        }
+    }
+}
+
+/// Bakes the quilt's preview colour to `out` (PNG or EXR), gutter dilated.
+pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: MemoryBudget) -> Result<()> {
+    let quilt = Quilt::open(quilt_path, budget)?;
+    let (svd, _tmp) = open_sample(&quilt, sample, budget)?;
+    let preview = svd.preview()?;
+    let (mut img, covered) = atlas_colour(&quilt, &preview)?;
+    dilate(&mut img, &covered, 16);
+    if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+        imageio::write_png(out, &img, PngDepth::Eight)
+    } else {
+        imageio::write_rgb(out, &img)
+    }
+}

@@ -1,0 +1,172 @@
+//! `evaluate`: quality figures of a decorated surface, as JSON.
+//!
+//! - seams: colour differences across grid edges where the patch changes,
+//!   against those inside patches;
+//! - zippers: mean colour difference across zipper links divided by the mean
+//!   across grid links inside charts (≈ 1 means chart seams are invisible);
+//! - coherence: mean RGB distance from 5×5 output windows to their nearest
+//!   5×5 window of the sample (turned by the window's rotation).
+
+use std::path::Path;
+
+use crate::bake::{atlas_colour, open_sample};
+use crate::container::MemoryBudget;
+use crate::factorize::rotate_maps;
+use crate::gim::{Gim, EMPTY};
+use crate::imageio::RgbImage;
+use crate::quilt::{Quilt, NO_PATCH};
+use crate::Result;
+
+fn diff(img: &RgbImage, a: usize, b: usize) -> f64 {
+    (0..3)
+        .map(|k| ((img.data[a * 3 + k] - img.data[b * 3 + k]) as f64).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// Computes the figures and returns them as a JSON object.
+pub fn evaluate(
+    quilt_path: &Path,
+    gim_path: Option<&Path>,
+    sample: Option<&Path>,
+    budget: MemoryBudget,
+) -> Result<String> {
+    let quilt = Quilt::open(quilt_path, budget)?;
+    let gim = Gim::open(gim_path.unwrap_or(&quilt.gim), budget)?;
+    let (svd, _tmp) = open_sample(&quilt, sample, budget)?;
+    let preview = svd.preview()?;
+    let (img, covered) = atlas_colour(&quilt, &preview)?;
+    let r = quilt.resolution;
+    let patches = quilt.patches()?;
+    let chart: Vec<u32> = gim.read("chart")?;
+    let (mut seam, mut inner) = (Vec::new(), Vec::new());
+    for y in 0..r {
+        for x in 0..r {
+            let t = y * r + x;
+            if chart[t] == EMPTY || !covered[t] {
+                continue;
+            }
+            for n in [(x + 1 < r).then(|| t + 1), (y + 1 < r).then(|| t + r)]
+                .into_iter()
+                .flatten()
+            {
+                if chart[n] == chart[t] && covered[n] {
+                    if patches[n] != patches[t] {
+                        seam.push(diff(&img, t, n));
+                    } else {
+                        inner.push(diff(&img, t, n));
+                    }
+                }
+            }
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let mut sorted = seam.clone();
+    sorted.sort_by(f64::total_cmp);
+    let pct = |p: f64| {
+        sorted
+            .get(((sorted.len() as f64 - 1.0) * p).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    let links = gim.zipper_links()?;
+    let zip: Vec<f64> = links
+        .iter()
+        .filter(|l| covered[l[0] as usize] && covered[l[1] as usize])
+        .map(|l| diff(&img, l[0] as usize, l[1] as usize))
+        .collect();
+    let all_inside: Vec<f64> = inner.iter().chain(&seam).copied().collect();
+    let zipper_ratio = mean(&zip) / mean(&all_inside).max(1e-12);
+    let coherence = coherence(&quilt, &img, &covered, &chart, &preview)?;
+    let seams_fraction = seam.len() as f64 / (seam.len() + inner.len()).max(1) as f64;
+    let patch_count = {
+        let mut p: Vec<u32> = patches.iter().copied().filter(|&p| p != NO_PATCH).collect();
+        p.sort_unstable();
+        p.dedup();
+        p.len()
+    };
+    Ok(format!(
+        "{{\n  \"texels\": {},\n  \"patches\": {patch_count},\n  \"seam\": {{\"edges\": {}, \"fraction_of_edges\": {:.5}, \"mean_colour_difference\": {:.6}, \"median\": {:.6}, \"p95\": {:.6}, \"max\": {:.6}, \"inside_patches_mean\": {:.6}, \"ratio_to_inside\": {:.4}}},\n  \"zipper\": {{\"links\": {}, \"mean_colour_difference\": {:.6}, \"inside_charts_mean\": {:.6}, \"ratio\": {:.4}}},\n  \"coherence\": {{\"windows\": {}, \"mean_rgb_distance_to_nearest_sample_window\": {:.6}}}\n}}",
+        covered.iter().filter(|&&c| c).count(),
+        seam.len(),
+        seams_fraction,
+        mean(&seam),
+        pct(0.5),
+        pct(0.95),
+        pct(1.0),
+        mean(&inner),
+        mean(&seam) / mean(&inner).max(1e-12),
+        zip.len(),
+        mean(&zip),
+        mean(&all_inside),
+        zipper_ratio,
+        coherence.1,
+        coherence.0
+    ))
+}
+
+/// Mean distance from 5×5 output windows (at seeded places inside one chart)
+/// to the nearest 5×5 window of the sample preview turned by the window's
+/// rotation; and the number of windows.
+fn coherence(
+    quilt: &Quilt,
+    img: &RgbImage,
+    covered: &[bool],
+    chart: &[u32],
+    preview: &RgbImage,
+) -> Result<(f64, usize)> {
+    let r = quilt.resolution;
+    let rotations = quilt.rotations()?;
+    let steps = match quilt.container().metadata().param("rotations") {
+        Some(crate::container::Param::Int(v)) if *v > 0 => *v as usize,
+        _ => 72,
+    };
+    let (sw, sh) = (preview.width, preview.height);
+    let mut cache: std::collections::BTreeMap<u8, (Vec<f32>, Vec<u8>)> = Default::default();
+    let (mut total, mut count) = (0f64, 0usize);
+    let mut k = 0u64;
+    while count < 200 && k < 20_000 {
+        k += 1;
+        let t = (crate::rng::mix64(k) % (r * r) as u64) as usize;
+        let (x, y) = (t % r, t / r);
+        if x < 2 || y < 2 || x + 2 >= r || y + 2 >= r {
+            continue;
+        }
+        let window: Vec<usize> = (0..25).map(|i| (y + i / 5 - 2) * r + x + i % 5 - 2).collect();
+        if !window.iter().all(|&w| covered[w] && chart[w] == chart[t]) {
+            continue;
+        }
+        let rot = rotations[t];
+        let (maps, valid) = cache.entry(rot).or_insert_with(|| {
+            rotate_maps(&preview.data, sw, sh, 3, rot as f64 * 360.0 / steps as f64, false)
+        });
+        let mut best = f64::INFINITY;
+        for sy in 2..sh.saturating_sub(2) {
+            for sx in 2..sw.saturating_sub(2) {
+                let mut ssd = 0f64;
+                let mut ok = true;
+                for i in 0..25 {
+                    let s = (sy + i / 5 - 2) * sw + sx + i % 5 - 2;
+                    if valid[s] == 0 {
+                        ok = false;
+                        break;
+                    }
+                    for c in 0..3 {
+                        ssd += ((maps[s * 3 + c] - img.data[window[i] * 3 + c]) as f64).powi(2);
+                    }
+                    if ssd >= best {
+                        break;
+                    }
+                }
+                if ok && ssd < best {
+                    best = ssd;
+                }
+            }
+        }
+        if best.is_finite() {
+            total += (best / 25.0).sqrt();
+            count += 1;
+        }
+    }
+    Ok((total / count.max(1) as f64, count))
+}

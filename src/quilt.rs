@@ -1,0 +1,1351 @@
+//! `tile`: graphcut quilting on the dense mesh (Zhou et al., section III-B;
+//! Kwatra et al. 2003), for colour samples and BTFs alike (both enter as a
+//! `.svd`: patch costs use the n-term geometry-map vectors).
+//!
+//! The loop (the paper's Fig. 4):
+//! 1. pick the most constrained unsynthesized dense vertex v (most
+//!    synthesized neighbours; the first one from the seed);
+//! 2. work patch P(v): breadth-first traversal of M_d from v to depth r_w;
+//! 3. work image I(v): inside one chart, the chart's sub-image (no
+//!    resampling); across charts, P(v) flattened with LSCM (area distortion ≤
+//!    T_d, else shrink) and resampled at one texel per pixel, a pixel known
+//!    where its triangle's three vertices are synthesized;
+//! 4. entire-patch matching of the sample rotated to the work image's mean
+//!    field direction (one of the 72 rotated copies) by FFT; a seeded choice
+//!    among near-minimal placements;
+//! 5. patch fitting: a graphcut over P(v)'s vertices between the old values A
+//!    and the new B, edge weight ‖A(s)−B(s)‖ + ‖A(t)−B(t)‖, with a seam node on
+//!    every old seam so later patches can remove earlier seams;
+//! 6. accept if the mean seam cost is below T_c (relative to the sample's own
+//!    neighbour differences), else shrink r_w by 0.8 and retry, down to 4;
+//! 7. record for each vertex taken: sample coordinate, rotation, patch id.
+//!
+//! State is struct-of-arrays over atlas texels. The loop is sequential, so the
+//! result depends only on the inputs and the seed.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::atlas::lscm;
+use crate::container::{ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
+use crate::factorize::{self, FactorizeConfig, SvdArtifact};
+use crate::gim::{Gim, EMPTY, TILE};
+use crate::matching::{self, Image, MatchConfig, Matcher};
+use crate::maxflow::{Graph, Segment};
+use crate::progress::Progress;
+use crate::{Error, Result};
+
+/// The artifact kind of a decorated surface.
+pub const KIND: &str = "quilt";
+/// Patch id of an unsynthesized texel.
+pub const NO_PATCH: u32 = u32::MAX;
+
+/// Options of [`tile`].
+#[derive(Clone, Debug)]
+pub struct TileConfig {
+    /// Work-patch radius r_w in BFS hops; `None` = 32 per 512 texels of atlas.
+    pub patch_radius: Option<usize>,
+    /// Smallest radius of the hierarchical search.
+    pub min_radius: usize,
+    /// Accept a fitting if its mean seam cost ≤ this × the sample's mean
+    /// neighbour difference (T_c).
+    pub seam_threshold: f64,
+    /// Near-minimal placements: cost ≤ (1 + tolerance) × best.
+    pub tolerance: f64,
+    /// Maximum area distortion of a flattened work patch (T_d).
+    pub max_distortion: f64,
+    pub seed: u64,
+    pub memory: MemoryBudget,
+    pub level: i32,
+}
+
+impl Default for TileConfig {
+    fn default() -> Self {
+        TileConfig {
+            patch_radius: None,
+            min_radius: 4,
+            seam_threshold: 2.0,
+            tolerance: 0.1,
+            max_distortion: 4.0,
+            seed: 1,
+            memory: MemoryBudget::default(),
+            level: crate::container::DEFAULT_ZSTD_LEVEL,
+        }
+    }
+}
+
+/// What [`tile`] did.
+#[derive(Clone, Debug, Default)]
+pub struct TileReport {
+    pub patches: usize,
+    pub cross_chart_patches: usize,
+    /// Cross-chart patches that LSCM could not flatten within T_d, unfolded
+    /// chart by chart instead.
+    pub unfolded_patches: usize,
+    pub shrinks: usize,
+    pub texels: usize,
+    pub mean_seam_cost: f64,
+    pub seconds: f64,
+    pub matching_seconds: f64,
+    pub graphcut_seconds: f64,
+}
+
+impl std::fmt::Display for TileReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} texels in {} patches ({} across charts, {} of them unfolded, {} shrinks), mean seam cost {:.4}, {:.1} s (matching {:.1} s, graphcut {:.1} s)",
+            self.texels,
+            self.patches,
+            self.cross_chart_patches,
+            self.unfolded_patches,
+            self.shrinks,
+            self.mean_seam_cost,
+            self.seconds,
+            self.matching_seconds,
+            self.graphcut_seconds
+        )
+    }
+}
+
+/// The sample: unrotated geometry maps, and rotated copies on demand.
+struct Sample {
+    svd: SvdArtifact,
+    width: usize,
+    height: usize,
+    n: usize,
+    maps: Vec<f32>,
+    tileable: bool,
+    /// Rotated copies as f32 (maps, validity), loaded lazily.
+    rotated: Vec<Option<(Vec<f32>, Vec<f32>)>>,
+}
+
+impl Sample {
+    fn rotation(&mut self, r: usize) -> Result<&(Vec<f32>, Vec<f32>)> {
+        if self.rotated[r].is_none() {
+            let (maps, valid) = self.svd.rotated(r)?;
+            let mut m = vec![0f32; maps.len()];
+            half::slice::HalfFloatSliceExt::convert_to_f32_slice(&maps[..], &mut m);
+            self.rotated[r] = Some((m, valid.iter().map(|&v| v as f32).collect()));
+        }
+        Ok(self.rotated[r].as_ref().expect("just loaded"))
+    }
+
+    /// Bilinear geometry-map vector at unrotated sample coordinates (pixel
+    /// indices); `None` outside the sample (unless tileable).
+    fn lookup(&self, c: [f64; 2], out: &mut [f32]) -> bool {
+        let (w, h) = (self.width as f64, self.height as f64);
+        let (mut x, mut y) = (c[0], c[1]);
+        if self.tileable {
+            x = x.rem_euclid(w);
+            y = y.rem_euclid(h);
+        } else if !(x >= 0.0 && y >= 0.0 && x <= w - 1.0 && y <= h - 1.0) {
+            return false;
+        }
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let wrap = |v: usize, n: usize| if self.tileable { v % n } else { v.min(n - 1) };
+        let (x0, y0) = (wrap(x0, self.width), wrap(y0, self.height));
+        let (x1, y1) = (wrap(x0 + 1, self.width), wrap(y0 + 1, self.height));
+        let n = self.n;
+        let at = |x: usize, y: usize| (y * self.width + x) * n;
+        let (a, b, cc, d) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+        for i in 0..n {
+            let top = self.maps[a + i] + (self.maps[b + i] - self.maps[a + i]) * fx;
+            let bottom = self.maps[cc + i] + (self.maps[d + i] - self.maps[cc + i]) * fx;
+            out[i] = top + (bottom - top) * fy;
+        }
+        true
+    }
+
+    /// Mean ‖g(x) − g(x + 1)‖ over horizontal and vertical neighbours: the
+    /// sample's own seam scale, the unit of T_c.
+    fn neighbour_difference(&self) -> f64 {
+        let (w, h, n) = (self.width, self.height, self.n);
+        let (mut s, mut c) = (0f64, 0usize);
+        for y in 0..h {
+            for x in 0..w {
+                let a = (y * w + x) * n;
+                for (dx, dy) in [(1, 0), (0, 1)] {
+                    if x + dx < w && y + dy < h {
+                        let b = ((y + dy) * w + x + dx) * n;
+                        s += dist(&self.maps[a..a + n], &self.maps[b..b + n]);
+                        c += 1;
+                    }
+                }
+            }
+        }
+        (s / c.max(1) as f64).max(1e-12)
+    }
+}
+
+fn dist(a: &[f32], b: &[f32]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// Per-texel synthesis state (struct of arrays over the atlas).
+struct State {
+    r: usize,
+    n: usize,
+    chart: Vec<u32>,
+    synthesized: Vec<bool>,
+    coord: Vec<[f32; 2]>,
+    /// Sample-space offset per +x and per +y atlas step (columns of the local
+    /// Jacobian), to continue an old patch one texel into its neighbour.
+    jacobian: Vec<[f32; 4]>,
+    rotation: Vec<u8>,
+    patch: Vec<u32>,
+    features: Vec<f32>,
+    /// Synthesized-neighbour counts of unsynthesized texels (the
+    /// "most constrained" priority), bucketed.
+    count: Vec<u8>,
+    buckets: Vec<std::collections::BTreeSet<u32>>,
+    remaining: usize,
+}
+
+impl State {
+    fn new(chart: Vec<u32>, n: usize, r: usize) -> State {
+        let texels = chart.len();
+        let mut buckets = vec![std::collections::BTreeSet::new(); 16];
+        let mut remaining = 0;
+        for (t, &c) in chart.iter().enumerate() {
+            if c != EMPTY {
+                buckets[0].insert(t as u32);
+                remaining += 1;
+            }
+        }
+        State {
+            r,
+            n,
+            synthesized: vec![false; texels],
+            coord: vec![[0.0; 2]; texels],
+            jacobian: vec![[0.0; 4]; texels],
+            rotation: vec![0; texels],
+            patch: vec![NO_PATCH; texels],
+            features: vec![0.0; texels * n],
+            count: vec![0; texels],
+            buckets,
+            remaining,
+            chart,
+        }
+    }
+
+    /// The most constrained unsynthesized texel (lowest id among equals).
+    fn most_constrained(&self) -> Option<u32> {
+        self.buckets.iter().rev().find_map(|b| b.first().copied())
+    }
+
+    fn feature(&self, t: u32) -> &[f32] {
+        &self.features[t as usize * self.n..(t as usize + 1) * self.n]
+    }
+}
+
+/// A work patch: its vertices (texels) and their BFS depth.
+struct WorkPatch {
+    texels: Vec<u32>,
+    depth: Vec<u16>,
+    /// Position of each texel in `texels`, via a stamp array.
+    crosses_charts: bool,
+}
+
+/// Reusable BFS buffers.
+struct Bfs {
+    stamp: Vec<u32>,
+    index: Vec<u32>,
+    epoch: u32,
+}
+
+impl Bfs {
+    fn patch(&mut self, graph: &crate::gim::DenseGraph, v: u32, radius: usize) -> WorkPatch {
+        self.epoch += 1;
+        let mut texels = vec![v];
+        let mut depth = vec![0u16];
+        self.stamp[v as usize] = self.epoch;
+        self.index[v as usize] = 0;
+        let mut crosses = false;
+        let mut head = 0;
+        while head < texels.len() {
+            let (t, d) = (texels[head], depth[head]);
+            head += 1;
+            if d as usize >= radius {
+                continue;
+            }
+            graph.for_each_neighbour(t, |n, zipper| {
+                if self.stamp[n as usize] != self.epoch {
+                    self.stamp[n as usize] = self.epoch;
+                    self.index[n as usize] = texels.len() as u32;
+                    texels.push(n);
+                    depth.push(d + 1);
+                    crosses |= zipper;
+                }
+            });
+        }
+        WorkPatch {
+            texels,
+            depth,
+            crosses_charts: crosses,
+        }
+    }
+
+    fn contains(&self, t: u32) -> Option<usize> {
+        (self.stamp[t as usize] == self.epoch).then(|| self.index[t as usize] as usize)
+    }
+}
+
+/// The work image of a patch and where each patch vertex sits in it.
+struct WorkImage {
+    width: usize,
+    height: usize,
+    features: Vec<f32>,
+    known: Vec<f32>,
+    /// Work-image coordinates of each patch vertex (pixel indices, continuous).
+    coords: Vec<[f64; 2]>,
+    /// Mean field direction in the work image (radians, y down).
+    angle: f64,
+    /// Local linear map from atlas steps (+x, +y) to work-image offsets, for
+    /// in-chart work images (identity) — used for the Jacobian.
+    atlas_to_work: Option<[f64; 4]>,
+}
+
+/// Per face, the atlas-space angle of its field direction (radians, y down).
+fn face_angles(gim: &Gim) -> Result<Vec<f64>> {
+    let mesh = gim.mesh()?;
+    let uv = gim.corner_uv()?;
+    let field: Vec<f32> = gim.read("face_field")?;
+    let r = gim.resolution as f64;
+    Ok((0..mesh.triangles.len())
+        .map(|f| {
+            let [p0, p1, p2] = mesh.corners(f);
+            let e1: Vec<f64> = (0..3).map(|k| (p1[k] - p0[k]) as f64).collect();
+            let e2: Vec<f64> = (0..3).map(|k| (p2[k] - p0[k]) as f64).collect();
+            let (u0, u1, u2) = (uv[f * 3], uv[f * 3 + 1], uv[f * 3 + 2]);
+            let a = [(u1[0] - u0[0]) as f64 * r, (u1[1] - u0[1]) as f64 * r];
+            let b = [(u2[0] - u0[0]) as f64 * r, (u2[1] - u0[1]) as f64 * r];
+            let det = a[0] * b[1] - a[1] * b[0];
+            if det.abs() < 1e-18 {
+                return 0.0;
+            }
+            let (i00, i01, i10, i11) = (b[1] / det, -b[0] / det, -a[1] / det, a[0] / det);
+            let du: Vec<f64> = (0..3).map(|k| e1[k] * i00 + e2[k] * i10).collect();
+            let dv: Vec<f64> = (0..3).map(|k| e1[k] * i01 + e2[k] * i11).collect();
+            let t = [
+                field[f * 3] as f64,
+                field[f * 3 + 1] as f64,
+                field[f * 3 + 2] as f64,
+            ];
+            let d3 = |x: &[f64], y: &[f64]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+            let (g00, g01, g11) = (d3(&du, &du), d3(&du, &dv), d3(&dv, &dv));
+            let (h0, h1) = (d3(&du, &t), d3(&dv, &t));
+            let gd = g00 * g11 - g01 * g01;
+            if gd.abs() < 1e-30 {
+                return 0.0;
+            }
+            let d = [(g11 * h0 - g01 * h1) / gd, (g00 * h1 - g01 * h0) / gd];
+            d[1].atan2(d[0])
+        })
+        .collect())
+}
+
+/// Everything the loop reads.
+struct Surface {
+    r: usize,
+    graph: crate::gim::DenseGraph,
+    face: Vec<u32>,
+    position: Vec<f32>,
+    normal: Vec<f32>,
+    face_angle: Vec<f64>,
+}
+
+impl Surface {
+    fn texel_angle(&self, t: u32) -> f64 {
+        self.face_angle[self.face[t as usize] as usize]
+    }
+}
+
+fn mean_angle(angles: impl Iterator<Item = f64>) -> f64 {
+    let (mut c, mut s) = (0.0, 0.0);
+    for a in angles {
+        c += a.cos();
+        s += a.sin();
+    }
+    s.atan2(c)
+}
+
+/// In-chart work image: the chart's sub-image around the patch.
+fn chart_work_image(surface: &Surface, state: &State, patch: &WorkPatch) -> WorkImage {
+    let r = surface.r;
+    let chart = state.chart[patch.texels[0] as usize];
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+    for &t in &patch.texels {
+        let (x, y) = (t as usize % r, t as usize / r);
+        x0 = x0.min(x);
+        y0 = y0.min(y);
+        x1 = x1.max(x);
+        y1 = y1.max(y);
+    }
+    let (w, h, n) = (x1 - x0 + 1, y1 - y0 + 1, state.n);
+    let mut features = vec![0f32; w * h * n];
+    let mut known = vec![0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let t = (y0 + y) * r + x0 + x;
+            if state.chart[t] == chart && state.synthesized[t] {
+                known[y * w + x] = 1.0;
+                features[(y * w + x) * n..(y * w + x + 1) * n].copy_from_slice(state.feature(t as u32));
+            }
+        }
+    }
+    let coords = patch
+        .texels
+        .iter()
+        .map(|&t| [(t as usize % r - x0) as f64, (t as usize / r - y0) as f64])
+        .collect();
+    WorkImage {
+        width: w,
+        height: h,
+        features,
+        known,
+        coords,
+        angle: mean_angle(patch.texels.iter().map(|&t| surface.texel_angle(t))),
+        atlas_to_work: Some([1.0, 0.0, 0.0, 1.0]),
+    }
+}
+
+/// Cross-chart work image: the patch flattened with LSCM and resampled.
+/// `None` if it cannot be flattened within the distortion bound.
+fn flattened_work_image(
+    surface: &Surface,
+    state: &State,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+    zipper_triangles: &[[u32; 3]],
+    max_distortion: f64,
+) -> Option<WorkImage> {
+    let r = surface.r;
+    let local = |t: u32| bfs.contains(t);
+    // triangles: grid blocks inside charts, plus zipper triangles, all in P
+    let mut tris: Vec<[u32; 3]> = Vec::new();
+    for &t in &patch.texels {
+        let (x, y) = (t as usize % r, t as usize / r);
+        if x + 1 < r && y + 1 < r {
+            for tri in crate::gim::block_triangles(&state.chart, r, x, y) {
+                if let (Some(a), Some(b), Some(c)) = (local(tri[0]), local(tri[1]), local(tri[2])) {
+                    tris.push([a as u32, b as u32, c as u32]);
+                }
+            }
+        }
+    }
+    let grid_count = tris.len();
+    for z in zipper_triangles {
+        if let (Some(a), Some(b), Some(c)) = (local(z[0]), local(z[1]), local(z[2])) {
+            tris.push([a as u32, b as u32, c as u32]);
+        }
+    }
+    let positions: Vec<[f32; 3]> = patch
+        .texels
+        .iter()
+        .map(|&t| {
+            let p = &surface.position[t as usize * 3..t as usize * 3 + 3];
+            [p[0], p[1], p[2]]
+        })
+        .collect();
+    // wind every triangle like the surface (its 3D normal along the texels'
+    // normals): zipper triangles are stored unoriented, and LSCM's energy
+    // depends on orientation
+    for tri in &mut tris {
+        let p = tri.map(|i| positions[i as usize]);
+        let n = crate::mesh::cross(crate::mesh::sub(p[1], p[0]), crate::mesh::sub(p[2], p[0]));
+        let mut avg = [0f32; 3];
+        for &i in tri.iter() {
+            let t = patch.texels[i as usize] as usize;
+            for k in 0..3 {
+                avg[k] += surface.normal[t * 3 + k];
+            }
+        }
+        if crate::mesh::dot(n, avg) < 0.0 {
+            tri.swap(1, 2);
+        }
+    }
+    let uv = match lscm::lscm(&positions, &tris) {
+        Ok(uv) => uv,
+        Err(e) => {
+            if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                eprintln!("lscm failed: {e}");
+            }
+            return None;
+        }
+    };
+    // T_d on the grid triangles, which carry the area: zipper triangles are
+    // slivers whose own area ratios say nothing about the texture's scale
+    let distortion = lscm::area_distortion(&positions, &tris[..grid_count], &uv);
+    if std::env::var_os("BTFQUILT_TRACE").is_some() && !(distortion <= max_distortion) {
+        eprintln!("lscm distortion {distortion}");
+    }
+    if !(distortion <= max_distortion) {
+        return None;
+    }
+    // scale so grid edges average one pixel; measure the frame's rotation
+    // against the atlas on grid edges
+    let (mut len, mut cnt, mut rc, mut rs) = (0.0, 0usize, 0.0, 0.0);
+    for (i, &t) in patch.texels.iter().enumerate() {
+        let (x, y) = (t as usize % r, t as usize / r);
+        if x + 1 < r && state.chart[t as usize + 1] == state.chart[t as usize] {
+            if let Some(j) = local(t + 1) {
+                let d = [uv[j][0] - uv[i][0], uv[j][1] - uv[i][1]];
+                len += (d[0] * d[0] + d[1] * d[1]).sqrt();
+                cnt += 1;
+                // the atlas +x direction maps to angle atan2(d): field angle
+                // in the work frame = atlas angle + this rotation
+                let a = d[1].atan2(d[0]);
+                let fa = surface.texel_angle(t) + a;
+                rc += fa.cos();
+                rs += fa.sin();
+            }
+        }
+        let _ = y;
+    }
+    if cnt == 0 || len <= 0.0 {
+        return None;
+    }
+    let scale = cnt as f64 / len;
+    let (mut minu, mut minv) = (f64::INFINITY, f64::INFINITY);
+    for p in &uv {
+        minu = minu.min(p[0] * scale);
+        minv = minv.min(p[1] * scale);
+    }
+    let coords: Vec<[f64; 2]> = uv
+        .iter()
+        .map(|p| [p[0] * scale - minu, p[1] * scale - minv])
+        .collect();
+    let w = coords.iter().map(|c| c[0]).fold(0.0, f64::max).ceil() as usize + 1;
+    let h = coords.iter().map(|c| c[1]).fold(0.0, f64::max).ceil() as usize + 1;
+    if w > 4 * r || h > 4 * r {
+        return None;
+    }
+    let n = state.n;
+    let mut features = vec![0f32; w * h * n];
+    let mut known = vec![0f32; w * h];
+    for tri in &tris {
+        let ids = [
+            patch.texels[tri[0] as usize],
+            patch.texels[tri[1] as usize],
+            patch.texels[tri[2] as usize],
+        ];
+        if !ids.iter().all(|&t| state.synthesized[t as usize]) {
+            continue;
+        }
+        let p = [
+            coords[tri[0] as usize],
+            coords[tri[1] as usize],
+            coords[tri[2] as usize],
+        ];
+        let d = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+        if d.abs() < 1e-12 {
+            continue;
+        }
+        let lo = |k: usize| {
+            p.iter()
+                .map(|q| q[k])
+                .fold(f64::INFINITY, f64::min)
+                .floor()
+                .max(0.0) as usize
+        };
+        let hi = |k: usize, m: usize| (p.iter().map(|q| q[k]).fold(0.0, f64::max).ceil() as usize).min(m - 1);
+        for y in lo(1)..=hi(1, h) {
+            for x in lo(0)..=hi(0, w) {
+                let q = [x as f64, y as f64];
+                let l1 =
+                    ((q[0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (q[1] - p[0][1])) / d;
+                let l2 =
+                    ((p[1][0] - p[0][0]) * (q[1] - p[0][1]) - (q[0] - p[0][0]) * (p[1][1] - p[0][1])) / d;
+                let l0 = 1.0 - l1 - l2;
+                if l0 < -1e-9 || l1 < -1e-9 || l2 < -1e-9 {
+                    continue;
+                }
+                let i = y * w + x;
+                known[i] = 1.0;
+                for c in 0..n {
+                    features[i * n + c] = (l0 as f32) * state.feature(ids[0])[c]
+                        + (l1 as f32) * state.feature(ids[1])[c]
+                        + (l2 as f32) * state.feature(ids[2])[c];
+                }
+            }
+        }
+    }
+    Some(WorkImage {
+        width: w,
+        height: h,
+        features,
+        known,
+        coords,
+        angle: rs.atan2(rc),
+        atlas_to_work: None,
+    })
+}
+
+/// Cross-chart work image without LSCM: each chart's part of the patch keeps
+/// its atlas layout (no resampling inside a chart) and is turned rigidly so
+/// that the vector field agrees across the zipper it was entered through.
+/// Used when the patch's triangulation cannot be flattened within T_d.
+fn unfolded_work_image(surface: &Surface, state: &State, patch: &WorkPatch, bfs: &Bfs) -> WorkImage {
+    let r = surface.r;
+    let m = patch.texels.len();
+    let atlas = |t: u32| [(t as usize % r) as f64, (t as usize / r) as f64];
+    // per chart: (rotation φ, work origin, atlas origin)
+    let mut frames: std::collections::BTreeMap<u32, (f64, [f64; 2], [f64; 2])> = Default::default();
+    let v = patch.texels[0];
+    frames.insert(state.chart[v as usize], (0.0, [0.0, 0.0], atlas(v)));
+    let mut coords = vec![[0f64; 2]; m];
+    for i in 0..m {
+        let t = patch.texels[i];
+        let c = state.chart[t as usize];
+        if !frames.contains_key(&c) {
+            // entered through a zipper from an earlier texel of a known chart
+            let mut entry = None;
+            surface.graph.for_each_neighbour(t, |nb, zipper| {
+                if entry.is_none() && zipper {
+                    if let Some(k) = bfs.contains(nb) {
+                        if k < i && frames.contains_key(&state.chart[nb as usize]) {
+                            entry = Some((nb, k));
+                        }
+                    }
+                }
+            });
+            let (phi, origin) = match entry {
+                Some((p, k)) => {
+                    let pf = frames[&state.chart[p as usize]].0;
+                    (pf + surface.texel_angle(p) - surface.texel_angle(t), coords[k])
+                }
+                None => (0.0, [0.0, 0.0]),
+            };
+            frames.insert(c, (phi, origin, atlas(t)));
+        }
+        let (phi, wo, ao) = frames[&c];
+        let (s, co) = phi.sin_cos();
+        let a = atlas(t);
+        let d = [a[0] - ao[0], a[1] - ao[1]];
+        coords[i] = [wo[0] + co * d[0] - s * d[1], wo[1] + s * d[0] + co * d[1]];
+    }
+    let minx = coords.iter().map(|c| c[0]).fold(f64::INFINITY, f64::min);
+    let miny = coords.iter().map(|c| c[1]).fold(f64::INFINITY, f64::min);
+    for c in &mut coords {
+        c[0] -= minx;
+        c[1] -= miny;
+    }
+    let w = coords.iter().map(|c| c[0]).fold(0.0, f64::max).ceil() as usize + 1;
+    let h = coords.iter().map(|c| c[1]).fold(0.0, f64::max).ceil() as usize + 1;
+    let n = state.n;
+    let mut features = vec![0f32; w * h * n];
+    let mut known = vec![0f32; w * h];
+    for (i, &t) in patch.texels.iter().enumerate() {
+        if state.synthesized[t as usize] {
+            let (x, y) = (coords[i][0].round() as usize, coords[i][1].round() as usize);
+            let p = (y.min(h - 1)) * w + x.min(w - 1);
+            if known[p] == 0.0 {
+                known[p] = 1.0;
+                features[p * n..(p + 1) * n].copy_from_slice(state.feature(t));
+            }
+        }
+    }
+    let angle = mean_angle(
+        patch
+            .texels
+            .iter()
+            .map(|&t| surface.texel_angle(t) + frames[&state.chart[t as usize]].0),
+    );
+    WorkImage {
+        width: w,
+        height: h,
+        features,
+        known,
+        coords,
+        angle,
+        atlas_to_work: None,
+    }
+}
+
+/// Rotation index (5° steps for 72 copies) closest to an angle.
+fn rotation_index(angle: f64, rotations: usize) -> usize {
+    let step = std::f64::consts::TAU / rotations as f64;
+    ((angle.rem_euclid(std::f64::consts::TAU) / step).round() as usize) % rotations
+}
+
+/// Decorates the geometry image `gim_path` with the sample (`.svd`, or a
+/// colour image factorized on the fly) into the `.quilt` artifact `out`.
+pub fn tile(
+    gim_path: &Path,
+    sample_path: &Path,
+    out: &Path,
+    cfg: &TileConfig,
+    progress: &dyn Progress,
+) -> Result<TileReport> {
+    let start = Instant::now();
+    let gim = Gim::open(gim_path, cfg.memory)?;
+    let _tmp;
+    let svd_path: PathBuf = if factorize::is_image_path(sample_path) {
+        let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+        let p = dir.path().join("sample.svd");
+        factorize::factorize(sample_path, &p, &FactorizeConfig::default(), progress)?;
+        _tmp = dir;
+        p
+    } else {
+        sample_path.to_path_buf()
+    };
+    let svd = SvdArtifact::open(&svd_path, cfg.memory)?;
+    if svd.rotations == 0 {
+        return Err(Error::input(
+            sample_path,
+            "has no rotated copies (factorize with --rotations 72)",
+        ));
+    }
+    let tileable = matches!(svd.container().metadata().param("tileable"), Some(Param::Int(1)));
+    let maps = svd.geometry_maps()?;
+    let (sw, sh, n, rotations) = (svd.width, svd.height, svd.terms, svd.rotations);
+    let mut sample = Sample {
+        width: sw,
+        height: sh,
+        n,
+        maps,
+        tileable,
+        rotated: vec![None; rotations],
+        svd,
+    };
+    let r = gim.resolution;
+    let surface = Surface {
+        r,
+        graph: gim.graph()?,
+        face: gim.read("face")?,
+        position: gim.read("position")?,
+        normal: gim.read("normal")?,
+        face_angle: face_angles(&gim)?,
+    };
+    let zipper_triangles = gim.zipper_triangles()?;
+    let radius0 = cfg
+        .patch_radius
+        .unwrap_or((32 * r / 512).max(cfg.min_radius))
+        .max(cfg.min_radius);
+    let reference = sample.neighbour_difference();
+    let mut state = State::new(surface.graph.chart.clone(), n, r);
+    let total = state.remaining;
+    let mut bfs = Bfs {
+        stamp: vec![0; r * r],
+        index: vec![0; r * r],
+        epoch: 0,
+    };
+    let mut matcher = Matcher::new();
+    let mut report = TileReport {
+        texels: total,
+        ..TileReport::default()
+    };
+    let (mut seam_sum, mut seam_cnt) = (0f64, 0usize);
+    progress.begin("tile", total as u64);
+    // the first vertex: a seeded choice among all dense vertices
+    let mut first = {
+        let covered: Vec<u32> = (0..(r * r) as u32)
+            .filter(|&t| state.chart[t as usize] != EMPTY)
+            .collect();
+        if covered.is_empty() {
+            return Err(Error::input(gim_path, "has no dense vertices"));
+        }
+        Some(covered[(crate::rng::mix64(cfg.seed) % covered.len() as u64) as usize])
+    };
+    let mut b_feat = vec![0f32; n];
+    while state.remaining > 0 {
+        let v = first
+            .take()
+            .or_else(|| state.most_constrained())
+            .expect("remaining > 0");
+        let mut radius = radius0;
+        loop {
+            let patch = bfs.patch(&surface.graph, v, radius);
+            let work = if patch.crosses_charts {
+                flattened_work_image(
+                    &surface,
+                    &state,
+                    &patch,
+                    &bfs,
+                    &zipper_triangles,
+                    cfg.max_distortion,
+                )
+                .or_else(|| {
+                    report.unfolded_patches += 1;
+                    Some(unfolded_work_image(&surface, &state, &patch, &bfs))
+                })
+            } else {
+                Some(chart_work_image(&surface, &state, &patch))
+            };
+            let Some(work) = work else {
+                if radius > cfg.min_radius {
+                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
+                    report.shrinks += 1;
+                    continue;
+                }
+                // cannot flatten even the smallest patch across the seam: take
+                // the part inside v's chart
+                let same: Vec<usize> = (0..patch.texels.len())
+                    .filter(|&i| state.chart[patch.texels[i] as usize] == state.chart[v as usize])
+                    .collect();
+                let sub = WorkPatch {
+                    texels: same.iter().map(|&i| patch.texels[i]).collect(),
+                    depth: same.iter().map(|&i| patch.depth[i]).collect(),
+                    crosses_charts: false,
+                };
+                let work = chart_work_image(&surface, &state, &sub);
+                let t = Instant::now();
+                let placement = place_covering(&mut sample, &mut matcher, &work, cfg, report.patches as u64)?;
+                report.matching_seconds += t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let fit = fit_patch(&sample, &state, &surface, &sub, &work, &placement, &mut b_feat);
+                report.graphcut_seconds += t.elapsed().as_secs_f64();
+                apply(&mut state, &surface, &sub, &fit, report.patches as u32, progress);
+                seam_sum += fit.seam_cost;
+                seam_cnt += fit.seam_edges;
+                report.patches += 1;
+                break;
+            };
+            let t = Instant::now();
+            let placement = place_covering(&mut sample, &mut matcher, &work, cfg, report.patches as u64)?;
+            report.matching_seconds += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let fit = fit_patch(&sample, &state, &surface, &patch, &work, &placement, &mut b_feat);
+            report.graphcut_seconds += t.elapsed().as_secs_f64();
+            let mean = if fit.seam_edges > 0 {
+                fit.seam_cost / fit.seam_edges as f64
+            } else {
+                0.0
+            };
+            if mean > cfg.seam_threshold * reference && radius > cfg.min_radius && fit.taken_new_synth > 0 {
+                radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
+                report.shrinks += 1;
+                continue;
+            }
+            if fit.taken == 0 {
+                // nothing could be placed (sample too small for the work
+                // image): shrink, or give up on this vertex at the minimum
+                if radius > cfg.min_radius {
+                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
+                    report.shrinks += 1;
+                    continue;
+                }
+                return Err(Error::input(
+                    sample_path,
+                    format!("is too small ({sw}×{sh}) to cover a work patch of radius {radius}"),
+                ));
+            }
+            if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                progress.note(&format!(
+                    "patch {} v {v} radius {radius} texels {} taken {} remaining {} cross {}",
+                    report.patches,
+                    patch.texels.len(),
+                    fit.taken,
+                    state.remaining,
+                    patch.crosses_charts
+                ));
+            }
+            report.cross_chart_patches += patch.crosses_charts as usize;
+            apply(
+                &mut state,
+                &surface,
+                &patch,
+                &fit,
+                report.patches as u32,
+                progress,
+            );
+            seam_sum += fit.seam_cost;
+            seam_cnt += fit.seam_edges;
+            report.patches += 1;
+            break;
+        }
+    }
+    progress.end();
+    report.mean_seam_cost = if seam_cnt > 0 {
+        seam_sum / seam_cnt as f64 / reference
+    } else {
+        0.0
+    };
+    write_quilt(out, cfg, &gim, gim_path, sample_path, &sample, &state, &report)?;
+    report.seconds = start.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// A placement of the rotated sample over the work image.
+struct PlacementChoice {
+    rotation: usize,
+    dx: f64,
+    dy: f64,
+}
+
+/// Maps a work-image coordinate through a placement to unrotated sample
+/// coordinates (the inverse of the rotated copy's construction).
+fn to_sample(sample: &Sample, rotation: usize, dx: f64, dy: f64, w: [f64; 2]) -> [f64; 2] {
+    let theta = rotation as f64 * std::f64::consts::TAU / sample.rotated.len() as f64;
+    let (s, c) = theta.sin_cos();
+    let cen = [
+        (sample.width as f64 - 1.0) / 2.0,
+        (sample.height as f64 - 1.0) / 2.0,
+    ];
+    let q = [w[0] - dx - cen[0], w[1] - dy - cen[1]];
+    [c * q[0] + s * q[1] + cen[0], -s * q[0] + c * q[1] + cen[1]]
+}
+
+fn inside_sample(sample: &Sample, c: [f64; 2]) -> bool {
+    sample.tileable
+        || (c[0] >= 0.0
+            && c[1] >= 0.0
+            && c[0] <= sample.width as f64 - 1.0
+            && c[1] <= sample.height as f64 - 1.0)
+}
+
+/// Places the sample over the work image (Kwatra et al.: the new patch must
+/// cover the work patch): among the best matches, those that put the seed
+/// and at least 95 % of the patch's vertices on the sample; a seeded choice
+/// among the near-minimal ones; the sample centred on the seed if none does.
+fn place_covering(
+    sample: &mut Sample,
+    matcher: &mut Matcher,
+    work: &WorkImage,
+    cfg: &TileConfig,
+    counter: u64,
+) -> Result<PlacementChoice> {
+    let (rotation, candidates) = match_candidates(sample, matcher, work, cfg)?;
+    let step = (work.coords.len() / 400).max(1);
+    let covering: Vec<matching::Placement> = candidates
+        .into_iter()
+        .filter(|p| {
+            let (dx, dy) = (p.dx as f64, p.dy as f64);
+            if !inside_sample(sample, to_sample(sample, rotation, dx, dy, work.coords[0])) {
+                return false;
+            }
+            let probe: Vec<[f64; 2]> = work.coords.iter().step_by(step).copied().collect();
+            let ok = probe
+                .iter()
+                .filter(|w| inside_sample(sample, to_sample(sample, rotation, dx, dy, **w)))
+                .count();
+            ok as f64 >= 0.95 * probe.len() as f64
+        })
+        .collect();
+    if let Some(p) = matching::choose(&covering, cfg.tolerance, cfg.seed, counter) {
+        return Ok(PlacementChoice {
+            rotation,
+            dx: p.dx as f64,
+            dy: p.dy as f64,
+        });
+    }
+    // nothing known yet, or no match covers the patch: a seeded spot that
+    // covers the seed's neighbourhood (the sample centre ± a margin)
+    let (sw, sh) = (sample.width as f64, sample.height as f64);
+    let h = crate::rng::mix64(cfg.seed ^ crate::rng::mix64(counter + 1));
+    let jitter = |bits: u64, span: f64| ((bits & 0xffff) as f64 / 65535.0 - 0.5) * span;
+    let margin = 0.25;
+    let cen = [
+        (sw - 1.0) / 2.0 + jitter(h, margin * sw),
+        (sh - 1.0) / 2.0 + jitter(h >> 16, margin * sh),
+    ];
+    // the seed at unrotated sample point `cen`: solve for the translation
+    let theta = rotation as f64 * std::f64::consts::TAU / sample.rotated.len() as f64;
+    let (s, c) = theta.sin_cos();
+    let mid = [(sw - 1.0) / 2.0, (sh - 1.0) / 2.0];
+    let d = [cen[0] - mid[0], cen[1] - mid[1]];
+    // q = R(θ) d (inverse of the rotation in `to_sample`)
+    let q = [c * d[0] - s * d[1], s * d[0] + c * d[1]];
+    Ok(PlacementChoice {
+        rotation,
+        dx: (work.coords[0][0] - mid[0] - q[0]).round(),
+        dy: (work.coords[0][1] - mid[1] - q[1]).round(),
+    })
+}
+
+/// The rotation for the work image's field direction and the best matches
+/// of that rotated copy (up to 64, cheapest first).
+fn match_candidates(
+    sample: &mut Sample,
+    matcher: &mut Matcher,
+    work: &WorkImage,
+    cfg: &TileConfig,
+) -> Result<(usize, Vec<matching::Placement>)> {
+    let rotations = sample.rotated.len();
+    let rot = rotation_index(work.angle, rotations);
+    let (sw, sh, n) = (sample.width, sample.height, sample.n);
+    let known_count: f64 = work.known.iter().map(|&k| k as f64).sum();
+    if known_count == 0.0 {
+        return Ok((rot, Vec::new()));
+    }
+    let (maps, valid) = sample.rotation(rot)?;
+    let work_in = matching::Work {
+        image: Image {
+            width: work.width,
+            height: work.height,
+            channels: n,
+            data: &work.features,
+        },
+        known: &work.known,
+        constraint: None,
+    };
+    let sample_in = matching::Sample {
+        image: Image {
+            width: sw,
+            height: sh,
+            channels: n,
+            data: maps,
+        },
+        valid,
+        constraint: None,
+        key: rot as u64,
+    };
+    let mc = MatchConfig {
+        min_overlap: (0.5 * known_count).max(1.0),
+        candidates: 64,
+        tolerance: f64::INFINITY,
+        ..MatchConfig::default()
+    };
+    let _ = cfg;
+    Ok((rot, matcher.match_patch(&work_in, &sample_in, &mc)?))
+}
+
+/// The outcome of a graphcut fitting.
+struct Fit {
+    /// Per patch vertex: take the new patch B? with its sample coordinate.
+    take: Vec<bool>,
+    coord: Vec<[f64; 2]>,
+    new_features: Vec<f32>,
+    rotation: usize,
+    jacobian: [f32; 4],
+    seam_cost: f64,
+    seam_edges: usize,
+    taken: usize,
+    taken_new_synth: usize,
+}
+
+const INFINITE: f64 = 1e30;
+
+/// Graphcut between the old values A and the new patch B over the work
+/// patch's vertices, with seam nodes on old seams (Kwatra et al. 2003, §3).
+fn fit_patch(
+    sample: &Sample,
+    state: &State,
+    surface: &Surface,
+    patch: &WorkPatch,
+    work: &WorkImage,
+    placement: &PlacementChoice,
+    scratch: &mut [f32],
+) -> Fit {
+    let n = state.n;
+    let r = state.r;
+    let m = patch.texels.len();
+    let rotations = sample.rotated.len();
+    let theta = placement.rotation as f64 * std::f64::consts::TAU / rotations as f64;
+    let (s, c) = theta.sin_cos();
+    let cen = [
+        (sample.width as f64 - 1.0) / 2.0,
+        (sample.height as f64 - 1.0) / 2.0,
+    ];
+    // B at every patch vertex: unrotated sample coordinate and value
+    let mut coord = vec![[0f64; 2]; m];
+    let mut valid = vec![false; m];
+    let mut new_features = vec![0f32; m * n];
+    for i in 0..m {
+        let q = [
+            work.coords[i][0] - placement.dx - cen[0],
+            work.coords[i][1] - placement.dy - cen[1],
+        ];
+        let cc = [c * q[0] + s * q[1] + cen[0], -s * q[0] + c * q[1] + cen[1]];
+        coord[i] = cc;
+        valid[i] = sample.lookup(cc, &mut new_features[i * n..(i + 1) * n]);
+    }
+    // the Jacobian (sample offset per atlas +x / +y) for in-chart patches
+    let j = work.atlas_to_work.map(|a| {
+        [
+            c * a[0] + s * a[2],
+            -s * a[0] + c * a[2],
+            c * a[1] + s * a[3],
+            -s * a[1] + c * a[3],
+        ]
+    });
+    let jacobian = j
+        .map(|v| v.map(|x| x as f32))
+        .unwrap_or([c as f32, -s as f32, s as f32, c as f32]);
+
+    // nodes: one per patch vertex, plus seam nodes; Source = keep A, Sink = take B
+    let mut g = Graph::new(m, m * 3);
+    let mut take = vec![false; m];
+    let local = |t: u32| -> Option<usize> {
+        // binary search is not possible (BFS order); the caller's stamp array
+        // is not visible here, so use a sorted index
+        None.or(Some(t as usize))
+    };
+    let _ = local;
+    let mut order: Vec<(u32, u32)> = patch
+        .texels
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| (t, i as u32))
+        .collect();
+    order.sort_unstable();
+    let find = |t: u32| {
+        order
+            .binary_search_by_key(&t, |e| e.0)
+            .ok()
+            .map(|k| order[k].1 as usize)
+    };
+    let max_depth = patch.depth.iter().copied().max().unwrap_or(0);
+    for i in 0..m {
+        let t = patch.texels[i];
+        let synth = state.synthesized[t as usize];
+        if !valid[i] {
+            // B cannot reach here: keep A (or stay unsynthesized)
+            g.add_tweights(i as u32, INFINITE, 0.0);
+        } else if !synth {
+            g.add_tweights(i as u32, 0.0, INFINITE);
+        } else if patch.depth[i] == max_depth && max_depth > 0 {
+            g.add_tweights(i as u32, INFINITE, 0.0);
+        }
+    }
+    let a_at = |t: u32| state.feature(t);
+    let b_at = |i: usize| &new_features[i * n..(i + 1) * n];
+    // continue old patch at s one step (dx, dy in atlas texels) into t
+    let old_continued = |s_t: u32, step: (f64, f64), out: &mut [f32]| -> bool {
+        let jc = state.jacobian[s_t as usize];
+        let cs = state.coord[s_t as usize];
+        let cc = [
+            cs[0] as f64 + jc[0] as f64 * step.0 + jc[2] as f64 * step.1,
+            cs[1] as f64 + jc[1] as f64 * step.0 + jc[3] as f64 * step.1,
+        ];
+        sample.lookup(cc, out)
+    };
+    let mut tmp_a = vec![0f32; n];
+    let mut tmp_b = vec![0f32; n];
+    let mut edges: Vec<(usize, usize, f64)> = Vec::new();
+    for i in 0..m {
+        let t = patch.texels[i];
+        let (x, y) = (t as usize % r, t as usize / r);
+        let mut neighbours: Vec<(u32, Option<(f64, f64)>)> = Vec::with_capacity(4);
+        if x + 1 < r && state.chart[t as usize + 1] == state.chart[t as usize] {
+            neighbours.push((t + 1, Some((1.0, 0.0))));
+        }
+        if y + 1 < r && state.chart[t as usize + r] == state.chart[t as usize] {
+            neighbours.push((t + r as u32, Some((0.0, 1.0))));
+        }
+        surface.graph.for_each_neighbour(t, |nb, zipper| {
+            if zipper && nb > t {
+                neighbours.push((nb, None));
+            }
+        });
+        for (nb, step) in neighbours {
+            let Some(k) = find(nb) else { continue };
+            if !valid[i] || !valid[k] {
+                continue;
+            }
+            let (si, sk) = (state.synthesized[t as usize], state.synthesized[nb as usize]);
+            let d_s = if si { dist(a_at(t), b_at(i)) } else { 0.0 };
+            let d_t = if sk { dist(a_at(nb), b_at(k)) } else { 0.0 };
+            let weight = match (si, sk) {
+                (true, true) => d_s + d_t,
+                (true, false) => 2.0 * d_s,
+                (false, true) => 2.0 * d_t,
+                (false, false) => 0.0,
+            };
+            let old_seam = si && sk && state.patch[t as usize] != state.patch[nb as usize];
+            match (old_seam, step) {
+                (true, Some(st)) => {
+                    // seam node (Kwatra et al. 2003): s–n = M(A_s, B), n–t = M(A_t, B), n–sink = M(A_s, A_t)
+                    let ok_a = old_continued(t, st, &mut tmp_a); // A_s at nb
+                    let ok_b = old_continued(nb, (-st.0, -st.1), &mut tmp_b); // A_t at t
+                    if ok_a && ok_b {
+                        let m_s = dist(a_at(t), b_at(i)) + dist(&tmp_a, b_at(k));
+                        let m_t = dist(&tmp_b, b_at(i)) + dist(a_at(nb), b_at(k));
+                        let old = dist(a_at(t), &tmp_b) + dist(&tmp_a, a_at(nb));
+                        let node = g.add_node();
+                        g.add_edge(i as u32, node, m_s, m_s);
+                        g.add_edge(node, k as u32, m_t, m_t);
+                        g.add_tweights(node, 0.0, old);
+                        edges.push((i, k, weight));
+                        continue;
+                    }
+                    g.add_edge(i as u32, k as u32, weight, weight);
+                    edges.push((i, k, weight));
+                }
+                _ => {
+                    g.add_edge(i as u32, k as u32, weight, weight);
+                    edges.push((i, k, weight));
+                }
+            }
+        }
+    }
+    g.maxflow();
+    if std::env::var_os("BTFQUILT_TRACE").is_some() && !state.synthesized[patch.texels[0] as usize] {
+        eprintln!(
+            "seed valid {} segment {:?} coord {:?} work {:?}",
+            valid[0],
+            g.segment(0),
+            coord[0],
+            work.coords[0]
+        );
+    }
+    let mut taken = 0;
+    let mut taken_new_synth = 0;
+    for i in 0..m {
+        take[i] = valid[i] && g.segment(i as u32) == Segment::Sink;
+        if take[i] {
+            taken += 1;
+            taken_new_synth += state.synthesized[patch.texels[i] as usize] as usize;
+        }
+    }
+    // the seam: edges whose ends took different sides, both synthesized after
+    let (mut seam_cost, mut seam_edges) = (0.0, 0usize);
+    for &(i, k, w) in &edges {
+        let ti = state.synthesized[patch.texels[i] as usize] || take[i];
+        let tk = state.synthesized[patch.texels[k] as usize] || take[k];
+        if take[i] != take[k] && ti && tk {
+            seam_cost += w;
+            seam_edges += 1;
+        }
+    }
+    let _ = scratch;
+    Fit {
+        take,
+        coord,
+        new_features,
+        rotation: placement.rotation,
+        jacobian,
+        seam_cost,
+        seam_edges,
+        taken,
+        taken_new_synth,
+    }
+}
+
+/// Records the vertices that took the new patch.
+fn apply(
+    state: &mut State,
+    surface: &Surface,
+    patch: &WorkPatch,
+    fit: &Fit,
+    id: u32,
+    progress: &dyn Progress,
+) {
+    let n = state.n;
+    let mut newly = 0u64;
+    for (i, &t) in patch.texels.iter().enumerate() {
+        if !fit.take[i] {
+            continue;
+        }
+        let tu = t as usize;
+        state.coord[tu] = [fit.coord[i][0] as f32, fit.coord[i][1] as f32];
+        state.jacobian[tu] = fit.jacobian;
+        state.rotation[tu] = fit.rotation as u8;
+        state.patch[tu] = id;
+        state.features[tu * n..(tu + 1) * n].copy_from_slice(&fit.new_features[i * n..(i + 1) * n]);
+        if !state.synthesized[tu] {
+            state.synthesized[tu] = true;
+            state.remaining -= 1;
+            newly += 1;
+            let b = state.count[tu] as usize;
+            state.buckets[b.min(15)].remove(&t);
+            surface.graph.for_each_neighbour(t, |nb, _| {
+                let nu = nb as usize;
+                if !state.synthesized[nu] {
+                    let old = (state.count[nu] as usize).min(15);
+                    state.buckets[old].remove(&nb);
+                    state.count[nu] = state.count[nu].saturating_add(1);
+                    state.buckets[(state.count[nu] as usize).min(15)].insert(nb);
+                }
+            });
+        }
+    }
+    progress.advance(newly);
+}
+
+#[allow(clippy::too_many_arguments)]
+fn write_quilt(
+    out: &Path,
+    cfg: &TileConfig,
+    gim: &Gim,
+    gim_path: &Path,
+    sample_path: &Path,
+    sample: &Sample,
+    state: &State,
+    report: &TileReport,
+) -> Result<()> {
+    let r = gim.resolution as u64;
+    let t = TILE as u64;
+    let mut w = ContainerWriter::create(out, KIND)?;
+    w.set_level(cfg.level);
+    w.set_seed(cfg.seed);
+    w.add_input(&gim_path.display().to_string(), gim.container().content_hash());
+    w.add_input(
+        &sample_path.display().to_string(),
+        sample.svd.container().content_hash(),
+    );
+    w.set_param("gim", Param::Text(gim_path.display().to_string()));
+    w.set_param("sample", Param::Text(sample_path.display().to_string()));
+    w.set_param("resolution", Param::Int(r as i64));
+    w.set_param("sample_width", Param::Int(sample.width as i64));
+    w.set_param("sample_height", Param::Int(sample.height as i64));
+    w.set_param("terms", Param::Int(sample.n as i64));
+    w.set_param("rotations", Param::Int(sample.rotated.len() as i64));
+    w.set_param("patches", Param::Int(report.patches as i64));
+    w.set_param("mean_seam_cost", Param::Float(report.mean_seam_cost));
+    let coord: Vec<f32> = state.coord.iter().flatten().copied().collect();
+    let id = w.add_array(ArraySpec::new("coord", DType::F32, &[r, r, 2], &[t, t, 2])?)?;
+    w.write_array(id, &coord)?;
+    let id = w.add_array(ArraySpec::new("rotation", DType::U8, &[r, r], &[t, t])?)?;
+    w.write_array(id, &state.rotation)?;
+    let id = w.add_array(ArraySpec::new("patch", DType::U32, &[r, r], &[t, t])?)?;
+    w.write_array(id, &state.patch)?;
+    w.finish()
+}
+
+/// A decorated surface opened for reading.
+pub struct Quilt {
+    container: Container,
+    pub resolution: usize,
+    pub gim: PathBuf,
+    pub sample: PathBuf,
+}
+
+impl Quilt {
+    /// Opens a `.quilt`.
+    pub fn open(path: &Path, budget: MemoryBudget) -> Result<Quilt> {
+        let container = Container::open_kind(path, KIND, budget)?;
+        let m = container.metadata();
+        let text = |k: &str| match m.param(k) {
+            Some(Param::Text(s)) => Ok(PathBuf::from(s)),
+            _ => Err(Error::input(path, format!("metadata parameter '{k}' is missing"))),
+        };
+        let resolution = match m.param("resolution") {
+            Some(Param::Int(v)) if *v > 0 => *v as usize,
+            _ => return Err(Error::input(path, "metadata parameter 'resolution' is missing")),
+        };
+        Ok(Quilt {
+            resolution,
+            gim: text("gim")?,
+            sample: text("sample")?,
+            container,
+        })
+    }
+
+    /// The container underneath.
+    pub fn container(&self) -> &Container {
+        &self.container
+    }
+
+    /// Per texel sample coordinates (unrotated sample pixels).
+    pub fn coords(&self) -> Result<Vec<[f32; 2]>> {
+        let v: Vec<f32> = self.container.read_array(self.container.array("coord")?)?;
+        Ok(v.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
+    }
+
+    /// Per texel patch ids ([`NO_PATCH`] where empty).
+    pub fn patches(&self) -> Result<Vec<u32>> {
+        self.container.read_array(self.container.array("patch")?)
+    }
+
+    /// Per texel rotation index.
+    pub fn rotations(&self) -> Result<Vec<u8>> {
+        self.container.read_array(self.container.array("rotation")?)
+    }
+}

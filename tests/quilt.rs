@@ -1,0 +1,198 @@
+//! Graphcut quilting on the dense mesh: coverage, determinism, seam quality
+//! on a flat square (a 2D target), and the outputs (bake, evaluate, render).
+
+use std::path::{Path, PathBuf};
+
+use btfquilt::container::MemoryBudget;
+use btfquilt::gim::{self, AtlasConfig, Gim, EMPTY};
+use btfquilt::imageio::{self, RgbImage};
+use btfquilt::progress::Silent;
+use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
+
+/// A flat square mesh, 8×8 quads.
+fn square(dir: &Path) -> PathBuf {
+    let p = dir.join("square.obj");
+    let n = 8;
+    let mut s = String::new();
+    for y in 0..=n {
+        for x in 0..=n {
+            s += &format!("v {} {} 0\n", x as f32 / n as f32, y as f32 / n as f32);
+        }
+    }
+    for y in 0..n {
+        for x in 0..n {
+            let a = y * (n + 1) + x + 1;
+            s += &format!(
+                "f {} {} {}\nf {} {} {}\n",
+                a,
+                a + 1,
+                a + n + 2,
+                a,
+                a + n + 2,
+                a + n + 1
+            );
+        }
+    }
+    std::fs::write(&p, s).unwrap();
+    p
+}
+
+/// A crop of the shipped brick photo (structured, so seams would show).
+fn brick_sample(dir: &Path, size: usize) -> PathBuf {
+    let src = imageio::read_rgb(&Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png")).unwrap();
+    let mut data = Vec::with_capacity(size * size * 3);
+    for y in 0..size {
+        let row = (y + 100) * src.width + 100;
+        data.extend_from_slice(&src.data[row * 3..(row + size) * 3]);
+    }
+    let p = dir.join(format!("brick{size}.png"));
+    imageio::write_png(
+        &p,
+        &RgbImage {
+            width: size,
+            height: size,
+            data,
+        },
+        imageio::PngDepth::Eight,
+    )
+    .unwrap();
+    p
+}
+
+fn atlas(mesh: &Path, out: &Path, r: usize) {
+    let cfg = AtlasConfig {
+        resolution: r,
+        ..AtlasConfig::default()
+    };
+    gim::build_gim(mesh, out, &cfg, &Silent).unwrap();
+}
+
+#[test]
+fn flat_square_is_covered_seamlessly_and_deterministically() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = dir.path().join("square.gim");
+    atlas(&square(dir.path()), &g, 160);
+    let sample = brick_sample(dir.path(), 160);
+    let cfg = TileConfig {
+        seed: 3,
+        ..TileConfig::default()
+    };
+    let outs: Vec<PathBuf> = [1, 2]
+        .iter()
+        .map(|&t| {
+            let out = dir.path().join(format!("t{t}.quilt"));
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+            let report = pool
+                .install(|| quilt::tile(&g, &sample, &out, &cfg, &Silent))
+                .unwrap();
+            assert!(report.patches > 3, "{report}");
+            out
+        })
+        .collect();
+    assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
+
+    // every dense vertex got a patch and a sample coordinate on the sample
+    let q = Quilt::open(&outs[0], MemoryBudget::default()).unwrap();
+    let chart: Vec<u32> = Gim::open(&g, MemoryBudget::default())
+        .unwrap()
+        .read("chart")
+        .unwrap();
+    let (patches, coords) = (q.patches().unwrap(), q.coords().unwrap());
+    for t in 0..chart.len() {
+        assert_eq!(chart[t] != EMPTY, patches[t] != NO_PATCH, "texel {t}");
+        if patches[t] != NO_PATCH {
+            assert!(
+                coords[t].iter().all(|&c| (0.0..=159.0).contains(&c)),
+                "{:?}",
+                coords[t]
+            );
+        }
+    }
+    // seams: colour steps across patch boundaries are like those inside patches
+    let json = btfquilt::evaluate::evaluate(&outs[0], None, None, MemoryBudget::default()).unwrap();
+    let doc = btfquilt::json::Json::parse(&json).unwrap();
+    let ratio = doc
+        .get("seam")
+        .and_then(|s| s.get("ratio_to_inside"))
+        .and_then(|v| v.as_f64())
+        .unwrap();
+    eprintln!("{json}");
+    assert!(ratio < 1.3, "seams stand out: ratio {ratio}");
+    // another seed: another arrangement
+    let other = dir.path().join("other.quilt");
+    let cfg4 = TileConfig {
+        seed: 4,
+        ..TileConfig::default()
+    };
+    quilt::tile(&g, &sample, &other, &cfg4, &Silent).unwrap();
+    assert_ne!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&other).unwrap());
+}
+
+#[test]
+fn spot_is_covered_and_baked_and_rendered() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = dir.path().join("spot.gim");
+    atlas(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj"),
+        &g,
+        192,
+    );
+    let sample = brick_sample(dir.path(), 128);
+    let out = dir.path().join("spot.quilt");
+    let report = quilt::tile(&g, &sample, &out, &TileConfig::default(), &Silent).unwrap();
+    assert!(report.cross_chart_patches > 0, "{report}");
+    let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
+    assert!(q.patches().unwrap().iter().filter(|&&p| p != NO_PATCH).count() == report.texels);
+    let png = dir.path().join("atlas.png");
+    btfquilt::bake::bake(&out, None, &png, MemoryBudget::default()).unwrap();
+    assert_eq!(imageio::image_size(&png).unwrap(), (192, 192));
+    // the gutter is filled: no pixel of the baked atlas is black
+    let baked = imageio::read_rgb(&png).unwrap();
+    assert!(baked.data.chunks_exact(3).all(|p| p.iter().sum::<f32>() > 0.0));
+    let view = dir.path().join("view.png");
+    btfquilt::render::render(
+        &out,
+        None,
+        [0.0, 1.0, 1.0],
+        160,
+        120,
+        &view,
+        MemoryBudget::default(),
+    )
+    .unwrap();
+    let img = imageio::read_rgb(&view).unwrap();
+    let lit = img.data.chunks_exact(3).filter(|p| p[0] > 0.05).count();
+    assert!(lit > 160 * 120 / 20, "the mesh is not in view: {lit} lit pixels");
+}
+
+#[test]
+fn bad_tiling_inputs_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = dir.path().join("square.gim");
+    atlas(&square(dir.path()), &g, 64);
+    let out = dir.path().join("o.quilt");
+    let missing = dir.path().join("nope.png");
+    let e = quilt::tile(&g, &missing, &out, &TileConfig::default(), &Silent)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("nope.png"), "{e}");
+    let e = quilt::tile(
+        &missing.with_extension("gim"),
+        &g,
+        &out,
+        &TileConfig::default(),
+        &Silent,
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(e.contains("nope.gim"), "{e}");
+    // a .gim given as the sample is the wrong kind
+    let e = quilt::tile(&g, &g, &out, &TileConfig::default(), &Silent)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("square.gim") && e.contains("'gim'"), "{e}");
+    assert!(!out.exists());
+}
