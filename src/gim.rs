@@ -1005,6 +1005,35 @@ impl DenseGraph {
     }
 }
 
+/// The atlas-space direction (texel axes, y down; unnormalised) of a 3D
+/// tangent vector `v` on face `f`: least squares through the face's
+/// parameterisation, `v ≈ (∂P/∂u) d_u + (∂P/∂v) d_v`. `None` for a face that
+/// is degenerate in 3D or in the atlas.
+pub fn atlas_direction(mesh: &Mesh, corner_uv: &[[f32; 2]], f: usize, v: [f64; 3]) -> Option<[f64; 2]> {
+    let [p0, p1, p2] = mesh.corners(f);
+    let e1: [f64; 3] = std::array::from_fn(|k| (p1[k] - p0[k]) as f64);
+    let e2: [f64; 3] = std::array::from_fn(|k| (p2[k] - p0[k]) as f64);
+    let (u0, u1, u2) = (corner_uv[f * 3], corner_uv[f * 3 + 1], corner_uv[f * 3 + 2]);
+    let a = [(u1[0] - u0[0]) as f64, (u1[1] - u0[1]) as f64];
+    let b = [(u2[0] - u0[0]) as f64, (u2[1] - u0[1]) as f64];
+    let det = a[0] * b[1] - a[1] * b[0];
+    if det.abs() < 1e-24 {
+        return None;
+    }
+    // ∂P/∂u, ∂P/∂v from the inverse of [a b]
+    let (i00, i01, i10, i11) = (b[1] / det, -b[0] / det, -a[1] / det, a[0] / det);
+    let du: [f64; 3] = std::array::from_fn(|k| e1[k] * i00 + e2[k] * i10);
+    let dv: [f64; 3] = std::array::from_fn(|k| e1[k] * i01 + e2[k] * i11);
+    let d3 = |x: &[f64; 3], y: &[f64; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+    let (g00, g01, g11) = (d3(&du, &du), d3(&du, &dv), d3(&dv, &dv));
+    let (h0, h1) = (d3(&du, &v), d3(&dv, &v));
+    let gd = g00 * g11 - g01 * g01;
+    if gd.abs() < 1e-300 {
+        return None;
+    }
+    Some([(g11 * h0 - g01 * h1) / gd, (g00 * h1 - g01 * h0) / gd])
+}
+
 /// Grid triangles of the dense mesh inside charts: two per 2×2 block of one
 /// chart, one where exactly three of the four texels are in one chart.
 pub fn grid_triangles(chart: &[u32], r: usize) -> Vec<[u32; 3]> {

@@ -316,36 +316,14 @@ fn face_angles(gim: &Gim) -> Result<Vec<f64>> {
     let mesh = gim.mesh()?;
     let uv = gim.corner_uv()?;
     let field: Vec<f32> = gim.read("face_field")?;
-    let r = gim.resolution as f64;
     Ok((0..mesh.triangles.len())
         .map(|f| {
-            let [p0, p1, p2] = mesh.corners(f);
-            let e1: Vec<f64> = (0..3).map(|k| (p1[k] - p0[k]) as f64).collect();
-            let e2: Vec<f64> = (0..3).map(|k| (p2[k] - p0[k]) as f64).collect();
-            let (u0, u1, u2) = (uv[f * 3], uv[f * 3 + 1], uv[f * 3 + 2]);
-            let a = [(u1[0] - u0[0]) as f64 * r, (u1[1] - u0[1]) as f64 * r];
-            let b = [(u2[0] - u0[0]) as f64 * r, (u2[1] - u0[1]) as f64 * r];
-            let det = a[0] * b[1] - a[1] * b[0];
-            if det.abs() < 1e-18 {
-                return 0.0;
-            }
-            let (i00, i01, i10, i11) = (b[1] / det, -b[0] / det, -a[1] / det, a[0] / det);
-            let du: Vec<f64> = (0..3).map(|k| e1[k] * i00 + e2[k] * i10).collect();
-            let dv: Vec<f64> = (0..3).map(|k| e1[k] * i01 + e2[k] * i11).collect();
-            let t = [
+            let v = [
                 field[f * 3] as f64,
                 field[f * 3 + 1] as f64,
                 field[f * 3 + 2] as f64,
             ];
-            let d3 = |x: &[f64], y: &[f64]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
-            let (g00, g01, g11) = (d3(&du, &du), d3(&du, &dv), d3(&dv, &dv));
-            let (h0, h1) = (d3(&du, &t), d3(&dv, &t));
-            let gd = g00 * g11 - g01 * g01;
-            if gd.abs() < 1e-30 {
-                return 0.0;
-            }
-            let d = [(g11 * h0 - g01 * h1) / gd, (g00 * h1 - g01 * h0) / gd];
-            d[1].atan2(d[0])
+            crate::gim::atlas_direction(&mesh, &uv, f, v).map_or(0.0, |d| d[1].atan2(d[0]))
         })
         .collect())
 }

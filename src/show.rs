@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::str::FromStr;
 
-use crate::gim::{Gim, EMPTY};
+use crate::gim::{atlas_direction, Gim, EMPTY};
 use crate::imageio::{self, srgb_to_linear, PngDepth, RgbImage};
 use crate::{Error, Result};
 
@@ -99,34 +99,16 @@ fn draw_field(gim: &Gim, chart: &[u32], display: &mut [f32]) -> Result<()> {
             if chart[t] == EMPTY {
                 continue;
             }
-            let f = face[t] as usize;
-            let [p0, p1, p2] = mesh.corners(f);
-            let (u0, u1, u2) = (uv[f * 3], uv[f * 3 + 1], uv[f * 3 + 2]);
-            // J = [dP/ds dP/dt] from (ds, dt) = atlas texels; solve J d = tangent (least squares)
-            let e1 = [p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]];
-            let e2 = [p2[0] - p0[0], p2[1] - p0[1], p2[2] - p0[2]];
-            let (a, b) = ([u1[0] - u0[0], u1[1] - u0[1]], [u2[0] - u0[0], u2[1] - u0[1]]);
-            let det = a[0] * b[1] - a[1] * b[0];
-            if det.abs() < 1e-12 {
-                continue;
-            }
-            // dP/du, dP/dv from the 2×2 inverse
-            let (i00, i01, i10, i11) = (b[1] / det, -b[0] / det, -a[1] / det, a[0] / det);
-            let du: Vec<f32> = (0..3).map(|k| e1[k] * i00 + e2[k] * i10).collect();
-            let dv: Vec<f32> = (0..3).map(|k| e1[k] * i01 + e2[k] * i11).collect();
             let tan = &tangent[t * 3..t * 3 + 3];
-            let (g00, g01, g11) = (dot3(&du, &du), dot3(&du, &dv), dot3(&dv, &dv));
-            let (h0, h1) = (dot3(&du, tan), dot3(&dv, tan));
-            let gdet = g00 * g11 - g01 * g01;
-            if gdet.abs() < 1e-20 {
+            let v = [tan[0] as f64, tan[1] as f64, tan[2] as f64];
+            let Some(d) = atlas_direction(&mesh, &uv, face[t] as usize, v) else {
                 continue;
-            }
-            let d = [(g11 * h0 - g01 * h1) / gdet, (g00 * h1 - g01 * h0) / gdet];
+            };
             let len = (d[0] * d[0] + d[1] * d[1]).sqrt();
             if len == 0.0 {
                 continue;
             }
-            let d = [d[0] / len, d[1] / len];
+            let d = [(d[0] / len) as f32, (d[1] / len) as f32];
             let length = step as f32 * 0.8;
             let n = (length * 2.0) as usize;
             for i in 0..=n {
@@ -150,8 +132,4 @@ fn draw_field(gim: &Gim, chart: &[u32], display: &mut [f32]) -> Result<()> {
         }
     }
     Ok(())
-}
-
-fn dot3(a: &[f32], b: &[f32]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
