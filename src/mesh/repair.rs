@@ -82,48 +82,45 @@ impl fmt::Display for RepairReport {
         if self.is_clean() {
             return write!(f, "no repair needed");
         }
-        let mut parts = Vec::new();
-        if self.welded_vertices > 0 {
-            parts.push(format!(
-                "welded {}",
-                plural(self.welded_vertices, "vertex", "vertices")
-            ));
-        }
-        if self.degenerate_faces > 0 {
-            let n = self.degenerate_faces;
-            parts.push(format!(
+        // (count, what was done, singular, plural)
+        let repairs = [
+            (self.welded_vertices, "welded {}", "vertex", "vertices"),
+            (
+                self.degenerate_faces,
                 "dropped {}",
-                plural(n, "degenerate face", "degenerate faces")
-            ));
-        }
-        if self.nonmanifold_edges > 0 {
-            let n = self.nonmanifold_edges;
-            parts.push(format!(
+                "degenerate face",
+                "degenerate faces",
+            ),
+            (
+                self.nonmanifold_edges,
                 "separated faces at {}",
-                plural(n, "non-manifold edge", "non-manifold edges")
-            ));
-        }
-        if self.split_vertices > 0 {
-            let n = self.split_vertices;
-            parts.push(format!(
+                "non-manifold edge",
+                "non-manifold edges",
+            ),
+            (
+                self.split_vertices,
                 "split off {} at non-manifold vertices",
-                plural(n, "vertex copy", "vertex copies")
-            ));
-        }
-        if self.inconsistent_orientation > 0 {
-            let n = self.inconsistent_orientation;
-            parts.push(format!(
+                "vertex copy",
+                "vertex copies",
+            ),
+            (
+                self.inconsistent_orientation,
                 "flipped {} to match orientation",
-                plural(n, "face", "faces")
-            ));
-        }
-        if self.unreferenced_vertices > 0 {
-            let n = self.unreferenced_vertices;
-            parts.push(format!(
+                "face",
+                "faces",
+            ),
+            (
+                self.unreferenced_vertices,
                 "removed {}",
-                plural(n, "unreferenced vertex", "unreferenced vertices")
-            ));
-        }
+                "unreferenced vertex",
+                "unreferenced vertices",
+            ),
+        ];
+        let parts: Vec<String> = repairs
+            .iter()
+            .filter(|r| r.0 > 0)
+            .map(|&(n, done, one, many)| done.replace("{}", &plural(n, one, many)))
+            .collect();
         write!(f, "repaired: {}", parts.join(", "))
     }
 }
