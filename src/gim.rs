@@ -492,7 +492,7 @@ pub fn build_gim(
     lap("rasterize", &mut stages);
 
     let texel_size = 1.0 / packing.scale;
-    let links = zipper_links(&mesh, &fr.face_chart, &boundary, texel_size, r);
+    let links = zipper_links(&mesh, &boundary, texel_size, r);
     let zip_tris = zipper_triangles(&links, &boundary, r);
     lap("zipper", &mut stages);
 
@@ -664,13 +664,7 @@ fn two_ring(mesh: &Mesh, vertex_faces: &[Vec<u32>], f: u32) -> Vec<u32> {
 /// of another chart (or of its own chart but far away in the atlas), within
 /// [`MAX_LINK`] texel sizes in 3D, on a face within two vertex-rings. Sorted,
 /// deduplicated pairs (lower texel id first).
-fn zipper_links(
-    mesh: &Mesh,
-    face_chart: &[u32],
-    boundary: &[BoundaryTexel],
-    texel: f64,
-    r: usize,
-) -> Vec<[u32; 2]> {
+fn zipper_links(mesh: &Mesh, boundary: &[BoundaryTexel], texel: f64, r: usize) -> Vec<[u32; 2]> {
     let mut vertex_faces = vec![Vec::new(); mesh.positions.len()];
     for (f, t) in mesh.triangles.iter().enumerate() {
         for &v in t {
@@ -734,7 +728,6 @@ fn zipper_links(
                     }
                 }
             }
-            let _ = face_chart;
             best.map(|(_, t)| [a.texel.min(t), a.texel.max(t)])
         })
         .collect();

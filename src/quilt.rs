@@ -248,7 +248,7 @@ impl State {
 struct WorkPatch {
     texels: Vec<u32>,
     depth: Vec<u16>,
-    /// Position of each texel in `texels`, via a stamp array.
+    /// Whether the traversal crossed a zipper (the patch spans charts).
     crosses_charts: bool,
 }
 
@@ -470,8 +470,7 @@ fn flattened_work_image(
     // against the atlas on grid edges
     let (mut len, mut cnt, mut rc, mut rs) = (0.0, 0usize, 0.0, 0.0);
     for (i, &t) in patch.texels.iter().enumerate() {
-        let (x, y) = (t as usize % r, t as usize / r);
-        if x + 1 < r && state.chart[t as usize + 1] == state.chart[t as usize] {
+        if (t as usize % r) + 1 < r && state.chart[t as usize + 1] == state.chart[t as usize] {
             if let Some(j) = local(t + 1) {
                 let d = [uv[j][0] - uv[i][0], uv[j][1] - uv[i][1]];
                 len += (d[0] * d[0] + d[1] * d[1]).sqrt();
@@ -484,7 +483,6 @@ fn flattened_work_image(
                 rs += fa.sin();
             }
         }
-        let _ = y;
     }
     if cnt == 0 || len <= 0.0 {
         return None;
@@ -731,7 +729,6 @@ pub fn tile(
         }
         Some(covered[(crate::rng::mix64(cfg.seed) % covered.len() as u64) as usize])
     };
-    let mut b_feat = vec![0f32; n];
     while state.remaining > 0 {
         let v = first
             .take()
@@ -777,7 +774,7 @@ pub fn tile(
                 let placement = place_covering(&mut sample, &mut matcher, &work, cfg, report.patches as u64)?;
                 report.matching_seconds += t.elapsed().as_secs_f64();
                 let t = Instant::now();
-                let fit = fit_patch(&sample, &state, &surface, &sub, &work, &placement, &mut b_feat);
+                let fit = fit_patch(&sample, &state, &surface, &sub, &work, &placement);
                 report.graphcut_seconds += t.elapsed().as_secs_f64();
                 apply(&mut state, &surface, &sub, &fit, report.patches as u32, progress);
                 seam_sum += fit.seam_cost;
@@ -789,7 +786,7 @@ pub fn tile(
             let placement = place_covering(&mut sample, &mut matcher, &work, cfg, report.patches as u64)?;
             report.matching_seconds += t.elapsed().as_secs_f64();
             let t = Instant::now();
-            let fit = fit_patch(&sample, &state, &surface, &patch, &work, &placement, &mut b_feat);
+            let fit = fit_patch(&sample, &state, &surface, &patch, &work, &placement);
             report.graphcut_seconds += t.elapsed().as_secs_f64();
             let mean = if fit.seam_edges > 0 {
                 fit.seam_cost / fit.seam_edges as f64
@@ -889,7 +886,7 @@ fn place_covering(
     cfg: &TileConfig,
     counter: u64,
 ) -> Result<PlacementChoice> {
-    let (rotation, candidates) = match_candidates(sample, matcher, work, cfg)?;
+    let (rotation, candidates) = match_candidates(sample, matcher, work)?;
     let step = (work.coords.len() / 400).max(1);
     let covering: Vec<matching::Placement> = candidates
         .into_iter()
@@ -943,7 +940,6 @@ fn match_candidates(
     sample: &mut Sample,
     matcher: &mut Matcher,
     work: &WorkImage,
-    cfg: &TileConfig,
 ) -> Result<(usize, Vec<matching::Placement>)> {
     let rotations = sample.rotated.len();
     let rot = rotation_index(work.angle, rotations);
@@ -980,7 +976,6 @@ fn match_candidates(
         tolerance: f64::INFINITY,
         ..MatchConfig::default()
     };
-    let _ = cfg;
     Ok((rot, matcher.match_patch(&work_in, &sample_in, &mc)?))
 }
 
@@ -1009,7 +1004,6 @@ fn fit_patch(
     patch: &WorkPatch,
     work: &WorkImage,
     placement: &PlacementChoice,
-    scratch: &mut [f32],
 ) -> Fit {
     let n = state.n;
     let r = state.r;
@@ -1050,12 +1044,6 @@ fn fit_patch(
     // nodes: one per patch vertex, plus seam nodes; Source = keep A, Sink = take B
     let mut g = Graph::new(m, m * 3);
     let mut take = vec![false; m];
-    let local = |t: u32| -> Option<usize> {
-        // binary search is not possible (BFS order); the caller's stamp array
-        // is not visible here, so use a sorted index
-        None.or(Some(t as usize))
-    };
-    let _ = local;
     let mut order: Vec<(u32, u32)> = patch
         .texels
         .iter()
@@ -1182,7 +1170,6 @@ fn fit_patch(
             seam_edges += 1;
         }
     }
-    let _ = scratch;
     Fit {
         take,
         coord,
