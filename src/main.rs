@@ -187,7 +187,7 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// Export an artifact for other tools (a .gim: OBJ + MTL with atlas UVs).
+    /// Export for other tools: a .gim or a .quilt as OBJ + MTL with atlas UVs and its texture.
     Export {
         file: PathBuf,
         #[arg(long, default_value = "obj")]
@@ -516,11 +516,20 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Export { file, format, output } => {
             if format != "obj" {
-                bail!("--format '{format}': only obj is available for a geometry image");
+                bail!("--format '{format}': only obj is available so far");
             }
-            let g = Gim::open(&file, MemoryBudget::default())?;
-            let obj = export::export_gim_obj(&g, &output)?;
-            say!("wrote {} (+ mesh.mtl, charts.png)", obj.display());
+            let kind = Container::open(&file, MemoryBudget::default())?
+                .metadata()
+                .kind
+                .clone();
+            if kind == quilt::KIND {
+                let obj = export::export_quilt_obj(&file, &output, MemoryBudget::default())?;
+                say!("wrote {} (+ mesh.mtl, atlas.png)", obj.display());
+            } else {
+                let g = Gim::open(&file, MemoryBudget::default())?;
+                let obj = export::export_gim_obj(&g, &output)?;
+                say!("wrote {} (+ mesh.mtl, charts.png)", obj.display());
+            }
         }
         Command::Tile {
             gim,

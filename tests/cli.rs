@@ -301,3 +301,71 @@ fn atlas_show_and_export_a_mesh() {
         &["spot_5.8k.obj"],
     );
 }
+
+#[test]
+fn tile_bake_evaluate_render_export_a_square() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("square.obj");
+    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n").unwrap();
+    let gim = dir.path().join("square.gim");
+    assert!(
+        btfquilt(&["atlas", s(&obj), "--resolution", "96", "-q", "-o", s(&gim)])
+            .status
+            .success()
+    );
+    let brick = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png");
+    let quilt = dir.path().join("square.quilt");
+    let out = btfquilt(&[
+        "tile",
+        "--gim",
+        s(&gim),
+        "--sample",
+        s(&brick),
+        "-q",
+        "-o",
+        s(&quilt),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json = btfquilt(&["evaluate", s(&quilt)]);
+    let doc = btfquilt::json::Json::parse(&String::from_utf8_lossy(&json.stdout)).unwrap();
+    assert!(doc.get("zipper").is_some() && doc.get("coherence").is_some());
+    let png = dir.path().join("view.png");
+    assert!(btfquilt(&[
+        "render",
+        s(&quilt),
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "-o",
+        s(&png)
+    ])
+    .status
+    .success());
+    let export = dir.path().join("export");
+    assert!(btfquilt(&["export", s(&quilt), "-o", s(&export)])
+        .status
+        .success());
+    assert_eq!(
+        btfquilt::imageio::image_size(&export.join("atlas.png")).unwrap(),
+        (96, 96)
+    );
+    let (models, _) = tobj::load_obj(export.join("mesh.obj"), &tobj::LoadOptions::default()).unwrap();
+    assert_eq!(models[0].mesh.indices.len(), 6);
+    fails_clearly(
+        &btfquilt(&["render", s(&quilt), "--camera", "1,2,3", "-o", s(&png)]),
+        &["--camera"],
+    );
+    fails_clearly(
+        &btfquilt(&[
+            "tile",
+            "--gim",
+            s(&gim),
+            "--sample",
+            s(&obj),
+            "-o",
+            s(&dir.path().join("x.quilt")),
+        ]),
+        &["square.obj"],
+    );
+}
