@@ -393,16 +393,15 @@ fn chart_work_image(surface: &Surface, state: &State, patch: &WorkPatch) -> Work
     }
 }
 
-/// Cross-chart work image: the patch flattened with LSCM and resampled.
-/// `None` if it cannot be flattened within the distortion bound.
-fn flattened_work_image(
+/// The patch's triangles (local indices): grid blocks inside charts, then
+/// zipper triangles, all wound like the surface; and how many are grid ones.
+fn patch_triangles(
     surface: &Surface,
     state: &State,
     patch: &WorkPatch,
     bfs: &Bfs,
     zipper_triangles: &[[u32; 3]],
-    max_distortion: f64,
-) -> Option<WorkImage> {
+) -> (Vec<[u32; 3]>, Vec<[f32; 3]>, usize) {
     let r = surface.r;
     let local = |t: u32| bfs.contains(t);
     // triangles: grid blocks inside charts, plus zipper triangles, all in P
@@ -448,7 +447,26 @@ fn flattened_work_image(
             tri.swap(1, 2);
         }
     }
-    let uv = match lscm::lscm(&positions, &tris) {
+    (tris, positions, grid_count)
+}
+
+/// LSCM coordinates of the patch (Lévy et al. 2002), scaled so grid edges
+/// average one pixel, and the mean field direction in that frame; `None` if
+/// LSCM fails or the grid triangles' area distortion exceeds T_d.
+fn lscm_flatten(
+    surface: &Surface,
+    state: &State,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+    tris: &[[u32; 3]],
+    positions: &[[f32; 3]],
+    grid_count: usize,
+    max_distortion: f64,
+) -> Option<(Vec<[f64; 2]>, f64)> {
+    let r = surface.r;
+    let local = |t: u32| bfs.contains(t);
+    let tris = tris.to_vec();
+    let uv = match lscm::lscm(positions, &tris) {
         Ok(uv) => uv,
         Err(e) => {
             if std::env::var_os("BTFQUILT_TRACE").is_some() {
@@ -459,7 +477,7 @@ fn flattened_work_image(
     };
     // T_d on the grid triangles, which carry the area: zipper triangles are
     // slivers whose own area ratios say nothing about the texture's scale
-    let distortion = lscm::area_distortion(&positions, &tris[..grid_count], &uv);
+    let distortion = lscm::area_distortion(positions, &tris[..grid_count], &uv);
     if std::env::var_os("BTFQUILT_TRACE").is_some() && !(distortion <= max_distortion) {
         eprintln!("lscm distortion {distortion}");
     }
@@ -497,6 +515,26 @@ fn flattened_work_image(
         .iter()
         .map(|p| [p[0] * scale - minu, p[1] * scale - minv])
         .collect();
+    Some((coords, rs.atan2(rc)))
+}
+
+/// The work image of a flattened patch: coordinates shifted to start at 0,
+/// a pixel known where a triangle of three synthesized vertices covers it
+/// (features interpolated). `None` if the patch flattened implausibly large.
+fn raster_work_image(
+    state: &State,
+    patch: &WorkPatch,
+    tris: &[[u32; 3]],
+    mut coords: Vec<[f64; 2]>,
+    angle: f64,
+    r: usize,
+) -> Option<WorkImage> {
+    let minx = coords.iter().map(|c| c[0]).fold(f64::INFINITY, f64::min);
+    let miny = coords.iter().map(|c| c[1]).fold(f64::INFINITY, f64::min);
+    for c in &mut coords {
+        c[0] -= minx;
+        c[1] -= miny;
+    }
     let w = coords.iter().map(|c| c[0]).fold(0.0, f64::max).ceil() as usize + 1;
     let h = coords.iter().map(|c| c[1]).fold(0.0, f64::max).ceil() as usize + 1;
     if w > 4 * r || h > 4 * r {
@@ -505,7 +543,7 @@ fn flattened_work_image(
     let n = state.n;
     let mut features = vec![0f32; w * h * n];
     let mut known = vec![0f32; w * h];
-    for tri in &tris {
+    for tri in tris {
         let ids = [
             patch.texels[tri[0] as usize],
             patch.texels[tri[1] as usize],
@@ -558,9 +596,67 @@ fn flattened_work_image(
         features,
         known,
         coords,
-        angle: rs.atan2(rc),
+        angle,
         atlas_to_work: None,
     })
+}
+
+/// Cross-chart work image: the patch flattened with LSCM and resampled.
+/// `None` if it cannot be flattened within the distortion bound.
+fn flattened_work_image(
+    surface: &Surface,
+    state: &State,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+    zipper_triangles: &[[u32; 3]],
+    max_distortion: f64,
+) -> Option<(WorkImage, Vec<[f64; 2]>)> {
+    let (tris, positions, grid_count) = patch_triangles(surface, state, patch, bfs, zipper_triangles);
+    let (coords, angle) = lscm_flatten(
+        surface,
+        state,
+        patch,
+        bfs,
+        &tris,
+        &positions,
+        grid_count,
+        max_distortion,
+    )?;
+    let work = raster_work_image(state, patch, &tris, coords.clone(), angle, surface.r)?;
+    Some((work, coords))
+}
+
+/// A seed's LSCM flattening, reused when its patch shrinks: a smaller BFS
+/// ball from the same seed is part of the larger one.
+struct Flattening {
+    /// (texel, coordinate), sorted by texel.
+    coords: Vec<(u32, [f64; 2])>,
+    angle: f64,
+}
+
+impl Flattening {
+    /// The work image of a smaller patch from the cached coordinates.
+    fn work_image(
+        &self,
+        surface: &Surface,
+        state: &State,
+        patch: &WorkPatch,
+        bfs: &Bfs,
+        zipper_triangles: &[[u32; 3]],
+    ) -> Option<WorkImage> {
+        let coords: Vec<[f64; 2]> = patch
+            .texels
+            .iter()
+            .map(|t| {
+                self.coords
+                    .binary_search_by_key(t, |e| e.0)
+                    .ok()
+                    .map(|k| self.coords[k].1)
+            })
+            .collect::<Option<_>>()?;
+        let (tris, _, _) = patch_triangles(surface, state, patch, bfs, zipper_triangles);
+        raster_work_image(state, patch, &tris, coords, self.angle, surface.r)
+    }
 }
 
 /// Cross-chart work image without LSCM: each chart's part of the patch keeps
@@ -735,21 +831,35 @@ pub fn tile(
             .or_else(|| state.most_constrained())
             .expect("remaining > 0");
         let mut radius = radius0;
+        let mut flattening: Option<Flattening> = None;
         loop {
             let patch = bfs.patch(&surface.graph, v, radius);
             let work = if patch.crosses_charts {
-                flattened_work_image(
-                    &surface,
-                    &state,
-                    &patch,
-                    &bfs,
-                    &zipper_triangles,
-                    cfg.max_distortion,
-                )
-                .or_else(|| {
-                    report.unfolded_patches += 1;
-                    Some(unfolded_work_image(&surface, &state, &patch, &bfs))
-                })
+                let cached = flattening
+                    .as_ref()
+                    .and_then(|f| f.work_image(&surface, &state, &patch, &bfs, &zipper_triangles));
+                cached
+                    .or_else(|| {
+                        let (work, coords) = flattened_work_image(
+                            &surface,
+                            &state,
+                            &patch,
+                            &bfs,
+                            &zipper_triangles,
+                            cfg.max_distortion,
+                        )?;
+                        let mut c: Vec<(u32, [f64; 2])> = patch.texels.iter().copied().zip(coords).collect();
+                        c.sort_unstable_by_key(|e| e.0);
+                        flattening = Some(Flattening {
+                            coords: c,
+                            angle: work.angle,
+                        });
+                        Some(work)
+                    })
+                    .or_else(|| {
+                        report.unfolded_patches += 1;
+                        Some(unfolded_work_image(&surface, &state, &patch, &bfs))
+                    })
             } else {
                 Some(chart_work_image(&surface, &state, &patch))
             };
