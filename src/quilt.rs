@@ -518,6 +518,20 @@ fn lscm_flatten(
     Some((coords, rs.atan2(rc)))
 }
 
+/// Shifts work-image coordinates so they start at 0; the pixel size of the
+/// image that holds them.
+fn shift_to_origin(coords: &mut [[f64; 2]]) -> (usize, usize) {
+    let minx = coords.iter().map(|c| c[0]).fold(f64::INFINITY, f64::min);
+    let miny = coords.iter().map(|c| c[1]).fold(f64::INFINITY, f64::min);
+    for c in coords.iter_mut() {
+        c[0] -= minx;
+        c[1] -= miny;
+    }
+    let w = coords.iter().map(|c| c[0]).fold(0.0, f64::max).ceil() as usize + 1;
+    let h = coords.iter().map(|c| c[1]).fold(0.0, f64::max).ceil() as usize + 1;
+    (w, h)
+}
+
 /// The work image of a flattened patch: coordinates shifted to start at 0,
 /// a pixel known where a triangle of three synthesized vertices covers it
 /// (features interpolated). `None` if the patch flattened implausibly large.
@@ -529,14 +543,7 @@ fn raster_work_image(
     angle: f64,
     r: usize,
 ) -> Option<WorkImage> {
-    let minx = coords.iter().map(|c| c[0]).fold(f64::INFINITY, f64::min);
-    let miny = coords.iter().map(|c| c[1]).fold(f64::INFINITY, f64::min);
-    for c in &mut coords {
-        c[0] -= minx;
-        c[1] -= miny;
-    }
-    let w = coords.iter().map(|c| c[0]).fold(0.0, f64::max).ceil() as usize + 1;
-    let h = coords.iter().map(|c| c[1]).fold(0.0, f64::max).ceil() as usize + 1;
+    let (w, h) = shift_to_origin(&mut coords);
     if w > 4 * r || h > 4 * r {
         return None;
     }
@@ -702,14 +709,7 @@ fn unfolded_work_image(surface: &Surface, state: &State, patch: &WorkPatch, bfs:
         let d = [a[0] - ao[0], a[1] - ao[1]];
         coords[i] = [wo[0] + co * d[0] - s * d[1], wo[1] + s * d[0] + co * d[1]];
     }
-    let minx = coords.iter().map(|c| c[0]).fold(f64::INFINITY, f64::min);
-    let miny = coords.iter().map(|c| c[1]).fold(f64::INFINITY, f64::min);
-    for c in &mut coords {
-        c[0] -= minx;
-        c[1] -= miny;
-    }
-    let w = coords.iter().map(|c| c[0]).fold(0.0, f64::max).ceil() as usize + 1;
-    let h = coords.iter().map(|c| c[1]).fold(0.0, f64::max).ceil() as usize + 1;
+    let (w, h) = shift_to_origin(&mut coords);
     let n = state.n;
     let mut features = vec![0f32; w * h * n];
     let mut known = vec![0f32; w * h];
