@@ -254,15 +254,14 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         ),
     ];
     for (file, cam, light) in views {
-        render::render(
-            &quilt_path,
-            Some(cam),
-            light,
-            640,
-            480,
-            &out_dir.join(file),
-            memory,
-        )?;
+        let cfg = render::RenderConfig {
+            camera: Some(cam),
+            lights: vec![render::Light::directional(light)],
+            width: 640,
+            height: 480,
+            exposure: 0.0,
+        };
+        render::render(&quilt_path, &cfg, &out_dir.join(file), memory)?;
     }
     let figures = evaluate::evaluate(&quilt_path, None, None, memory)?;
     let tile_s = t.elapsed().as_secs_f64();

@@ -187,14 +187,23 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// Export for other tools: a .gim or a .quilt as OBJ + MTL with atlas UVs and its texture.
+    /// Export for other tools: a .gim or a .quilt as a textured mesh (OBJ or glTF), and a .quilt's surface BTF.
     Export {
         file: PathBuf,
-        #[arg(long, default_value = "obj")]
-        format: String,
-        /// Output folder.
+        /// Mesh format for -o: obj (mesh.obj + mesh.mtl + PNG) or gltf (mesh.glb, texture embedded). Default obj.
+        #[arg(long)]
+        format: Option<String>,
+        /// Output folder for the mesh.
         #[arg(short, long)]
-        output: PathBuf,
+        output: Option<PathBuf>,
+        /// Write a .quilt's surface BTF (synthesis.exr, geometry_maps.exr, appearance.csv, …, FORMAT.md) into this folder.
+        #[arg(long)]
+        btf: Option<PathBuf>,
+        /// The sample of a .quilt (default: the path recorded in it).
+        #[arg(long)]
+        sample: Option<PathBuf>,
+        #[command(flatten)]
+        res: Resources,
     },
     /// Tile a geometry image with a sample by graphcut quilting.
     Tile {
@@ -234,21 +243,37 @@ enum Command {
         #[arg(long)]
         sample: Option<PathBuf>,
     },
-    /// Render a decorated mesh (baked preview colour, one light) to an image.
+    /// Render a decorated mesh to an image: BTF shading per view and light
+    /// direction for BTF samples, preview colour × Lambert for colour samples.
     Render {
         file: PathBuf,
         /// eye,target,up,fov (10 numbers); default: a three-quarter view framing the mesh.
         #[arg(long, allow_hyphen_values = true)]
         camera: Option<String>,
-        /// Light direction x,y,z (towards the light).
-        #[arg(long, default_value = "0.4,0.8,0.6", allow_hyphen_values = true)]
-        light: String,
+        /// Directional light x,y,z[,intensity] (towards the light, world space); repeatable.
+        /// Default when no light is given: 0.4,0.8,0.6.
+        #[arg(long, allow_hyphen_values = true)]
+        light: Vec<String>,
+        /// Point light x,y,z[,intensity] (world space; inverse-square falloff,
+        /// intensity at the distance of the mesh's bounding-box centre); repeatable.
+        #[arg(long = "point-light", allow_hyphen_values = true)]
+        point_light: Vec<String>,
+        /// Write N frames OUTPUT-STEM_000 … with the first light (the first --light,
+        /// else the first --point-light) circling the camera's view axis.
+        #[arg(long = "orbit-light")]
+        orbit_light: Option<usize>,
+        /// Exposure in stops (values × 2^EXPOSURE).
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        exposure: f32,
         #[arg(long, default_value_t = 800)]
         width: usize,
         #[arg(long, default_value_t = 600)]
         height: usize,
+        /// Output image: .png (8-bit sRGB) or .exr (linear).
         #[arg(short, long)]
         output: PathBuf,
+        #[command(flatten)]
+        res: Resources,
     },
     /// Run the pipeline on the embedded default data and write pictures.
     Demo {
@@ -514,21 +539,27 @@ fn run(cli: Cli) -> Result<()> {
             show::show(&g, what.parse()?, &output)?;
             say!("wrote {}", output.display());
         }
-        Command::Export { file, format, output } => {
-            if format != "obj" {
-                bail!("--format '{format}': only obj is available so far");
+        Command::Export {
+            file,
+            format,
+            output,
+            btf,
+            sample,
+            res,
+        } => {
+            let (memory, _) = res.apply()?;
+            if output.is_none() && format.is_some() {
+                bail!("--format needs -o DIR (the folder for the mesh)");
             }
-            let kind = Container::open(&file, MemoryBudget::default())?
-                .metadata()
-                .kind
-                .clone();
-            if kind == quilt::KIND {
-                let obj = export::export_quilt_obj(&file, &output, MemoryBudget::default())?;
-                say!("wrote {} (+ mesh.mtl, atlas.png)", obj.display());
-            } else {
-                let g = Gim::open(&file, MemoryBudget::default())?;
-                let obj = export::export_gim_obj(&g, &output)?;
-                say!("wrote {} (+ mesh.mtl, charts.png)", obj.display());
+            let format: export::MeshFormat = format.as_deref().unwrap_or("obj").parse()?;
+            let opts = export::ExportOptions {
+                mesh: output.map(|dir| (format, dir)),
+                btf,
+                sample,
+                budget: memory,
+            };
+            for path in export::export(&file, &opts)? {
+                say!("wrote {}", path.display());
             }
         }
         Command::Tile {
@@ -565,29 +596,44 @@ fn run(cli: Cli) -> Result<()> {
             file,
             camera,
             light,
+            point_light,
+            orbit_light,
+            exposure,
             width,
             height,
             output,
+            res,
         } => {
+            let (memory, _bars) = res.apply()?;
             let camera = camera.as_deref().map(render::Camera::parse).transpose()?;
-            let l: Vec<f32> = light
-                .split(',')
-                .map(|v| v.trim().parse())
-                .collect::<Result<_, _>>()
-                .with_context(|| format!("--light '{light}': expected x,y,z"))?;
-            if l.len() != 3 {
-                bail!("--light '{light}': expected x,y,z");
+            let mut lights = light
+                .iter()
+                .map(|s| render::Light::parse_directional(s))
+                .collect::<Result<Vec<_>, _>>()?;
+            for s in &point_light {
+                lights.push(render::Light::parse_point(s)?);
             }
-            render::render(
-                &file,
+            if lights.is_empty() {
+                lights.push(render::Light::default());
+            }
+            let cfg = render::RenderConfig {
                 camera,
-                [l[0], l[1], l[2]],
+                lights,
                 width,
                 height,
-                &output,
-                MemoryBudget::default(),
-            )?;
-            say!("wrote {}", output.display());
+                exposure,
+            };
+            match orbit_light {
+                Some(frames) => {
+                    for p in render::render_frames(&file, &cfg, frames, &output, memory)? {
+                        say!("wrote {}", p.display());
+                    }
+                }
+                None => {
+                    render::render(&file, &cfg, &output, memory)?;
+                    say!("wrote {}", output.display());
+                }
+            }
         }
         Command::Demo { output, res } => {
             let (memory, bars) = res.apply()?;

@@ -1,17 +1,66 @@
-//! `render`: a software rasterizer that shows a decorated mesh from a camera
-//! (z-buffer, perspective-correct atlas uv, the baked preview colour, Lambert
-//! shading under one directional light). BTF shading per view and light
-//! direction comes with the BTF decoration stage.
+//! `render`: a software rasterizer that shows a decorated mesh from a pinhole
+//! camera under directional and point lights, to PNG (8-bit sRGB) or EXR
+//! (linear).
+//!
+//! Two passes:
+//! 1. a G-buffer is rasterized sequentially (z-buffer; per pixel the nearest
+//!    face and its perspective-correct barycentrics);
+//! 2. rows are shaded in parallel with rayon. Every pixel depends only on its
+//!    own G-buffer entry, so the image is byte-identical for any thread count.
+//!
+//! Shading depends on the quilt's sample:
+//! - a colour image (one view × one light): the baked preview colour (gutter
+//!   dilated, bilinear in the atlas) × `0.18 + 0.82 Σ_k E_k max(n·l_k, 0)`;
+//! - a BTF (more than one direction pair): per pixel, the nearest covered
+//!   atlas texel gives the sample coordinate (carried to the pixel's exact
+//!   atlas position through the texel's Jacobian) and the local frame: the
+//!   interpolated vertex normal n, the sample's +x axis on the surface (the
+//!   atlas step J⁻¹·(1,0) through the face's atlas→3D map, orthonormalised
+//!   against n) and the sample's +y axis ± n × x, the sign taken from the
+//!   mapped J⁻¹·(0,1) so a mirrored mapping stays consistent. View and light
+//!   are expressed there as (θ, φ) in the generator's convention
+//!   ([`crate::generate::direction`]: `(sinθ cosφ, sinθ sinφ, cosθ)` in
+//!   sample axes, x right, y down the image, z the normal: φ = 0° is image +x
+//!   and φ = 90° image +y, downwards). Each of view and light is interpolated
+//!   from its 3 nearest measured directions by angle (normalised inverse
+//!   angular distance weights; an exact hit takes weight 1), so the value is
+//!   `Σ_v Σ_l w_v w_l E Σ_i g_i(x) p_i(v, l)`, with the geometry maps looked
+//!   up bilinearly (clamped at the sample's border). Directions beyond the
+//!   measured θ range are clamped to it; a light below the horizon (n·l ≤ 0)
+//!   adds nothing, and one between the last measured θ and the horizon is
+//!   faded by `cos θ_l / cos θ_max` so the terminator is continuous. The
+//!   measured values are images under the light and already contain the
+//!   `cos θ_l` foreshortening (the generator shades `albedo·max(n·l, 0)`), so
+//!   it is not applied again.
+//!
+//! Point lights fall off with the inverse square of the distance, normalised
+//! to their intensity at the distance of the mesh's bounding-box centre.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
 
 use crate::bake::{atlas_colour, bilinear, dilate, open_sample};
+use crate::btf::Angles;
 use crate::container::MemoryBudget;
 use crate::gim::Gim;
 use crate::imageio::{self, PngDepth, RgbImage};
-use crate::mesh::{cross, dot, normalize, sub};
-use crate::quilt::Quilt;
+use crate::mesh::{cross, dot, normalize, sub, Mesh};
+use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
+
+/// Background colour (linear RGB) where no surface is seen.
+pub const BACKGROUND: [f32; 3] = [0.02, 0.02, 0.025];
+/// The direction (towards the light) of the default directional light.
+pub const DEFAULT_LIGHT: [f32; 3] = [0.4, 0.8, 0.6];
+/// Largest image edge in pixels.
+pub const MAX_EDGE: usize = 16384;
+/// Most frames [`render_frames`] writes.
+pub const MAX_FRAMES: usize = 100_000;
+/// Below this angle (radians) a direction counts as a measured one.
+const EXACT_HIT: f32 = 1e-4;
+/// Rings of neighbours searched for a covered texel around an empty one.
+const TEXEL_SEARCH: isize = 3;
 
 /// A pinhole camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -26,44 +75,37 @@ pub struct Camera {
 impl Camera {
     /// Parses `ex,ey,ez,tx,ty,tz,ux,uy,uz,fov`.
     pub fn parse(s: &str) -> Result<Camera> {
+        let bad = || {
+            Error::Config(format!(
+                "--camera '{s}': expected eye,target,up,fov as 10 numbers"
+            ))
+        };
         let v: Vec<f32> = s
             .split(',')
             .map(|x| x.trim().parse::<f32>())
             .collect::<std::result::Result<_, _>>()
-            .map_err(|_| {
-                Error::Config(format!(
-                    "--camera '{s}': expected eye,target,up,fov as 10 numbers"
-                ))
-            })?;
-        if v.len() != 10 || !(1.0..179.0).contains(&v[9]) {
-            return Err(Error::Config(format!(
-                "--camera '{s}': expected eye,target,up,fov as 10 numbers"
-            )));
+            .map_err(|_| bad())?;
+        if v.len() != 10 || v.iter().any(|x| !x.is_finite()) || !(1.0..179.0).contains(&v[9]) {
+            return Err(bad());
         }
-        Ok(Camera {
+        let cam = Camera {
             eye: [v[0], v[1], v[2]],
             target: [v[3], v[4], v[5]],
             up: [v[6], v[7], v[8]],
             fov: v[9],
-        })
+        };
+        let f = normalize(sub(cam.target, cam.eye));
+        if dot(f, f) < 0.5 || crate::mesh::length(cross(f, normalize(cam.up))) < 1e-4 {
+            return Err(Error::Config(format!(
+                "--camera '{s}': the eye must differ from the target and up must not be along the view"
+            )));
+        }
+        Ok(cam)
     }
 
     /// A three-quarter view framing the given positions.
     pub fn framing(positions: &[[f32; 3]]) -> Camera {
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for p in positions {
-            for k in 0..3 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
-        let c = [
-            (lo[0] + hi[0]) / 2.0,
-            (lo[1] + hi[1]) / 2.0,
-            (lo[2] + hi[2]) / 2.0,
-        ];
-        let radius = 0.5 * crate::mesh::length(sub(hi, lo));
+        let (c, radius) = bounds(positions);
         let d = normalize([0.8, 0.45, 1.0]);
         let dist = radius / (20f32.to_radians()).tan();
         Camera {
@@ -73,121 +115,891 @@ impl Camera {
             fov: 42.0,
         }
     }
+
+    /// The unit axis from the target towards the eye.
+    pub fn axis(&self) -> [f32; 3] {
+        normalize(sub(self.eye, self.target))
+    }
 }
 
-/// Renders the quilt's mesh with its baked colour.
-pub fn render(
-    quilt_path: &Path,
-    camera: Option<Camera>,
-    light: [f32; 3],
-    width: usize,
-    height: usize,
-    out: &Path,
-    budget: MemoryBudget,
-) -> Result<()> {
-    let quilt = Quilt::open(quilt_path, budget)?;
-    let gim = Gim::open(&quilt.gim, budget)?;
-    let (svd, _tmp) = open_sample(&quilt, None, budget)?;
-    let (mut texture, covered) = atlas_colour(&quilt, &svd.preview()?)?;
-    dilate(&mut texture, &covered, 4);
-    let mesh = gim.mesh()?;
-    let uv = gim.corner_uv()?;
-    let normals = mesh.vertex_normals();
-    let cam = camera.unwrap_or_else(|| Camera::framing(&mesh.positions));
-    let f = normalize(sub(cam.target, cam.eye));
-    let s = normalize(cross(f, cam.up));
-    let u = cross(s, f);
-    let focal = 0.5 * height as f32 / (0.5 * cam.fov.to_radians()).tan();
-    let light = normalize(light);
-    // project: (pixel x, pixel y, depth)
-    let proj: Vec<[f32; 3]> = mesh
-        .positions
-        .iter()
-        .map(|&p| {
-            let d = sub(p, cam.eye);
-            let (x, y, z) = (dot(d, s), dot(d, u), dot(d, f));
-            [
-                width as f32 / 2.0 + focal * x / z,
-                height as f32 / 2.0 - focal * y / z,
-                z,
-            ]
-        })
-        .collect();
-    let mut depth = vec![f32::INFINITY; width * height];
-    let mut data = vec![0.0f32; width * height * 3];
-    for px in data.chunks_exact_mut(3) {
-        px.copy_from_slice(&[0.02, 0.02, 0.025]);
+/// Bounding-box centre and half diagonal.
+fn bounds(positions: &[[f32; 3]]) -> ([f32; 3], f32) {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
     }
-    let r = quilt.resolution as f32;
-    for (fi, tri) in mesh.triangles.iter().enumerate() {
-        let p = [
-            proj[tri[0] as usize],
-            proj[tri[1] as usize],
-            proj[tri[2] as usize],
-        ];
-        if p.iter().any(|q| q[2] <= 1e-6) {
-            continue;
+    if positions.is_empty() {
+        return ([0.0; 3], 1.0);
+    }
+    let c = [
+        (lo[0] + hi[0]) / 2.0,
+        (lo[1] + hi[1]) / 2.0,
+        (lo[2] + hi[2]) / 2.0,
+    ];
+    (c, 0.5 * crate::mesh::length(sub(hi, lo)))
+}
+
+/// A light source.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Light {
+    /// Parallel light; `direction` points towards the light (world space,
+    /// any length but zero).
+    Directional { direction: [f32; 3], intensity: f32 },
+    /// A point light with inverse-square falloff, normalised so that it gives
+    /// `intensity` at the distance of the mesh's bounding-box centre.
+    Point { position: [f32; 3], intensity: f32 },
+}
+
+impl Default for Light {
+    /// The default directional light, [`DEFAULT_LIGHT`] at intensity 1.
+    fn default() -> Self {
+        Light::directional(DEFAULT_LIGHT)
+    }
+}
+
+/// Parses `n` comma-separated finite numbers for `flag`, `n` in `counts`.
+fn numbers(flag: &str, s: &str, what: &str, counts: &[usize]) -> Result<Vec<f32>> {
+    let bad = || Error::Config(format!("{flag} '{s}': expected {what}"));
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| bad())?;
+    if !counts.contains(&v.len()) || v.iter().any(|x| !x.is_finite()) {
+        return Err(bad());
+    }
+    Ok(v)
+}
+
+impl Light {
+    /// A directional light of intensity 1 towards `direction`.
+    pub fn directional(direction: [f32; 3]) -> Light {
+        Light::Directional {
+            direction,
+            intensity: 1.0,
         }
-        let area = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
-        if area.abs() < 1e-12 {
-            continue;
+    }
+
+    /// Parses `--light x,y,z[,intensity]` (towards the light, world space).
+    pub fn parse_directional(s: &str) -> Result<Light> {
+        let what = "x,y,z[,intensity]: a nonzero direction towards the light and an intensity ≥ 0";
+        let v = numbers("--light", s, what, &[3, 4])?;
+        let direction = [v[0], v[1], v[2]];
+        let intensity = v.get(3).copied().unwrap_or(1.0);
+        if dot(direction, direction) < 1e-12 || intensity < 0.0 {
+            return Err(Error::Config(format!("--light '{s}': expected {what}")));
         }
-        let x0 = p
-            .iter()
-            .map(|q| q[0])
-            .fold(f32::INFINITY, f32::min)
-            .floor()
-            .max(0.0) as usize;
-        let x1 = (p.iter().map(|q| q[0]).fold(f32::NEG_INFINITY, f32::max).ceil() as usize).min(width);
-        let y0 = p
-            .iter()
-            .map(|q| q[1])
-            .fold(f32::INFINITY, f32::min)
-            .floor()
-            .max(0.0) as usize;
-        let y1 = (p.iter().map(|q| q[1]).fold(f32::NEG_INFINITY, f32::max).ceil() as usize).min(height);
-        for y in y0..y1 {
-            for x in x0..x1 {
-                let (qx, qy) = (x as f32 + 0.5, y as f32 + 0.5);
-                let w0 = ((p[1][0] - qx) * (p[2][1] - qy) - (p[2][0] - qx) * (p[1][1] - qy)) / area;
-                let w1 = ((p[2][0] - qx) * (p[0][1] - qy) - (p[0][0] - qx) * (p[2][1] - qy)) / area;
-                let w2 = 1.0 - w0 - w1;
-                if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
-                    continue;
-                }
-                // perspective-correct weights
-                let b = [w0 / p[0][2], w1 / p[1][2], w2 / p[2][2]];
-                let z = 1.0 / (b[0] + b[1] + b[2]);
-                let i = y * width + x;
-                if z >= depth[i] {
-                    continue;
-                }
-                depth[i] = z;
-                let b = [b[0] * z, b[1] * z, b[2] * z];
-                let mut tu = 0.0;
-                let mut tv = 0.0;
-                let mut n = [0.0f32; 3];
-                for k in 0..3 {
-                    tu += b[k] * uv[fi * 3 + k][0];
-                    tv += b[k] * uv[fi * 3 + k][1];
-                    let vn = normals[tri[k] as usize];
-                    for d in 0..3 {
-                        n[d] += b[k] * vn[d];
-                    }
-                }
-                let n = normalize(n);
-                let colour = bilinear(&texture, tu * r - 0.5, tv * r - 0.5);
-                let shade = 0.18 + 0.82 * dot(n, light).max(0.0);
-                for c in 0..3 {
-                    data[i * 3 + c] = colour[c] * shade;
+        Ok(Light::Directional { direction, intensity })
+    }
+
+    /// Parses `--point-light x,y,z[,intensity]` (world-space position).
+    pub fn parse_point(s: &str) -> Result<Light> {
+        let what = "x,y,z[,intensity]: a position and an intensity ≥ 0";
+        let v = numbers("--point-light", s, what, &[3, 4])?;
+        let intensity = v.get(3).copied().unwrap_or(1.0);
+        if intensity < 0.0 {
+            return Err(Error::Config(format!("--point-light '{s}': expected {what}")));
+        }
+        Ok(Light::Point {
+            position: [v[0], v[1], v[2]],
+            intensity,
+        })
+    }
+
+    /// The light turned by `angle` radians about the camera's view axis (the
+    /// line through the target towards the eye): a directional light keeps
+    /// its angle to the axis, a point light its distance to the axis line.
+    pub fn orbit(&self, camera: &Camera, angle: f32) -> Light {
+        let axis = camera.axis();
+        match *self {
+            Light::Directional { direction, intensity } => Light::Directional {
+                direction: rotate(direction, axis, angle),
+                intensity,
+            },
+            Light::Point { position, intensity } => {
+                let r = rotate(sub(position, camera.target), axis, angle);
+                Light::Point {
+                    position: [
+                        r[0] + camera.target[0],
+                        r[1] + camera.target[1],
+                        r[2] + camera.target[2],
+                    ],
+                    intensity,
                 }
             }
         }
     }
-    let img = RgbImage { width, height, data };
-    if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
-        imageio::write_png(out, &img, PngDepth::Eight)
-    } else {
-        imageio::write_rgb(out, &img)
+}
+
+/// Rodrigues' rotation of `v` by `angle` about the unit `axis`.
+fn rotate(v: [f32; 3], axis: [f32; 3], angle: f32) -> [f32; 3] {
+    let (s, c) = angle.sin_cos();
+    let kxv = cross(axis, v);
+    let kdv = dot(axis, v);
+    std::array::from_fn(|i| v[i] * c + kxv[i] * s + axis[i] * kdv * (1.0 - c))
+}
+
+/// What to render.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderConfig {
+    /// `None`: a three-quarter view framing the mesh ([`Camera::framing`]).
+    pub camera: Option<Camera>,
+    /// Summed; may be empty (the colour path then shows its ambient term).
+    pub lights: Vec<Light>,
+    pub width: usize,
+    pub height: usize,
+    /// Exposure in stops: values are multiplied by `2^exposure`.
+    pub exposure: f32,
+}
+
+impl Default for RenderConfig {
+    fn default() -> Self {
+        RenderConfig {
+            camera: None,
+            lights: vec![Light::default()],
+            width: 800,
+            height: 600,
+            exposure: 0.0,
+        }
     }
+}
+
+impl RenderConfig {
+    /// Checks sizes and numbers before any file is opened.
+    pub fn validate(&self) -> Result<()> {
+        if !(1..=MAX_EDGE).contains(&self.width) || !(1..=MAX_EDGE).contains(&self.height) {
+            return Err(Error::Config(format!(
+                "--width {} --height {}: each must be 1..={MAX_EDGE} pixels",
+                self.width, self.height
+            )));
+        }
+        if !self.exposure.is_finite() || self.exposure.abs() > 64.0 {
+            return Err(Error::Config(format!(
+                "--exposure {}: expected stops in -64..=64",
+                self.exposure
+            )));
+        }
+        for l in &self.lights {
+            let ok = match *l {
+                Light::Directional { direction, intensity } => {
+                    direction.iter().all(|v| v.is_finite())
+                        && dot(direction, direction) > 1e-12
+                        && intensity.is_finite()
+                        && intensity >= 0.0
+                }
+                Light::Point { position, intensity } => {
+                    position.iter().all(|v| v.is_finite()) && intensity.is_finite() && intensity >= 0.0
+                }
+            };
+            if !ok {
+                return Err(Error::Config(format!(
+                    "light {l:?}: needs a finite nonzero direction or position and an intensity ≥ 0"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Refuses output names other than `.png` / `.exr` and missing folders
+/// before any work is done.
+fn check_output(out: &Path) -> Result<()> {
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase());
+    if !matches!(ext.as_deref(), Some("png") | Some("exr")) {
+        return Err(Error::input(out, "can only write .png or .exr images"));
+    }
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        if !dir.is_dir() {
+            return Err(Error::input(out, "its folder does not exist"));
+        }
+    }
+    Ok(())
+}
+
+/// Writes `.png` as 8-bit sRGB, `.exr` as linear f16 (both atomically:
+/// temporary file + rename, see [`imageio::write_atomic`]).
+fn write(out: &Path, img: &RgbImage) -> Result<()> {
+    if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+        imageio::write_png(out, img, PngDepth::Eight)
+    } else {
+        imageio::write_rgb(out, img)
+    }
+}
+
+/// Renders the decorated mesh of `quilt_path` to `out` (`.png` or `.exr`).
+pub fn render(quilt_path: &Path, cfg: &RenderConfig, out: &Path, budget: MemoryBudget) -> Result<()> {
+    cfg.validate()?;
+    check_output(out)?;
+    let scene = Scene::open(quilt_path, budget)?;
+    let img = scene.render_image(cfg)?;
+    write(out, &img)
+}
+
+/// The paths [`render_frames`] writes: `STEM_000.EXT … STEM_{N-1}.EXT`
+/// beside `out` (more digits when N > 1000, so the names sort).
+pub fn frame_paths(out: &Path, frames: usize) -> Vec<PathBuf> {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let ext = out
+        .extension()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let digits = frames.saturating_sub(1).to_string().len().max(3);
+    (0..frames)
+        .map(|k| out.with_file_name(format!("{stem}_{k:0digits$}.{ext}")))
+        .collect()
+}
+
+/// Renders `frames` images with the first light of `cfg` turned about the
+/// camera's view axis in equal steps (frame k by k·360°/frames, frame 0 as
+/// given), to [`frame_paths`]`(out, frames)`, which it returns. On an error
+/// the frames already written are removed.
+pub fn render_frames(
+    quilt_path: &Path,
+    cfg: &RenderConfig,
+    frames: usize,
+    out: &Path,
+    budget: MemoryBudget,
+) -> Result<Vec<PathBuf>> {
+    if !(1..=MAX_FRAMES).contains(&frames) {
+        return Err(Error::Config(format!(
+            "--orbit-light {frames}: expected 1..={MAX_FRAMES} frames"
+        )));
+    }
+    if cfg.lights.is_empty() {
+        return Err(Error::Config("--orbit-light: there is no light to move".into()));
+    }
+    cfg.validate()?;
+    check_output(out)?;
+    let scene = Scene::open(quilt_path, budget)?;
+    let camera = cfg.camera.unwrap_or_else(|| scene.default_camera());
+    let paths = frame_paths(out, frames);
+    for (k, path) in paths.iter().enumerate() {
+        let mut c = cfg.clone();
+        c.camera = Some(camera);
+        let angle = std::f32::consts::TAU * k as f32 / frames as f32;
+        c.lights[0] = cfg.lights[0].orbit(&camera, angle);
+        if let Err(e) = scene.render_image(&c).and_then(|img| write(path, &img)) {
+            for p in &paths[..k] {
+                let _ = std::fs::remove_file(p);
+            }
+            return Err(e);
+        }
+    }
+    Ok(paths)
+}
+
+/// Measured directions of one kind (views or lights) as unit vectors in
+/// sample axes, for nearest-direction interpolation.
+struct Directions {
+    dirs: Vec<[f32; 3]>,
+    cos_max: f32,
+    sin_max: f32,
+}
+
+impl Directions {
+    fn new(angles: &[Angles]) -> Directions {
+        let dirs: Vec<[f32; 3]> = angles
+            .iter()
+            .map(|a| crate::generate::direction(a.theta, a.phi))
+            .collect();
+        let theta_max = angles
+            .iter()
+            .map(|a| a.theta)
+            .fold(0f32, f32::max)
+            .clamp(0.0, 90.0)
+            .to_radians();
+        Directions {
+            dirs,
+            cos_max: theta_max.cos(),
+            sin_max: theta_max.sin(),
+        }
+    }
+
+    /// `d` (unit, sample axes) with θ clamped to the measured range, φ kept.
+    fn clamp(&self, d: [f32; 3]) -> [f32; 3] {
+        if d[2] >= self.cos_max {
+            return d;
+        }
+        let h = (d[0] * d[0] + d[1] * d[1]).sqrt();
+        if h < 1e-12 {
+            return [self.sin_max, 0.0, self.cos_max];
+        }
+        [self.sin_max * d[0] / h, self.sin_max * d[1] / h, self.cos_max]
+    }
+
+    /// The (up to) 3 measured directions nearest to the unit `d` by angle
+    /// and their normalised inverse-angle weights: `(index, weight)`, count.
+    fn nearest(&self, d: [f32; 3]) -> ([(u32, f32); 3], usize) {
+        // a degenerate frame can only give a non-finite direction: take the pole
+        let d = if d.iter().all(|v| v.is_finite()) {
+            d
+        } else {
+            [0.0, 0.0, 1.0]
+        };
+        let mut best = [(f32::NEG_INFINITY, u32::MAX); 3];
+        for (j, m) in self.dirs.iter().enumerate() {
+            let c = dot(d, *m);
+            if c > best[2].0 {
+                let mut k = 2;
+                while k > 0 && c > best[k - 1].0 {
+                    best[k] = best[k - 1];
+                    k -= 1;
+                }
+                best[k] = (c, j as u32);
+            }
+        }
+        let count = self.dirs.len().min(3);
+        let mut out = [(0u32, 0f32); 3];
+        let mut total = 0f32;
+        for k in 0..count {
+            let m = self.dirs[best[k].1 as usize];
+            let chord = crate::mesh::length(sub(d, m));
+            let angle = 2.0 * (0.5 * chord).min(1.0).asin();
+            if angle < EXACT_HIT {
+                return ([(best[k].1, 1.0), (0, 0.0), (0, 0.0)], 1);
+            }
+            out[k] = (best[k].1, 1.0);
+            total += 1.0;
+        }
+        for o in out.iter_mut().take(count) {
+            o.1 /= total;
+        }
+        (out, count)
+    }
+}
+
+/// The BTF data a pixel needs.
+struct BtfShading {
+    width: usize,
+    height: usize,
+    terms: usize,
+    /// `[y][x][i]`.
+    geometry: Vec<f32>,
+    /// `[pair][rgb][i]`.
+    appearance: Vec<f32>,
+    views: Directions,
+    lights: Directions,
+    n_lights: usize,
+    coords: Vec<[f32; 2]>,
+    jacobians: Vec<[f32; 4]>,
+    covered: Vec<bool>,
+    /// Per face: ∂P/∂X, ∂P/∂Y (3D per atlas texel), `None` if degenerate.
+    face_maps: Vec<Option<[[f32; 3]; 2]>>,
+}
+
+enum Shading {
+    /// Dilated atlas colour texture.
+    Colour(RgbImage),
+    Btf(Box<BtfShading>),
+}
+
+/// A decorated mesh loaded for rendering: mesh, atlas uv, normals and the
+/// sample's shading data. Open once, render many frames.
+pub struct Scene {
+    mesh: Mesh,
+    corner_uv: Vec<[f32; 2]>,
+    normals: Vec<[f32; 3]>,
+    resolution: usize,
+    centre: [f32; 3],
+    shading: Shading,
+}
+
+/// Per face: the atlas→3D derivatives ∂P/∂X, ∂P/∂Y in 3D units per atlas
+/// texel, from the corners' positions and atlas uv (constant on a face).
+fn face_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3]; 2]>> {
+    (0..mesh.triangles.len())
+        .map(|f| {
+            let [p0, p1, p2] = mesh.corners(f);
+            let (e1, e2) = (sub(p1, p0), sub(p2, p0));
+            let (u0, u1, u2) = (corner_uv[f * 3], corner_uv[f * 3 + 1], corner_uv[f * 3 + 2]);
+            let a = [(u1[0] - u0[0]) * r, (u1[1] - u0[1]) * r];
+            let b = [(u2[0] - u0[0]) * r, (u2[1] - u0[1]) * r];
+            let det = a[0] * b[1] - a[1] * b[0];
+            if !(det.abs() > 1e-12) {
+                return None;
+            }
+            // [e1 e2] = [dX dY] [a b]  ⇒  [dX dY] = [e1 e2] [a b]⁻¹
+            let (i00, i01, i10, i11) = (b[1] / det, -b[0] / det, -a[1] / det, a[0] / det);
+            let dx: [f32; 3] = std::array::from_fn(|k| e1[k] * i00 + e2[k] * i10);
+            let dy: [f32; 3] = std::array::from_fn(|k| e1[k] * i01 + e2[k] * i11);
+            Some([dx, dy])
+        })
+        .collect()
+}
+
+impl Scene {
+    /// Opens the quilt, its geometry image and its sample.
+    pub fn open(quilt_path: &Path, budget: MemoryBudget) -> Result<Scene> {
+        let quilt = Quilt::open(quilt_path, budget)?;
+        if !quilt.gim.exists() {
+            return Err(Error::input(
+                quilt_path,
+                format!("its geometry image {} is gone", quilt.gim.display()),
+            ));
+        }
+        let gim = Gim::open(&quilt.gim, budget)?;
+        if gim.resolution != quilt.resolution {
+            return Err(Error::input(
+                quilt_path,
+                format!(
+                    "its atlas is {}² but its geometry image {} is {}²",
+                    quilt.resolution,
+                    quilt.gim.display(),
+                    gim.resolution
+                ),
+            ));
+        }
+        if !quilt.sample.exists() {
+            return Err(Error::input(
+                quilt_path,
+                format!("its sample {} is gone", quilt.sample.display()),
+            ));
+        }
+        let (svd, _tmp) = open_sample(&quilt, None, budget)?;
+        let mesh = gim.mesh()?;
+        let corner_uv = gim.corner_uv()?;
+        if corner_uv.len() != mesh.triangles.len() * 3
+            || mesh
+                .triangles
+                .iter()
+                .flatten()
+                .any(|&v| v as usize >= mesh.positions.len())
+        {
+            return Err(Error::input(&quilt.gim, "mesh and corner uv disagree"));
+        }
+        let normals = mesh.vertex_normals();
+        let r = quilt.resolution;
+        let pairs = svd.views.len() * svd.lights.len();
+        let shading = if pairs <= 1 {
+            let (mut texture, covered) = atlas_colour(&quilt, &svd.preview()?)?;
+            dilate(&mut texture, &covered, 4);
+            Shading::Colour(texture)
+        } else {
+            let coords = quilt.coords()?;
+            let patches = quilt.patches()?;
+            let rotations = quilt.rotations()?;
+            let steps = svd.rotations.max(1) as f32;
+            // the rotation's Jacobian, where the stored one is missing or degenerate
+            let from_rotation = |t: usize| {
+                let a = rotations[t] as f32 * std::f32::consts::TAU / steps;
+                let (s, c) = a.sin_cos();
+                [c, -s, s, c]
+            };
+            let stored = if quilt.container().array("jacobian").is_ok() {
+                quilt.jacobians()?
+            } else {
+                Vec::new()
+            };
+            if coords.len() != r * r
+                || patches.len() != r * r
+                || rotations.len() != r * r
+                || !(stored.is_empty() || stored.len() == r * r)
+            {
+                return Err(Error::input(
+                    quilt_path,
+                    format!("its arrays do not match its {r}² atlas"),
+                ));
+            }
+            let jacobians: Vec<[f32; 4]> = (0..r * r)
+                .map(|t| match stored.get(t) {
+                    Some(j)
+                        if j.iter().all(|v| v.is_finite()) && (j[0] * j[3] - j[1] * j[2]).abs() > 1e-8 =>
+                    {
+                        *j
+                    }
+                    _ => from_rotation(t),
+                })
+                .collect();
+            let (geometry, appearance) = (svd.geometry_maps()?, svd.appearance()?);
+            let n = svd.terms;
+            if geometry.len() != svd.width * svd.height * n
+                || appearance.len() != pairs * 3 * n
+                || geometry.is_empty()
+            {
+                return Err(Error::input(
+                    svd.container().path(),
+                    "geometry maps and appearance disagree",
+                ));
+            }
+            Shading::Btf(Box::new(BtfShading {
+                width: svd.width,
+                height: svd.height,
+                terms: n,
+                geometry,
+                appearance,
+                views: Directions::new(&svd.views),
+                lights: Directions::new(&svd.lights),
+                n_lights: svd.lights.len(),
+                coords,
+                jacobians,
+                covered: patches.iter().map(|&p| p != NO_PATCH).collect(),
+                face_maps: face_maps(&mesh, &corner_uv, r as f32),
+            }))
+        };
+        let (centre, _) = bounds(&mesh.positions);
+        Ok(Scene {
+            mesh,
+            corner_uv,
+            normals,
+            resolution: r,
+            centre,
+            shading,
+        })
+    }
+
+    /// True if the sample is a BTF (more than one direction pair).
+    pub fn is_btf(&self) -> bool {
+        matches!(self.shading, Shading::Btf(_))
+    }
+
+    /// The default camera: a three-quarter view framing the mesh.
+    pub fn default_camera(&self) -> Camera {
+        Camera::framing(&self.mesh.positions)
+    }
+
+    /// Renders one frame (linear RGB).
+    pub fn render_image(&self, cfg: &RenderConfig) -> Result<RgbImage> {
+        cfg.validate()?;
+        let cam = cfg.camera.unwrap_or_else(|| self.default_camera());
+        let (width, height) = (cfg.width, cfg.height);
+        let g = self.rasterize(&cam, width, height);
+        let scale = cfg.exposure.exp2();
+        let mut data = vec![0f32; width * height * 3];
+        data.par_chunks_mut(width * 3).enumerate().for_each(|(y, row)| {
+            let mut scratch = Vec::new();
+            let mut lights = Vec::with_capacity(cfg.lights.len());
+            for (x, px) in row.chunks_exact_mut(3).enumerate() {
+                let i = y * width + x;
+                let face = g.face[i];
+                if face == u32::MAX {
+                    px.copy_from_slice(&BACKGROUND);
+                    continue;
+                }
+                let f = face as usize;
+                let tri = self.mesh.triangles[f];
+                let b = [g.bary[i][0], g.bary[i][1], 1.0 - g.bary[i][0] - g.bary[i][1]];
+                let mut pos = [0f32; 3];
+                let mut n = [0f32; 3];
+                let mut uv = [0f32; 2];
+                for k in 0..3 {
+                    let p = self.mesh.positions[tri[k] as usize];
+                    let vn = self.normals[tri[k] as usize];
+                    for d in 0..3 {
+                        pos[d] += b[k] * p[d];
+                        n[d] += b[k] * vn[d];
+                    }
+                    uv[0] += b[k] * self.corner_uv[f * 3 + k][0];
+                    uv[1] += b[k] * self.corner_uv[f * 3 + k][1];
+                }
+                let mut n = normalize(n);
+                if dot(n, n) < 0.5 {
+                    n = self.mesh.face_normal(f);
+                }
+                lights.clear();
+                lights.extend(cfg.lights.iter().map(|l| self.light_at(l, pos)));
+                let c = match &self.shading {
+                    Shading::Colour(texture) => {
+                        let r = self.resolution as f32;
+                        let colour = bilinear(texture, uv[0] * r - 0.5, uv[1] * r - 0.5);
+                        let e: f32 = lights.iter().map(|&(l, e)| e * dot(n, l).max(0.0)).sum();
+                        let shade = 0.18 + 0.82 * e;
+                        colour.map(|v| v * shade)
+                    }
+                    Shading::Btf(btf) => {
+                        let view = normalize(sub(cam.eye, pos));
+                        self.shade_btf(btf, f, n, uv, view, &lights, &mut scratch)
+                    }
+                };
+                for k in 0..3 {
+                    px[k] = c[k] * scale;
+                }
+            }
+        });
+        Ok(RgbImage { width, height, data })
+    }
+
+    /// Unit direction towards the light and its irradiance scale at `pos`.
+    fn light_at(&self, light: &Light, pos: [f32; 3]) -> ([f32; 3], f32) {
+        match *light {
+            Light::Directional { direction, intensity } => (normalize(direction), intensity),
+            Light::Point { position, intensity } => {
+                let d = sub(position, pos);
+                let d2 = dot(d, d).max(1e-20);
+                let c = sub(position, self.centre);
+                let c2 = dot(c, c).max(1e-20);
+                (normalize(d), intensity * c2 / d2)
+            }
+        }
+    }
+
+    /// BTF value of a surface point: see the module documentation.
+    #[allow(clippy::too_many_arguments)]
+    fn shade_btf(
+        &self,
+        btf: &BtfShading,
+        face: usize,
+        n: [f32; 3],
+        uv: [f32; 2],
+        view: [f32; 3],
+        lights: &[([f32; 3], f32)],
+        scratch: &mut Vec<f32>,
+    ) -> [f32; 3] {
+        let r = self.resolution;
+        let (xa, ya) = (uv[0] * r as f32 - 0.5, uv[1] * r as f32 - 0.5);
+        let Some((t, dx, dy)) = nearest_covered(&btf.covered, r, xa, ya) else {
+            return [0.0; 3];
+        };
+        let j = btf.jacobians[t];
+        let c = btf.coords[t];
+        let sx = c[0] + j[0] * dx + j[2] * dy;
+        let sy = c[1] + j[1] * dx + j[3] * dy;
+        // local frame: sample +x and +y on the surface
+        let det = j[0] * j[3] - j[1] * j[2];
+        let ax = [j[3] / det, -j[1] / det]; // J⁻¹·(1, 0)
+        let ay = [-j[2] / det, j[0] / det]; // J⁻¹·(0, 1)
+        let (x3, y3) = match btf.face_maps[face] {
+            Some([dpx, dpy]) => (
+                std::array::from_fn(|k| ax[0] * dpx[k] + ax[1] * dpy[k]),
+                std::array::from_fn(|k| ay[0] * dpx[k] + ay[1] * dpy[k]),
+            ),
+            None => ([0.0; 3], [0.0; 3]),
+        };
+        let mut xh = normalize(sub(x3, scaled(n, dot(x3, n))));
+        if dot(xh, xh) < 0.5 {
+            let other = if n[0].abs() < 0.9 {
+                [1.0, 0.0, 0.0]
+            } else {
+                [0.0, 1.0, 0.0]
+            };
+            xh = normalize(cross(n, other));
+        }
+        let mut yh = cross(n, xh);
+        if dot(yh, y3) < 0.0 {
+            yh = scaled(yh, -1.0);
+        }
+        let local = |d: [f32; 3]| [dot(d, xh), dot(d, yh), dot(d, n)];
+
+        // geometry maps at (sx, sy), bilinear, clamped
+        let nt = btf.terms;
+        scratch.clear();
+        scratch.resize(nt, 0.0);
+        let (w, h) = (btf.width, btf.height);
+        let gx = sx.clamp(0.0, (w - 1) as f32);
+        let gy = sy.clamp(0.0, (h - 1) as f32);
+        let (x0, y0) = (gx.floor() as usize, gy.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let (fx, fy) = (gx - x0 as f32, gy - y0 as f32);
+        for (idx, wgt) in [
+            (y0 * w + x0, (1.0 - fx) * (1.0 - fy)),
+            (y0 * w + x1, fx * (1.0 - fy)),
+            (y1 * w + x0, (1.0 - fx) * fy),
+            (y1 * w + x1, fx * fy),
+        ] {
+            let src = &btf.geometry[idx * nt..(idx + 1) * nt];
+            for (a, &b) in scratch.iter_mut().zip(src) {
+                *a += wgt * b;
+            }
+        }
+        let g = &scratch[..];
+
+        let (vdirs, vcount) = btf.views.nearest(btf.views.clamp(local(view)));
+        let mut acc = [0f32; 3];
+        for &(l, e) in lights {
+            let ll = local(l);
+            if ll[2] <= 0.0 || e <= 0.0 {
+                continue;
+            }
+            let fade = if ll[2] < btf.lights.cos_max {
+                ll[2] / btf.lights.cos_max.max(1e-3)
+            } else {
+                1.0
+            };
+            let (ldirs, lcount) = btf.lights.nearest(btf.lights.clamp(ll));
+            for &(vi, vw) in &vdirs[..vcount] {
+                for &(li, lw) in &ldirs[..lcount] {
+                    let wgt = vw * lw * e * fade;
+                    let pair = vi as usize * btf.n_lights + li as usize;
+                    let p = &btf.appearance[pair * 3 * nt..(pair + 1) * 3 * nt];
+                    for (ch, a) in acc.iter_mut().enumerate() {
+                        *a += wgt * dot_n(g, &p[ch * nt..(ch + 1) * nt]);
+                    }
+                }
+            }
+        }
+        acc
+    }
+
+    /// The G-buffer: per pixel the nearest face and perspective-correct
+    /// barycentrics of its first two corners.
+    fn rasterize(&self, cam: &Camera, width: usize, height: usize) -> GBuffer {
+        let f = normalize(sub(cam.target, cam.eye));
+        let s = normalize(cross(f, cam.up));
+        let u = cross(s, f);
+        let focal = 0.5 * height as f32 / (0.5 * cam.fov.to_radians()).tan();
+        // (pixel x, pixel y, depth)
+        let proj: Vec<[f32; 3]> = self
+            .mesh
+            .positions
+            .iter()
+            .map(|&p| {
+                let d = sub(p, cam.eye);
+                let (x, y, z) = (dot(d, s), dot(d, u), dot(d, f));
+                [
+                    width as f32 / 2.0 + focal * x / z,
+                    height as f32 / 2.0 - focal * y / z,
+                    z,
+                ]
+            })
+            .collect();
+        let mut depth = vec![f32::INFINITY; width * height];
+        let mut g = GBuffer {
+            face: vec![u32::MAX; width * height],
+            bary: vec![[0.0; 2]; width * height],
+        };
+        for (fi, tri) in self.mesh.triangles.iter().enumerate() {
+            let p = [
+                proj[tri[0] as usize],
+                proj[tri[1] as usize],
+                proj[tri[2] as usize],
+            ];
+            if p.iter()
+                .any(|q| !(q[2] > 1e-6) || !q[0].is_finite() || !q[1].is_finite())
+            {
+                continue;
+            }
+            let area = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+            if !(area.abs() >= 1e-12) {
+                continue;
+            }
+            let lo_x = p
+                .iter()
+                .map(|q| q[0])
+                .fold(f32::INFINITY, f32::min)
+                .floor()
+                .max(0.0);
+            let hi_x = p
+                .iter()
+                .map(|q| q[0])
+                .fold(f32::NEG_INFINITY, f32::max)
+                .ceil()
+                .min(width as f32);
+            let lo_y = p
+                .iter()
+                .map(|q| q[1])
+                .fold(f32::INFINITY, f32::min)
+                .floor()
+                .max(0.0);
+            let hi_y = p
+                .iter()
+                .map(|q| q[1])
+                .fold(f32::NEG_INFINITY, f32::max)
+                .ceil()
+                .min(height as f32);
+            if !(lo_x < hi_x && lo_y < hi_y) {
+                continue;
+            }
+            let (x0, x1, y0, y1) = (lo_x as usize, hi_x as usize, lo_y as usize, hi_y as usize);
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let (qx, qy) = (x as f32 + 0.5, y as f32 + 0.5);
+                    let w0 = ((p[1][0] - qx) * (p[2][1] - qy) - (p[2][0] - qx) * (p[1][1] - qy)) / area;
+                    let w1 = ((p[2][0] - qx) * (p[0][1] - qy) - (p[0][0] - qx) * (p[2][1] - qy)) / area;
+                    let w2 = 1.0 - w0 - w1;
+                    if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
+                        continue;
+                    }
+                    // perspective-correct weights
+                    let b = [w0 / p[0][2], w1 / p[1][2], w2 / p[2][2]];
+                    let z = 1.0 / (b[0] + b[1] + b[2]);
+                    let i = y * width + x;
+                    if z >= depth[i] {
+                        continue;
+                    }
+                    depth[i] = z;
+                    g.face[i] = fi as u32;
+                    g.bary[i] = [b[0] * z, b[1] * z];
+                }
+            }
+        }
+        g
+    }
+}
+
+struct GBuffer {
+    /// Face per pixel, `u32::MAX` where empty.
+    face: Vec<u32>,
+    bary: Vec<[f32; 2]>,
+}
+
+fn scaled(a: [f32; 3], s: f32) -> [f32; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
+/// Dot product in eight lanes (vectorises; fixed summation order).
+#[inline]
+fn dot_n(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for k in 0..8 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    let mut s = ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
+    for (x, y) in ra.iter().zip(rb) {
+        s += x * y;
+    }
+    s
+}
+
+/// The covered texel nearest to the continuous texel position `(xa, ya)`
+/// (texel centres at integers): the texel under it, else the nearest in up to
+/// [`TEXEL_SEARCH`] rings around it; with the offset from its centre.
+fn nearest_covered(covered: &[bool], r: usize, xa: f32, ya: f32) -> Option<(usize, f32, f32)> {
+    let last = (r - 1) as f32;
+    let tx = xa.round().clamp(0.0, last) as isize;
+    let ty = ya.round().clamp(0.0, last) as isize;
+    let t = ty as usize * r + tx as usize;
+    if covered[t] {
+        return Some((t, xa - tx as f32, ya - ty as f32));
+    }
+    for ring in 1..=TEXEL_SEARCH {
+        let mut best: Option<(f32, usize, f32, f32)> = None;
+        for y in ty - ring..=ty + ring {
+            for x in tx - ring..=tx + ring {
+                if (x - tx).abs().max((y - ty).abs()) != ring
+                    || x < 0
+                    || y < 0
+                    || x >= r as isize
+                    || y >= r as isize
+                {
+                    continue;
+                }
+                let t = y as usize * r + x as usize;
+                if !covered[t] {
+                    continue;
+                }
+                let (dx, dy) = (xa - x as f32, ya - y as f32);
+                let d = dx * dx + dy * dy;
+                if best.is_none_or(|b| d < b.0) {
+                    best = Some((d, t, dx, dy));
+                }
+            }
+        }
+        if let Some((_, t, dx, dy)) = best {
+            return Some((t, dx, dy));
+        }
+    }
+    None
 }

@@ -143,6 +143,18 @@ fn spot_is_covered_and_baked_and_rendered() {
     assert!(report.cross_chart_patches > 0, "{report}");
     let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
     assert!(q.patches().unwrap().iter().filter(|&&p| p != NO_PATCH).count() == report.texels);
+    // no visible chart seams: colour differences across zipper links are no
+    // larger than across grid edges inside charts
+    let json = btfquilt::evaluate::evaluate(&out, None, None, MemoryBudget::default()).unwrap();
+    let zipper = &json[json.find("\"zipper\"").unwrap()..];
+    let ratio: f64 = zipper[zipper.find("\"ratio\": ").unwrap() + 9..]
+        .split(|c: char| c == ',' || c == '}')
+        .next()
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    assert!(ratio < 1.0, "zipper ratio {ratio}: chart seams show\n{json}");
     let png = dir.path().join("atlas.png");
     btfquilt::bake::bake(&out, None, &png, MemoryBudget::default()).unwrap();
     assert_eq!(imageio::image_size(&png).unwrap(), (192, 192));
@@ -150,16 +162,13 @@ fn spot_is_covered_and_baked_and_rendered() {
     let baked = imageio::read_rgb(&png).unwrap();
     assert!(baked.data.chunks_exact(3).all(|p| p.iter().sum::<f32>() > 0.0));
     let view = dir.path().join("view.png");
-    btfquilt::render::render(
-        &out,
-        None,
-        [0.0, 1.0, 1.0],
-        160,
-        120,
-        &view,
-        MemoryBudget::default(),
-    )
-    .unwrap();
+    let cfg = btfquilt::render::RenderConfig {
+        lights: vec![btfquilt::render::Light::directional([0.0, 1.0, 1.0])],
+        width: 160,
+        height: 120,
+        ..Default::default()
+    };
+    btfquilt::render::render(&out, &cfg, &view, MemoryBudget::default()).unwrap();
     let img = imageio::read_rgb(&view).unwrap();
     let lit = img.data.chunks_exact(3).filter(|p| p[0] > 0.05).count();
     assert!(lit > 160 * 120 / 20, "the mesh is not in view: {lit} lit pixels");
