@@ -217,7 +217,7 @@ enum Command {
         #[arg(long)]
         patch_radius: Option<usize>,
         /// T_c: accept a patch if its mean seam cost ≤ this × the sample's neighbour difference.
-        #[arg(long, default_value_t = 2.0)]
+        #[arg(long, default_value_t = 3.0)]
         seam_threshold: f64,
         #[arg(long, default_value_t = 1)]
         seed: u64,

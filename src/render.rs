@@ -468,8 +468,8 @@ impl Directions {
             if angle < EXACT_HIT {
                 return ([(best[k].1, 1.0), (0, 0.0), (0, 0.0)], 1);
             }
-            out[k] = (best[k].1, 1.0);
-            total += 1.0;
+            out[k] = (best[k].1, 1.0 / angle);
+            total += 1.0 / angle;
         }
         for o in out.iter_mut().take(count) {
             o.1 /= total;
@@ -820,7 +820,7 @@ impl Scene {
                 continue;
             }
             let fade = if ll[2] < btf.lights.cos_max {
-                ll[2] / btf.lights.cos_max.max(1e-3)
+                1.0
             } else {
                 1.0
             };
