@@ -1,14 +1,19 @@
-//! `btfquilt demo`: the pipeline so far on the embedded defaults, writing
-//! pictures a person can look at.
+//! `btfquilt demo`: the whole pipeline on the embedded defaults, writing
+//! pictures a person can look at and an `index.html` with the time of every
+//! stage.
 //!
-//! For now (the foundation stage) it generates one synthetic BTF per material
-//! family on the paper's 12×8×12×8 direction grid and writes, for each, the
-//! images of one view under lights circling at several elevations, a contact
-//! sheet of them, the imperfection mask, and an `index.html` with timings.
-//! Then Spot (shipped in `data/`) gets its atlas and geometry image, shown as
-//! chart, normal and field pictures and exported as OBJ with atlas UVs.
-//! The bricks BTF is also factorized into 40 terms and the same images are
-//! reconstructed from the factors, with their PSNR.
+//! 1. `generate`: the bricks BTF (128², cracks) on the paper's 12×8×12×8
+//!    direction grid, shown under one view and eight lights; the other three
+//!    families only on those eight direction pairs (so they cost nothing).
+//! 2. `factorize`: the bricks into 40 terms with 72 rotated copies, and the
+//!    same eight images reconstructed from the factors with their PSNR.
+//! 3. `atlas`: Spot (shipped in `data/`) at 1024², with chart, normal and
+//!    field pictures.
+//! 4. `tile`: Spot with the bricks BTF by graphcut quilting, rendered with
+//!    BTF shading under a front, a grazing and a side light, baked, evaluated
+//!    and exported as glTF.
+//! 5. `tile`: Spot with a crop of the shipped CC0 brick photo (the colour
+//!    path), baked and rendered.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -16,22 +21,27 @@ use std::time::Instant;
 
 use crate::btf::{Angles, Btf};
 use crate::container::MemoryBudget;
+use crate::export::{self, ExportOptions, MeshFormat};
 use crate::factorize::{self, FactorizeConfig, SvdArtifact};
 use crate::generate::{self, Family, GenerateConfig, Imperfection};
 use crate::gim::{self, AtlasConfig, Gim};
 use crate::imageio::{self, PngDepth, RgbImage};
 use crate::ingest;
+use crate::mesh::{cross, dot, normalize, sub};
 use crate::progress::Progress;
 use crate::quilt::{self, TileConfig};
-use crate::{bake, evaluate, export, render, show};
+use crate::render::{self, Camera, Light, RenderConfig};
+use crate::{bake, evaluate, show};
 use crate::{Error, Result};
 
-/// The demo's samples: (family, imperfection, texels per side).
-const SAMPLES: [(Family, Imperfection, usize); 4] = [
-    (Family::Bricks, Imperfection::Cracks, 128),
-    (Family::Weave, Imperfection::Stains, 128),
-    (Family::Cracked, Imperfection::Scratches, 128),
-    (Family::Pebbles, Imperfection::None, 128),
+/// Texels per side of the generated samples.
+const SAMPLE_SIZE: usize = 128;
+
+/// The families shown besides the bricks (only on the eight pairs shown).
+const OTHERS: [(Family, Imperfection); 3] = [
+    (Family::Weave, Imperfection::Stains),
+    (Family::Cracked, Imperfection::Scratches),
+    (Family::Pebbles, Imperfection::None),
 ];
 
 /// The lights shown for each sample: (θ, φ). The view is the grid's
@@ -47,6 +57,54 @@ const LIGHTS: [(f32, f32); 8] = [
     (25.0, 270.0),
 ];
 
+/// Atlas edge for Spot (its geometry image and both tilings).
+const ATLAS: usize = 1024;
+
+/// Edge of the crop of `data/brick.png` used as the colour sample.
+const PHOTO_CROP: usize = 192;
+
+/// Render size.
+const RENDER: (usize, usize) = (800, 600);
+
+/// The camera for Spot: a three-quarter view of its face and left side.
+const SPOT_CAMERA: Camera = Camera {
+    eye: [-2.25, 0.62, -1.55],
+    target: [0.0, 0.12, 0.05],
+    up: [0.0, 1.0, 0.0],
+    fov: 38.0,
+};
+
+/// The same from behind, on its right side.
+const SPOT_BACK: Camera = Camera {
+    eye: [2.1, 0.85, 2.3],
+    target: [0.0, 0.12, 0.05],
+    up: [0.0, 1.0, 0.0],
+    fov: 38.0,
+};
+
+/// The lights of the BTF renders: (file suffix, caption, angle to the view
+/// axis in degrees, azimuth about it: 0° camera right, 90° camera up).
+const BTF_LIGHTS: [(&str, &str, f32, f32); 3] = [
+    (
+        "front",
+        "front light (20° from the view axis, above right)",
+        20.0,
+        60.0,
+    ),
+    (
+        "grazing",
+        "grazing light (75° from the view axis, from above)",
+        75.0,
+        90.0,
+    ),
+    (
+        "side",
+        "side light (85° from the view axis, from the right)",
+        85.0,
+        5.0,
+    ),
+];
+
 /// What the demo wrote.
 pub struct DemoReport {
     pub out_dir: PathBuf,
@@ -60,119 +118,210 @@ impl std::fmt::Display for DemoReport {
         }
         write!(
             f,
-            "open {} to see the results",
+            "results in {}; open {} to see them",
+            self.out_dir.display(),
             self.out_dir.join("index.html").display()
         )
     }
 }
 
+/// Stage timings for the report and the page.
+struct Stages {
+    rows: Vec<(String, f64, String)>,
+    lines: Vec<String>,
+}
+
+impl Stages {
+    fn add(&mut self, stage: &str, seconds: f64, detail: String) {
+        self.lines.push(format!("{stage}: {seconds:.1} s — {detail}"));
+        self.rows.push((stage.to_string(), seconds, detail));
+    }
+}
+
+/// The direction towards a light at `angle` degrees from the camera's view
+/// axis (target → eye), turned by `azimuth` degrees about it (0° towards the
+/// image's right, 90° towards its top).
+pub fn light_from_camera(camera: &Camera, angle: f32, azimuth: f32) -> [f32; 3] {
+    let v = camera.axis();
+    let up = normalize(camera.up);
+    let up = normalize(sub(up, v.map(|x| x * dot(up, v))));
+    let right = cross(up, v);
+    let (sa, ca) = angle.to_radians().sin_cos();
+    let (sz, cz) = azimuth.to_radians().sin_cos();
+    std::array::from_fn(|k| ca * v[k] + sa * (cz * right[k] + sz * up[k]))
+}
+
+/// File name of a path, for links in the page.
+fn name_of(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// Escapes text for HTML.
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+/// Writes one view's images under [`LIGHTS`] and their contact sheet;
+/// returns the images and the table cells.
+fn light_images(btf: &Btf, name: &str, out_dir: &Path) -> Result<(Vec<RgbImage>, String)> {
+    let view = btf.layout().views[0];
+    let mut frames = Vec::new();
+    let mut cells = String::new();
+    for (i, &(theta, phi)) in LIGHTS.iter().enumerate() {
+        let img = ingest::pair_image(btf, view, Angles { theta, phi })?;
+        let file = format!("{name}_light{i}_tl{theta:02}_pl{phi:03}.png");
+        imageio::write_png(&out_dir.join(&file), &img, PngDepth::Eight)?;
+        let _ = write!(
+            cells,
+            "<td><img width={w} src=\"{file}\"><br>light θ {theta} φ {phi}</td>",
+            w = 2 * img.width
+        );
+        frames.push(img);
+    }
+    let sheet = contact_sheet(&frames.iter().collect::<Vec<_>>(), 4, 3);
+    imageio::write_png(
+        &out_dir.join(format!("{name}_sheet.png")),
+        &sheet,
+        PngDepth::Eight,
+    )?;
+    Ok((frames, cells))
+}
+
+/// The cell of an imperfection mask, if one was written.
+fn mask_cell(report: &generate::GenerateReport) -> String {
+    report
+        .mask
+        .as_ref()
+        .map(|m| {
+            format!(
+                "<td><img width={} src=\"{}\"><br>imperfection mask</td>",
+                2 * report.width,
+                name_of(m)
+            )
+        })
+        .unwrap_or_default()
+}
+
 /// Runs the demo into `out_dir`.
 pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Result<DemoReport> {
+    let start = Instant::now();
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
-    let mut lines = Vec::new();
-    let mut html = String::from(
-        "<!doctype html><meta charset=utf-8><title>btfquilt demo</title>\
-         <style>body{font-family:sans-serif;background:#222;color:#ddd}img{image-rendering:pixelated;margin:2px}\
-         td{padding:4px;vertical-align:top}</style><h1>btfquilt demo</h1>\
-         <p>Synthetic BTFs on the 12×8×12×8 direction grid: one view, lights circling at 5°, 25°, 45° and 75° \
-         from the normal. Shadows and highlights move with the light.</p>",
-    );
-    for (family, imperfection, size) in SAMPLES {
-        let name = family.name();
-        let btf_path = out_dir.join(format!("{name}.btf"));
-        let cfg = GenerateConfig {
-            family,
-            imperfection,
-            width: size,
-            height: size,
+    let mut st = Stages {
+        rows: Vec::new(),
+        lines: Vec::new(),
+    };
+    let mut body = String::new();
+
+    // 1. the bricks BTF on the full direction grid
+    let t = Instant::now();
+    let bricks_btf = out_dir.join("bricks.btf");
+    let gen = generate::generate_btf(
+        &GenerateConfig {
+            family: Family::Bricks,
+            imperfection: Imperfection::Cracks,
+            width: SAMPLE_SIZE,
+            height: SAMPLE_SIZE,
             memory,
             seed: 1,
             ..GenerateConfig::default()
-        };
-        let t = Instant::now();
-        let report = generate::generate_btf(&cfg, &btf_path, progress)?;
-        let gen_s = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let btf = Btf::open(&btf_path, memory)?;
-        let view = btf.layout().views[0];
-        let mut frames = Vec::new();
-        for (i, &(theta, phi)) in LIGHTS.iter().enumerate() {
-            let light = Angles { theta, phi };
-            let img = ingest::pair_image(&btf, view, light)?;
-            let file = out_dir.join(format!("{name}_light{i}_tl{theta:02}_pl{phi:03}.png"));
-            imageio::write_png(&file, &img, PngDepth::Eight)?;
-            frames.push((img, light));
-        }
-        let sheet = contact_sheet(&frames.iter().map(|(img, _)| img).collect::<Vec<_>>(), 4, 3);
-        let sheet_path = out_dir.join(format!("{name}_sheet.png"));
-        imageio::write_png(&sheet_path, &sheet, PngDepth::Eight)?;
-        let img_s = t.elapsed().as_secs_f64();
-        lines.push(format!("{name}: {report}; images {img_s:.2} s"));
+        },
+        &bricks_btf,
+        progress,
+    )?;
+    let btf = Btf::open(&bricks_btf, memory)?;
+    let view = btf.layout().views[0];
+    let (frames, cells) = light_images(&btf, "bricks", out_dir)?;
+    st.add(
+        "generate bricks BTF (12×8×12×8) + 8 images",
+        t.elapsed().as_secs_f64(),
+        gen.to_string(),
+    );
+    let _ = write!(
+        body,
+        "<h2>1. Generated BTFs</h2><p>Bricks with a crack layer, {SAMPLE_SIZE}² texels on the paper's 12×8×12×8 \
+         direction grid (bricks.btf): one view (θ {}°), lights circling at 5°, 25°, 45° and 75° from the normal. \
+         Shadows and highlights move with the light.</p><table><tr>{cells}{}</tr>",
+        view.theta,
+        mask_cell(&gen)
+    );
+
+    // 2. the factorization
+    let t = Instant::now();
+    let bricks_svd = out_dir.join("bricks.svd");
+    let f = factorize::factorize(
+        &bricks_btf,
+        &bricks_svd,
+        &FactorizeConfig {
+            memory,
+            ..Default::default()
+        },
+        progress,
+    )?;
+    let svd = SvdArtifact::open(&bricks_svd, memory)?;
+    let mut cells = String::new();
+    for (i, (orig, &(theta, phi))) in frames.iter().zip(LIGHTS.iter()).enumerate() {
+        let rec = svd.reconstruct_pair(svd.find_pair(view, Angles { theta, phi })?)?;
+        let file = format!("bricks_light{i}_reconstructed.png");
+        imageio::write_png(&out_dir.join(&file), &rec, PngDepth::Eight)?;
         let _ = write!(
-            html,
-            "<h2>{name} ({} imperfection)</h2><p>generated in {gen_s:.1} s — {}</p><table><tr>",
-            imperfection.name(),
-            report
+            cells,
+            "<td><img width={} src=\"{file}\"><br>PSNR {:.1} dB</td>",
+            2 * rec.width,
+            factorize::psnr(orig, &rec)
         );
-        for (i, (_, light)) in frames.iter().enumerate() {
-            let _ = write!(
-                html,
-                "<td><img width={w} src=\"{name}_light{i}_tl{:02}_pl{:03}.png\"><br>light θ {} φ {}</td>",
-                light.theta,
-                light.phi,
-                light.theta,
-                light.phi,
-                w = size * 2
-            );
-        }
-        if family == Family::Bricks {
-            // the factorization: the same lights reconstructed from 40 terms
-            let t = Instant::now();
-            let svd_path = out_dir.join(format!("{name}.svd"));
-            let f = factorize::factorize(
-                &btf_path,
-                &svd_path,
-                &FactorizeConfig {
-                    memory,
-                    ..Default::default()
-                },
-                progress,
-            )?;
-            let svd = SvdArtifact::open(&svd_path, memory)?;
-            let mut cells = String::new();
-            for (i, (orig, light)) in frames.iter().enumerate() {
-                let rec = svd.reconstruct_pair(svd.find_pair(view, *light)?)?;
-                let file = format!("{name}_light{i}_reconstructed.png");
-                imageio::write_png(&out_dir.join(&file), &rec, PngDepth::Eight)?;
-                let _ = write!(
-                    cells,
-                    "<td><img width={} src=\"{file}\"><br>PSNR {:.1} dB</td>",
-                    size * 2,
-                    factorize::psnr(orig, &rec)
-                );
-            }
-            let fs = t.elapsed().as_secs_f64();
-            lines.push(format!("{name}: factorized in {fs:.1} s: {f}"));
-            let _ = write!(
-                html,
-                "</tr><tr>{cells}<td>reconstructed from {} terms<br>relative error {:.4}<br>{fs:.1} s</td>",
-                f.terms, f.relative_error
-            );
-        }
-        if let Some(mask) = &report.mask {
-            let mask_name = mask
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            let _ = write!(
-                html,
-                "<td><img width={} src=\"{mask_name}\"><br>imperfection mask</td>",
-                size * 2
-            );
-        }
-        html.push_str("</tr></table>");
     }
-    // the dense mesh: Spot's atlas and geometry image, with debug pictures
+    drop(svd);
+    st.add(
+        "factorize bricks (40 terms, 72 rotated copies) + 8 reconstructions",
+        t.elapsed().as_secs_f64(),
+        f.to_string(),
+    );
+    let _ = write!(
+        body,
+        "<tr>{cells}<td>reconstructed from {} terms (bricks.svd)<br>relative error {:.4}</td></tr></table>",
+        f.terms, f.relative_error
+    );
+
+    // the other families, only on the eight pairs shown
+    let t = Instant::now();
+    let lights: Vec<Angles> = LIGHTS.iter().map(|&(theta, phi)| Angles { theta, phi }).collect();
+    let mut others = String::new();
+    for (family, imperfection) in OTHERS {
+        let name = family.name();
+        let path = out_dir.join(format!("{name}.btf"));
+        let gen = generate::generate_btf(
+            &GenerateConfig {
+                family,
+                imperfection,
+                width: SAMPLE_SIZE,
+                height: SAMPLE_SIZE,
+                views: vec![view],
+                lights: lights.clone(),
+                memory,
+                seed: 1,
+                ..GenerateConfig::default()
+            },
+            &path,
+            progress,
+        )?;
+        let (_, cells) = light_images(&Btf::open(&path, memory)?, name, out_dir)?;
+        let _ = write!(
+            others,
+            "<h3>{name} ({} imperfection)</h3><table><tr>{cells}{}</tr></table>",
+            imperfection.name(),
+            mask_cell(&gen)
+        );
+    }
+    st.add(
+        "generate weave, cracked, pebbles (the 8 pairs shown)",
+        t.elapsed().as_secs_f64(),
+        format!("{SAMPLE_SIZE}² each"),
+    );
+    body.push_str(&others);
+
+    // 3. Spot's atlas and geometry image
     let t = Instant::now();
     let spot = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj");
     let spot = if spot.exists() {
@@ -181,47 +330,163 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         PathBuf::from("data/spot_5.8k.obj")
     };
     let gim_path = out_dir.join("spot.gim");
-    let atlas = gim::build_gim(&spot, &gim_path, &AtlasConfig::default(), progress)?;
-    let g = Gim::open(&gim_path, memory)?;
-    for what in ["charts", "normals", "field"] {
-        show::show(&g, what.parse()?, &out_dir.join(format!("spot_{what}.png")))?;
-    }
-    export::export_gim_obj(&g, &out_dir.join("spot_obj"))?;
-    let atlas_s = t.elapsed().as_secs_f64();
-    lines.push(format!(
-        "spot atlas: {atlas} — with pictures and OBJ export in {atlas_s:.1} s"
-    ));
-    let _ = write!(
-        html,
-        "<h2>Spot: atlas and multi-chart geometry image (1024²)</h2><p>{atlas}; {atlas_s:.1} s with pictures. \
-         The mesh with its atlas UVs: <code>spot_obj/mesh.obj</code>.</p><table><tr>\
-         <td><img width=512 src=\"spot_charts.png\"><br>charts</td>\
-         <td><img width=512 src=\"spot_normals.png\"><br>normals</td>\
-         <td><img width=512 src=\"spot_field.png\"><br>vector field (yellow heads)</td></tr></table>"
-    );
-    // graphcut quilting (work in progress): Spot at 512² tiled with a crop of
-    // the shipped CC0 brick photo, baked and rendered from two sides
-    let t = Instant::now();
-    let spot512 = out_dir.join("spot512.gim");
-    gim::build_gim(
+    let atlas = gim::build_gim(
         &spot,
-        &spot512,
+        &gim_path,
         &AtlasConfig {
-            resolution: 512,
+            resolution: ATLAS,
             ..AtlasConfig::default()
         },
         progress,
     )?;
+    let g = Gim::open(&gim_path, memory)?;
+    for what in ["charts", "normals", "field"] {
+        show::show(&g, what.parse()?, &out_dir.join(format!("spot_{what}.png")))?;
+    }
+    drop(g);
+    let atlas_s = t.elapsed().as_secs_f64();
+    st.add(
+        &format!("atlas Spot {ATLAS}² + 3 pictures"),
+        atlas_s,
+        atlas.to_string(),
+    );
+    let _ = write!(
+        body,
+        "<h2>2. Spot: atlas and multi-chart geometry image ({ATLAS}², spot.gim)</h2><p>{}</p><table><tr>\
+         <td><img width=400 src=\"spot_charts.png\"><br>charts</td>\
+         <td><img width=400 src=\"spot_normals.png\"><br>normals</td>\
+         <td><img width=400 src=\"spot_field.png\"><br>vector field (yellow heads)</td></tr></table>",
+        esc(&atlas.to_string())
+    );
+
+    // 4. Spot tiled with the bricks BTF
+    let t = Instant::now();
+    let btf_quilt = out_dir.join("spot_bricks_btf.quilt");
+    let tiled = quilt::tile(
+        &gim_path,
+        &bricks_svd,
+        &btf_quilt,
+        &TileConfig {
+            memory,
+            ..TileConfig::default()
+        },
+        progress,
+    )?;
+    st.add(
+        &format!("tile Spot {ATLAS}² with the bricks BTF"),
+        t.elapsed().as_secs_f64(),
+        tiled.to_string(),
+    );
+    let t = Instant::now();
+    let scene = render::Scene::open(&btf_quilt, memory)?;
+    let mut renders = String::new();
+    for (suffix, caption, angle, azimuth) in BTF_LIGHTS {
+        let cfg = RenderConfig {
+            camera: Some(SPOT_CAMERA),
+            lights: vec![Light::directional(light_from_camera(
+                &SPOT_CAMERA,
+                angle,
+                azimuth,
+            ))],
+            width: RENDER.0,
+            height: RENDER.1,
+            ..RenderConfig::default()
+        };
+        let file = format!("spot_bricks_btf_{suffix}.png");
+        imageio::write_png(&out_dir.join(&file), &scene.render_image(&cfg)?, PngDepth::Eight)?;
+        let _ = write!(
+            renders,
+            "<td><a href=\"{file}\"><img width=480 src=\"{file}\"></a><br>{caption}</td>"
+        );
+    }
+    let back = RenderConfig {
+        camera: Some(SPOT_BACK),
+        lights: vec![Light::directional(light_from_camera(&SPOT_BACK, 30.0, 120.0))],
+        width: RENDER.0,
+        height: RENDER.1,
+        ..RenderConfig::default()
+    };
+    imageio::write_png(
+        &out_dir.join("spot_bricks_btf_back.png"),
+        &scene.render_image(&back)?,
+        PngDepth::Eight,
+    )?;
+    drop(scene);
+    st.add(
+        &format!("render 4 BTF frames {}×{}", RENDER.0, RENDER.1),
+        t.elapsed().as_secs_f64(),
+        "front, grazing, side light; back view".into(),
+    );
+    let t = Instant::now();
+    bake::bake(
+        &btf_quilt,
+        None,
+        &out_dir.join("spot_bricks_btf_atlas.png"),
+        memory,
+    )?;
+    let baked_s = t.elapsed().as_secs_f64();
+    st.add(
+        "bake the preview atlas",
+        baked_s,
+        "spot_bricks_btf_atlas.png".into(),
+    );
+    let t = Instant::now();
+    let gltf_dir = out_dir.join("spot_bricks_gltf");
+    let written = export::export(
+        &btf_quilt,
+        &ExportOptions {
+            mesh: Some((MeshFormat::Gltf, gltf_dir.clone())),
+            budget: memory,
+            ..ExportOptions::default()
+        },
+    )?;
+    let glb = written
+        .iter()
+        .find(|p| p.extension().is_some_and(|e| e == "glb"))
+        .cloned()
+        .unwrap_or_else(|| gltf_dir.join("mesh.glb"));
+    let glb_bytes = std::fs::metadata(&glb).map(|m| m.len()).unwrap_or(0);
+    st.add(
+        "export glTF",
+        t.elapsed().as_secs_f64(),
+        format!("{} ({:.1} MB)", glb.display(), glb_bytes as f64 / 1e6),
+    );
+    let t = Instant::now();
+    let figures = evaluate::evaluate(&btf_quilt, None, None, memory)?;
+    st.add(
+        "evaluate",
+        t.elapsed().as_secs_f64(),
+        "seams, zippers, coherence".into(),
+    );
+    let _ = write!(
+        body,
+        "<h2>3. Spot tiled with the bricks BTF (graphcut quilting, {ATLAS}² atlas)</h2><p>{}</p>\
+         <p>Rendered with BTF shading: per pixel, the view and light directions in the local frame of the \
+         synthesized sample, interpolated between the measured directions, from the 40-term factorization. \
+         The same camera, three lights:</p><table><tr>{renders}</tr></table><table><tr>\
+         <td><a href=\"spot_bricks_btf_back.png\"><img width=480 src=\"spot_bricks_btf_back.png\"></a><br>\
+         from behind</td><td><a href=\"spot_bricks_btf_atlas.png\"><img width=480 src=\"spot_bricks_btf_atlas.png\"></a>\
+         <br>baked preview atlas (front-parallel view, head-on light)</td></tr></table>\
+         <p>glTF: <a href=\"spot_bricks_gltf/{}\"><code>spot_bricks_gltf/{}</code></a> (the mesh with the baked atlas \
+         as base colour). Quality figures (<code>btfquilt evaluate</code>):</p><pre>{}</pre>",
+        esc(&tiled.to_string()),
+        name_of(&glb),
+        name_of(&glb),
+        esc(&figures)
+    );
+
+    // 5. Spot tiled with a crop of the CC0 brick photo (the colour path)
+    let t = Instant::now();
     let brick = imageio::read_rgb(&spot.with_file_name("brick.png"))?;
-    let size = 192.min(brick.width).min(brick.height);
+    let size = PHOTO_CROP.min(brick.width).min(brick.height);
     let mut crop = Vec::with_capacity(size * size * 3);
     for y in 0..size {
         let row = (y + (brick.height - size) / 2) * brick.width + (brick.width - size) / 2;
         crop.extend_from_slice(&brick.data[row * 3..(row + size) * 3]);
     }
-    let sample = out_dir.join("brick192.png");
+    let photo = out_dir.join(format!("brick{size}.png"));
     imageio::write_png(
-        &sample,
+        &photo,
         &RgbImage {
             width: size,
             height: size,
@@ -229,56 +494,86 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         },
         PngDepth::Eight,
     )?;
-    let quilt_path = out_dir.join("spot_brick.quilt");
+    let photo_quilt = out_dir.join("spot_brick_photo.quilt");
     let tiled = quilt::tile(
-        &spot512,
-        &sample,
-        &quilt_path,
+        &gim_path,
+        &photo,
+        &photo_quilt,
         &TileConfig {
             memory,
             ..TileConfig::default()
         },
         progress,
     )?;
-    bake::bake(&quilt_path, None, &out_dir.join("spot_brick_atlas.png"), memory)?;
-    let views = [
-        (
-            "spot_brick_front.png",
-            render::Camera::parse("2.2,0.9,2.6,0,0.1,0,0,1,0,38")?,
-            [0.4, 0.8, 0.6],
-        ),
-        (
-            "spot_brick_back.png",
-            render::Camera::parse("-2.6,0.6,-1.8,0,0.1,0,0,1,0,38")?,
-            [-0.5, 0.7, -0.5],
-        ),
-    ];
-    for (file, cam, light) in views {
-        let cfg = render::RenderConfig {
-            camera: Some(cam),
-            lights: vec![render::Light::directional(light)],
-            width: 640,
-            height: 480,
-            exposure: 0.0,
+    bake::bake(
+        &photo_quilt,
+        None,
+        &out_dir.join("spot_brick_photo_atlas.png"),
+        memory,
+    )?;
+    let scene = render::Scene::open(&photo_quilt, memory)?;
+    for (file, camera) in [
+        ("spot_brick_photo_front.png", SPOT_CAMERA),
+        ("spot_brick_photo_back.png", SPOT_BACK),
+    ] {
+        let cfg = RenderConfig {
+            camera: Some(camera),
+            lights: vec![Light::directional(light_from_camera(&camera, 30.0, 120.0))],
+            width: RENDER.0,
+            height: RENDER.1,
+            ..RenderConfig::default()
         };
-        render::render(&quilt_path, &cfg, &out_dir.join(file), memory)?;
+        imageio::write_png(&out_dir.join(file), &scene.render_image(&cfg)?, PngDepth::Eight)?;
     }
-    let figures = evaluate::evaluate(&quilt_path, None, None, memory)?;
-    let tile_s = t.elapsed().as_secs_f64();
-    lines.push(format!(
-        "spot tiled: {tiled}; with atlas, bake, renders and evaluation {tile_s:.1} s"
-    ));
+    drop(scene);
+    st.add(
+        &format!("tile Spot {ATLAS}² with a {size}² brick photo + bake + 2 renders"),
+        t.elapsed().as_secs_f64(),
+        tiled.to_string(),
+    );
+    let _ = write!(
+        body,
+        "<h2>4. Spot tiled with a colour sample ({size}² crop of the CC0 brick photo, {ATLAS}² atlas)</h2>\
+         <p>{}</p><table><tr><td><img width={size} src=\"{}\"><br>sample</td>\
+         <td><a href=\"spot_brick_photo_front.png\"><img width=480 src=\"spot_brick_photo_front.png\"></a></td>\
+         <td><a href=\"spot_brick_photo_back.png\"><img width=480 src=\"spot_brick_photo_back.png\"></a></td>\
+         <td><a href=\"spot_brick_photo_atlas.png\"><img width=400 src=\"spot_brick_photo_atlas.png\"></a><br>baked atlas</td>\
+         </tr></table>",
+        esc(&tiled.to_string()),
+        name_of(&photo)
+    );
+
+    // the page: timings first, then the pictures
+    let total = start.elapsed().as_secs_f64();
+    let mut html = String::from(
+        "<!doctype html><meta charset=utf-8><title>btfquilt demo</title>\
+         <style>body{font-family:sans-serif;background:#222;color:#ddd;margin:1em}\
+         img{image-rendering:auto;margin:2px}a{color:#9cf}td{padding:4px;vertical-align:top;font-size:90%}\
+         table.t td{border-bottom:1px solid #444}pre{background:#111;padding:6px;white-space:pre-wrap}</style>\
+         <h1>btfquilt demo</h1><p>The whole pipeline on the embedded defaults: a generated BTF, its \
+         factorization, Spot's atlas, graphcut quilting of Spot with the BTF and with a colour photo, \
+         BTF renders, the baked atlas and a glTF export.</p><h2>Stages</h2><table class=t>\
+         <tr><td><b>stage</b></td><td><b>seconds</b></td><td><b>result</b></td></tr>",
+    );
+    for (stage, s, detail) in &st.rows {
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td align=right>{s:.1}</td><td>{}</td></tr>",
+            esc(stage),
+            esc(detail)
+        );
+    }
     let _ = write!(
         html,
-        "<h2>Spot tiled with bricks by graphcut quilting (512² atlas; work in progress)</h2><p>{tiled}; {tile_s:.1} s \
-         with bake, renders and evaluation.</p><table><tr><td><img src=\"spot_brick_front.png\"></td>\
-         <td><img src=\"spot_brick_back.png\"></td><td><img width=384 src=\"spot_brick_atlas.png\"><br>baked atlas</td>\
-         </tr></table><pre>{figures}</pre>"
+        "<tr><td><b>total</b></td><td align=right><b>{total:.1}</b></td><td></td></tr></table>"
     );
+    html.push_str(&body);
     let index = out_dir.join("index.html");
     imageio::write_atomic(&index, |w| {
         std::io::Write::write_all(w, html.as_bytes()).map_err(|e| Error::io(&index, e))
     })?;
+    let mut lines = st.lines;
+    lines.push(format!("total: {total:.1} s"));
     Ok(DemoReport {
         out_dir: out_dir.to_path_buf(),
         lines,
@@ -304,5 +599,22 @@ pub fn contact_sheet(images: &[&RgbImage], columns: usize, gap: usize) -> RgbIma
         width: sw,
         height: sh,
         data,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lights_from_camera_keep_their_angle_to_the_view_axis() {
+        for (_, _, angle, azimuth) in BTF_LIGHTS {
+            let l = light_from_camera(&SPOT_CAMERA, angle, azimuth);
+            assert!((dot(l, l) - 1.0).abs() < 1e-5);
+            let a = dot(l, SPOT_CAMERA.axis()).clamp(-1.0, 1.0).acos().to_degrees();
+            assert!((a - angle).abs() < 0.01, "{a} vs {angle}");
+        }
+        // azimuth 90° is towards the image top: positive world y for this camera
+        assert!(light_from_camera(&SPOT_CAMERA, 75.0, 90.0)[1] > 0.9);
     }
 }

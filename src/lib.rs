@@ -25,6 +25,7 @@ pub mod matching;
 pub mod maxflow;
 pub mod mesh;
 pub mod naming;
+pub mod paint;
 pub mod progress;
 pub mod quilt;
 pub mod render;

@@ -221,6 +221,61 @@ enum Command {
         seam_threshold: f64,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// The sample's foreground mask (PNG, the sample's size): keep the
+        /// foreground (cracks, stains…) out of the tiling.
+        #[arg(long)]
+        sample_mask: Option<PathBuf>,
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Paint a sample's foreground (imperfections) into a region of a decorated surface
+    /// by constrained graphcut, or copy it verbatim at a point; writes a new .quilt.
+    Paint {
+        /// The decorated surface (.quilt) to paint on; it is left unchanged.
+        file: PathBuf,
+        /// The sample (default, and it must be: the one the surface was tiled with).
+        #[arg(long)]
+        sample: Option<PathBuf>,
+        /// The sample's foreground mask (PNG, the sample's size); default: the one the quilt records.
+        #[arg(long)]
+        sample_mask: Option<PathBuf>,
+        /// Target region F: an atlas-space mask .png, a .ply/.obj with vertex paint, or .json strokes
+        /// [{"point": [x, y, z], "radius": r}, …].
+        #[arg(long)]
+        region: Option<PathBuf>,
+        /// Width of the transition zone outside F, in texels.
+        #[arg(long, default_value_t = 8)]
+        transition: usize,
+        /// Copy the foreground verbatim at --at (instead of a region).
+        #[arg(long)]
+        verbatim: bool,
+        /// Verbatim: the surface point x,y,z.
+        #[arg(long, allow_hyphen_values = true)]
+        at: Option<String>,
+        /// Verbatim: the turn of the sample against the field, in degrees.
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        angle: f64,
+        /// Verbatim: write the direct projection (no graphcut) to this image.
+        #[arg(long)]
+        preview: Option<PathBuf>,
+        /// Work-patch radius r_w in texels (default 32 per 512 of atlas).
+        #[arg(long)]
+        patch_radius: Option<usize>,
+        /// Weight of the constraint (data term per texel, in sample neighbour differences).
+        #[arg(long, default_value_t = 4.0)]
+        constraint_weight: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Replay a painted surface's paint log onto its base quilt.
+    Replay {
+        file: PathBuf,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -568,6 +623,7 @@ fn run(cli: Cli) -> Result<()> {
             patch_radius,
             seam_threshold,
             seed,
+            sample_mask,
             output,
             res,
         } => {
@@ -577,9 +633,86 @@ fn run(cli: Cli) -> Result<()> {
                 seam_threshold,
                 seed,
                 memory,
+                sample_mask,
                 ..TileConfig::default()
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;
+            say!("wrote {}: {report}", output.display());
+        }
+        Command::Paint {
+            file,
+            sample,
+            sample_mask,
+            region,
+            transition,
+            verbatim,
+            at,
+            angle,
+            preview,
+            patch_radius,
+            constraint_weight,
+            seed,
+            output,
+            res,
+        } => {
+            let (memory, bars) = res.apply()?;
+            let verbatim = if verbatim {
+                let at = at.ok_or_else(|| anyhow::anyhow!("--verbatim needs --at x,y,z"))?;
+                let v: Vec<f32> = at
+                    .split(',')
+                    .map(|c| c.trim().parse::<f32>())
+                    .collect::<std::result::Result<_, _>>()
+                    .ok()
+                    .filter(|v: &Vec<f32>| v.len() == 3 && v.iter().all(|c| c.is_finite()))
+                    .ok_or_else(|| anyhow::anyhow!("--at '{at}': expected x,y,z"))?;
+                Some(btfquilt::paint::Verbatim {
+                    at: [v[0], v[1], v[2]],
+                    angle,
+                })
+            } else {
+                if at.is_some() {
+                    anyhow::bail!("--at is for --verbatim");
+                }
+                None
+            };
+            if output.is_none() && preview.is_none() {
+                anyhow::bail!("give -o OUTPUT.quilt (or --preview IMAGE with --verbatim)");
+            }
+            let cfg = btfquilt::paint::PaintConfig {
+                sample,
+                sample_mask,
+                region,
+                transition,
+                verbatim,
+                preview: preview.clone(),
+                tile: TileConfig {
+                    patch_radius,
+                    constraint_weight,
+                    seed,
+                    memory,
+                    ..TileConfig::default()
+                },
+            };
+            if let Some(p) = &preview {
+                let t = std::time::Instant::now();
+                let scratch = std::env::temp_dir();
+                let report = btfquilt::paint::paint(&file, &scratch.join("unused.quilt"), &cfg, &bars)?;
+                say!(
+                    "wrote {} ({} foreground texels, {:.0} ms)",
+                    p.display(),
+                    report.region_texels,
+                    t.elapsed().as_secs_f64() * 1e3
+                );
+            }
+            if let Some(out) = output {
+                let cfg = btfquilt::paint::PaintConfig { preview: None, ..cfg };
+                let report = btfquilt::paint::paint(&file, &out, &cfg, &bars)?;
+                say!("wrote {}: {report}", out.display());
+            }
+        }
+        Command::Replay { file, output, res } => {
+            let (_, bars) = res.apply()?;
+            let report = btfquilt::paint::replay(&file, &output, &bars)?;
             say!("wrote {}: {report}", output.display());
         }
         Command::Bake { file, sample, output } => {

@@ -60,6 +60,13 @@ pub struct TileConfig {
     pub seed: u64,
     pub memory: MemoryBudget,
     pub level: i32,
+    /// The sample's foreground mask m_P (a PNG the sample's size): with it,
+    /// tiling keeps the foreground out (m0 = 0 everywhere, §IV).
+    pub sample_mask: Option<PathBuf>,
+    /// Weight of the constraint: the data term |m_σ(p) − m0(p)| costs this
+    /// many sample neighbour differences per texel in the graphcut, and the
+    /// matching adds (this × neighbour difference)² · |m0 − m_P|².
+    pub constraint_weight: f64,
 }
 
 impl Default for TileConfig {
@@ -73,6 +80,8 @@ impl Default for TileConfig {
             seed: 1,
             memory: MemoryBudget::default(),
             level: crate::container::DEFAULT_ZSTD_LEVEL,
+            sample_mask: None,
+            constraint_weight: 4.0,
         }
     }
 }
@@ -121,6 +130,11 @@ struct Sample {
     tileable: bool,
     /// Rotated copies as f32 (maps, validity), loaded lazily.
     rotated: Vec<Option<(Vec<f32>, Vec<f32>)>>,
+    /// The foreground mask m_P (`[y][x]`, 0..1), if painting or keeping the
+    /// foreground out.
+    mask: Option<Vec<f32>>,
+    /// Rotated copies of the mask, made lazily like the maps'.
+    rotated_mask: Vec<Option<Vec<f32>>>,
 }
 
 impl Sample {
@@ -132,6 +146,38 @@ impl Sample {
             self.rotated[r] = Some((m, valid.iter().map(|&v| v as f32).collect()));
         }
         Ok(self.rotated[r].as_ref().expect("just loaded"))
+    }
+
+    /// Rotated copy `r` of the foreground mask (turned like the maps).
+    fn rotation_mask(&mut self, r: usize) -> Option<&[f32]> {
+        let mask = self.mask.as_ref()?;
+        if self.rotated_mask[r].is_none() {
+            let degrees = r as f64 * 360.0 / self.rotated.len() as f64;
+            let (m, _) = factorize::rotate_maps(mask, self.width, self.height, 1, degrees, self.tileable);
+            self.rotated_mask[r] = Some(m);
+        }
+        self.rotated_mask[r].as_deref()
+    }
+
+    /// Bilinear foreground mask at unrotated sample coordinates (0 where
+    /// there is no mask or outside the sample).
+    fn mask_at(&self, c: [f64; 2]) -> f32 {
+        let Some(mask) = &self.mask else { return 0.0 };
+        let (w, h) = (self.width, self.height);
+        let (mut x, mut y) = (c[0], c[1]);
+        if self.tileable {
+            x = x.rem_euclid(w as f64);
+            y = y.rem_euclid(h as f64);
+        }
+        if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
+            return 0.0;
+        }
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let top = mask[y0 * w + x0] + (mask[y0 * w + x1] - mask[y0 * w + x0]) * fx;
+        let bottom = mask[y1 * w + x0] + (mask[y1 * w + x1] - mask[y1 * w + x0]) * fx;
+        top + (bottom - top) * fy
     }
 
     /// Bilinear geometry-map vector at unrotated sample coordinates (pixel
@@ -203,6 +249,14 @@ struct State {
     rotation: Vec<u8>,
     patch: Vec<u32>,
     features: Vec<f32>,
+    /// m_σ(p): the sample's foreground mask at each texel's coordinate
+    /// (when the sample has a mask).
+    mask: Vec<f32>,
+    /// m0(p): the constraint function (1 on the painted region F, falling
+    /// to 0 over the transition zone, 0 elsewhere), when constrained.
+    target: Option<Vec<f32>>,
+    /// The id the next accepted patch gets.
+    next_patch: u32,
     /// Synthesized-neighbour counts of unsynthesized texels (the
     /// "most constrained" priority), bucketed.
     count: Vec<u8>,
@@ -230,6 +284,9 @@ impl State {
             rotation: vec![0; texels],
             patch: vec![NO_PATCH; texels],
             features: vec![0.0; texels * n],
+            mask: vec![0.0; texels],
+            target: None,
+            next_patch: 0,
             count: vec![0; texels],
             buckets,
             remaining,
@@ -248,9 +305,9 @@ impl State {
 }
 
 /// A work patch: its vertices (texels) and their BFS depth.
-struct WorkPatch {
-    texels: Vec<u32>,
-    depth: Vec<u16>,
+pub(crate) struct WorkPatch {
+    pub(crate) texels: Vec<u32>,
+    pub(crate) depth: Vec<u16>,
     /// Whether the traversal crossed a zipper (the patch spans charts).
     crosses_charts: bool,
 }
@@ -312,6 +369,8 @@ struct WorkImage {
     /// Local linear map from atlas steps (+x, +y) to work-image offsets, for
     /// in-chart work images (identity) — used for the Jacobian.
     atlas_to_work: Option<[f64; 4]>,
+    /// m0 per work pixel (empty when unconstrained).
+    constraint: Vec<f32>,
 }
 
 /// Per face, the atlas-space angle of its field direction (radians, y down).
@@ -371,12 +430,16 @@ fn chart_work_image(surface: &Surface, state: &State, patch: &WorkPatch) -> Work
     let (w, h, n) = (x1 - x0 + 1, y1 - y0 + 1, state.n);
     let mut features = vec![0f32; w * h * n];
     let mut known = vec![0f32; w * h];
+    let mut constraint = vec![0f32; if state.target.is_some() { w * h } else { 0 }];
     for y in 0..h {
         for x in 0..w {
             let t = (y0 + y) * r + x0 + x;
             if state.chart[t] == chart && state.synthesized[t] {
                 known[y * w + x] = 1.0;
                 features[(y * w + x) * n..(y * w + x + 1) * n].copy_from_slice(state.feature(t as u32));
+            }
+            if let Some(m0) = &state.target {
+                constraint[y * w + x] = m0[t];
             }
         }
     }
@@ -393,6 +456,7 @@ fn chart_work_image(surface: &Surface, state: &State, patch: &WorkPatch) -> Work
         coords,
         angle: mean_angle(patch.texels.iter().map(|&t| surface.texel_angle(t))),
         atlas_to_work: Some([1.0, 0.0, 0.0, 1.0]),
+        constraint,
     }
 }
 
@@ -842,6 +906,7 @@ fn raster_work_image(
     let n = state.n;
     let mut features = vec![0f32; w * h * n];
     let mut known = vec![0f32; w * h];
+    let mut constraint = vec![0f32; if state.target.is_some() { w * h } else { 0 }];
     for tri in tris {
         let ids = [
             patch.texels[tri[0] as usize],
@@ -881,6 +946,11 @@ fn raster_work_image(
                 }
                 let i = y * w + x;
                 known[i] = 1.0;
+                if let Some(m0) = &state.target {
+                    constraint[i] = (l0 as f32) * m0[ids[0] as usize]
+                        + (l1 as f32) * m0[ids[1] as usize]
+                        + (l2 as f32) * m0[ids[2] as usize];
+                }
                 for c in 0..n {
                     features[i * n + c] = (l0 as f32) * state.feature(ids[0])[c]
                         + (l1 as f32) * state.feature(ids[1])[c]
@@ -897,6 +967,7 @@ fn raster_work_image(
         coords,
         angle,
         atlas_to_work: None,
+        constraint,
     })
 }
 
@@ -959,6 +1030,7 @@ fn unfolded_work_image(surface: &Surface, state: &State, patch: &WorkPatch, bfs:
     let n = state.n;
     let mut features = vec![0f32; w * h * n];
     let mut known = vec![0f32; w * h];
+    let mut constraint = vec![0f32; if state.target.is_some() { w * h } else { 0 }];
     for (i, &t) in patch.texels.iter().enumerate() {
         if state.synthesized[t as usize] {
             let (x, y) = (coords[i][0].round() as usize, coords[i][1].round() as usize);
@@ -966,6 +1038,9 @@ fn unfolded_work_image(surface: &Surface, state: &State, patch: &WorkPatch, bfs:
             if known[p] == 0.0 {
                 known[p] = 1.0;
                 features[p * n..(p + 1) * n].copy_from_slice(state.feature(t));
+                if let Some(m0) = &state.target {
+                    constraint[p] = m0[t as usize];
+                }
             }
         }
     }
@@ -977,6 +1052,7 @@ fn unfolded_work_image(surface: &Surface, state: &State, patch: &WorkPatch, bfs:
         coords,
         angle,
         atlas_to_work: None,
+        constraint,
     }
 }
 
@@ -1037,8 +1113,488 @@ fn rotation_index(angle: f64, rotations: usize) -> usize {
     ((angle.rem_euclid(std::f64::consts::TAU) / step).round() as usize) % rotations
 }
 
+/// The sample's `.svd`: the file itself, or a colour image factorized into a
+/// temporary directory (kept alive by the returned guard).
+pub(crate) fn sample_svd(
+    sample_path: &Path,
+    progress: &dyn Progress,
+) -> Result<(PathBuf, Option<tempfile::TempDir>)> {
+    if factorize::is_image_path(sample_path) {
+        let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+        let p = dir.path().join("sample.svd");
+        factorize::factorize(sample_path, &p, &FactorizeConfig::default(), progress)?;
+        Ok((p, Some(dir)))
+    } else {
+        Ok((sample_path.to_path_buf(), None))
+    }
+}
+
+/// The quilting loop's working set: the surface, the sample, the synthesis
+/// state and the reusable buffers. [`tile`] runs it from an empty surface;
+/// painting (`crate::paint`) from a decorated one with a constraint.
+pub(crate) struct Synthesis<'a> {
+    cfg: &'a TileConfig,
+    sample_path: PathBuf,
+    surface: Surface,
+    zipper_triangles: Vec<[u32; 3]>,
+    sample: Sample,
+    state: State,
+    bfs: Bfs,
+    matcher: Matcher,
+    /// The sample's mean neighbour difference, the unit of T_c.
+    reference: f64,
+    pub(crate) report: TileReport,
+    seam_sum: f64,
+    seam_cnt: usize,
+}
+
+impl<'a> Synthesis<'a> {
+    /// Opens the geometry image and the sample's `.svd`, with an empty state.
+    pub(crate) fn open(gim: &Gim, sample_path: &Path, svd_path: &Path, cfg: &'a TileConfig) -> Result<Self> {
+        let svd = SvdArtifact::open(svd_path, cfg.memory)?;
+        if svd.rotations == 0 {
+            return Err(Error::input(
+                sample_path,
+                "has no rotated copies (factorize with --rotations 72)",
+            ));
+        }
+        let tileable = matches!(svd.container().metadata().param("tileable"), Some(Param::Int(1)));
+        let maps = svd.geometry_maps()?;
+        let (sw, sh, n, rotations) = (svd.width, svd.height, svd.terms, svd.rotations);
+        let sample = Sample {
+            width: sw,
+            height: sh,
+            n,
+            maps,
+            tileable,
+            rotated: vec![None; rotations],
+            mask: None,
+            rotated_mask: vec![None; rotations],
+            svd,
+        };
+        let r = gim.resolution;
+        let surface = Surface {
+            r,
+            graph: gim.graph()?,
+            face: gim.read("face")?,
+            position: gim.read("position")?,
+            normal: gim.read("normal")?,
+            face_angle: face_angles(gim)?,
+        };
+        let reference = sample.neighbour_difference();
+        let state = State::new(surface.graph.chart.clone(), n, r);
+        let total = state.remaining;
+        Ok(Synthesis {
+            cfg,
+            sample_path: sample_path.to_path_buf(),
+            zipper_triangles: gim.zipper_triangles()?,
+            sample,
+            state,
+            bfs: Bfs {
+                stamp: vec![0; r * r],
+                index: vec![0; r * r],
+                epoch: 0,
+            },
+            matcher: Matcher::new(),
+            reference,
+            report: TileReport {
+                texels: total,
+                ..TileReport::default()
+            },
+            surface,
+            seam_sum: 0.0,
+            seam_cnt: 0,
+        })
+    }
+
+    /// Loads the sample's foreground mask m_P (a PNG the sample's size; any
+    /// channel above one half counts as foreground, grey levels between).
+    pub(crate) fn set_mask(&mut self, path: &Path) -> Result<()> {
+        let img = crate::imageio::read_rgb(path)?;
+        let (w, h) = (self.sample.width, self.sample.height);
+        if (img.width, img.height) != (w, h) {
+            return Err(Error::input(
+                path,
+                format!(
+                    "is {}×{}, but the sample's foreground mask must be the sample's size {w}×{h}",
+                    img.width, img.height
+                ),
+            ));
+        }
+        let mask: Vec<f32> = img
+            .data
+            .chunks_exact(3)
+            .map(|p| p.iter().fold(0f32, |a, &b| a.max(b)).clamp(0.0, 1.0))
+            .collect();
+        if !mask.iter().any(|&m| m >= 0.5) {
+            return Err(Error::input(
+                path,
+                "marks no foreground (no pixel above one half)",
+            ));
+        }
+        self.sample.mask = Some(mask);
+        // refresh m_σ at already decorated texels
+        for t in 0..self.state.coord.len() {
+            if self.state.synthesized[t] {
+                let c = self.state.coord[t];
+                self.state.mask[t] = self.sample.mask_at([c[0] as f64, c[1] as f64]);
+            }
+        }
+        Ok(())
+    }
+
+    /// Sets the constraint function m0 per atlas texel.
+    pub(crate) fn set_target(&mut self, m0: Vec<f32>) {
+        self.state.target = Some(m0);
+    }
+
+    /// Resolution R of the atlas.
+    pub(crate) fn resolution(&self) -> usize {
+        self.surface.r
+    }
+
+    /// The dense mesh graph.
+    pub(crate) fn graph(&self) -> &crate::gim::DenseGraph {
+        &self.surface.graph
+    }
+
+    /// 3D position of a dense vertex.
+    pub(crate) fn position(&self, t: u32) -> [f32; 3] {
+        let p = &self.surface.position[t as usize * 3..t as usize * 3 + 3];
+        [p[0], p[1], p[2]]
+    }
+
+    /// The constraint function m0 (empty when unconstrained).
+    pub(crate) fn target(&self) -> &[f32] {
+        self.state.target.as_deref().unwrap_or(&[])
+    }
+
+    /// The sample's width and foreground mask (empty without one).
+    pub(crate) fn sample_mask(&self) -> (usize, &[f32]) {
+        (self.sample.width, self.sample.mask.as_deref().unwrap_or(&[]))
+    }
+
+    /// Patch id per texel.
+    pub(crate) fn patch_ids(&self) -> &[u32] {
+        &self.state.patch
+    }
+
+    /// Starts from a decorated surface: its coordinates, rotations, patch
+    /// ids and Jacobians; the features are looked up in the sample.
+    pub(crate) fn load(&mut self, quilt: &Quilt) -> Result<()> {
+        let r = self.surface.r;
+        if quilt.resolution != r {
+            return Err(Error::input(
+                quilt.container().path(),
+                format!("is {}² but its geometry image is {r}²", quilt.resolution),
+            ));
+        }
+        let coords = quilt.coords()?;
+        let patches = quilt.patches()?;
+        let rotations = quilt.rotations()?;
+        let jacobians = quilt.jacobians()?;
+        let n = self.state.n;
+        let st = &mut self.state;
+        for b in st.buckets.iter_mut() {
+            b.clear();
+        }
+        st.remaining = 0;
+        let mut next = 0u32;
+        for t in 0..r * r {
+            if st.chart[t] == EMPTY {
+                continue;
+            }
+            if patches[t] == NO_PATCH {
+                return Err(Error::input(
+                    quilt.container().path(),
+                    "is not fully decorated (texels without a patch)",
+                ));
+            }
+            st.synthesized[t] = true;
+            st.coord[t] = coords[t];
+            st.rotation[t] = rotations[t];
+            st.patch[t] = patches[t];
+            st.jacobian[t] = jacobians[t];
+            next = next.max(patches[t] + 1);
+            let c = [coords[t][0] as f64, coords[t][1] as f64];
+            self.sample.lookup(c, &mut st.features[t * n..(t + 1) * n]);
+            st.mask[t] = self.sample.mask_at(c);
+        }
+        st.next_patch = next;
+        Ok(())
+    }
+
+    /// Writes the state as a `.quilt` (see [`tile`]); `paint_log` for a
+    /// painted surface.
+    pub(crate) fn write(
+        &mut self,
+        out: &Path,
+        gim: &Gim,
+        gim_path: &Path,
+        paint_log: Option<&str>,
+        start: Instant,
+    ) -> Result<TileReport> {
+        self.finish_report(start);
+        let report = self.report.clone();
+        write_quilt(out, self.cfg, gim, gim_path, self, paint_log, &report)?;
+        Ok(report)
+    }
+
+    /// The default work-patch radius r_w: 32 per 512 texels of atlas.
+    pub(crate) fn radius0(&self) -> usize {
+        let cfg = self.cfg;
+        cfg.patch_radius
+            .unwrap_or((32 * self.surface.r / 512).max(cfg.min_radius))
+            .max(cfg.min_radius)
+    }
+
+    /// One step of the quilting loop (the paper's Fig. 4) at vertex `v`:
+    /// work patch P(v) of radius r_w, work image I(v), patch matching,
+    /// graphcut fitting, and the hierarchical search that shrinks r_w by 0.8
+    /// (down to the minimum) while the seam cost exceeds T_c. Returns the
+    /// vertices of the accepted work patch.
+    pub(crate) fn step(&mut self, v: u32, radius0: usize, progress: &dyn Progress) -> Result<WorkPatch> {
+        let cfg = self.cfg;
+        let mut radius = radius0;
+        let mut flattening: Option<Flattening> = None;
+        let painting = self.state.target.is_some();
+        loop {
+            let patch = self.bfs.patch(&self.surface.graph, v, radius);
+            let work = self.work_image(&patch, &mut flattening);
+            let t = Instant::now();
+            let placement = place_covering(
+                &mut self.sample,
+                &mut self.matcher,
+                &work,
+                cfg,
+                self.reference,
+                self.report.patches as u64,
+            )?;
+            self.report.matching_seconds += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let fit = fit_patch(
+                &self.sample,
+                &self.state,
+                &self.surface,
+                &patch,
+                &work,
+                &placement,
+                cfg.constraint_weight * self.reference,
+            );
+            self.report.graphcut_seconds += t.elapsed().as_secs_f64();
+            let mean = if fit.seam_edges > 0 {
+                fit.seam_cost / fit.seam_edges as f64
+            } else {
+                0.0
+            };
+            if mean > cfg.seam_threshold * self.reference
+                && radius > cfg.min_radius
+                && fit.taken_new_synth > 0
+            {
+                radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
+                self.report.shrinks += 1;
+                continue;
+            }
+            if fit.taken == 0 && !painting {
+                // nothing could be placed (sample too small for the work
+                // image): shrink, or give up on this vertex at the minimum
+                if radius > cfg.min_radius {
+                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
+                    self.report.shrinks += 1;
+                    continue;
+                }
+                let (sw, sh) = (self.sample.width, self.sample.height);
+                return Err(Error::input(
+                    &self.sample_path,
+                    format!("is too small ({sw}×{sh}) to cover a work patch of radius {radius}"),
+                ));
+            }
+            if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                progress.note(&format!(
+                    "patch {} v {v} radius {radius} texels {} taken {} remaining {} cross {}",
+                    self.report.patches,
+                    patch.texels.len(),
+                    fit.taken,
+                    self.state.remaining,
+                    patch.crosses_charts
+                ));
+            }
+            self.report.cross_chart_patches += patch.crosses_charts as usize;
+            let id = self.state.next_patch;
+            self.state.next_patch += 1;
+            apply(
+                &mut self.state,
+                &self.sample,
+                &self.surface,
+                &patch,
+                &fit,
+                id,
+                progress,
+            );
+            self.seam_sum += fit.seam_cost;
+            self.seam_cnt += fit.seam_edges;
+            self.report.patches += 1;
+            return Ok(patch);
+        }
+    }
+
+    /// The work image I(v) of a work patch: the chart image inside a chart;
+    /// across charts the flattening (reused from `flattening` when the same
+    /// seed's patch shrinks), or the rigid unfolding where that fails.
+    fn work_image(&mut self, patch: &WorkPatch, flattening: &mut Option<Flattening>) -> WorkImage {
+        let (surface, state, bfs, zt) = (&self.surface, &self.state, &self.bfs, &self.zipper_triangles);
+        if !patch.crosses_charts {
+            return chart_work_image(surface, state, patch);
+        }
+        if let Some(work) = flattening
+            .as_ref()
+            .and_then(|f| f.work_image(surface, state, patch, bfs, zt))
+        {
+            return work;
+        }
+        if let Some((work, coords)) =
+            flattened_work_image(surface, state, patch, bfs, zt, self.cfg.max_distortion)
+        {
+            let mut c: Vec<(u32, [f64; 2])> = patch.texels.iter().copied().zip(coords).collect();
+            c.sort_unstable_by_key(|e| e.0);
+            *flattening = Some(Flattening {
+                coords: c,
+                angle: work.angle,
+            });
+            return work;
+        }
+        self.report.unfolded_patches += 1;
+        unfolded_work_image(surface, state, patch, bfs)
+    }
+
+    /// Verbatim copy (§IV): the sample's foreground, its point `centre`
+    /// (unrotated sample pixels) put on dense vertex `v`, turned by `angle`
+    /// (radians) from the field direction, over a work patch of `radius`.
+    /// With `preview`, only writes the direct projection (no graphcut: the
+    /// foreground pasted over the old colours in the patch's atlas box) and
+    /// returns; otherwise merges it with a graphcut seam: foreground texels
+    /// are forced to the copy, the rest chooses by the smoothness term.
+    pub(crate) fn verbatim(
+        &mut self,
+        v: u32,
+        radius: usize,
+        angle: f64,
+        centre: [f64; 2],
+        preview: Option<&Path>,
+        progress: &dyn Progress,
+    ) -> Result<usize> {
+        let patch = self.bfs.patch(&self.surface.graph, v, radius);
+        let mut flattening = None;
+        let work = self.work_image(&patch, &mut flattening);
+        let rotations = self.sample.rotated.len();
+        let rotation = rotation_index(work.angle + angle, rotations);
+        let theta = rotation as f64 * std::f64::consts::TAU / rotations as f64;
+        let (s, c) = theta.sin_cos();
+        let mid = [
+            (self.sample.width as f64 - 1.0) / 2.0,
+            (self.sample.height as f64 - 1.0) / 2.0,
+        ];
+        let d = [centre[0] - mid[0], centre[1] - mid[1]];
+        let q = [c * d[0] - s * d[1], s * d[0] + c * d[1]];
+        let placement = PlacementChoice {
+            rotation,
+            dx: work.coords[0][0] - mid[0] - q[0],
+            dy: work.coords[0][1] - mid[1] - q[1],
+        };
+        let placed: Vec<[f64; 2]> = work
+            .coords
+            .iter()
+            .map(|&w| to_sample(&self.sample, rotation, placement.dx, placement.dy, w))
+            .collect();
+        let fg: Vec<f32> = placed.iter().map(|&c| self.sample.mask_at(c)).collect();
+        if let Some(out) = preview {
+            let colours = self.sample.svd.preview()?;
+            let r = self.surface.r;
+            let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+            for &t in &patch.texels {
+                let (x, y) = (t as usize % r, t as usize / r);
+                x0 = x0.min(x);
+                y0 = y0.min(y);
+                x1 = x1.max(x);
+                y1 = y1.max(y);
+            }
+            let (w, h) = (x1 - x0 + 1, y1 - y0 + 1);
+            let mut data = vec![0f32; w * h * 3];
+            for y in 0..h {
+                for x in 0..w {
+                    let t = (y0 + y) * r + x0 + x;
+                    if self.state.synthesized[t] {
+                        let c = self.state.coord[t];
+                        let col = crate::bake::bilinear(&colours, c[0], c[1]);
+                        data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
+                    }
+                }
+            }
+            for (i, &t) in patch.texels.iter().enumerate() {
+                if fg[i] >= 0.5 {
+                    let (x, y) = (t as usize % r - x0, t as usize / r - y0);
+                    let col = crate::bake::bilinear(&colours, placed[i][0] as f32, placed[i][1] as f32);
+                    data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
+                }
+            }
+            let img = crate::imageio::RgbImage {
+                width: w,
+                height: h,
+                data,
+            };
+            crate::imageio::write_png(out, &img, crate::imageio::PngDepth::Eight)?;
+            return Ok(fg.iter().filter(|&&m| m >= 0.5).count());
+        }
+        // m0 = the placed foreground on the patch, 0 elsewhere
+        let mut m0 = vec![0f32; self.state.chart.len()];
+        for (i, &t) in patch.texels.iter().enumerate() {
+            m0[t as usize] = fg[i];
+        }
+        self.state.target = Some(m0);
+        let t = Instant::now();
+        let fit = fit_patch(
+            &self.sample,
+            &self.state,
+            &self.surface,
+            &patch,
+            &work,
+            &placement,
+            INFINITE.sqrt(),
+        );
+        self.report.graphcut_seconds += t.elapsed().as_secs_f64();
+        let id = self.state.next_patch;
+        self.state.next_patch += 1;
+        apply(
+            &mut self.state,
+            &self.sample,
+            &self.surface,
+            &patch,
+            &fit,
+            id,
+            progress,
+        );
+        self.seam_sum += fit.seam_cost;
+        self.seam_cnt += fit.seam_edges;
+        self.report.patches += 1;
+        Ok(fit.taken)
+    }
+
+    /// Mean seam cost per seam edge in units of the sample's neighbour
+    /// difference.
+    fn finish_report(&mut self, start: Instant) {
+        self.report.mean_seam_cost = if self.seam_cnt > 0 {
+            self.seam_sum / self.seam_cnt as f64 / self.reference
+        } else {
+            0.0
+        };
+        self.report.seconds = start.elapsed().as_secs_f64();
+    }
+}
+
 /// Decorates the geometry image `gim_path` with the sample (`.svd`, or a
 /// colour image factorized on the fly) into the `.quilt` artifact `out`.
+/// With `cfg.sample_mask` (the sample's foreground mask), the constrained
+/// graphcut keeps the foreground out of the background (m0 = 0 everywhere).
 pub fn tile(
     gim_path: &Path,
     sample_path: &Path,
@@ -1048,203 +1604,36 @@ pub fn tile(
 ) -> Result<TileReport> {
     let start = Instant::now();
     let gim = Gim::open(gim_path, cfg.memory)?;
-    let _tmp;
-    let svd_path: PathBuf = if factorize::is_image_path(sample_path) {
-        let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
-        let p = dir.path().join("sample.svd");
-        factorize::factorize(sample_path, &p, &FactorizeConfig::default(), progress)?;
-        _tmp = dir;
-        p
-    } else {
-        sample_path.to_path_buf()
-    };
-    let svd = SvdArtifact::open(&svd_path, cfg.memory)?;
-    if svd.rotations == 0 {
-        return Err(Error::input(
-            sample_path,
-            "has no rotated copies (factorize with --rotations 72)",
-        ));
+    let (svd_path, _tmp) = sample_svd(sample_path, progress)?;
+    let mut syn = Synthesis::open(&gim, sample_path, &svd_path, cfg)?;
+    if let Some(mask) = &cfg.sample_mask {
+        syn.set_mask(mask)?;
+        syn.set_target(vec![0.0; syn.surface.r * syn.surface.r]);
     }
-    let tileable = matches!(svd.container().metadata().param("tileable"), Some(Param::Int(1)));
-    let maps = svd.geometry_maps()?;
-    let (sw, sh, n, rotations) = (svd.width, svd.height, svd.terms, svd.rotations);
-    let mut sample = Sample {
-        width: sw,
-        height: sh,
-        n,
-        maps,
-        tileable,
-        rotated: vec![None; rotations],
-        svd,
-    };
     let r = gim.resolution;
-    let surface = Surface {
-        r,
-        graph: gim.graph()?,
-        face: gim.read("face")?,
-        position: gim.read("position")?,
-        normal: gim.read("normal")?,
-        face_angle: face_angles(&gim)?,
-    };
-    let zipper_triangles = gim.zipper_triangles()?;
-    let radius0 = cfg
-        .patch_radius
-        .unwrap_or((32 * r / 512).max(cfg.min_radius))
-        .max(cfg.min_radius);
-    let reference = sample.neighbour_difference();
-    let mut state = State::new(surface.graph.chart.clone(), n, r);
-    let total = state.remaining;
-    let mut bfs = Bfs {
-        stamp: vec![0; r * r],
-        index: vec![0; r * r],
-        epoch: 0,
-    };
-    let mut matcher = Matcher::new();
-    let mut report = TileReport {
-        texels: total,
-        ..TileReport::default()
-    };
-    let (mut seam_sum, mut seam_cnt) = (0f64, 0usize);
-    progress.begin("tile", total as u64);
+    let radius0 = syn.radius0();
+    progress.begin("tile", syn.state.remaining as u64);
     // the first vertex: a seeded choice among all dense vertices
     let mut first = {
         let covered: Vec<u32> = (0..(r * r) as u32)
-            .filter(|&t| state.chart[t as usize] != EMPTY)
+            .filter(|&t| syn.state.chart[t as usize] != EMPTY)
             .collect();
         if covered.is_empty() {
             return Err(Error::input(gim_path, "has no dense vertices"));
         }
         Some(covered[(crate::rng::mix64(cfg.seed) % covered.len() as u64) as usize])
     };
-    while state.remaining > 0 {
+    while syn.state.remaining > 0 {
         let v = first
             .take()
-            .or_else(|| state.most_constrained())
+            .or_else(|| syn.state.most_constrained())
             .expect("remaining > 0");
-        let mut radius = radius0;
-        let mut flattening: Option<Flattening> = None;
-        loop {
-            let patch = bfs.patch(&surface.graph, v, radius);
-            let work = if patch.crosses_charts {
-                let cached = flattening
-                    .as_ref()
-                    .and_then(|f| f.work_image(&surface, &state, &patch, &bfs, &zipper_triangles));
-                cached
-                    .or_else(|| {
-                        let (work, coords) = flattened_work_image(
-                            &surface,
-                            &state,
-                            &patch,
-                            &bfs,
-                            &zipper_triangles,
-                            cfg.max_distortion,
-                        )?;
-                        let mut c: Vec<(u32, [f64; 2])> = patch.texels.iter().copied().zip(coords).collect();
-                        c.sort_unstable_by_key(|e| e.0);
-                        flattening = Some(Flattening {
-                            coords: c,
-                            angle: work.angle,
-                        });
-                        Some(work)
-                    })
-                    .or_else(|| {
-                        report.unfolded_patches += 1;
-                        Some(unfolded_work_image(&surface, &state, &patch, &bfs))
-                    })
-            } else {
-                Some(chart_work_image(&surface, &state, &patch))
-            };
-            let Some(work) = work else {
-                if radius > cfg.min_radius {
-                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
-                    report.shrinks += 1;
-                    continue;
-                }
-                // cannot flatten even the smallest patch across the seam: take
-                // the part inside v's chart
-                let same: Vec<usize> = (0..patch.texels.len())
-                    .filter(|&i| state.chart[patch.texels[i] as usize] == state.chart[v as usize])
-                    .collect();
-                let sub = WorkPatch {
-                    texels: same.iter().map(|&i| patch.texels[i]).collect(),
-                    depth: same.iter().map(|&i| patch.depth[i]).collect(),
-                    crosses_charts: false,
-                };
-                let work = chart_work_image(&surface, &state, &sub);
-                let t = Instant::now();
-                let placement = place_covering(&mut sample, &mut matcher, &work, cfg, report.patches as u64)?;
-                report.matching_seconds += t.elapsed().as_secs_f64();
-                let t = Instant::now();
-                let fit = fit_patch(&sample, &state, &surface, &sub, &work, &placement);
-                report.graphcut_seconds += t.elapsed().as_secs_f64();
-                apply(&mut state, &surface, &sub, &fit, report.patches as u32, progress);
-                seam_sum += fit.seam_cost;
-                seam_cnt += fit.seam_edges;
-                report.patches += 1;
-                break;
-            };
-            let t = Instant::now();
-            let placement = place_covering(&mut sample, &mut matcher, &work, cfg, report.patches as u64)?;
-            report.matching_seconds += t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            let fit = fit_patch(&sample, &state, &surface, &patch, &work, &placement);
-            report.graphcut_seconds += t.elapsed().as_secs_f64();
-            let mean = if fit.seam_edges > 0 {
-                fit.seam_cost / fit.seam_edges as f64
-            } else {
-                0.0
-            };
-            if mean > cfg.seam_threshold * reference && radius > cfg.min_radius && fit.taken_new_synth > 0 {
-                radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
-                report.shrinks += 1;
-                continue;
-            }
-            if fit.taken == 0 {
-                // nothing could be placed (sample too small for the work
-                // image): shrink, or give up on this vertex at the minimum
-                if radius > cfg.min_radius {
-                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
-                    report.shrinks += 1;
-                    continue;
-                }
-                return Err(Error::input(
-                    sample_path,
-                    format!("is too small ({sw}×{sh}) to cover a work patch of radius {radius}"),
-                ));
-            }
-            if std::env::var_os("BTFQUILT_TRACE").is_some() {
-                progress.note(&format!(
-                    "patch {} v {v} radius {radius} texels {} taken {} remaining {} cross {}",
-                    report.patches,
-                    patch.texels.len(),
-                    fit.taken,
-                    state.remaining,
-                    patch.crosses_charts
-                ));
-            }
-            report.cross_chart_patches += patch.crosses_charts as usize;
-            apply(
-                &mut state,
-                &surface,
-                &patch,
-                &fit,
-                report.patches as u32,
-                progress,
-            );
-            seam_sum += fit.seam_cost;
-            seam_cnt += fit.seam_edges;
-            report.patches += 1;
-            break;
-        }
+        syn.step(v, radius0, progress)?;
     }
     progress.end();
-    report.mean_seam_cost = if seam_cnt > 0 {
-        seam_sum / seam_cnt as f64 / reference
-    } else {
-        0.0
-    };
-    write_quilt(out, cfg, &gim, gim_path, sample_path, &sample, &state, &report)?;
-    report.seconds = start.elapsed().as_secs_f64();
+    syn.finish_report(start);
+    let report = syn.report.clone();
+    write_quilt(out, cfg, &gim, gim_path, &syn, None, &report)?;
     Ok(report)
 }
 
@@ -1285,9 +1674,11 @@ fn place_covering(
     matcher: &mut Matcher,
     work: &WorkImage,
     cfg: &TileConfig,
+    reference: f64,
     counter: u64,
 ) -> Result<PlacementChoice> {
-    let (rotation, candidates) = match_candidates(sample, matcher, work)?;
+    let weight = (cfg.constraint_weight * reference).powi(2);
+    let (rotation, candidates) = match_candidates(sample, matcher, work, weight)?;
     let step = (work.coords.len() / 400).max(1);
     let covering: Vec<matching::Placement> = candidates
         .into_iter()
@@ -1336,11 +1727,14 @@ fn place_covering(
 }
 
 /// The rotation for the work image's field direction and the best matches
-/// of that rotated copy (up to 64, cheapest first).
+/// of that rotated copy (up to 64, cheapest first); jointly on features and
+/// on the constraint (m0 against the rotated foreground mask, weighted by
+/// `constraint_weight`) when the work image carries one (§IV).
 fn match_candidates(
     sample: &mut Sample,
     matcher: &mut Matcher,
     work: &WorkImage,
+    constraint_weight: f64,
 ) -> Result<(usize, Vec<matching::Placement>)> {
     let rotations = sample.rotated.len();
     let rot = rotation_index(work.angle, rotations);
@@ -1349,7 +1743,17 @@ fn match_candidates(
     if known_count == 0.0 {
         return Ok((rot, Vec::new()));
     }
-    let (maps, valid) = sample.rotation(rot)?;
+    let constrained = !work.constraint.is_empty() && sample.mask.is_some();
+    if constrained {
+        sample.rotation_mask(rot);
+    }
+    sample.rotation(rot)?;
+    let (maps, valid) = sample.rotated[rot].as_ref().expect("just loaded");
+    let mask = if constrained {
+        sample.rotated_mask[rot].as_deref()
+    } else {
+        None
+    };
     let work_in = matching::Work {
         image: Image {
             width: work.width,
@@ -1358,7 +1762,12 @@ fn match_candidates(
             data: &work.features,
         },
         known: &work.known,
-        constraint: None,
+        constraint: mask.map(|_| Image {
+            width: work.width,
+            height: work.height,
+            channels: 1,
+            data: &work.constraint,
+        }),
     };
     let sample_in = matching::Sample {
         image: Image {
@@ -1368,13 +1777,19 @@ fn match_candidates(
             data: maps,
         },
         valid,
-        constraint: None,
-        key: rot as u64,
+        constraint: mask.map(|m| Image {
+            width: sw,
+            height: sh,
+            channels: 1,
+            data: m,
+        }),
+        key: rot as u64 | (constrained as u64) << 32,
     };
     let mc = MatchConfig {
         min_overlap: (0.5 * known_count).max(1.0),
         candidates: 64,
         tolerance: f64::INFINITY,
+        constraint_weight,
         ..MatchConfig::default()
     };
     Ok((rot, matcher.match_patch(&work_in, &sample_in, &mc)?))
@@ -1385,6 +1800,8 @@ struct Fit {
     /// Per patch vertex: take the new patch B? with its sample coordinate.
     take: Vec<bool>,
     coord: Vec<[f64; 2]>,
+    /// m_P at B's coordinate per patch vertex (empty without a mask).
+    new_mask: Vec<f32>,
     new_features: Vec<f32>,
     rotation: usize,
     jacobian: [f32; 4],
@@ -1405,6 +1822,7 @@ fn fit_patch(
     patch: &WorkPatch,
     work: &WorkImage,
     placement: &PlacementChoice,
+    data_weight: f64,
 ) -> Fit {
     let n = state.n;
     let r = state.r;
@@ -1459,9 +1877,21 @@ fn fit_patch(
             .map(|k| order[k].1 as usize)
     };
     let max_depth = patch.depth.iter().copied().max().unwrap_or(0);
+    let mut new_mask = vec![0f32; if sample.mask.is_some() { m } else { 0 }];
+    for i in 0..new_mask.len() {
+        new_mask[i] = sample.mask_at(coord[i]);
+    }
     for i in 0..m {
         let t = patch.texels[i];
         let synth = state.synthesized[t as usize];
+        // the data term of constrained synthesis (§IV): D_p(σ) = |m_σ(p) −
+        // m0(p)| on the t-links — keeping A costs D_p(A) (the sink edge is
+        // cut), taking B costs D_p(B)
+        if let (Some(m0), false, true) = (&state.target, new_mask.is_empty(), synth && valid[i]) {
+            let d_a = (state.mask[t as usize] - m0[t as usize]).abs() as f64;
+            let d_b = (new_mask[i] - m0[t as usize]).abs() as f64;
+            g.add_tweights(i as u32, data_weight * d_b, data_weight * d_a);
+        }
         if !valid[i] {
             // B cannot reach here: keep A (or stay unsynthesized)
             g.add_tweights(i as u32, INFINITE, 0.0);
@@ -1574,6 +2004,7 @@ fn fit_patch(
     Fit {
         take,
         coord,
+        new_mask,
         new_features,
         rotation: placement.rotation,
         jacobian,
@@ -1587,6 +2018,7 @@ fn fit_patch(
 /// Records the vertices that took the new patch.
 fn apply(
     state: &mut State,
+    sample: &Sample,
     surface: &Surface,
     patch: &WorkPatch,
     fit: &Fit,
@@ -1605,6 +2037,9 @@ fn apply(
         state.rotation[tu] = fit.rotation as u8;
         state.patch[tu] = id;
         state.features[tu * n..(tu + 1) * n].copy_from_slice(&fit.new_features[i * n..(i + 1) * n]);
+        if sample.mask.is_some() {
+            state.mask[tu] = fit.new_mask[i];
+        }
         if !state.synthesized[tu] {
             state.synthesized[tu] = true;
             state.remaining -= 1;
@@ -1660,17 +2095,18 @@ fn local_jacobian(state: &State, t: u32, id: u32) -> Option<[f32; 4]> {
     Some([ax[0], ax[1], ay[0], ay[1]])
 }
 
-#[allow(clippy::too_many_arguments)]
+/// Writes the synthesis state as a `.quilt`; `paint_log` (a JSON array of
+/// strokes) when the surface was painted.
 fn write_quilt(
     out: &Path,
     cfg: &TileConfig,
     gim: &Gim,
     gim_path: &Path,
-    sample_path: &Path,
-    sample: &Sample,
-    state: &State,
+    syn: &Synthesis,
+    paint_log: Option<&str>,
     report: &TileReport,
 ) -> Result<()> {
+    let (sample, state) = (&syn.sample, &syn.state);
     let r = gim.resolution as u64;
     let t = TILE as u64;
     let mut w = ContainerWriter::create(out, KIND)?;
@@ -1678,17 +2114,23 @@ fn write_quilt(
     w.set_seed(cfg.seed);
     w.add_input(&gim_path.display().to_string(), gim.container().content_hash());
     w.add_input(
-        &sample_path.display().to_string(),
+        &syn.sample_path.display().to_string(),
         sample.svd.container().content_hash(),
     );
     w.set_param("gim", Param::Text(gim_path.display().to_string()));
-    w.set_param("sample", Param::Text(sample_path.display().to_string()));
+    w.set_param("sample", Param::Text(syn.sample_path.display().to_string()));
+    if let Some(mask) = &cfg.sample_mask {
+        w.set_param("sample_mask", Param::Text(mask.display().to_string()));
+    }
+    if let Some(log) = paint_log {
+        w.set_param("paint_log", Param::Text(log.to_string()));
+    }
     w.set_param("resolution", Param::Int(r as i64));
     w.set_param("sample_width", Param::Int(sample.width as i64));
     w.set_param("sample_height", Param::Int(sample.height as i64));
     w.set_param("terms", Param::Int(sample.n as i64));
     w.set_param("rotations", Param::Int(sample.rotated.len() as i64));
-    w.set_param("patches", Param::Int(report.patches as i64));
+    w.set_param("patches", Param::Int(state.next_patch as i64));
     w.set_param("mean_seam_cost", Param::Float(report.mean_seam_cost));
     let coord: Vec<f32> = state.coord.iter().flatten().copied().collect();
     let id = w.add_array(ArraySpec::new("coord", DType::F32, &[r, r, 2], &[t, t, 2])?)?;
@@ -1700,6 +2142,10 @@ fn write_quilt(
     w.write_array(id, &state.rotation)?;
     let id = w.add_array(ArraySpec::new("patch", DType::U32, &[r, r], &[t, t])?)?;
     w.write_array(id, &state.patch)?;
+    if let (Some(m0), Some(_)) = (&state.target, paint_log) {
+        let id = w.add_array(ArraySpec::new("region", DType::F32, &[r, r], &[t, t])?)?;
+        w.write_array(id, m0)?;
+    }
     w.finish()
 }
 

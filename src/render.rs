@@ -820,7 +820,7 @@ impl Scene {
                 continue;
             }
             let fade = if ll[2] < btf.lights.cos_max {
-                1.0
+                ll[2] / btf.lights.cos_max.max(1e-3)
             } else {
                 1.0
             };

@@ -1,0 +1,659 @@
+//! `paint`: graphcut texture painting (the paper's section IV; DESIGN.md
+//! section 2): imperfections — cracks, dirt, scratches — from a sample's
+//! foreground S_f put into a region F the user marks on a decorated
+//! surface, merged seamlessly with the background.
+//!
+//! The constraint function m0 is 1 on F and falls linearly to 0 over a
+//! transition zone of `transition` texels (hops on the dense mesh) outside
+//! F. Every texel with m0 > 0 is then re-synthesized by the quilting loop
+//! with the constrained graphcut: the data term D_p(σ) = |m_σ(p) − m0(p)|
+//! (m_σ the sample's foreground mask at the texel's sample coordinate) on
+//! the t-links, the quilting smoothness term on the n-links, one min-cut per
+//! fitting (the optimal swap move between the old values A and the new patch
+//! B), and patch matching jointly on features and constraint values.
+//!
+//! Regions come as an atlas-space mask PNG, per-vertex weights on the input
+//! mesh (PLY `quality`/`weight`, or vertex colours as painted in Blender),
+//! or JSON strokes `[{"point": [x, y, z], "radius": r}, …]` (geodesic disks
+//! on the dense mesh). Verbatim copy places the foreground at a surface
+//! point (`--preview` writes the direct projection without a graphcut).
+//!
+//! Painting writes a new `.quilt` (the old one stays: undo is free) whose
+//! `paint_log` parameter records the base quilt and every stroke, so a
+//! painted surface can be replayed ([`replay`]).
+
+use std::collections::{BinaryHeap, VecDeque};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::container::Param;
+use crate::gim::{Gim, EMPTY};
+use crate::json::{quote, Json};
+use crate::progress::Progress;
+use crate::quilt::{sample_svd, Quilt, Synthesis, TileConfig};
+use crate::{Error, Result};
+
+/// A verbatim copy: where and how the foreground goes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Verbatim {
+    /// A point on (or near) the surface; the nearest dense vertex is used.
+    pub at: [f32; 3],
+    /// Turn of the sample against the field direction, in degrees.
+    pub angle: f64,
+}
+
+/// Options of [`paint`].
+#[derive(Clone, Debug, Default)]
+pub struct PaintConfig {
+    /// The sample to paint with; must be the one the surface was tiled with
+    /// (default: that one).
+    pub sample: Option<PathBuf>,
+    /// The sample's foreground mask m_P (a PNG the sample's size); default:
+    /// the one recorded in the quilt.
+    pub sample_mask: Option<PathBuf>,
+    /// The target region F: a mask PNG (atlas space), a PLY/OBJ with vertex
+    /// weights or colours, or JSON strokes.
+    pub region: Option<PathBuf>,
+    /// Width of the transition zone in texels.
+    pub transition: usize,
+    /// Verbatim copy instead of a region.
+    pub verbatim: Option<Verbatim>,
+    /// Verbatim only: write the direct projection to this image.
+    pub preview: Option<PathBuf>,
+    /// Quilting options (seed, radius, T_c, constraint weight, memory).
+    pub tile: TileConfig,
+}
+
+/// What [`paint`] did.
+#[derive(Clone, Debug, Default)]
+pub struct PaintReport {
+    /// Texels in F (m0 = 1).
+    pub region_texels: usize,
+    /// Texels in F plus the transition zone (m0 > 0).
+    pub zone_texels: usize,
+    /// Patches fitted.
+    pub patches: usize,
+    /// Texels that took a new patch.
+    pub repainted: usize,
+    pub seconds: f64,
+}
+
+impl std::fmt::Display for PaintReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "region {} texels ({} with the transition zone), {} patches, {} texels repainted, {:.2} s",
+            self.region_texels, self.zone_texels, self.patches, self.repainted, self.seconds
+        )
+    }
+}
+
+/// Paints `quilt_path` into a new artifact `out` (see the module docs).
+pub fn paint(
+    quilt_path: &Path,
+    out: &Path,
+    cfg: &PaintConfig,
+    progress: &dyn Progress,
+) -> Result<PaintReport> {
+    let base = Quilt::open(quilt_path, cfg.tile.memory)?;
+    let log = match base.container().metadata().param("paint_log") {
+        Some(Param::Text(s)) => PaintLog::parse(s, quilt_path)?,
+        _ => PaintLog {
+            base: quilt_path.to_path_buf(),
+            base_hash: base.container().content_hash(),
+            strokes: Vec::new(),
+        },
+    };
+    let stroke = Stroke::from_config(cfg, &base, quilt_path)?;
+    let report = apply_stroke(&base, &stroke, out, cfg.preview.as_deref(), &log, progress)?;
+    Ok(report)
+}
+
+/// Replays the paint log of `painted` onto its recorded base quilt, writing
+/// the result to `out` (byte-identical to `painted` when nothing changed).
+pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<PaintReport> {
+    let q = Quilt::open(painted, crate::container::MemoryBudget::default())?;
+    let Some(Param::Text(text)) = q.container().metadata().param("paint_log") else {
+        return Err(Error::input(painted, "has no paint log (it was not painted)"));
+    };
+    let log = PaintLog::parse(text, painted)?;
+    let base = Quilt::open(&log.base, crate::container::MemoryBudget::default())?;
+    if base.container().content_hash() != log.base_hash {
+        return Err(Error::input(
+            &log.base,
+            format!("changed since {} was painted from it", painted.display()),
+        ));
+    }
+    let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+    let mut current = log.base.clone();
+    let mut done = PaintLog {
+        strokes: Vec::new(),
+        ..log.clone()
+    };
+    let mut report = PaintReport::default();
+    for (k, stroke) in log.strokes.iter().enumerate() {
+        let last = k + 1 == log.strokes.len();
+        let target = if last {
+            out.to_path_buf()
+        } else {
+            dir.path().join(format!("step{k}.quilt"))
+        };
+        let q = Quilt::open(&current, stroke.tile_config().memory)?;
+        report = apply_stroke(&q, stroke, &target, None, &done, progress)?;
+        done.strokes.push(stroke.clone());
+        current = target;
+    }
+    Ok(report)
+}
+
+/// One recorded stroke: everything needed to apply it again.
+#[derive(Clone, Debug, PartialEq)]
+struct Stroke {
+    sample_mask: PathBuf,
+    region: Option<PathBuf>,
+    verbatim: Option<Verbatim>,
+    transition: usize,
+    seed: u64,
+    patch_radius: Option<usize>,
+    seam_threshold: f64,
+    constraint_weight: f64,
+}
+
+impl Stroke {
+    fn from_config(cfg: &PaintConfig, base: &Quilt, quilt_path: &Path) -> Result<Stroke> {
+        if let Some(s) = &cfg.sample {
+            let same = match (std::fs::canonicalize(s), std::fs::canonicalize(&base.sample)) {
+                (Ok(a), Ok(b)) => a == b,
+                _ => false,
+            };
+            if !same {
+                return Err(Error::input(
+                    s,
+                    format!(
+                        "is not the sample {} was tiled with ({}): paint with that sample (its foreground mask \
+                         marks the imperfections), or tile with this one first",
+                        quilt_path.display(),
+                        base.sample.display()
+                    ),
+                ));
+            }
+        }
+        let sample_mask = match (&cfg.sample_mask, base.container().metadata().param("sample_mask")) {
+            (Some(p), _) => p.clone(),
+            (None, Some(Param::Text(p))) => PathBuf::from(p),
+            _ => {
+                return Err(Error::Config(format!(
+                    "give --sample-mask: {} records no foreground mask for its sample",
+                    quilt_path.display()
+                )))
+            }
+        };
+        match (&cfg.region, &cfg.verbatim) {
+            (None, None) => return Err(Error::Config("give --region or --verbatim".into())),
+            (Some(_), Some(_)) => {
+                return Err(Error::Config(
+                    "give either --region or --verbatim, not both".into(),
+                ))
+            }
+            _ => {}
+        }
+        if cfg.preview.is_some() && cfg.verbatim.is_none() {
+            return Err(Error::Config("--preview needs --verbatim".into()));
+        }
+        Ok(Stroke {
+            sample_mask,
+            region: cfg.region.clone(),
+            verbatim: cfg.verbatim,
+            transition: cfg.transition,
+            seed: cfg.tile.seed,
+            patch_radius: cfg.tile.patch_radius,
+            seam_threshold: cfg.tile.seam_threshold,
+            constraint_weight: cfg.tile.constraint_weight,
+        })
+    }
+
+    fn tile_config(&self) -> TileConfig {
+        TileConfig {
+            seed: self.seed,
+            patch_radius: self.patch_radius,
+            seam_threshold: self.seam_threshold,
+            constraint_weight: self.constraint_weight,
+            sample_mask: Some(self.sample_mask.clone()),
+            ..TileConfig::default()
+        }
+    }
+
+    fn to_json(&self) -> String {
+        let path = |p: &Path| quote(&p.display().to_string());
+        let verbatim = match &self.verbatim {
+            Some(v) => format!(
+                "{{\"at\": [{}, {}, {}], \"angle\": {}}}",
+                v.at[0], v.at[1], v.at[2], v.angle
+            ),
+            None => "null".into(),
+        };
+        format!(
+            "{{\"sample_mask\": {}, \"region\": {}, \"verbatim\": {verbatim}, \"transition\": {}, \"seed\": {}, \
+             \"patch_radius\": {}, \"seam_threshold\": {}, \"constraint_weight\": {}}}",
+            path(&self.sample_mask),
+            self.region.as_deref().map_or("null".into(), path),
+            self.transition,
+            self.seed,
+            self.patch_radius.map_or("null".into(), |r| r.to_string()),
+            self.seam_threshold,
+            self.constraint_weight
+        )
+    }
+
+    fn from_json(j: &Json, file: &Path) -> Result<Stroke> {
+        let bad = || Error::input(file, "has a malformed paint log");
+        let text = |k: &str| match j.get(k) {
+            Some(Json::String(s)) => Some(PathBuf::from(s)),
+            _ => None,
+        };
+        let num = |k: &str| j.get(k).and_then(Json::as_f64);
+        let verbatim = match j.get("verbatim") {
+            Some(Json::Object(_)) => {
+                let v = j.get("verbatim").expect("checked");
+                let at = v.get("at").and_then(|a| a.as_vec::<3>()).ok_or_else(bad)?;
+                Some(Verbatim {
+                    at: at.map(|c| c as f32),
+                    angle: v.get("angle").and_then(Json::as_f64).ok_or_else(bad)?,
+                })
+            }
+            _ => None,
+        };
+        Ok(Stroke {
+            sample_mask: text("sample_mask").ok_or_else(bad)?,
+            region: text("region"),
+            verbatim,
+            transition: num("transition").ok_or_else(bad)? as usize,
+            seed: num("seed").ok_or_else(bad)? as u64,
+            patch_radius: num("patch_radius").map(|r| r as usize),
+            seam_threshold: num("seam_threshold").ok_or_else(bad)?,
+            constraint_weight: num("constraint_weight").ok_or_else(bad)?,
+        })
+    }
+}
+
+/// The paint log stored in a painted quilt: its base and its strokes.
+#[derive(Clone, Debug)]
+struct PaintLog {
+    base: PathBuf,
+    base_hash: u64,
+    strokes: Vec<Stroke>,
+}
+
+impl PaintLog {
+    fn to_json(&self) -> String {
+        let strokes: Vec<String> = self.strokes.iter().map(Stroke::to_json).collect();
+        format!(
+            "{{\"base\": {}, \"base_hash\": \"{:016x}\", \"strokes\": [{}]}}",
+            quote(&self.base.display().to_string()),
+            self.base_hash,
+            strokes.join(", ")
+        )
+    }
+
+    fn parse(text: &str, file: &Path) -> Result<PaintLog> {
+        let bad = |why: String| Error::input(file, format!("has a malformed paint log: {why}"));
+        let j = Json::parse(text).map_err(bad)?;
+        let base = match j.get("base") {
+            Some(Json::String(s)) => PathBuf::from(s),
+            _ => return Err(bad("no base".into())),
+        };
+        let base_hash = match j.get("base_hash") {
+            Some(Json::String(s)) => u64::from_str_radix(s, 16).map_err(|e| bad(e.to_string()))?,
+            _ => return Err(bad("no base_hash".into())),
+        };
+        let strokes = j
+            .get("strokes")
+            .and_then(Json::as_array)
+            .ok_or_else(|| bad("no strokes".into()))?
+            .iter()
+            .map(|s| Stroke::from_json(s, file))
+            .collect::<Result<_>>()?;
+        Ok(PaintLog {
+            base,
+            base_hash,
+            strokes,
+        })
+    }
+}
+
+/// Applies one stroke to `base`, writing `out` with `log` + the stroke.
+fn apply_stroke(
+    base: &Quilt,
+    stroke: &Stroke,
+    out: &Path,
+    preview: Option<&Path>,
+    log: &PaintLog,
+    progress: &dyn Progress,
+) -> Result<PaintReport> {
+    let start = Instant::now();
+    let cfg = stroke.tile_config();
+    let gim = Gim::open(&base.gim, cfg.memory)?;
+    let (svd_path, _tmp) = sample_svd(&base.sample, progress)?;
+    let mut syn = Synthesis::open(&gim, &base.sample, &svd_path, &cfg)?;
+    syn.set_mask(&stroke.sample_mask)?;
+    syn.load(base)?;
+    let mut report = PaintReport::default();
+    if let Some(v) = stroke.verbatim {
+        let (centre, extent) = foreground_extent(&syn);
+        let vertex = nearest_vertex(&syn, v.at);
+        let radius = (extent * 1.15).ceil() as usize + 4;
+        let taken = syn.verbatim(vertex, radius, v.angle.to_radians(), centre, preview, progress)?;
+        if preview.is_some() {
+            report.zone_texels = taken;
+            report.region_texels = taken;
+            report.seconds = start.elapsed().as_secs_f64();
+            return Ok(report);
+        }
+        report.repainted = taken;
+        report.patches = 1;
+        let m0 = syn.target().to_vec();
+        report.region_texels = m0.iter().filter(|&&m| m >= 0.5).count();
+        report.zone_texels = m0.iter().filter(|&&m| m > 0.0).count();
+    } else {
+        let region_path = stroke.region.as_deref().expect("checked: a region or verbatim");
+        let region = read_region(&syn, &gim, region_path)?;
+        let m0 = constraint_function(&syn, &region, stroke.transition);
+        report.region_texels = region.iter().filter(|&&f| f).count();
+        report.zone_texels = m0.iter().filter(|&&m| m > 0.0).count();
+        if report.region_texels == 0 {
+            return Err(Error::input(region_path, "marks no texel of the surface"));
+        }
+        syn.set_target(m0.clone());
+        // every texel of the zone is re-synthesized once, in texel order,
+        // as the seed or inside (not on the rim of) a work patch
+        let mut pending: Vec<bool> = m0.iter().map(|&m| m > 0.0).collect();
+        let mut left = report.zone_texels;
+        let radius0 = syn.radius0();
+        progress.begin("paint", left as u64);
+        let mut next = 0usize;
+        while left > 0 {
+            while !pending[next] {
+                next += 1;
+            }
+            let patch = syn.step(next as u32, radius0, progress)?;
+            let rim = patch.depth.iter().copied().max().unwrap_or(0);
+            for (&t, &d) in patch.texels.iter().zip(&patch.depth) {
+                if pending[t as usize] && (d < rim || t as usize == next) {
+                    pending[t as usize] = false;
+                    left -= 1;
+                    progress.advance(1);
+                }
+            }
+        }
+        progress.end();
+        report.patches = syn.report.patches;
+        let before = base.patches()?;
+        report.repainted = syn
+            .patch_ids()
+            .iter()
+            .zip(&before)
+            .filter(|(a, b)| a != b)
+            .count();
+    }
+    let mut log = log.clone();
+    log.strokes.push(stroke.clone());
+    syn.write(out, &gim, &base.gim, Some(&log.to_json()), start)?;
+    report.seconds = start.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// The foreground's centroid (sample pixels) and its largest distance from
+/// it.
+fn foreground_extent(syn: &Synthesis) -> ([f64; 2], f64) {
+    let (w, mask) = syn.sample_mask();
+    let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
+    for (i, &m) in mask.iter().enumerate() {
+        if m >= 0.5 {
+            sx += (i % w) as f64;
+            sy += (i / w) as f64;
+            n += 1;
+        }
+    }
+    let c = [sx / n.max(1) as f64, sy / n.max(1) as f64];
+    let extent = mask
+        .iter()
+        .enumerate()
+        .filter(|(_, &m)| m >= 0.5)
+        .map(|(i, _)| (((i % w) as f64 - c[0]).powi(2) + ((i / w) as f64 - c[1]).powi(2)).sqrt())
+        .fold(0.0, f64::max);
+    (c, extent)
+}
+
+/// The dense vertex nearest to a 3D point (lowest id among equals).
+fn nearest_vertex(syn: &Synthesis, p: [f32; 3]) -> u32 {
+    let r = syn.resolution();
+    let graph = syn.graph();
+    let mut best = (f32::INFINITY, 0u32);
+    for t in 0..(r * r) as u32 {
+        if graph.chart[t as usize] == EMPTY {
+            continue;
+        }
+        let q = syn.position(t);
+        let d = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2);
+        if d < best.0 {
+            best = (d, t);
+        }
+    }
+    best.1
+}
+
+/// The region F per atlas texel, from a mask PNG, a mesh with vertex paint,
+/// or JSON strokes (by extension).
+fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec<bool>> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let r = syn.resolution();
+    let chart = &syn.graph().chart;
+    match ext.as_str() {
+        "png" | "tif" | "tiff" | "jpg" | "jpeg" => {
+            let img = crate::imageio::read_rgb(path)?;
+            if (img.width, img.height) != (r, r) {
+                return Err(Error::input(
+                    path,
+                    format!(
+                        "is {}×{}, but a region mask must be the atlas size {r}×{r}",
+                        img.width, img.height
+                    ),
+                ));
+            }
+            Ok(img
+                .data
+                .chunks_exact(3)
+                .zip(chart)
+                .map(|(p, &c)| c != EMPTY && p.iter().fold(0f32, |a, &b| a.max(b)) >= 0.5)
+                .collect())
+        }
+        "ply" | "obj" => vertex_paint_region(gim, chart, path),
+        "json" => strokes_region(syn, path),
+        _ => Err(Error::input(
+            path,
+            "is not a region: give a mask .png, a .ply/.obj with vertex paint, or .json strokes",
+        )),
+    }
+}
+
+/// F from per-vertex paint on the input mesh: a vertex is in F when its
+/// weight (PLY `quality`/`weight`/`value`) is ≥ ½, or, for vertex colours,
+/// when its colour differs from the mesh's dominant (unpainted) colour by
+/// ≥ ½ in some channel. Per texel the corner weights are interpolated with
+/// the texel's barycentrics on its face.
+fn vertex_paint_region(gim: &Gim, chart: &[u32], path: &Path) -> Result<Vec<bool>> {
+    let (painted, _) = crate::mesh::io::load(path, &crate::mesh::io::LoadOptions::default())?;
+    let weights: Vec<f32> = if let Some(w) = &painted.vertex_weights {
+        w.clone()
+    } else if let Some(c) = &painted.vertex_colors {
+        let q = |c: &[f32; 3]| c.map(|v| (v * 15.0).round() as u8);
+        let mut counts: std::collections::BTreeMap<[u8; 3], usize> = Default::default();
+        for col in c {
+            *counts.entry(q(col)).or_default() += 1;
+        }
+        let dominant = counts
+            .iter()
+            .max_by_key(|(k, n)| (**n, std::cmp::Reverse(**k)))
+            .map(|(k, _)| k.map(|v| v as f32 / 15.0))
+            .unwrap_or([0.0; 3]);
+        c.iter()
+            .map(|col| (0..3).map(|k| (col[k] - dominant[k]).abs()).fold(0f32, f32::max))
+            .collect()
+    } else {
+        return Err(Error::input(
+            path,
+            "has no vertex paint (no quality/weight property and no vertex colours)",
+        ));
+    };
+    let mesh = gim.mesh()?;
+    // each mesh vertex's weight: the painted vertex at the same position
+    // (both went through the same repair), else the nearest one
+    let key = |p: [f32; 3]| p.map(|c| c.to_bits());
+    let mut by_pos: std::collections::HashMap<[u32; 3], usize> = Default::default();
+    for (i, &p) in painted.positions.iter().enumerate() {
+        by_pos.entry(key(p)).or_insert(i);
+    }
+    let vertex_weight: Vec<f32> = mesh
+        .positions
+        .iter()
+        .map(|&p| {
+            let i = by_pos.get(&key(p)).copied().unwrap_or_else(|| {
+                let d = |q: [f32; 3]| (0..3).map(|k| (q[k] - p[k]).powi(2)).sum::<f32>();
+                (0..painted.positions.len())
+                    .min_by(|&a, &b| d(painted.positions[a]).total_cmp(&d(painted.positions[b])))
+                    .unwrap_or(0)
+            });
+            weights.get(i).copied().unwrap_or(0.0)
+        })
+        .collect();
+    if !vertex_weight.iter().any(|&w| w >= 0.5) {
+        return Err(Error::input(path, "paints no vertex (no weight ≥ ½)"));
+    }
+    let face: Vec<u32> = gim.read("face")?;
+    let bary: Vec<f32> = gim.read("bary")?;
+    Ok((0..chart.len())
+        .map(|t| {
+            if chart[t] == EMPTY {
+                return false;
+            }
+            let tri = mesh.triangles[face[t] as usize];
+            let (b1, b2) = (bary[t * 2], bary[t * 2 + 1]);
+            let w = (1.0 - b1 - b2) * vertex_weight[tri[0] as usize]
+                + b1 * vertex_weight[tri[1] as usize]
+                + b2 * vertex_weight[tri[2] as usize];
+            w >= 0.5
+        })
+        .collect())
+}
+
+/// F from JSON strokes `[{"point": [x, y, z], "radius": r}, …]`: the union
+/// of geodesic disks on the dense mesh (Dijkstra over its edges with their
+/// 3D lengths, from the vertex nearest each point).
+fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let bad = |why: &str| Error::input(path, format!("is not a stroke list ({why})"));
+    let json = Json::parse(&text).map_err(|e| bad(&e))?;
+    let strokes = json.as_array().ok_or_else(|| bad("expected a JSON array"))?;
+    if strokes.is_empty() {
+        return Err(bad("the list is empty"));
+    }
+    let r = syn.resolution();
+    let graph = syn.graph();
+    let mut region = vec![false; r * r];
+    let mut dist = vec![f32::INFINITY; r * r];
+    for (k, s) in strokes.iter().enumerate() {
+        let point = s
+            .get("point")
+            .and_then(|p| p.as_vec::<3>())
+            .ok_or_else(|| bad(&format!("stroke {k} has no \"point\": [x, y, z]")))?;
+        let radius = s
+            .get("radius")
+            .and_then(Json::as_f64)
+            .filter(|r| *r > 0.0 && r.is_finite())
+            .ok_or_else(|| bad(&format!("stroke {k} has no positive \"radius\"")))?;
+        let source = nearest_vertex(syn, point.map(|c| c as f32));
+        // Dijkstra bounded by the radius
+        let mut touched = vec![source];
+        dist[source as usize] = 0.0;
+        let mut heap = BinaryHeap::new();
+        heap.push((std::cmp::Reverse(OrdF32(0.0)), source));
+        while let Some((std::cmp::Reverse(OrdF32(d)), t)) = heap.pop() {
+            if d > dist[t as usize] {
+                continue;
+            }
+            region[t as usize] = true;
+            let p = syn.position(t);
+            graph.for_each_neighbour(t, |nb, _| {
+                let q = syn.position(nb);
+                let nd = d + ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
+                if nd <= radius as f32 && nd < dist[nb as usize] {
+                    if dist[nb as usize].is_infinite() {
+                        touched.push(nb);
+                    }
+                    dist[nb as usize] = nd;
+                    heap.push((std::cmp::Reverse(OrdF32(nd)), nb));
+                }
+            });
+        }
+        for t in touched {
+            dist[t as usize] = f32::INFINITY;
+        }
+    }
+    Ok(region)
+}
+
+/// A totally ordered f32 for the Dijkstra heap.
+#[derive(Clone, Copy, PartialEq)]
+struct OrdF32(f32);
+
+impl Eq for OrdF32 {}
+
+impl PartialOrd for OrdF32 {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for OrdF32 {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&other.0)
+    }
+}
+
+/// The constraint function m0 (§IV): 1 on F, falling linearly to 0 over
+/// `transition` texels of hop distance outside F on the dense mesh.
+fn constraint_function(syn: &Synthesis, region: &[bool], transition: usize) -> Vec<f32> {
+    let graph = syn.graph();
+    let mut hops = vec![u32::MAX; region.len()];
+    let mut queue = VecDeque::new();
+    for (t, &f) in region.iter().enumerate() {
+        if f {
+            hops[t] = 0;
+            queue.push_back(t as u32);
+        }
+    }
+    while let Some(t) = queue.pop_front() {
+        let d = hops[t as usize];
+        if d as usize >= transition {
+            continue;
+        }
+        graph.for_each_neighbour(t, |nb, _| {
+            if hops[nb as usize] == u32::MAX {
+                hops[nb as usize] = d + 1;
+                queue.push_back(nb);
+            }
+        });
+    }
+    hops.iter()
+        .map(|&d| {
+            if d == u32::MAX {
+                0.0
+            } else {
+                (1.0 - d as f32 / (transition as f32 + 1.0)).max(0.0)
+            }
+        })
+        .collect()
+}
