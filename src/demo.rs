@@ -68,16 +68,16 @@ const RENDER: (usize, usize) = (800, 600);
 
 /// The camera for Spot: a three-quarter view of its face and left side.
 const SPOT_CAMERA: Camera = Camera {
-    eye: [-2.25, 0.62, -1.55],
-    target: [0.0, 0.12, 0.05],
+    eye: [-2.35, 0.75, -1.6],
+    target: [0.24, 0.1, 0.1],
     up: [0.0, 1.0, 0.0],
     fov: 38.0,
 };
 
 /// The same from behind, on its right side.
 const SPOT_BACK: Camera = Camera {
-    eye: [2.1, 0.85, 2.3],
-    target: [0.0, 0.12, 0.05],
+    eye: [2.45, 0.85, 2.45],
+    target: [0.26, 0.1, -0.07],
     up: [0.0, 1.0, 0.0],
     fov: 38.0,
 };

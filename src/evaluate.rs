@@ -85,8 +85,9 @@ pub fn evaluate(
         p.dedup();
         p.len()
     };
+    let painting = painting_measures(&quilt, &chart)?;
     Ok(format!(
-        "{{\n  \"texels\": {},\n  \"patches\": {patch_count},\n  \"seam\": {{\"edges\": {}, \"fraction_of_edges\": {:.5}, \"mean_colour_difference\": {:.6}, \"median\": {:.6}, \"p95\": {:.6}, \"max\": {:.6}, \"inside_patches_mean\": {:.6}, \"ratio_to_inside\": {:.4}}},\n  \"zipper\": {{\"links\": {}, \"mean_colour_difference\": {:.6}, \"inside_charts_mean\": {:.6}, \"ratio\": {:.4}}},\n  \"coherence\": {{\"windows\": {}, \"mean_rgb_distance_to_nearest_sample_window\": {:.6}}}\n}}",
+        "{{\n  \"texels\": {},\n  \"patches\": {patch_count},{painting}\n  \"seam\": {{\"edges\": {}, \"fraction_of_edges\": {:.5}, \"mean_colour_difference\": {:.6}, \"median\": {:.6}, \"p95\": {:.6}, \"max\": {:.6}, \"inside_patches_mean\": {:.6}, \"ratio_to_inside\": {:.4}}},\n  \"zipper\": {{\"links\": {}, \"mean_colour_difference\": {:.6}, \"inside_charts_mean\": {:.6}, \"ratio\": {:.4}}},\n  \"coherence\": {{\"windows\": {}, \"mean_rgb_distance_to_nearest_sample_window\": {:.6}}}\n}}",
         covered.iter().filter(|&&c| c).count(),
         seam.len(),
         seams_fraction,
@@ -169,4 +170,44 @@ fn coherence(
         }
     }
     Ok((total / count.max(1) as f64, count))
+}
+
+/// The painting measures of a painted surface (§IV), as a JSON member line
+/// (empty for a surface that was not painted): the fraction of F (m0 = 1)
+/// covered by foreground texels (m_σ ≥ ½), and the fraction of foreground
+/// texels outside F and its transition zone (m0 = 0).
+fn painting_measures(quilt: &Quilt, chart: &[u32]) -> Result<String> {
+    let c = quilt.container();
+    let (Ok(region), Some(crate::container::Param::Text(mask_path))) =
+        (c.array("region"), c.metadata().param("sample_mask"))
+    else {
+        return Ok(String::new());
+    };
+    let m0: Vec<f32> = c.read_array(region)?;
+    let mask = crate::imageio::read_rgb(Path::new(mask_path))?;
+    let coords = quilt.coords()?;
+    let m = |t: usize| {
+        let p = crate::bake::bilinear(&mask, coords[t][0], coords[t][1]);
+        p.iter().fold(0f32, |a, &b| a.max(b))
+    };
+    let (mut f, mut f_covered, mut fg, mut fg_outside) = (0usize, 0usize, 0usize, 0usize);
+    for t in 0..m0.len() {
+        if chart[t] == EMPTY {
+            continue;
+        }
+        let foreground = m(t) >= 0.5;
+        if m0[t] >= 1.0 {
+            f += 1;
+            f_covered += foreground as usize;
+        }
+        if foreground {
+            fg += 1;
+            fg_outside += (m0[t] <= 0.0) as usize;
+        }
+    }
+    Ok(format!(
+        "\n  \"painting\": {{\"region_texels\": {f}, \"region_covered_by_foreground\": {:.4}, \"foreground_texels\": {fg}, \"foreground_outside_region_and_transition\": {:.4}}},",
+        f_covered as f64 / f.max(1) as f64,
+        fg_outside as f64 / fg.max(1) as f64
+    ))
 }

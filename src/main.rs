@@ -264,7 +264,7 @@ enum Command {
         #[arg(long)]
         patch_radius: Option<usize>,
         /// Weight of the constraint (data term per texel, in sample neighbour differences).
-        #[arg(long, default_value_t = 4.0)]
+        #[arg(long, default_value_t = 16.0)]
         constraint_weight: f64,
         #[arg(long, default_value_t = 1)]
         seed: u64,

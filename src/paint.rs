@@ -364,17 +364,22 @@ fn apply_stroke(
             return Err(Error::input(region_path, "marks no texel of the surface"));
         }
         syn.set_target(m0.clone());
-        // every texel of the zone is re-synthesized once, in texel order,
-        // as the seed or inside (not on the rim of) a work patch
+        // every texel of the zone is re-synthesized once, as the seed or
+        // inside (not on the rim of) a work patch; seeds deepest in F first
+        // (highest m0, then lowest id), so the first patch lays the feature
+        // where it must be and later ones continue it
         let mut pending: Vec<bool> = m0.iter().map(|&m| m > 0.0).collect();
+        let mut order: Vec<u32> = (0..m0.len() as u32).filter(|&t| pending[t as usize]).collect();
+        order.sort_by(|&a, &b| m0[b as usize].total_cmp(&m0[a as usize]).then(a.cmp(&b)));
         let mut left = report.zone_texels;
         let radius0 = syn.radius0();
         progress.begin("paint", left as u64);
-        let mut next = 0usize;
+        let mut cursor = 0usize;
         while left > 0 {
-            while !pending[next] {
-                next += 1;
+            while !pending[order[cursor] as usize] {
+                cursor += 1;
             }
+            let next = order[cursor] as usize;
             let patch = syn.step(next as u32, radius0, progress)?;
             let rim = patch.depth.iter().copied().max().unwrap_or(0);
             for (&t, &d) in patch.texels.iter().zip(&patch.depth) {
@@ -586,7 +591,7 @@ fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
             }
             region[t as usize] = true;
             let p = syn.position(t);
-            graph.for_each_neighbour(t, |nb, _| {
+            let mut relax = |nb: u32| {
                 let q = syn.position(nb);
                 let nd = d + ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
                 if nd <= radius as f32 && nd < dist[nb as usize] {
@@ -596,7 +601,20 @@ fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
                     dist[nb as usize] = nd;
                     heap.push((std::cmp::Reverse(OrdF32(nd)), nb));
                 }
-            });
+            };
+            graph.for_each_neighbour(t, |nb, _| relax(nb));
+            // diagonal grid neighbours too, so the disk is round (8-neighbour
+            // paths are within 8 % of the geodesic distance)
+            let (x, y) = ((t as usize % r) as isize, (t as usize / r) as isize);
+            for (dx, dy) in [(-1, -1), (1, -1), (-1, 1), (1, 1)] {
+                let (nx, ny) = (x + dx, y + dy);
+                if nx >= 0 && ny >= 0 && (nx as usize) < r && (ny as usize) < r {
+                    let nb = ny as usize * r + nx as usize;
+                    if graph.chart[nb] == graph.chart[t as usize] {
+                        relax(nb as u32);
+                    }
+                }
+            }
         }
         for t in touched {
             dist[t as usize] = f32::INFINITY;

@@ -65,7 +65,10 @@ pub struct TileConfig {
     pub sample_mask: Option<PathBuf>,
     /// Weight of the constraint: the data term |m_σ(p) − m0(p)| costs this
     /// many sample neighbour differences per texel in the graphcut, and the
-    /// matching adds (this × neighbour difference)² · |m0 − m_P|².
+    /// matching adds (this × neighbour difference)² · |m0 − m_P|². It must
+    /// outweigh the feature difference between the old background and the
+    /// foreground that replaces it (on a flat square with a brick sample,
+    /// 2 filled 17 % of F, 4 filled 62 %, 8 filled 79 %, 16 at least 95 %).
     pub constraint_weight: f64,
 }
 
@@ -81,7 +84,7 @@ impl Default for TileConfig {
             memory: MemoryBudget::default(),
             level: crate::container::DEFAULT_ZSTD_LEVEL,
             sample_mask: None,
-            constraint_weight: 4.0,
+            constraint_weight: 16.0,
         }
     }
 }

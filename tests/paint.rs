@@ -1,0 +1,410 @@
+//! Graphcut texture painting (§IV): the constraint function, the painting
+//! measures on a flat square, the region inputs (mask, strokes, vertex
+//! paint), verbatim copy, the paint log and its replay, and bad inputs.
+
+use std::path::{Path, PathBuf};
+
+use btfquilt::container::MemoryBudget;
+use btfquilt::gim::{self, AtlasConfig, Gim, EMPTY};
+use btfquilt::imageio::{self, RgbImage};
+use btfquilt::paint::{self, PaintConfig, Verbatim};
+use btfquilt::progress::Silent;
+use btfquilt::quilt::{self, Quilt, TileConfig};
+
+const R: usize = 128;
+
+/// A flat unit square, 8×8 quads, as OBJ (or PLY with per-vertex quality
+/// 1 where x ≤ ½).
+fn square(dir: &Path, ply: bool) -> PathBuf {
+    let n = 8;
+    let mut v = Vec::new();
+    for y in 0..=n {
+        for x in 0..=n {
+            v.push([x as f32 / n as f32, y as f32 / n as f32]);
+        }
+    }
+    let mut f = Vec::new();
+    for y in 0..n {
+        for x in 0..n {
+            let a = y * (n + 1) + x;
+            f.push([a, a + 1, a + n + 2]);
+            f.push([a, a + n + 2, a + n + 1]);
+        }
+    }
+    if ply {
+        let p = dir.join("square.ply");
+        let mut s = format!(
+            "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+             property float quality\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+            v.len(),
+            f.len()
+        );
+        for q in &v {
+            s += &format!("{} {} 0 {}\n", q[0], q[1], if q[0] <= 0.5 { 1 } else { 0 });
+        }
+        for t in &f {
+            s += &format!("3 {} {} {}\n", t[0], t[1], t[2]);
+        }
+        std::fs::write(&p, s).unwrap();
+        p
+    } else {
+        let p = dir.join("square.obj");
+        let mut s = String::new();
+        for q in &v {
+            s += &format!("v {} {} 0\n", q[0], q[1]);
+        }
+        for t in &f {
+            s += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+        }
+        std::fs::write(&p, s).unwrap();
+        p
+    }
+}
+
+fn write_png(path: &Path, w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) {
+    let mut data = Vec::with_capacity(w * h * 3);
+    for y in 0..h {
+        for x in 0..w {
+            data.extend_from_slice(&f(x, y));
+        }
+    }
+    imageio::write_png(
+        path,
+        &RgbImage {
+            width: w,
+            height: h,
+            data,
+        },
+        imageio::PngDepth::Eight,
+    )
+    .unwrap();
+}
+
+/// A decorated flat square: (gim, sample, its foreground mask, base quilt).
+/// The sample is a brick crop; its foreground a disk in one corner, which
+/// the background tiling keeps out.
+struct Scene {
+    _dir: tempfile::TempDir,
+    dir: PathBuf,
+    gim: PathBuf,
+    sample: PathBuf,
+    mask: PathBuf,
+    base: PathBuf,
+}
+
+fn scene() -> Scene {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_path_buf();
+    let g = d.join("square.gim");
+    let cfg = AtlasConfig {
+        resolution: R,
+        ..AtlasConfig::default()
+    };
+    gim::build_gim(&square(&d, false), &g, &cfg, &Silent).unwrap();
+    let src = imageio::read_rgb(&Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png")).unwrap();
+    let sample = d.join("brick96.png");
+    write_png(&sample, 96, 96, |x, y| {
+        let i = ((y + 100) * src.width + x + 100) * 3;
+        [src.data[i], src.data[i + 1], src.data[i + 2]]
+    });
+    let mask = d.join("mask.png");
+    let disk = |x: usize, y: usize| (x as f32 - 22.0).powi(2) + (y as f32 - 22.0).powi(2) < 16.0f32.powi(2);
+    write_png(&mask, 96, 96, |x, y| if disk(x, y) { [1.0; 3] } else { [0.0; 3] });
+    let base = d.join("base.quilt");
+    let tc = TileConfig {
+        sample_mask: Some(mask.clone()),
+        patch_radius: Some(12),
+        ..TileConfig::default()
+    };
+    quilt::tile(&g, &sample, &base, &tc, &Silent).unwrap();
+    Scene {
+        _dir: dir,
+        dir: d,
+        gim: g,
+        sample,
+        mask,
+        base,
+    }
+}
+
+fn painting_figures(q: &Path) -> (f64, f64) {
+    let json = btfquilt::evaluate::evaluate(q, None, None, MemoryBudget::default()).unwrap();
+    let field = |k: &str| -> f64 {
+        let at = json
+            .find(&format!("\"{k}\": "))
+            .unwrap_or_else(|| panic!("{k} in {json}"))
+            + k.len()
+            + 4;
+        json[at..]
+            .split([',', '}'])
+            .next()
+            .unwrap()
+            .trim()
+            .parse()
+            .unwrap()
+    };
+    (
+        field("region_covered_by_foreground"),
+        field("foreground_outside_region_and_transition"),
+    )
+}
+
+fn region_array(q: &Path) -> Vec<f32> {
+    let q = Quilt::open(q, MemoryBudget::default()).unwrap();
+    let c = q.container();
+    c.read_array(c.array("region").unwrap()).unwrap()
+}
+
+fn paint_cfg(s: &Scene) -> PaintConfig {
+    PaintConfig {
+        sample_mask: Some(s.mask.clone()),
+        tile: TileConfig {
+            patch_radius: Some(12),
+            ..TileConfig::default()
+        },
+        ..PaintConfig::default()
+    }
+}
+
+#[test]
+fn painting_a_region_fills_it_merges_it_and_replays() {
+    let s = scene();
+    let gim = Gim::open(&s.gim, MemoryBudget::default()).unwrap();
+    let chart: Vec<u32> = gim.read("chart").unwrap();
+    // F: a disk of radius 14 texels in the atlas, inside the chart
+    let covered: Vec<usize> = (0..R * R).filter(|&t| chart[t] != EMPTY).collect();
+    let (cx, cy) = (
+        covered.iter().map(|t| t % R).sum::<usize>() as f32 / covered.len() as f32,
+        covered.iter().map(|t| t / R).sum::<usize>() as f32 / covered.len() as f32,
+    );
+    let in_f =
+        |t: usize| chart[t] != EMPTY && ((t % R) as f32 - cx).powi(2) + ((t / R) as f32 - cy).powi(2) < 196.0;
+    let region = s.dir.join("region.png");
+    write_png(
+        &region,
+        R,
+        R,
+        |x, y| if in_f(y * R + x) { [1.0; 3] } else { [0.0; 3] },
+    );
+    let base_bytes = std::fs::read(&s.base).unwrap();
+    let out = s.dir.join("painted.quilt");
+    let cfg = PaintConfig {
+        region: Some(region.clone()),
+        transition: 5,
+        ..paint_cfg(&s)
+    };
+    let report = paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
+    assert!(report.region_texels > 500 && report.repainted > 0, "{report}");
+    // the base stays as it was: undo is free
+    assert_eq!(std::fs::read(&s.base).unwrap(), base_bytes);
+
+    // m0: 1 on F, 1 − d/(T+1) at d hops outside (a 4-neighbour BFS on the
+    // single chart), 0 beyond
+    let m0 = region_array(&out);
+    let mut hops = vec![u32::MAX; R * R];
+    let mut queue: std::collections::VecDeque<usize> = (0..R * R).filter(|&t| in_f(t)).collect();
+    for &t in &queue {
+        hops[t] = 0;
+    }
+    while let Some(t) = queue.pop_front() {
+        let (x, y) = (t % R, t / R);
+        for n in [
+            (x > 0).then(|| t - 1),
+            (x + 1 < R).then(|| t + 1),
+            (y > 0).then(|| t - R),
+            (y + 1 < R).then(|| t + R),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            if chart[n] != EMPTY && hops[n] == u32::MAX {
+                hops[n] = hops[t] + 1;
+                queue.push_back(n);
+            }
+        }
+    }
+    for t in 0..R * R {
+        let want = match hops[t] {
+            u32::MAX => 0.0,
+            d => (1.0 - d as f32 / 6.0).max(0.0),
+        };
+        assert!(
+            (m0[t] - want).abs() < 1e-6,
+            "m0 at texel {t}: {} vs {want}",
+            m0[t]
+        );
+    }
+
+    // the measures of §IV: F filled with foreground, none spilled outside
+    let (coverage, spill) = painting_figures(&out);
+    assert!(coverage >= 0.95, "F covered by foreground: {coverage}");
+    assert!(
+        spill <= 0.05,
+        "foreground outside F and the transition zone: {spill}"
+    );
+
+    // the log replays to the same bytes, on one thread and on two
+    let again = s.dir.join("replayed.quilt");
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| paint::replay(&out, &again, &Silent))
+        .unwrap();
+    assert_eq!(std::fs::read(&again).unwrap(), std::fs::read(&out).unwrap());
+    let two = s.dir.join("two.quilt");
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap()
+        .install(|| paint::paint(&s.base, &two, &cfg, &Silent))
+        .unwrap();
+    assert_eq!(std::fs::read(&two).unwrap(), std::fs::read(&out).unwrap());
+    // painting a painted surface appends to its log, and replays too
+    let twice = s.dir.join("twice.quilt");
+    let strokes = s.dir.join("s.json");
+    std::fs::write(&strokes, r#"[{"point": [0.2, 0.2, 0.0], "radius": 0.1}]"#).unwrap();
+    let cfg2 = PaintConfig {
+        region: Some(strokes),
+        ..cfg.clone()
+    };
+    paint::paint(&out, &twice, &cfg2, &Silent).unwrap();
+    let again2 = s.dir.join("replayed2.quilt");
+    paint::replay(&twice, &again2, &Silent).unwrap();
+    assert_eq!(std::fs::read(&again2).unwrap(), std::fs::read(&twice).unwrap());
+}
+
+#[test]
+fn strokes_are_geodesic_disks_and_vertex_paint_is_interpolated() {
+    let s = scene();
+    let gim = Gim::open(&s.gim, MemoryBudget::default()).unwrap();
+    let chart: Vec<u32> = gim.read("chart").unwrap();
+    let pos: Vec<f32> = gim.read("position").unwrap();
+    let strokes = s.dir.join("strokes.json");
+    std::fs::write(&strokes, r#"[{"point": [0.5, 0.5, 0.02], "radius": 0.2}]"#).unwrap();
+    let out = s.dir.join("a.quilt");
+    let cfg = PaintConfig {
+        region: Some(strokes),
+        transition: 0,
+        ..paint_cfg(&s)
+    };
+    paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
+    let m0 = region_array(&out);
+    for t in (0..R * R).filter(|&t| chart[t] != EMPTY) {
+        let d = ((pos[t * 3] - 0.5).powi(2) + (pos[t * 3 + 1] - 0.5).powi(2)).sqrt();
+        // 8-neighbour paths are at most 8.24 % longer than straight ones;
+        // the source texel is within a texel (1/120) of the point
+        if d + 0.01 < 0.2 / 1.0824 {
+            assert_eq!(m0[t], 1.0, "texel {t} at distance {d} should be in the disk");
+        }
+        if d > 0.2 + 0.01 {
+            assert_eq!(m0[t], 0.0, "texel {t} at distance {d} should be outside the disk");
+        }
+    }
+    // vertex paint: quality 1 on vertices with x ≤ ½, 0 from x = 5/8: the
+    // interpolated weight is ≥ ½ for x ≤ 9/16
+    let ply = square(&s.dir, true);
+    let out = s.dir.join("b.quilt");
+    let cfg = PaintConfig {
+        region: Some(ply),
+        transition: 0,
+        ..paint_cfg(&s)
+    };
+    paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
+    let m0 = region_array(&out);
+    for t in (0..R * R).filter(|&t| chart[t] != EMPTY) {
+        let x = pos[t * 3];
+        if x < 0.555 {
+            assert_eq!(m0[t], 1.0, "texel {t} at x = {x}");
+        }
+        if x > 0.57 {
+            assert_eq!(m0[t], 0.0, "texel {t} at x = {x}");
+        }
+    }
+}
+
+#[test]
+fn verbatim_copy_places_the_whole_foreground() {
+    let s = scene();
+    let preview = s.dir.join("preview.png");
+    let v = Verbatim {
+        at: [0.5, 0.5, 0.0],
+        angle: 30.0,
+    };
+    let cfg = PaintConfig {
+        verbatim: Some(v),
+        preview: Some(preview.clone()),
+        ..paint_cfg(&s)
+    };
+    let out = s.dir.join("v.quilt");
+    paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
+    assert!(imageio::read_rgb(&preview).unwrap().width > 20);
+    assert!(!out.exists(), "a preview writes no quilt");
+    let cfg = PaintConfig { preview: None, ..cfg };
+    let report = paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
+    // the disk has ~800 pixels; every placed foreground texel took the copy
+    assert!(report.region_texels > 600, "{report}");
+    let (coverage, _) = painting_figures(&out);
+    assert!(
+        coverage >= 0.99,
+        "verbatim copy left {coverage} of the foreground"
+    );
+}
+
+#[test]
+fn bad_paint_inputs_are_refused_and_write_nothing() {
+    let s = scene();
+    let out = s.dir.join("never.quilt");
+    let err = |cfg: PaintConfig| -> String {
+        let e = paint::paint(&s.base, &out, &cfg, &Silent)
+            .err()
+            .expect("should fail")
+            .to_string();
+        assert!(!out.exists(), "{e}: output written");
+        e
+    };
+    let small = s.dir.join("small.png");
+    write_png(&small, 10, 10, |_, _| [1.0; 3]);
+    let e = err(PaintConfig {
+        region: Some(small.clone()),
+        ..paint_cfg(&s)
+    });
+    assert!(e.contains("small.png") && e.contains("atlas size"), "{e}");
+    let e = err(PaintConfig {
+        region: Some(s.sample.clone()),
+        sample_mask: Some(small.clone()),
+        ..paint_cfg(&s)
+    });
+    assert!(e.contains("small.png") && e.contains("sample's size"), "{e}");
+    let txt = s.dir.join("region.txt");
+    std::fs::write(&txt, "x").unwrap();
+    let e = err(PaintConfig {
+        region: Some(txt),
+        ..paint_cfg(&s)
+    });
+    assert!(e.contains("region.txt") && e.contains("not a region"), "{e}");
+    let bad = s.dir.join("bad.json");
+    std::fs::write(&bad, r#"[{"point": [0, 0]}]"#).unwrap();
+    let e = err(PaintConfig {
+        region: Some(bad),
+        ..paint_cfg(&s)
+    });
+    assert!(e.contains("bad.json") && e.contains("point"), "{e}");
+    let other = s.dir.join("other.png");
+    std::fs::copy(&s.sample, &other).unwrap();
+    let e = err(PaintConfig {
+        sample: Some(other),
+        region: Some(s.mask.clone()),
+        ..paint_cfg(&s)
+    });
+    assert!(e.contains("other.png") && e.contains("tiled with"), "{e}");
+    let e = err(paint_cfg(&s));
+    assert!(e.contains("--region"), "{e}");
+    let empty = s.dir.join("empty.png");
+    write_png(&empty, R, R, |_, _| [0.0; 3]);
+    let e = err(PaintConfig {
+        region: Some(empty),
+        ..paint_cfg(&s)
+    });
+    assert!(e.contains("empty.png") && e.contains("no texel"), "{e}");
+}
