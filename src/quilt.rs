@@ -1708,25 +1708,56 @@ fn place_covering(
     // nothing known yet, or no match covers the patch: a seeded spot that
     // covers the seed's neighbourhood (the sample centre ± a margin)
     let (sw, sh) = (sample.width as f64, sample.height as f64);
-    let h = crate::rng::mix64(cfg.seed ^ crate::rng::mix64(counter + 1));
-    let jitter = |bits: u64, span: f64| ((bits & 0xffff) as f64 / 65535.0 - 0.5) * span;
-    let margin = 0.25;
-    let cen = [
-        (sw - 1.0) / 2.0 + jitter(h, margin * sw),
-        (sh - 1.0) / 2.0 + jitter(h >> 16, margin * sh),
-    ];
-    // the seed at unrotated sample point `cen`: solve for the translation
     let theta = rotation as f64 * std::f64::consts::TAU / sample.rotated.len() as f64;
     let (s, c) = theta.sin_cos();
     let mid = [(sw - 1.0) / 2.0, (sh - 1.0) / 2.0];
-    let d = [cen[0] - mid[0], cen[1] - mid[1]];
-    // q = R(θ) d (inverse of the rotation in `to_sample`)
-    let q = [c * d[0] - s * d[1], s * d[0] + c * d[1]];
-    Ok(PlacementChoice {
-        rotation,
-        dx: (work.coords[0][0] - mid[0] - q[0]).round(),
-        dy: (work.coords[0][1] - mid[1] - q[1]).round(),
-    })
+    // the seed at unrotated sample point `cen`: solve for the translation
+    let place = |cen: [f64; 2]| {
+        let d = [cen[0] - mid[0], cen[1] - mid[1]];
+        // q = R(θ) d (inverse of the rotation in `to_sample`)
+        let q = [c * d[0] - s * d[1], s * d[0] + c * d[1]];
+        PlacementChoice {
+            rotation,
+            dx: (work.coords[0][0] - mid[0] - q[0]).round(),
+            dy: (work.coords[0][1] - mid[1] - q[1]).round(),
+        }
+    };
+    let h = crate::rng::mix64(cfg.seed ^ crate::rng::mix64(counter + 1));
+    let jitter = |bits: u64, span: f64| ((bits & 0xffff) as f64 / 65535.0 - 0.5) * span;
+    if !work.constraint.is_empty() && sample.mask.is_some() {
+        // constrained: among seeded spots anywhere on the sample, the one
+        // whose foreground best agrees with m0 over the patch (outside the
+        // sample counts as a full mismatch), the first of equals
+        let probe: Vec<usize> = (0..work.coords.len()).step_by(step).collect();
+        let mut best = (f64::INFINITY, place([mid[0], mid[1]]));
+        for k in 0..64u64 {
+            let b = crate::rng::mix64(h ^ crate::rng::mix64(k + 1));
+            let choice = place([mid[0] + jitter(b, 0.9 * sw), mid[1] + jitter(b >> 16, 0.9 * sh)]);
+            let cost: f64 = probe
+                .iter()
+                .map(|&i| {
+                    let w = work.coords[i];
+                    let m0 = work.constraint[(w[1].round() as usize).min(work.height - 1) * work.width
+                        + (w[0].round() as usize).min(work.width - 1)];
+                    let cs = to_sample(sample, rotation, choice.dx, choice.dy, w);
+                    if inside_sample(sample, cs) {
+                        (sample.mask_at(cs) - m0).abs() as f64
+                    } else {
+                        1.0
+                    }
+                })
+                .sum();
+            if cost < best.0 {
+                best = (cost, choice);
+            }
+        }
+        return Ok(best.1);
+    }
+    let margin = 0.25;
+    Ok(place([
+        (sw - 1.0) / 2.0 + jitter(h, margin * sw),
+        (sh - 1.0) / 2.0 + jitter(h >> 16, margin * sh),
+    ]))
 }
 
 /// The rotation for the work image's field direction and the best matches
