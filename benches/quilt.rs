@@ -82,7 +82,13 @@ fn bench_tile(c: &mut Criterion) {
     )
     .unwrap();
     let svd = dir.path().join("brick192.svd");
-    factorize::factorize(&brick_crop(dir.path(), 192), &svd, &FactorizeConfig::default(), &Silent).unwrap();
+    factorize::factorize(
+        &brick_crop(dir.path(), 192),
+        &svd,
+        &FactorizeConfig::default(),
+        &Silent,
+    )
+    .unwrap();
     let out = dir.path().join("square.quilt");
     let cfg = TileConfig::default();
 

@@ -334,9 +334,17 @@ fn apply_stroke(
     let cfg = stroke.tile_config();
     let gim = Gim::open(&base.gim, cfg.memory)?;
     let (svd_path, _tmp) = sample_svd(&base.sample, progress)?;
+    let trace = |what: &str| {
+        if std::env::var_os("BTFQUILT_TRACE").is_some() {
+            progress.note(&format!("{what}: {:.3} s", start.elapsed().as_secs_f64()));
+        }
+    };
+    trace("factorized");
     let mut syn = Synthesis::open(&gim, &base.sample, &svd_path, &cfg)?;
+    trace("opened");
     syn.set_mask(&stroke.sample_mask)?;
     syn.load(base)?;
+    trace("loaded");
     let mut report = PaintReport::default();
     if let Some(v) = stroke.verbatim {
         let (centre, extent) = foreground_extent(&syn);
@@ -364,6 +372,7 @@ fn apply_stroke(
             return Err(Error::input(region_path, "marks no texel of the surface"));
         }
         syn.set_target(m0.clone());
+        trace("region");
         // every texel of the zone is re-synthesized once, as the seed or
         // inside (not on the rim of) a work patch; seeds deepest in F first
         // (highest m0, then lowest id), so the first patch lays the feature
@@ -391,6 +400,7 @@ fn apply_stroke(
             }
         }
         progress.end();
+        trace("painted");
         report.patches = syn.report.patches;
         let before = base.patches()?;
         report.repainted = syn

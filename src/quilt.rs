@@ -1390,7 +1390,11 @@ impl<'a> Synthesis<'a> {
             } else {
                 0.0
             };
-            if mean > cfg.seam_threshold * self.reference
+            // (painting takes its one min-cut per fitting: its seams must
+            // cross the foreground's border where m0 demands it, which T_c
+            // would read as a bad fit)
+            if !painting
+                && mean > cfg.seam_threshold * self.reference
                 && radius > cfg.min_radius
                 && fit.taken_new_synth > 0
             {
