@@ -395,6 +395,10 @@ pub fn build_gim(
     let nf = mesh.triangles.len();
     let mut face_chart = vec![EMPTY; nf];
     let mut corner_texel = vec![[[0f64; 2]; 3]; nf];
+    // the charts' uv are right-handed (counter-clockwise faces stay
+    // counter-clockwise with v up); atlas rows run down, so v is flipped
+    // within each chart's box — else every chart, and everything quilted
+    // into it, would show mirrored on the surface
     for (ci, c) in charts.iter().enumerate() {
         let o = packing.offsets[ci];
         for (k, &f) in c.faces.iter().enumerate() {
@@ -403,7 +407,7 @@ pub fn build_gim(
                 let uv = c.uv[c.triangles[k][j] as usize];
                 corner_texel[f as usize][j] = [
                     o[0] + uv[0] as f64 * packing.scale,
-                    o[1] + uv[1] as f64 * packing.scale,
+                    o[1] + (extents[ci][1] - uv[1] as f64) * packing.scale,
                 ];
             }
         }

@@ -814,15 +814,21 @@ fn flatten(
         surface.graph.for_each_neighbour(t, |_, zipper| on |= zipper);
         on
     };
+    let area = |p: [[f64; 2]; 3]| {
+        0.5 * ((p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]))
+    };
+    let atlas = |i: u32| {
+        let t = patch.texels[i as usize] as usize;
+        [(t % r) as f64, (t / r) as f64]
+    };
     let mut ratios: Vec<f64> = grid_triangles
         .iter()
         .filter(|t| !t.iter().any(|&i| border(i)))
         .map(|t| {
-            let p = t.map(|i| uv[i as usize]);
-            let a =
-                0.5 * ((p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]));
+            // against the triangle's atlas area (±½, signed like the atlas)
+            let a = area(t.map(|i| uv[i as usize])) / area(t.map(atlas));
             if a > 0.0 {
-                (2.0 * a).max(0.5 / a)
+                a.max(1.0 / a)
             } else {
                 f64::INFINITY
             }

@@ -51,6 +51,19 @@ fn spot_dense_mesh_is_zippered_and_uniform() {
     let graph = g.graph().unwrap();
     let texel = g.texel_size;
 
+    // no chart is mirrored: seen from outside (counter-clockwise faces), an
+    // image laid on the atlas (x right, rows down) must read the right way
+    // round, so every face's atlas triangle turns clockwise in (x, y-down)
+    let mesh = g.mesh().unwrap();
+    let uv = g.corner_uv().unwrap();
+    let mirrored = (0..mesh.triangles.len())
+        .filter(|&f| {
+            let [a, b, c] = [uv[f * 3], uv[f * 3 + 1], uv[f * 3 + 2]];
+            (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]) >= 0.0
+        })
+        .count();
+    assert_eq!(mirrored, 0, "{mirrored} of {} faces are mirrored in the atlas", mesh.triangles.len());
+
     // attributes: barycentrics inside the face, unit normal, unit tangent ⟂ normal
     for t in 0..r * r {
         if graph.chart[t] == EMPTY {
