@@ -698,9 +698,10 @@ fn run(cli: Cli) -> Result<()> {
                 let scratch = std::env::temp_dir();
                 let report = btfquilt::paint::paint(&file, &scratch.join("unused.quilt"), &cfg, &bars)?;
                 say!(
-                    "wrote {} ({} foreground texels, {:.0} ms)",
+                    "wrote {} ({} foreground texels; projection {:.1} ms, {:.0} ms with opening the artifacts)",
                     p.display(),
                     report.region_texels,
+                    report.projection_seconds * 1e3,
                     t.elapsed().as_secs_f64() * 1e3
                 );
             }

@@ -76,6 +76,9 @@ pub struct PaintReport {
     /// Texels that took a new patch.
     pub repainted: usize,
     pub seconds: f64,
+    /// Verbatim preview: the direct projection alone (after opening the
+    /// artifacts), in seconds.
+    pub projection_seconds: f64,
 }
 
 impl std::fmt::Display for PaintReport {
@@ -344,14 +347,17 @@ fn apply_stroke(
     trace("opened");
     syn.set_mask(&stroke.sample_mask)?;
     syn.load(base)?;
+    syn.painting = true;
     trace("loaded");
     let mut report = PaintReport::default();
     if let Some(v) = stroke.verbatim {
         let (centre, extent) = foreground_extent(&syn);
         let vertex = nearest_vertex(&syn, v.at);
         let radius = (extent * 1.15).ceil() as usize + 4;
+        let t = Instant::now();
         let taken = syn.verbatim(vertex, radius, v.angle.to_radians(), centre, preview, progress)?;
         if preview.is_some() {
+            report.projection_seconds = t.elapsed().as_secs_f64();
             report.zone_texels = taken;
             report.region_texels = taken;
             report.seconds = start.elapsed().as_secs_f64();

@@ -1153,6 +1153,9 @@ pub(crate) struct Synthesis<'a> {
     /// The sample's mean neighbour difference, the unit of T_c.
     reference: f64,
     pub(crate) report: TileReport,
+    /// Painting (§IV): one min-cut per fitting, no T_c shrinking, and a
+    /// fitting may keep every old value.
+    pub(crate) painting: bool,
     seam_sum: f64,
     seam_cnt: usize,
 }
@@ -1211,6 +1214,7 @@ impl<'a> Synthesis<'a> {
                 ..TileReport::default()
             },
             surface,
+            painting: false,
             seam_sum: 0.0,
             seam_cnt: 0,
         })
@@ -1366,7 +1370,7 @@ impl<'a> Synthesis<'a> {
         let cfg = self.cfg;
         let mut radius = radius0;
         let mut flattening: Option<Flattening> = None;
-        let painting = self.state.target.is_some();
+        let painting = self.painting;
         loop {
             let patch = self.bfs.patch(&self.surface.graph, v, radius);
             let work = self.work_image(&patch, &mut flattening);

@@ -408,3 +408,67 @@ fn bad_paint_inputs_are_refused_and_write_nothing() {
     });
     assert!(e.contains("empty.png") && e.contains("no texel"), "{e}");
 }
+
+#[test]
+fn paint_cli_fails_clearly_with_a_non_zero_exit() {
+    let s = scene();
+    let small = s.dir.join("tiny.png");
+    write_png(&small, 10, 10, |_, _| [1.0; 3]);
+    let out = s.dir.join("cli.quilt");
+    let run = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_btfquilt"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let base = s.base.to_str().unwrap();
+    let o = run(&[
+        "paint",
+        base,
+        "--sample-mask",
+        s.mask.to_str().unwrap(),
+        "--region",
+        small.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("tiny.png") && err.contains("atlas size"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    let o = run(&[
+        "paint",
+        base,
+        "--verbatim",
+        "--at",
+        "0.5,0.5",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("x,y,z"), "{err}");
+    let o = run(&["paint", base, "--region", small.to_str().unwrap()]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("-o"));
+    // a good stroke through the CLI, then its replay: the same bytes
+    let strokes = s.dir.join("s.json");
+    std::fs::write(&strokes, r#"[{"point": [0.5, 0.5, 0.0], "radius": 0.15}]"#).unwrap();
+    let o = run(&[
+        "paint",
+        base,
+        "--sample-mask",
+        s.mask.to_str().unwrap(),
+        "--region",
+        strokes.to_str().unwrap(),
+        "--patch-radius",
+        "12",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let again = s.dir.join("again.quilt");
+    let o = run(&["replay", out.to_str().unwrap(), "-o", again.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(std::fs::read(&again).unwrap(), std::fs::read(&out).unwrap());
+}
