@@ -789,26 +789,44 @@ impl Scene {
         }
         let local = |d: [f32; 3]| [dot(d, xh), dot(d, yh), dot(d, n)];
 
-        // geometry maps at (sx, sy), bilinear, clamped
+        // geometry maps: each of the (up to) four texels around the pixel's
+        // atlas position continues its own patch to that position through
+        // its Jacobian; their g vectors are blended bilinearly, so a patch
+        // seam is a one-texel blend instead of a step (inside a patch the
+        // four continuations agree)
         let nt = btf.terms;
         scratch.clear();
         scratch.resize(nt, 0.0);
-        let (w, h) = (btf.width, btf.height);
-        let gx = sx.clamp(0.0, (w - 1) as f32);
-        let gy = sy.clamp(0.0, (h - 1) as f32);
-        let (x0, y0) = (gx.floor() as usize, gy.floor() as usize);
-        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-        let (fx, fy) = (gx - x0 as f32, gy - y0 as f32);
-        for (idx, wgt) in [
-            (y0 * w + x0, (1.0 - fx) * (1.0 - fy)),
-            (y0 * w + x1, fx * (1.0 - fy)),
-            (y1 * w + x0, (1.0 - fx) * fy),
-            (y1 * w + x1, fx * fy),
+        let (bx, by) = (xa.floor(), ya.floor());
+        let (fxa, fya) = (xa - bx, ya - by);
+        let mut total = 0f32;
+        for (ox, oy, wgt) in [
+            (0.0, 0.0, (1.0 - fxa) * (1.0 - fya)),
+            (1.0, 0.0, fxa * (1.0 - fya)),
+            (0.0, 1.0, (1.0 - fxa) * fya),
+            (1.0, 1.0, fxa * fya),
         ] {
-            let src = &btf.geometry[idx * nt..(idx + 1) * nt];
-            for (a, &b) in scratch.iter_mut().zip(src) {
-                *a += wgt * b;
+            let (cx, cy) = (bx + ox, by + oy);
+            if wgt <= 0.0 || cx < 0.0 || cy < 0.0 || cx >= r as f32 || cy >= r as f32 {
+                continue;
             }
+            let k = cy as usize * r + cx as usize;
+            if !btf.covered[k] {
+                continue;
+            }
+            let (jk, ck) = (btf.jacobians[k], btf.coords[k]);
+            let (ddx, ddy) = (xa - cx, ya - cy);
+            let px = ck[0] + jk[0] * ddx + jk[2] * ddy;
+            let py = ck[1] + jk[1] * ddx + jk[3] * ddy;
+            add_geometry(btf, px, py, wgt, scratch);
+            total += wgt;
+        }
+        if total > 0.0 {
+            for a in scratch.iter_mut() {
+                *a /= total;
+            }
+        } else {
+            add_geometry(btf, sx, sy, 1.0, scratch);
         }
         let g = &scratch[..];
 
@@ -1002,4 +1020,27 @@ fn nearest_covered(covered: &[bool], r: usize, xa: f32, ya: f32) -> Option<(usiz
         }
     }
     None
+}
+
+/// Adds `weight` × the geometry-map vector at sample position `(sx, sy)`
+/// (bilinear, clamped to the sample) to `out`.
+fn add_geometry(btf: &BtfShading, sx: f32, sy: f32, weight: f32, out: &mut [f32]) {
+    let nt = btf.terms;
+    let (w, h) = (btf.width, btf.height);
+    let gx = sx.clamp(0.0, (w - 1) as f32);
+    let gy = sy.clamp(0.0, (h - 1) as f32);
+    let (x0, y0) = (gx.floor() as usize, gy.floor() as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = (gx - x0 as f32, gy - y0 as f32);
+    for (idx, wgt) in [
+        (y0 * w + x0, (1.0 - fx) * (1.0 - fy)),
+        (y0 * w + x1, fx * (1.0 - fy)),
+        (y1 * w + x0, (1.0 - fx) * fy),
+        (y1 * w + x1, fx * fy),
+    ] {
+        let src = &btf.geometry[idx * nt..(idx + 1) * nt];
+        for (a, &b) in out.iter_mut().zip(src) {
+            *a += weight * wgt * b;
+        }
+    }
 }
