@@ -1437,22 +1437,27 @@ impl<'a> Synthesis<'a> {
                 ));
             }
             self.report.cross_chart_patches += patch.crosses_charts as usize;
-            let id = self.state.next_patch;
-            self.state.next_patch += 1;
-            apply(
-                &mut self.state,
-                &self.sample,
-                &self.surface,
-                &patch,
-                &fit,
-                id,
-                progress,
-            );
-            self.seam_sum += fit.seam_cost;
-            self.seam_cnt += fit.seam_edges;
-            self.report.patches += 1;
+            self.accept(&patch, &fit, progress);
             return Ok(patch);
         }
+    }
+
+    /// Records an accepted fitting under the next patch id.
+    fn accept(&mut self, patch: &WorkPatch, fit: &Fit, progress: &dyn Progress) {
+        let id = self.state.next_patch;
+        self.state.next_patch += 1;
+        apply(
+            &mut self.state,
+            &self.sample,
+            &self.surface,
+            patch,
+            fit,
+            id,
+            progress,
+        );
+        self.seam_sum += fit.seam_cost;
+        self.seam_cnt += fit.seam_edges;
+        self.report.patches += 1;
     }
 
     /// The work image I(v) of a work patch: the chart image inside a chart;
@@ -1579,20 +1584,7 @@ impl<'a> Synthesis<'a> {
             INFINITE.sqrt(),
         );
         self.report.graphcut_seconds += t.elapsed().as_secs_f64();
-        let id = self.state.next_patch;
-        self.state.next_patch += 1;
-        apply(
-            &mut self.state,
-            &self.sample,
-            &self.surface,
-            &patch,
-            &fit,
-            id,
-            progress,
-        );
-        self.seam_sum += fit.seam_cost;
-        self.seam_cnt += fit.seam_edges;
-        self.report.patches += 1;
+        self.accept(&patch, &fit, progress);
         Ok(fit.taken)
     }
 
