@@ -76,7 +76,7 @@ pub fn evaluate(
         .map(|l| diff(&img, l[0] as usize, l[1] as usize))
         .collect();
     let all_inside: Vec<f64> = inner.iter().chain(&seam).copied().collect();
-    let zipper_ratio = mean(&zip) / mean(&all_inside).max(1e-12);
+    let zipper_ratio = mean(&zip) / mean(&all_inside).max(1e-12) + 0.0;
     let coherence = coherence(&quilt, &img, &covered, &chart, &preview)?;
     let seams_fraction = seam.len() as f64 / (seam.len() + inner.len()).max(1) as f64;
     let patch_count = {

@@ -7,9 +7,11 @@
 //!    synthesized neighbours; the first one from the seed);
 //! 2. work patch P(v): breadth-first traversal of M_d from v to depth r_w;
 //! 3. work image I(v): inside one chart, the chart's sub-image (no
-//!    resampling); across charts, P(v) flattened with LSCM (area distortion ≤
-//!    T_d, else shrink) and resampled at one texel per pixel, a pixel known
-//!    where its triangle's three vertices are synthesized;
+//!    resampling); across charts, P(v) flattened — the charts' own LSCM
+//!    layouts aligned over the zipper links and their seams closed by a
+//!    membrane (area distortion ≤ T_d, else the rigid field-based
+//!    unfolding) — and resampled at one texel per pixel, a pixel known where
+//!    its triangle's three vertices are synthesized;
 //! 4. entire-patch matching of the sample rotated to the work image's mean
 //!    field direction (one of the 72 rotated copies) by FFT; a seeded choice
 //!    among near-minimal placements;
@@ -94,8 +96,8 @@ impl Default for TileConfig {
 pub struct TileReport {
     pub patches: usize,
     pub cross_chart_patches: usize,
-    /// Cross-chart patches that LSCM could not flatten within T_d, unfolded
-    /// chart by chart instead.
+    /// Accepted cross-chart patches whose work image is the rigid unfolding
+    /// (the flattening exceeded T_d).
     pub unfolded_patches: usize,
     pub shrinks: usize,
     pub texels: usize,
@@ -501,8 +503,8 @@ fn patch_triangles(
         })
         .collect();
     // wind every triangle like the surface (its 3D normal along the texels'
-    // normals): zipper triangles are stored unoriented, and LSCM's energy
-    // depends on orientation
+    // normals): zipper triangles are stored unoriented, and the distortion
+    // check reads flips from the orientation
     for tri in &mut tris {
         let p = tri.map(|i| positions[i as usize]);
         let n = crate::mesh::cross(crate::mesh::sub(p[1], p[0]), crate::mesh::sub(p[2], p[0]));
@@ -980,7 +982,7 @@ fn raster_work_image(
     })
 }
 
-/// Cross-chart work image: the patch flattened with LSCM and resampled.
+/// Cross-chart work image: the patch flattened by [`flatten`] and resampled.
 /// `None` if it cannot be flattened within the distortion bound.
 fn flattened_work_image(
     surface: &Surface,
@@ -996,7 +998,7 @@ fn flattened_work_image(
     Some((work, coords))
 }
 
-/// A seed's LSCM flattening, reused when its patch shrinks: a smaller BFS
+/// A seed's flattening, reused when its patch shrinks: a smaller BFS
 /// ball from the same seed is part of the larger one.
 struct Flattening {
     /// (texel, coordinate), sorted by texel.
@@ -1029,7 +1031,7 @@ impl Flattening {
     }
 }
 
-/// Cross-chart work image without LSCM: each chart's part of the patch keeps
+/// Cross-chart work image without flattening: each chart's part of the patch keeps
 /// its atlas layout (no resampling inside a chart) and is turned rigidly so
 /// that the vector field agrees across the zipper it was entered through.
 /// Used when the patch's triangulation cannot be flattened within T_d.
@@ -1156,6 +1158,8 @@ pub(crate) struct Synthesis<'a> {
     /// Painting (§IV): one min-cut per fitting, no T_c shrinking, and a
     /// fitting may keep every old value.
     pub(crate) painting: bool,
+    /// Whether the last work image was the rigid unfolding.
+    last_unfolded: bool,
     seam_sum: f64,
     seam_cnt: usize,
 }
@@ -1215,6 +1219,7 @@ impl<'a> Synthesis<'a> {
             },
             surface,
             painting: false,
+            last_unfolded: false,
             seam_sum: 0.0,
             seam_cnt: 0,
         })
@@ -1437,6 +1442,7 @@ impl<'a> Synthesis<'a> {
                 ));
             }
             self.report.cross_chart_patches += patch.crosses_charts as usize;
+            self.report.unfolded_patches += self.last_unfolded as usize;
             self.accept(&patch, &fit, progress);
             return Ok(patch);
         }
@@ -1464,6 +1470,7 @@ impl<'a> Synthesis<'a> {
     /// across charts the flattening (reused from `flattening` when the same
     /// seed's patch shrinks), or the rigid unfolding where that fails.
     fn work_image(&mut self, patch: &WorkPatch, flattening: &mut Option<Flattening>) -> WorkImage {
+        self.last_unfolded = false;
         let (surface, state, bfs, zt) = (&self.surface, &self.state, &self.bfs, &self.zipper_triangles);
         if !patch.crosses_charts {
             return chart_work_image(surface, state, patch);
@@ -1485,7 +1492,7 @@ impl<'a> Synthesis<'a> {
             });
             return work;
         }
-        self.report.unfolded_patches += 1;
+        self.last_unfolded = true;
         unfolded_work_image(surface, state, patch, bfs)
     }
 

@@ -62,7 +62,12 @@ fn spot_dense_mesh_is_zippered_and_uniform() {
             (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]) >= 0.0
         })
         .count();
-    assert_eq!(mirrored, 0, "{mirrored} of {} faces are mirrored in the atlas", mesh.triangles.len());
+    assert_eq!(
+        mirrored,
+        0,
+        "{mirrored} of {} faces are mirrored in the atlas",
+        mesh.triangles.len()
+    );
 
     // attributes: barycentrics inside the face, unit normal, unit tangent ⟂ normal
     for t in 0..r * r {
