@@ -1376,6 +1376,10 @@ impl<'a> Synthesis<'a> {
         let mut radius = radius0;
         let mut flattening: Option<Flattening> = None;
         let painting = self.painting;
+        // the rejected fitting with the lowest mean seam cost: if no radius
+        // passes T_c, it is taken instead of the smallest patch (fewer,
+        // larger pieces than always ending at r_w = 4)
+        let mut best: Option<(f64, WorkPatch, Fit, bool)> = None;
         loop {
             let patch = self.bfs.patch(&self.surface.graph, v, radius);
             let work = self.work_image(&patch, &mut flattening);
@@ -1408,14 +1412,22 @@ impl<'a> Synthesis<'a> {
             // (painting takes its one min-cut per fitting: its seams must
             // cross the foreground's border where m0 demands it, which T_c
             // would read as a bad fit)
-            if !painting
-                && mean > cfg.seam_threshold * self.reference
-                && radius > cfg.min_radius
-                && fit.taken_new_synth > 0
-            {
-                radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
-                self.report.shrinks += 1;
-                continue;
+            let (mut patch, mut fit) = (patch, fit);
+            if !painting && mean > cfg.seam_threshold * self.reference && fit.taken_new_synth > 0 {
+                if radius > cfg.min_radius {
+                    if best.as_ref().is_none_or(|b| mean < b.0) {
+                        best = Some((mean, patch, fit, self.last_unfolded));
+                    }
+                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
+                    self.report.shrinks += 1;
+                    continue;
+                }
+                if let Some(b) = best.take().filter(|b| b.0 < mean) {
+                    if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                        progress.note(&format!("best of the radii: {:.3} instead of {mean:.3}", b.0));
+                    }
+                    (patch, fit, self.last_unfolded) = (b.1, b.2, b.3);
+                }
             }
             if fit.taken == 0 && !painting {
                 // nothing could be placed (sample too small for the work
