@@ -12,7 +12,9 @@
 //! 4. `tile`: Spot with the bricks BTF by graphcut quilting, rendered with
 //!    BTF shading under a front, a grazing and a side light, baked, evaluated
 //!    and exported as glTF.
-//! 5. `tile`: Spot with a crop of the shipped CC0 brick photo (the colour
+//! 5. `paint`: the bricks' crack layer painted into a stroke on Spot's
+//!    flank by constrained graphcut, rendered.
+//! 6. `tile`: Spot with a crop of the shipped CC0 brick photo (the colour
 //!    path), baked and rendered.
 
 use std::fmt::Write as _;
@@ -28,6 +30,7 @@ use crate::gim::{self, AtlasConfig, Gim};
 use crate::imageio::{self, PngDepth, RgbImage};
 use crate::ingest;
 use crate::mesh::{cross, dot, normalize, sub};
+use crate::paint::{self, PaintConfig};
 use crate::progress::Progress;
 use crate::quilt::{self, TileConfig};
 use crate::render::{self, Camera, Light, RenderConfig};
@@ -475,6 +478,64 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         esc(&figures)
     );
 
+    // 4. graphcut texture painting: the BTF's crack layer into a stroke on
+    // Spot's flank (the foreground mask is the one the generator wrote)
+    let t = Instant::now();
+    let strokes = out_dir.join("spot_strokes.json");
+    std::fs::write(&strokes, "[{\"point\": [-0.27, 0.17, 0.23], \"radius\": 0.2}]\n")
+        .map_err(|e| Error::io(&strokes, e))?;
+    let painted = out_dir.join("spot_bricks_painted.quilt");
+    let paint_report = paint::paint(
+        &btf_quilt,
+        &painted,
+        &PaintConfig {
+            sample_mask: Some(generate::mask_path(&bricks_btf)),
+            region: Some(strokes),
+            transition: 8,
+            tile: TileConfig {
+                memory,
+                ..TileConfig::default()
+            },
+            ..PaintConfig::default()
+        },
+        progress,
+    )?;
+    let (_, caption, angle, azimuth) = BTF_LIGHTS[0];
+    let cfg = RenderConfig {
+        camera: Some(SPOT_CAMERA),
+        lights: vec![Light::directional(light_from_camera(
+            &SPOT_CAMERA,
+            angle,
+            azimuth,
+        ))],
+        width: RENDER.0,
+        height: RENDER.1,
+        ..RenderConfig::default()
+    };
+    let scene = render::Scene::open(&painted, memory)?;
+    imageio::write_png(
+        &out_dir.join("spot_bricks_painted_front.png"),
+        &scene.render_image(&cfg)?,
+        PngDepth::Eight,
+    )?;
+    drop(scene);
+    st.add(
+        "paint cracks into a stroke on Spot + render",
+        t.elapsed().as_secs_f64(),
+        paint_report.to_string(),
+    );
+    let _ = write!(
+        body,
+        "<h2>4. Graphcut texture painting</h2><p>The crack layer of the bricks BTF (its foreground mask \
+         <code>bricks.mask.png</code>) painted into a stroke of radius 0.2 on Spot's flank \
+         (<code>spot_strokes.json</code>, an 8-texel transition zone) by constrained graphcut: {}. \
+         The surface was tiled without the mask, so its background has cracks too.</p><table><tr>\
+         <td><a href=\"spot_bricks_btf_front.png\"><img width=480 src=\"spot_bricks_btf_front.png\"></a><br>before</td>\
+         <td><a href=\"spot_bricks_painted_front.png\"><img width=480 src=\"spot_bricks_painted_front.png\"></a>\
+         <br>painted ({caption})</td></tr></table>",
+        esc(&paint_report.to_string())
+    );
+
     // 5. Spot tiled with a crop of the CC0 brick photo (the colour path)
     let t = Instant::now();
     let brick = imageio::read_rgb(&spot.with_file_name("brick.png"))?;
@@ -533,7 +594,7 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
     );
     let _ = write!(
         body,
-        "<h2>4. Spot tiled with a colour sample ({size}² crop of the CC0 brick photo, {ATLAS}² atlas)</h2>\
+        "<h2>5. Spot tiled with a colour sample ({size}² crop of the CC0 brick photo, {ATLAS}² atlas)</h2>\
          <p>{}</p><table><tr><td><img width={size} src=\"{}\"><br>sample</td>\
          <td><a href=\"spot_brick_photo_front.png\"><img width=480 src=\"spot_brick_photo_front.png\"></a></td>\
          <td><a href=\"spot_brick_photo_back.png\"><img width=480 src=\"spot_brick_photo_back.png\"></a></td>\
