@@ -213,7 +213,7 @@ enum Command {
         /// A colour image or a factorization (.svd).
         #[arg(long)]
         sample: PathBuf,
-        /// Work-patch radius r_w in texels (default 32 per 512 of atlas).
+        /// Work-patch radius r_w in texels (default 32 per 512 of atlas, at most a quarter of the sample).
         #[arg(long)]
         patch_radius: Option<usize>,
         /// T_c: accept a patch if its mean seam cost ≤ this × the sample's neighbour difference.
@@ -260,7 +260,7 @@ enum Command {
         /// Verbatim: write the direct projection (no graphcut) to this image.
         #[arg(long)]
         preview: Option<PathBuf>,
-        /// Work-patch radius r_w in texels (default 32 per 512 of atlas).
+        /// Work-patch radius r_w in texels (default 32 per 512 of atlas, at most a quarter of the sample).
         #[arg(long)]
         patch_radius: Option<usize>,
         /// Weight of the constraint (data term per texel, in sample neighbour differences).

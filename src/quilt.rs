@@ -44,7 +44,8 @@ pub const NO_PATCH: u32 = u32::MAX;
 /// Options of [`tile`].
 #[derive(Clone, Debug)]
 pub struct TileConfig {
-    /// Work-patch radius r_w in BFS hops; `None` = 32 per 512 texels of atlas.
+    /// Work-patch radius r_w in BFS hops; `None` = 32 per 512 texels of
+    /// atlas, at most a quarter of the sample's smaller side.
     pub patch_radius: Option<usize>,
     /// Smallest radius of the hierarchical search.
     pub min_radius: usize,
@@ -1358,11 +1359,18 @@ impl<'a> Synthesis<'a> {
         Ok(report)
     }
 
-    /// The default work-patch radius r_w: 32 per 512 texels of atlas.
+    /// The work-patch radius r_w: 32 per 512 texels of atlas (the paper's
+    /// figure), but at most a quarter of the sample's smaller side, so a
+    /// work image (about 2 r_w across) leaves room to place and turn the
+    /// sample: on Spot at 1024² with a 128² BTF, r_w 32 instead of 64 took
+    /// 17 s instead of 35–43 s with a seam ratio of 1.28 instead of 1.40;
+    /// with a 192² crop, 48 instead of 64 gave 0.91 instead of 0.97.
     pub(crate) fn radius0(&self) -> usize {
         let cfg = self.cfg;
+        let by_atlas = 32 * self.surface.r / 512;
+        let by_sample = self.sample.width.min(self.sample.height) / 4;
         cfg.patch_radius
-            .unwrap_or((32 * self.surface.r / 512).max(cfg.min_radius))
+            .unwrap_or(by_atlas.min(by_sample))
             .max(cfg.min_radius)
     }
 
