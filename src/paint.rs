@@ -336,14 +336,15 @@ fn apply_stroke(
     let start = Instant::now();
     let cfg = stroke.tile_config();
     let gim = Gim::open(&base.gim, cfg.memory)?;
-    let (svd_path, _tmp) = sample_svd(&base.sample, progress)?;
+    let matching = stroke.verbatim.is_none();
+    let (svd_path, _tmp) = sample_svd(&base.sample, matching, progress)?;
     let trace = |what: &str| {
         if std::env::var_os("BTFQUILT_TRACE").is_some() {
             progress.note(&format!("{what}: {:.3} s", start.elapsed().as_secs_f64()));
         }
     };
     trace("factorized");
-    let mut syn = Synthesis::open(&gim, &base.sample, &svd_path, &cfg)?;
+    let mut syn = Synthesis::open(&gim, &base.sample, &svd_path, &cfg, matching)?;
     trace("opened");
     syn.set_mask(&stroke.sample_mask)?;
     syn.load(base)?;

@@ -1126,15 +1126,21 @@ fn rotation_index(angle: f64, rotations: usize) -> usize {
 }
 
 /// The sample's `.svd`: the file itself, or a colour image factorized into a
-/// temporary directory (kept alive by the returned guard).
+/// temporary directory (kept alive by the returned guard), with the rotated
+/// copies only if `matching` needs them (they are most of the cost).
 pub(crate) fn sample_svd(
     sample_path: &Path,
+    matching: bool,
     progress: &dyn Progress,
 ) -> Result<(PathBuf, Option<tempfile::TempDir>)> {
     if factorize::is_image_path(sample_path) {
         let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
         let p = dir.path().join("sample.svd");
-        factorize::factorize(sample_path, &p, &FactorizeConfig::default(), progress)?;
+        let cfg = FactorizeConfig {
+            rotations: if matching { factorize::DEFAULT_ROTATIONS } else { 0 },
+            ..FactorizeConfig::default()
+        };
+        factorize::factorize(sample_path, &p, &cfg, progress)?;
         Ok((p, Some(dir)))
     } else {
         Ok((sample_path.to_path_buf(), None))
@@ -1167,9 +1173,17 @@ pub(crate) struct Synthesis<'a> {
 
 impl<'a> Synthesis<'a> {
     /// Opens the geometry image and the sample's `.svd`, with an empty state.
-    pub(crate) fn open(gim: &Gim, sample_path: &Path, svd_path: &Path, cfg: &'a TileConfig) -> Result<Self> {
+    /// Without `matching` (verbatim copy) the rotated copies are not needed:
+    /// rotations are then quantized to the default 72 steps.
+    pub(crate) fn open(
+        gim: &Gim,
+        sample_path: &Path,
+        svd_path: &Path,
+        cfg: &'a TileConfig,
+        matching: bool,
+    ) -> Result<Self> {
         let svd = SvdArtifact::open(svd_path, cfg.memory)?;
-        if svd.rotations == 0 {
+        if matching && svd.rotations == 0 {
             return Err(Error::input(
                 sample_path,
                 "has no rotated copies (factorize with --rotations 72)",
@@ -1177,7 +1191,12 @@ impl<'a> Synthesis<'a> {
         }
         let tileable = matches!(svd.container().metadata().param("tileable"), Some(Param::Int(1)));
         let maps = svd.geometry_maps()?;
-        let (sw, sh, n, rotations) = (svd.width, svd.height, svd.terms, svd.rotations);
+        let rotations = if svd.rotations > 0 {
+            svd.rotations
+        } else {
+            factorize::DEFAULT_ROTATIONS
+        };
+        let (sw, sh, n) = (svd.width, svd.height, svd.terms);
         let sample = Sample {
             width: sw,
             height: sh,
@@ -1640,8 +1659,8 @@ pub fn tile(
 ) -> Result<TileReport> {
     let start = Instant::now();
     let gim = Gim::open(gim_path, cfg.memory)?;
-    let (svd_path, _tmp) = sample_svd(sample_path, progress)?;
-    let mut syn = Synthesis::open(&gim, sample_path, &svd_path, cfg)?;
+    let (svd_path, _tmp) = sample_svd(sample_path, true, progress)?;
+    let mut syn = Synthesis::open(&gim, sample_path, &svd_path, cfg, true)?;
     if let Some(mask) = &cfg.sample_mask {
         syn.set_mask(mask)?;
         syn.set_target(vec![0.0; syn.surface.r * syn.surface.r]);
