@@ -324,6 +324,49 @@ fn strokes_are_geodesic_disks_and_vertex_paint_is_interpolated() {
 }
 
 #[test]
+fn obj_vertex_colours_mark_the_region_against_the_dominant_colour() {
+    let s = scene();
+    let gim = Gim::open(&s.gim, MemoryBudget::default()).unwrap();
+    let chart: Vec<u32> = gim.read("chart").unwrap();
+    let pos: Vec<f32> = gim.read("position").unwrap();
+    // the square as OBJ with vertex colours: red where x ≤ ¼ (27 vertices),
+    // white elsewhere (54, the dominant, unpainted colour)
+    let obj = std::fs::read_to_string(square(&s.dir, false)).unwrap();
+    let painted: String = obj
+        .lines()
+        .map(|l| {
+            if let Some(rest) = l.strip_prefix("v ") {
+                let x: f32 = rest.split_whitespace().next().unwrap().parse().unwrap();
+                let c = if x <= 0.25 { "1 0 0" } else { "1 1 1" };
+                format!("v {rest} {c}\n")
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    let path = s.dir.join("painted.obj");
+    std::fs::write(&path, painted).unwrap();
+    let out = s.dir.join("c.quilt");
+    let cfg = PaintConfig {
+        region: Some(path),
+        transition: 0,
+        ..paint_cfg(&s)
+    };
+    paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
+    let m0 = region_array(&out);
+    // weight 1 up to x = ¼, falling to 0 at ⅜: ≥ ½ up to x = 5/16
+    for t in (0..R * R).filter(|&t| chart[t] != EMPTY) {
+        let x = pos[t * 3];
+        if x < 0.305 {
+            assert_eq!(m0[t], 1.0, "texel {t} at x = {x}");
+        }
+        if x > 0.32 {
+            assert_eq!(m0[t], 0.0, "texel {t} at x = {x}");
+        }
+    }
+}
+
+#[test]
 fn verbatim_copy_places_the_whole_foreground() {
     let s = scene();
     let preview = s.dir.join("preview.png");
