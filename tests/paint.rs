@@ -303,21 +303,29 @@ fn strokes_are_geodesic_disks_and_vertex_paint_is_interpolated() {
     }
     // vertex paint: quality 1 on vertices with x ≤ ½, 0 from x = 5/8: the
     // interpolated weight is ≥ ½ for x ≤ 9/16
-    let ply = square(&s.dir, true);
-    let out = s.dir.join("b.quilt");
+    region_is_left_of(&s, square(&s.dir, true), 0.555, 0.57);
+}
+
+/// Paints the scene with a vertex-paint region and checks F by the texels'
+/// x: in F left of `inside`, out of it right of `outside`.
+fn region_is_left_of(s: &Scene, region: PathBuf, inside: f32, outside: f32) {
+    let gim = Gim::open(&s.gim, MemoryBudget::default()).unwrap();
+    let chart: Vec<u32> = gim.read("chart").unwrap();
+    let pos: Vec<f32> = gim.read("position").unwrap();
+    let out = s.dir.join("vertex-paint.quilt");
     let cfg = PaintConfig {
-        region: Some(ply),
+        region: Some(region),
         transition: 0,
-        ..paint_cfg(&s)
+        ..paint_cfg(s)
     };
     paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
     let m0 = region_array(&out);
     for t in (0..R * R).filter(|&t| chart[t] != EMPTY) {
         let x = pos[t * 3];
-        if x < 0.555 {
+        if x < inside {
             assert_eq!(m0[t], 1.0, "texel {t} at x = {x}");
         }
-        if x > 0.57 {
+        if x > outside {
             assert_eq!(m0[t], 0.0, "texel {t} at x = {x}");
         }
     }
@@ -326,9 +334,6 @@ fn strokes_are_geodesic_disks_and_vertex_paint_is_interpolated() {
 #[test]
 fn obj_vertex_colours_mark_the_region_against_the_dominant_colour() {
     let s = scene();
-    let gim = Gim::open(&s.gim, MemoryBudget::default()).unwrap();
-    let chart: Vec<u32> = gim.read("chart").unwrap();
-    let pos: Vec<f32> = gim.read("position").unwrap();
     // the square as OBJ with vertex colours: red where x ≤ ¼ (27 vertices),
     // white elsewhere (54, the dominant, unpainted colour)
     let obj = std::fs::read_to_string(square(&s.dir, false)).unwrap();
@@ -346,24 +351,8 @@ fn obj_vertex_colours_mark_the_region_against_the_dominant_colour() {
         .collect();
     let path = s.dir.join("painted.obj");
     std::fs::write(&path, painted).unwrap();
-    let out = s.dir.join("c.quilt");
-    let cfg = PaintConfig {
-        region: Some(path),
-        transition: 0,
-        ..paint_cfg(&s)
-    };
-    paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
-    let m0 = region_array(&out);
     // weight 1 up to x = ¼, falling to 0 at ⅜: ≥ ½ up to x = 5/16
-    for t in (0..R * R).filter(|&t| chart[t] != EMPTY) {
-        let x = pos[t * 3];
-        if x < 0.305 {
-            assert_eq!(m0[t], 1.0, "texel {t} at x = {x}");
-        }
-        if x > 0.32 {
-            assert_eq!(m0[t], 0.0, "texel {t} at x = {x}");
-        }
-    }
+    region_is_left_of(&s, path, 0.305, 0.32);
 }
 
 #[test]
