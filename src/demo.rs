@@ -141,6 +141,18 @@ impl Stages {
     }
 }
 
+/// A render of the demo's size from `camera` with one directional light at
+/// `angle` degrees from the view axis, `azimuth` about it.
+fn demo_view(camera: Camera, angle: f32, azimuth: f32) -> RenderConfig {
+    RenderConfig {
+        camera: Some(camera),
+        lights: vec![Light::directional(light_from_camera(&camera, angle, azimuth))],
+        width: RENDER.0,
+        height: RENDER.1,
+        ..RenderConfig::default()
+    }
+}
+
 /// The direction towards a light at `angle` degrees from the camera's view
 /// axis (target → eye), turned by `azimuth` degrees about it (0° towards the
 /// image's right, 90° towards its top).
@@ -384,17 +396,7 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
     let scene = render::Scene::open(&btf_quilt, memory)?;
     let mut renders = String::new();
     for (suffix, caption, angle, azimuth) in BTF_LIGHTS {
-        let cfg = RenderConfig {
-            camera: Some(SPOT_CAMERA),
-            lights: vec![Light::directional(light_from_camera(
-                &SPOT_CAMERA,
-                angle,
-                azimuth,
-            ))],
-            width: RENDER.0,
-            height: RENDER.1,
-            ..RenderConfig::default()
-        };
+        let cfg = demo_view(SPOT_CAMERA, angle, azimuth);
         let file = format!("spot_bricks_btf_{suffix}.png");
         imageio::write_png(&out_dir.join(&file), &scene.render_image(&cfg)?, PngDepth::Eight)?;
         let _ = write!(
@@ -402,13 +404,7 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
             "<td><a href=\"{file}\"><img width=480 src=\"{file}\"></a><br>{caption}</td>"
         );
     }
-    let back = RenderConfig {
-        camera: Some(SPOT_BACK),
-        lights: vec![Light::directional(light_from_camera(&SPOT_BACK, 30.0, 120.0))],
-        width: RENDER.0,
-        height: RENDER.1,
-        ..RenderConfig::default()
-    };
+    let back = demo_view(SPOT_BACK, 30.0, 120.0);
     imageio::write_png(
         &out_dir.join("spot_bricks_btf_back.png"),
         &scene.render_image(&back)?,
@@ -501,17 +497,7 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         progress,
     )?;
     let (_, caption, angle, azimuth) = BTF_LIGHTS[0];
-    let cfg = RenderConfig {
-        camera: Some(SPOT_CAMERA),
-        lights: vec![Light::directional(light_from_camera(
-            &SPOT_CAMERA,
-            angle,
-            azimuth,
-        ))],
-        width: RENDER.0,
-        height: RENDER.1,
-        ..RenderConfig::default()
-    };
+    let cfg = demo_view(SPOT_CAMERA, angle, azimuth);
     let scene = render::Scene::open(&painted, memory)?;
     imageio::write_png(
         &out_dir.join("spot_bricks_painted_front.png"),
@@ -577,13 +563,7 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         ("spot_brick_photo_front.png", SPOT_CAMERA),
         ("spot_brick_photo_back.png", SPOT_BACK),
     ] {
-        let cfg = RenderConfig {
-            camera: Some(camera),
-            lights: vec![Light::directional(light_from_camera(&camera, 30.0, 120.0))],
-            width: RENDER.0,
-            height: RENDER.1,
-            ..RenderConfig::default()
-        };
+        let cfg = demo_view(camera, 30.0, 120.0);
         imageio::write_png(&out_dir.join(file), &scene.render_image(&cfg)?, PngDepth::Eight)?;
     }
     drop(scene);
