@@ -9,7 +9,8 @@
 //!    same eight images reconstructed from the factors with their PSNR.
 //! 3. `atlas`: Spot (shipped in `data/`) at 1024², with chart, normal and
 //!    field pictures.
-//! 4. `tile`: Spot with the bricks BTF by graphcut quilting, rendered with
+//! 4. `tile`: Spot with the bricks BTF by graphcut quilting (its crack layer
+//!    kept out by the foreground mask), rendered with
 //!    BTF shading under a front, a grazing and a side light, baked, evaluated
 //!    and exported as glTF.
 //! 5. `paint`: the bricks' crack layer painted into a stroke on Spot's
@@ -377,12 +378,15 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
     // 4. Spot tiled with the bricks BTF
     let t = Instant::now();
     let btf_quilt = out_dir.join("spot_bricks_btf.quilt");
+    // with the crack layer's mask, so the background keeps the cracks out
+    // and section 4 paints them where they are wanted
     let tiled = quilt::tile(
         &gim_path,
         &bricks_svd,
         &btf_quilt,
         &TileConfig {
             memory,
+            sample_mask: Some(generate::mask_path(&bricks_btf)),
             ..TileConfig::default()
         },
         progress,
@@ -515,7 +519,8 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         "<h2>4. Graphcut texture painting</h2><p>The crack layer of the bricks BTF (its foreground mask \
          <code>bricks.mask.png</code>) painted into a stroke of radius 0.2 on Spot's flank \
          (<code>spot_strokes.json</code>, an 8-texel transition zone) by constrained graphcut: {}. \
-         The surface was tiled without the mask, so its background has cracks too.</p><table><tr>\
+         The surface was tiled with that mask (<code>tile --sample-mask</code>), which keeps the cracks out of the \
+         background.</p><table><tr>\
          <td><a href=\"spot_bricks_btf_front.png\"><img width=480 src=\"spot_bricks_btf_front.png\"></a><br>before</td>\
          <td><a href=\"spot_bricks_painted_front.png\"><img width=480 src=\"spot_bricks_painted_front.png\"></a>\
          <br>painted ({caption})</td></tr></table>",
