@@ -1165,8 +1165,6 @@ pub(crate) struct Synthesis<'a> {
     /// Painting (§IV): one min-cut per fitting, no T_c shrinking, and a
     /// fitting may keep every old value.
     pub(crate) painting: bool,
-    /// Whether the last work image was the rigid unfolding.
-    last_unfolded: bool,
     seam_sum: f64,
     seam_cnt: usize,
 }
@@ -1239,7 +1237,6 @@ impl<'a> Synthesis<'a> {
             },
             surface,
             painting: false,
-            last_unfolded: false,
             seam_sum: 0.0,
             seam_cnt: 0,
         })
@@ -1409,7 +1406,7 @@ impl<'a> Synthesis<'a> {
         let mut best: Option<(f64, WorkPatch, Fit, bool)> = None;
         loop {
             let patch = self.bfs.patch(&self.surface.graph, v, radius);
-            let work = self.work_image(&patch, &mut flattening);
+            let (work, unfolded) = self.work_image(&patch, &mut flattening);
             let t = Instant::now();
             let placement = place_covering(
                 &mut self.sample,
@@ -1439,11 +1436,11 @@ impl<'a> Synthesis<'a> {
             // (painting takes its one min-cut per fitting: its seams must
             // cross the foreground's border where m0 demands it, which T_c
             // would read as a bad fit)
-            let (mut patch, mut fit) = (patch, fit);
+            let (mut patch, mut fit, mut unfolded) = (patch, fit, unfolded);
             if !painting && mean > cfg.seam_threshold * self.reference && fit.taken_new_synth > 0 {
                 if radius > cfg.min_radius {
                     if best.as_ref().is_none_or(|b| mean < b.0) {
-                        best = Some((mean, patch, fit, self.last_unfolded));
+                        best = Some((mean, patch, fit, unfolded));
                     }
                     radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
                     self.report.shrinks += 1;
@@ -1453,7 +1450,7 @@ impl<'a> Synthesis<'a> {
                     if std::env::var_os("BTFQUILT_TRACE").is_some() {
                         progress.note(&format!("best of the radii: {:.3} instead of {mean:.3}", b.0));
                     }
-                    (patch, fit, self.last_unfolded) = (b.1, b.2, b.3);
+                    (patch, fit, unfolded) = (b.1, b.2, b.3);
                 }
             }
             if fit.taken == 0 && !painting {
@@ -1481,7 +1478,7 @@ impl<'a> Synthesis<'a> {
                 ));
             }
             self.report.cross_chart_patches += patch.crosses_charts as usize;
-            self.report.unfolded_patches += self.last_unfolded as usize;
+            self.report.unfolded_patches += unfolded as usize;
             self.accept(&patch, &fit, progress);
             return Ok(patch);
         }
@@ -1507,18 +1504,18 @@ impl<'a> Synthesis<'a> {
 
     /// The work image I(v) of a work patch: the chart image inside a chart;
     /// across charts the flattening (reused from `flattening` when the same
-    /// seed's patch shrinks), or the rigid unfolding where that fails.
-    fn work_image(&mut self, patch: &WorkPatch, flattening: &mut Option<Flattening>) -> WorkImage {
-        self.last_unfolded = false;
+    /// seed's patch shrinks), or the rigid unfolding where that fails — and
+    /// whether it is that unfolding.
+    fn work_image(&self, patch: &WorkPatch, flattening: &mut Option<Flattening>) -> (WorkImage, bool) {
         let (surface, state, bfs, zt) = (&self.surface, &self.state, &self.bfs, &self.zipper_triangles);
         if !patch.crosses_charts {
-            return chart_work_image(surface, state, patch);
+            return (chart_work_image(surface, state, patch), false);
         }
         if let Some(work) = flattening
             .as_ref()
             .and_then(|f| f.work_image(surface, state, patch, bfs, zt))
         {
-            return work;
+            return (work, false);
         }
         if let Some((work, coords)) =
             flattened_work_image(surface, state, patch, bfs, zt, self.cfg.max_distortion)
@@ -1529,10 +1526,9 @@ impl<'a> Synthesis<'a> {
                 coords: c,
                 angle: work.angle,
             });
-            return work;
+            return (work, false);
         }
-        self.last_unfolded = true;
-        unfolded_work_image(surface, state, patch, bfs)
+        (unfolded_work_image(surface, state, patch, bfs), true)
     }
 
     /// Verbatim copy (§IV): the sample's foreground, its point `centre`
@@ -1553,7 +1549,7 @@ impl<'a> Synthesis<'a> {
     ) -> Result<usize> {
         let patch = self.bfs.patch(&self.surface.graph, v, radius);
         let mut flattening = None;
-        let work = self.work_image(&patch, &mut flattening);
+        let (work, _) = self.work_image(&patch, &mut flattening);
         let rotations = self.sample.rotated.len();
         let rotation = rotation_index(work.angle + angle, rotations);
         let theta = rotation as f64 * std::f64::consts::TAU / rotations as f64;
