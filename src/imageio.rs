@@ -134,6 +134,26 @@ fn is_8bit(img: &DynamicImage) -> bool {
     c.bytes_per_pixel() / c.channel_count() == 1
 }
 
+/// A painting mask (a sample's foreground, a region): per pixel its largest
+/// channel, decoded to linear as by [`read_rgb`] and clamped to 0..1 — unlike
+/// [`read_mask`], which averages the stored channels. It must be
+/// `width`×`height`; `must_be` names that size for the error (e.g. "a
+/// region mask must be the atlas size").
+pub fn read_sized_mask(path: &Path, width: usize, height: usize, must_be: &str) -> Result<Vec<f32>> {
+    let img = read_rgb(path)?;
+    if (img.width, img.height) != (width, height) {
+        return Err(Error::input(
+            path,
+            format!("is {}×{}, but {must_be} {width}×{height}", img.width, img.height),
+        ));
+    }
+    Ok(img
+        .data
+        .chunks_exact(3)
+        .map(|p| p.iter().fold(0f32, |a, &b| a.max(b)).clamp(0.0, 1.0))
+        .collect())
+}
+
 /// Read PNG (8/16-bit, grey/grey-alpha/RGB/RGBA), JPEG, TIFF, or OpenEXR into linear RGB.
 ///
 /// PNG/JPEG/TIFF are decoded from sRGB with the exact transfer function

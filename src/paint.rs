@@ -475,21 +475,11 @@ fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec<bool>> {
     let chart = &syn.graph().chart;
     match ext.as_str() {
         "png" | "tif" | "tiff" | "jpg" | "jpeg" => {
-            let img = crate::imageio::read_rgb(path)?;
-            if (img.width, img.height) != (r, r) {
-                return Err(Error::input(
-                    path,
-                    format!(
-                        "is {}×{}, but a region mask must be the atlas size {r}×{r}",
-                        img.width, img.height
-                    ),
-                ));
-            }
-            Ok(img
-                .data
-                .chunks_exact(3)
+            let mask = crate::imageio::read_sized_mask(path, r, r, "a region mask must be the atlas size")?;
+            Ok(mask
+                .iter()
                 .zip(chart)
-                .map(|(p, &c)| c != EMPTY && p.iter().fold(0f32, |a, &b| a.max(b)) >= 0.5)
+                .map(|(&m, &c)| c != EMPTY && m >= 0.5)
                 .collect())
         }
         "ply" | "obj" => vertex_paint_region(gim, chart, path),

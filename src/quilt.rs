@@ -1244,23 +1244,15 @@ impl<'a> Synthesis<'a> {
 
     /// Loads the sample's foreground mask m_P (a PNG the sample's size; any
     /// channel above one half counts as foreground, grey levels between).
+    /// Call it before [`Synthesis::load`], which looks m_σ up per texel.
     pub(crate) fn set_mask(&mut self, path: &Path) -> Result<()> {
-        let img = crate::imageio::read_rgb(path)?;
         let (w, h) = (self.sample.width, self.sample.height);
-        if (img.width, img.height) != (w, h) {
-            return Err(Error::input(
-                path,
-                format!(
-                    "is {}×{}, but the sample's foreground mask must be the sample's size {w}×{h}",
-                    img.width, img.height
-                ),
-            ));
-        }
-        let mask: Vec<f32> = img
-            .data
-            .chunks_exact(3)
-            .map(|p| p.iter().fold(0f32, |a, &b| a.max(b)).clamp(0.0, 1.0))
-            .collect();
+        let mask = crate::imageio::read_sized_mask(
+            path,
+            w,
+            h,
+            "the sample's foreground mask must be the sample's size",
+        )?;
         if !mask.iter().any(|&m| m >= 0.5) {
             return Err(Error::input(
                 path,
@@ -1268,13 +1260,6 @@ impl<'a> Synthesis<'a> {
             ));
         }
         self.sample.mask = Some(mask);
-        // refresh m_σ at already decorated texels
-        for t in 0..self.state.coord.len() {
-            if self.state.synthesized[t] {
-                let c = self.state.coord[t];
-                self.state.mask[t] = self.sample.mask_at([c[0] as f64, c[1] as f64]);
-            }
-        }
         Ok(())
     }
 
