@@ -7,72 +7,22 @@
 //! setup through the library, as `tests/quilt.rs` does. Ten flat samples
 //! of one run each: about 15 s.
 
-use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::gim::{self, AtlasConfig};
-use btfquilt::imageio::{self, PngDepth, RgbImage};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, TileConfig};
 use criterion::{criterion_group, criterion_main, Criterion, SamplingMode};
 
-/// A flat unit square, 8×8 quads (two triangles each).
-fn square(dir: &Path) -> PathBuf {
-    let p = dir.join("square.obj");
-    let n = 8;
-    let mut s = String::new();
-    for y in 0..=n {
-        for x in 0..=n {
-            s += &format!("v {} {} 0\n", x as f32 / n as f32, y as f32 / n as f32);
-        }
-    }
-    for y in 0..n {
-        for x in 0..n {
-            let a = y * (n + 1) + x + 1;
-            s += &format!(
-                "f {} {} {}\nf {} {} {}\n",
-                a,
-                a + 1,
-                a + n + 2,
-                a,
-                a + n + 2,
-                a + n + 1
-            );
-        }
-    }
-    std::fs::write(&p, s).unwrap();
-    p
-}
-
-/// The centre `size`² crop of `data/brick.png`.
-fn brick_crop(dir: &Path, size: usize) -> PathBuf {
-    let src = imageio::read_rgb(&Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png")).unwrap();
-    let (ox, oy) = ((src.width - size) / 2, (src.height - size) / 2);
-    let mut data = Vec::with_capacity(size * size * 3);
-    for y in 0..size {
-        let row = (y + oy) * src.width + ox;
-        data.extend_from_slice(&src.data[row * 3..(row + size) * 3]);
-    }
-    let p = dir.join(format!("brick{size}.png"));
-    imageio::write_png(
-        &p,
-        &RgbImage {
-            width: size,
-            height: size,
-            data,
-        },
-        PngDepth::Eight,
-    )
-    .unwrap();
-    p
-}
+#[path = "../tests/common/mod.rs"]
+mod common;
 
 fn bench_tile(c: &mut Criterion) {
     let dir = tempfile::tempdir().unwrap();
     let gim_path = dir.path().join("square400.gim");
     gim::build_gim(
-        &square(dir.path()),
+        &common::square_obj(dir.path()),
         &gim_path,
         &AtlasConfig {
             resolution: 400,
@@ -83,7 +33,7 @@ fn bench_tile(c: &mut Criterion) {
     .unwrap();
     let svd = dir.path().join("brick192.svd");
     factorize::factorize(
-        &brick_crop(dir.path(), 192),
+        &common::brick_crop(dir.path(), 192, None),
         &svd,
         &FactorizeConfig::default(),
         &Silent,

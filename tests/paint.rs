@@ -11,54 +11,28 @@ use btfquilt::paint::{self, PaintConfig, Verbatim};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig};
 
+mod common;
+
 const R: usize = 128;
 
-/// A flat unit square, 8×8 quads, as OBJ (or PLY with per-vertex quality
-/// 1 where x ≤ ½).
-fn square(dir: &Path, ply: bool) -> PathBuf {
-    let n = 8;
-    let mut v = Vec::new();
-    for y in 0..=n {
-        for x in 0..=n {
-            v.push([x as f32 / n as f32, y as f32 / n as f32]);
-        }
+/// The shared flat square as PLY with per-vertex quality 1 where x ≤ ½.
+fn square_ply(dir: &Path) -> PathBuf {
+    let (v, f) = common::square_grid();
+    let p = dir.join("square.ply");
+    let mut s = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+         property float quality\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        v.len(),
+        f.len()
+    );
+    for q in &v {
+        s += &format!("{} {} 0 {}\n", q[0], q[1], if q[0] <= 0.5 { 1 } else { 0 });
     }
-    let mut f = Vec::new();
-    for y in 0..n {
-        for x in 0..n {
-            let a = y * (n + 1) + x;
-            f.push([a, a + 1, a + n + 2]);
-            f.push([a, a + n + 2, a + n + 1]);
-        }
+    for t in &f {
+        s += &format!("3 {} {} {}\n", t[0], t[1], t[2]);
     }
-    if ply {
-        let p = dir.join("square.ply");
-        let mut s = format!(
-            "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
-             property float quality\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
-            v.len(),
-            f.len()
-        );
-        for q in &v {
-            s += &format!("{} {} 0 {}\n", q[0], q[1], if q[0] <= 0.5 { 1 } else { 0 });
-        }
-        for t in &f {
-            s += &format!("3 {} {} {}\n", t[0], t[1], t[2]);
-        }
-        std::fs::write(&p, s).unwrap();
-        p
-    } else {
-        let p = dir.join("square.obj");
-        let mut s = String::new();
-        for q in &v {
-            s += &format!("v {} {} 0\n", q[0], q[1]);
-        }
-        for t in &f {
-            s += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-        }
-        std::fs::write(&p, s).unwrap();
-        p
-    }
+    std::fs::write(&p, s).unwrap();
+    p
 }
 
 fn write_png(path: &Path, w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) {
@@ -100,13 +74,8 @@ fn scene() -> Scene {
         resolution: R,
         ..AtlasConfig::default()
     };
-    gim::build_gim(&square(&d, false), &g, &cfg, &Silent).unwrap();
-    let src = imageio::read_rgb(&Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png")).unwrap();
-    let sample = d.join("brick96.png");
-    write_png(&sample, 96, 96, |x, y| {
-        let i = ((y + 100) * src.width + x + 100) * 3;
-        [src.data[i], src.data[i + 1], src.data[i + 2]]
-    });
+    gim::build_gim(&common::square_obj(&d), &g, &cfg, &Silent).unwrap();
+    let sample = common::brick_crop(&d, 96, Some((100, 100)));
     let mask = d.join("mask.png");
     let disk = |x: usize, y: usize| (x as f32 - 22.0).powi(2) + (y as f32 - 22.0).powi(2) < 16.0f32.powi(2);
     write_png(&mask, 96, 96, |x, y| if disk(x, y) { [1.0; 3] } else { [0.0; 3] });
@@ -303,7 +272,7 @@ fn strokes_are_geodesic_disks_and_vertex_paint_is_interpolated() {
     }
     // vertex paint: quality 1 on vertices with x ≤ ½, 0 from x = 5/8: the
     // interpolated weight is ≥ ½ for x ≤ 9/16
-    region_is_left_of(&s, square(&s.dir, true), 0.555, 0.57);
+    region_is_left_of(&s, square_ply(&s.dir), 0.555, 0.57);
 }
 
 /// Paints the scene with a vertex-paint region and checks F by the texels'
@@ -336,7 +305,7 @@ fn obj_vertex_colours_mark_the_region_against_the_dominant_colour() {
     let s = scene();
     // the square as OBJ with vertex colours: red where x ≤ ¼ (27 vertices),
     // white elsewhere (54, the dominant, unpainted colour)
-    let obj = std::fs::read_to_string(square(&s.dir, false)).unwrap();
+    let obj = std::fs::read_to_string(common::square_obj(&s.dir)).unwrap();
     let painted: String = obj
         .lines()
         .map(|l| {

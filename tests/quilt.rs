@@ -5,59 +5,12 @@ use std::path::{Path, PathBuf};
 
 use btfquilt::container::MemoryBudget;
 use btfquilt::gim::{self, AtlasConfig, Gim, EMPTY};
-use btfquilt::imageio::{self, RgbImage};
+use btfquilt::imageio;
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 
-/// A flat square mesh, 8×8 quads.
-fn square(dir: &Path) -> PathBuf {
-    let p = dir.join("square.obj");
-    let n = 8;
-    let mut s = String::new();
-    for y in 0..=n {
-        for x in 0..=n {
-            s += &format!("v {} {} 0\n", x as f32 / n as f32, y as f32 / n as f32);
-        }
-    }
-    for y in 0..n {
-        for x in 0..n {
-            let a = y * (n + 1) + x + 1;
-            s += &format!(
-                "f {} {} {}\nf {} {} {}\n",
-                a,
-                a + 1,
-                a + n + 2,
-                a,
-                a + n + 2,
-                a + n + 1
-            );
-        }
-    }
-    std::fs::write(&p, s).unwrap();
-    p
-}
-
-/// A crop of the shipped brick photo (structured, so seams would show).
-fn brick_sample(dir: &Path, size: usize) -> PathBuf {
-    let src = imageio::read_rgb(&Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png")).unwrap();
-    let mut data = Vec::with_capacity(size * size * 3);
-    for y in 0..size {
-        let row = (y + 100) * src.width + 100;
-        data.extend_from_slice(&src.data[row * 3..(row + size) * 3]);
-    }
-    let p = dir.join(format!("brick{size}.png"));
-    imageio::write_png(
-        &p,
-        &RgbImage {
-            width: size,
-            height: size,
-            data,
-        },
-        imageio::PngDepth::Eight,
-    )
-    .unwrap();
-    p
-}
+mod common;
+use common::{brick_crop, square_obj};
 
 fn atlas(mesh: &Path, out: &Path, r: usize) {
     let cfg = AtlasConfig {
@@ -71,8 +24,8 @@ fn atlas(mesh: &Path, out: &Path, r: usize) {
 fn flat_square_is_covered_seamlessly_and_deterministically() {
     let dir = tempfile::tempdir().unwrap();
     let g = dir.path().join("square.gim");
-    atlas(&square(dir.path()), &g, 160);
-    let sample = brick_sample(dir.path(), 160);
+    atlas(&square_obj(dir.path()), &g, 160);
+    let sample = brick_crop(dir.path(), 160, Some((100, 100)));
     let cfg = TileConfig {
         seed: 3,
         ..TileConfig::default()
@@ -137,7 +90,7 @@ fn spot_is_covered_and_baked_and_rendered() {
         &g,
         192,
     );
-    let sample = brick_sample(dir.path(), 128);
+    let sample = brick_crop(dir.path(), 128, Some((100, 100)));
     let out = dir.path().join("spot.quilt");
     let report = quilt::tile(&g, &sample, &out, &TileConfig::default(), &Silent).unwrap();
     assert!(report.cross_chart_patches > 0, "{report}");
@@ -178,7 +131,7 @@ fn spot_is_covered_and_baked_and_rendered() {
 fn bad_tiling_inputs_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let g = dir.path().join("square.gim");
-    atlas(&square(dir.path()), &g, 64);
+    atlas(&square_obj(dir.path()), &g, 64);
     let out = dir.path().join("o.quilt");
     let missing = dir.path().join("nope.png");
     let e = quilt::tile(&g, &missing, &out, &TileConfig::default(), &Silent)

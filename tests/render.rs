@@ -20,35 +20,9 @@ use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 use btfquilt::render::{self, Camera, Light, RenderConfig, BACKGROUND};
 
-const ATLAS: usize = 64;
+mod common;
 
-/// A flat unit square at z = 0 (normal +z), 8×8 quads.
-fn square(dir: &Path) -> PathBuf {
-    let p = dir.join("square.obj");
-    let n = 8;
-    let mut s = String::new();
-    for y in 0..=n {
-        for x in 0..=n {
-            s += &format!("v {} {} 0\n", x as f32 / n as f32, y as f32 / n as f32);
-        }
-    }
-    for y in 0..n {
-        for x in 0..n {
-            let a = y * (n + 1) + x + 1;
-            s += &format!(
-                "f {} {} {}\nf {} {} {}\n",
-                a,
-                a + 1,
-                a + n + 2,
-                a,
-                a + n + 2,
-                a + n + 1
-            );
-        }
-    }
-    std::fs::write(&p, s).unwrap();
-    p
-}
+const ATLAS: usize = 64;
 
 struct Fixture {
     dir: tempfile::TempDir,
@@ -66,7 +40,7 @@ fn fixture() -> Fixture {
         resolution: ATLAS,
         ..AtlasConfig::default()
     };
-    gim::build_gim(&square(dir.path()), &gim_path, &cfg, &Silent).unwrap();
+    gim::build_gim(&common::square_obj(dir.path()), &gim_path, &cfg, &Silent).unwrap();
     let btf_path = dir.path().join("bricks.btf");
     let grid = btf::grid(4, 3, 75.0);
     let g = GenerateConfig {

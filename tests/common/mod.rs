@@ -1,0 +1,68 @@
+//! Fixtures shared by the integration tests and the benches (which include
+//! this file by path): a flat square mesh and crops of the shipped brick
+//! photo.
+
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+use btfquilt::imageio::{self, PngDepth, RgbImage};
+
+/// Quads per side of the flat square.
+pub const SQUARE_QUADS: usize = 8;
+
+/// The flat unit square at z = 0 (normal +z): vertices (x, y) row by row and
+/// counter-clockwise triangles (0-based), two per quad.
+pub fn square_grid() -> (Vec<[f32; 2]>, Vec<[usize; 3]>) {
+    let n = SQUARE_QUADS;
+    let mut v = Vec::new();
+    for y in 0..=n {
+        for x in 0..=n {
+            v.push([x as f32 / n as f32, y as f32 / n as f32]);
+        }
+    }
+    let mut f = Vec::new();
+    for y in 0..n {
+        for x in 0..n {
+            let a = y * (n + 1) + x;
+            f.push([a, a + 1, a + n + 2]);
+            f.push([a, a + n + 2, a + n + 1]);
+        }
+    }
+    (v, f)
+}
+
+/// The square as `dir/square.obj`.
+pub fn square_obj(dir: &Path) -> PathBuf {
+    let (v, f) = square_grid();
+    let mut s = String::new();
+    for q in &v {
+        s += &format!("v {} {} 0\n", q[0], q[1]);
+    }
+    for t in &f {
+        s += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    let p = dir.join("square.obj");
+    std::fs::write(&p, s).unwrap();
+    p
+}
+
+/// The `size`² crop of `data/brick.png` whose top-left pixel is `origin`
+/// (`None`: the centre crop), written as `dir/brick{size}.png`.
+pub fn brick_crop(dir: &Path, size: usize, origin: Option<(usize, usize)>) -> PathBuf {
+    let src = imageio::read_rgb(&Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png")).unwrap();
+    let (ox, oy) = origin.unwrap_or(((src.width - size) / 2, (src.height - size) / 2));
+    let mut data = Vec::with_capacity(size * size * 3);
+    for y in 0..size {
+        let row = (y + oy) * src.width + ox;
+        data.extend_from_slice(&src.data[row * 3..(row + size) * 3]);
+    }
+    let p = dir.join(format!("brick{size}.png"));
+    let img = RgbImage {
+        width: size,
+        height: size,
+        data,
+    };
+    imageio::write_png(&p, &img, PngDepth::Eight).unwrap();
+    p
+}
