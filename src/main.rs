@@ -695,8 +695,7 @@ fn run(cli: Cli) -> Result<()> {
             };
             if let Some(p) = &preview {
                 let t = std::time::Instant::now();
-                let scratch = std::env::temp_dir();
-                let report = btfquilt::paint::paint(&file, &scratch.join("unused.quilt"), &cfg, &bars)?;
+                let report = btfquilt::paint::preview(&file, &cfg, &bars)?;
                 say!(
                     "wrote {} ({} foreground texels; projection {:.1} ms, {:.0} ms with opening the artifacts)",
                     p.display(),

@@ -91,10 +91,30 @@ impl std::fmt::Display for PaintReport {
     }
 }
 
-/// Paints `quilt_path` into a new artifact `out` (see the module docs).
+/// Paints `quilt_path` into a new artifact `out` (see the module docs); with
+/// `cfg.preview` set, only the preview is written, as by [`preview`].
 pub fn paint(
     quilt_path: &Path,
     out: &Path,
+    cfg: &PaintConfig,
+    progress: &dyn Progress,
+) -> Result<PaintReport> {
+    run(quilt_path, Some(out), cfg, progress)
+}
+
+/// Only the verbatim copy's preview (`cfg.preview`, which must be set): no
+/// quilt is written.
+pub fn preview(quilt_path: &Path, cfg: &PaintConfig, progress: &dyn Progress) -> Result<PaintReport> {
+    if cfg.preview.is_none() {
+        return Err(Error::Config("a preview needs --preview IMAGE".into()));
+    }
+    run(quilt_path, None, cfg, progress)
+}
+
+/// [`paint`] or [`preview`]: `out` is written unless the stroke is a preview.
+fn run(
+    quilt_path: &Path,
+    out: Option<&Path>,
     cfg: &PaintConfig,
     progress: &dyn Progress,
 ) -> Result<PaintReport> {
@@ -142,7 +162,7 @@ pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<Pai
             dir.path().join(format!("step{k}.quilt"))
         };
         let q = Quilt::open(&current, stroke.tile_config().memory)?;
-        report = apply_stroke(&q, stroke, &target, None, &done, progress)?;
+        report = apply_stroke(&q, stroke, Some(&target), None, &done, progress)?;
         done.strokes.push(stroke.clone());
         current = target;
     }
@@ -328,7 +348,7 @@ impl PaintLog {
 fn apply_stroke(
     base: &Quilt,
     stroke: &Stroke,
-    out: &Path,
+    out: Option<&Path>,
     preview: Option<&Path>,
     log: &PaintLog,
     progress: &dyn Progress,
@@ -419,6 +439,7 @@ fn apply_stroke(
     }
     let mut log = log.clone();
     log.strokes.push(stroke.clone());
+    let out = out.ok_or_else(|| Error::Config("painting without a preview needs an output quilt".into()))?;
     syn.write(out, &gim, &base.gim, Some(&log.to_json()), start)?;
     report.seconds = start.elapsed().as_secs_f64();
     Ok(report)
