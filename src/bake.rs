@@ -11,33 +11,85 @@ use crate::imageio::{self, PngDepth, RgbImage};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
 
-/// Opens the sample a quilt was made from (`sample` overrides the recorded
-/// path; a colour image is factorized into a temporary `.svd`).
-pub fn open_sample(
-    quilt: &Quilt,
-    sample: Option<&Path>,
-    budget: MemoryBudget,
-) -> Result<(SvdArtifact, Option<tempfile::TempDir>)> {
-    let path: PathBuf = sample
-        .map(Path::to_path_buf)
-        .unwrap_or_else(|| quilt.sample.clone());
+/// A sample opened for reading: its `.svd`, and the temporary directory
+/// holding it when it was factorized from a colour image.
+pub struct OpenSample {
+    pub svd: SvdArtifact,
+    _tmp: Option<tempfile::TempDir>,
+}
+
+/// Opens one sample (a colour image is factorized into a temporary `.svd`);
+/// `quilt` names the surface in the error when the file is gone.
+fn open_one(quilt: &Quilt, path: &Path, budget: MemoryBudget) -> Result<OpenSample> {
     if !path.exists() {
         return Err(Error::input(
             quilt.container().path(),
             format!("its sample {} is gone: give --sample", path.display()),
         ));
     }
-    if factorize::is_image_path(&path) {
+    if factorize::is_image_path(path) {
         let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
         let p = dir.path().join("sample.svd");
         let cfg = FactorizeConfig {
             rotations: 0,
             ..FactorizeConfig::default()
         };
-        factorize::factorize(&path, &p, &cfg, &crate::progress::Silent)?;
-        Ok((SvdArtifact::open(&p, budget)?, Some(dir)))
+        factorize::factorize(path, &p, &cfg, &crate::progress::Silent)?;
+        Ok(OpenSample {
+            svd: SvdArtifact::open(&p, budget)?,
+            _tmp: Some(dir),
+        })
     } else {
-        Ok((SvdArtifact::open(&path, budget)?, None))
+        Ok(OpenSample {
+            svd: SvdArtifact::open(path, budget)?,
+            _tmp: None,
+        })
+    }
+}
+
+/// Opens the sample a quilt was tiled with (`sample` overrides the
+/// recorded path).
+pub fn open_sample(quilt: &Quilt, sample: Option<&Path>, budget: MemoryBudget) -> Result<OpenSample> {
+    let path: PathBuf = sample
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| quilt.sample.clone());
+    open_one(quilt, &path, budget)
+}
+
+/// Opens every sample a quilt draws from, in [`Quilt::samples`] order
+/// (`first` overrides the tiling's sample), and checks that they share one
+/// direction set, so their values are comparable.
+pub fn open_samples(quilt: &Quilt, first: Option<&Path>, budget: MemoryBudget) -> Result<Vec<OpenSample>> {
+    let mut out = vec![open_sample(quilt, first, budget)?];
+    for path in &quilt.samples[1..] {
+        let s = open_one(quilt, path, budget)?;
+        same_directions(&out[0].svd, &s.svd)?;
+        out.push(s);
+    }
+    Ok(out)
+}
+
+/// Errors unless `b` was measured over the same view and light directions
+/// as `a` (painting and rendering mix their values per texel).
+pub fn same_directions(a: &SvdArtifact, b: &SvdArtifact) -> Result<()> {
+    let same = |x: &[crate::btf::Angles], y: &[crate::btf::Angles]| {
+        x.len() == y.len() && x.iter().zip(y).all(|(p, q)| crate::btf::same_direction(*p, *q))
+    };
+    if same(&a.views, &b.views) && same(&a.lights, &b.lights) {
+        Ok(())
+    } else {
+        Err(Error::input(
+            b.container().path(),
+            format!(
+                "has {}×{} view/light directions, not the {}×{} of {}: samples on one surface must share \
+                 their direction set (colour images with colour images)",
+                b.views.len(),
+                b.lights.len(),
+                a.views.len(),
+                a.lights.len(),
+                a.container().path().display()
+            ),
+        ))
     }
 }
 
@@ -59,16 +111,27 @@ pub fn bilinear(img: &RgbImage, x: f32, y: f32) -> [f32; 3] {
     out
 }
 
-/// The atlas-space preview colour of a quilt: `(image, covered mask)`.
-pub fn atlas_colour(quilt: &Quilt, preview: &RgbImage) -> Result<(RgbImage, Vec<bool>)> {
+/// The atlas-space preview colour of a quilt, `(image, covered mask)`:
+/// each texel looks its colour up in the preview of its own sample
+/// (`previews` in [`Quilt::samples`] order).
+pub fn atlas_colour(quilt: &Quilt, previews: &[RgbImage]) -> Result<(RgbImage, Vec<bool>)> {
     let r = quilt.resolution;
     let coords = quilt.coords()?;
     let patches = quilt.patches()?;
+    let index = quilt.sample_index()?;
+    if previews.len() != quilt.samples.len() {
+        return Err(Error::Config(format!(
+            "{} previews for the {} samples of {}",
+            previews.len(),
+            quilt.samples.len(),
+            quilt.container().path().display()
+        )));
+    }
     let mut data = vec![0f32; r * r * 3];
     let covered: Vec<bool> = patches.iter().map(|&p| p != NO_PATCH).collect();
     for t in 0..r * r {
         if covered[t] {
-            let c = bilinear(preview, coords[t][0], coords[t][1]);
+            let c = bilinear(&previews[index[t] as usize], coords[t][0], coords[t][1]);
             data[t * 3..t * 3 + 3].copy_from_slice(&c);
         }
     }
@@ -155,9 +218,12 @@ pub fn dilate(img: &mut RgbImage, covered: &[bool], passes: usize) {
 /// Bakes the quilt's preview colour to `out` (PNG or EXR), gutter dilated.
 pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: MemoryBudget) -> Result<()> {
     let quilt = Quilt::open(quilt_path, budget)?;
-    let (svd, _tmp) = open_sample(&quilt, sample, budget)?;
-    let preview = svd.preview()?;
-    let (mut img, covered) = atlas_colour(&quilt, &preview)?;
+    let samples = open_samples(&quilt, sample, budget)?;
+    let previews = samples
+        .iter()
+        .map(|s| s.svd.preview())
+        .collect::<Result<Vec<_>>>()?;
+    let (mut img, covered) = atlas_colour(&quilt, &previews)?;
     dilate(&mut img, &covered, 16);
     if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
         imageio::write_png(out, &img, PngDepth::Eight)

@@ -9,7 +9,7 @@
 
 use std::path::Path;
 
-use crate::bake::{atlas_colour, open_sample};
+use crate::bake::{atlas_colour, open_samples};
 use crate::container::MemoryBudget;
 use crate::factorize::rotate_maps;
 use crate::gim::{Gim, EMPTY};
@@ -33,9 +33,12 @@ pub fn evaluate(
 ) -> Result<String> {
     let quilt = Quilt::open(quilt_path, budget)?;
     let gim = Gim::open(gim_path.unwrap_or(&quilt.gim), budget)?;
-    let (svd, _tmp) = open_sample(&quilt, sample, budget)?;
-    let preview = svd.preview()?;
-    let (img, covered) = atlas_colour(&quilt, &preview)?;
+    let samples = open_samples(&quilt, sample, budget)?;
+    let previews = samples
+        .iter()
+        .map(|s| s.svd.preview())
+        .collect::<Result<Vec<_>>>()?;
+    let (img, covered) = atlas_colour(&quilt, &previews)?;
     let r = quilt.resolution;
     let patches = quilt.patches()?;
     let chart: Vec<u32> = gim.read("chart")?;
@@ -77,7 +80,7 @@ pub fn evaluate(
         .collect();
     let all_inside: Vec<f64> = inner.iter().chain(&seam).copied().collect();
     let zipper_ratio = mean(&zip) / mean(&all_inside).max(1e-12) + 0.0;
-    let coherence = coherence(&quilt, &img, &covered, &chart, &preview)?;
+    let coherence = coherence(&quilt, &img, &covered, &chart, &previews)?;
     let seams_fraction = seam.len() as f64 / (seam.len() + inner.len()).max(1) as f64;
     let patch_count = {
         let mut p: Vec<u32> = patches.iter().copied().filter(|&p| p != NO_PATCH).collect();
@@ -106,24 +109,24 @@ pub fn evaluate(
     ))
 }
 
-/// Mean distance from 5×5 output windows (at seeded places inside one chart)
-/// to the nearest 5×5 window of the sample preview turned by the window's
-/// rotation; and the number of windows.
+/// Mean distance from 5×5 output windows (at seeded places inside one chart,
+/// drawn from one sample) to the nearest 5×5 window of that sample's preview
+/// turned by the window's rotation; and the number of windows.
 fn coherence(
     quilt: &Quilt,
     img: &RgbImage,
     covered: &[bool],
     chart: &[u32],
-    preview: &RgbImage,
+    previews: &[RgbImage],
 ) -> Result<(f64, usize)> {
     let r = quilt.resolution;
     let rotations = quilt.rotations()?;
+    let index = quilt.sample_index()?;
     let steps = match quilt.container().metadata().param("rotations") {
         Some(crate::container::Param::Int(v)) if *v > 0 => *v as usize,
         _ => 72,
     };
-    let (sw, sh) = (preview.width, preview.height);
-    let mut cache: std::collections::BTreeMap<u8, (Vec<f32>, Vec<u8>)> = Default::default();
+    let mut cache: std::collections::BTreeMap<(u8, u8), (Vec<f32>, Vec<u8>)> = Default::default();
     let (mut total, mut count) = (0f64, 0usize);
     let mut k = 0u64;
     while count < 200 && k < 20_000 {
@@ -134,11 +137,16 @@ fn coherence(
             continue;
         }
         let window: Vec<usize> = (0..25).map(|i| (y + i / 5 - 2) * r + x + i % 5 - 2).collect();
-        if !window.iter().all(|&w| covered[w] && chart[w] == chart[t]) {
+        if !window
+            .iter()
+            .all(|&w| covered[w] && chart[w] == chart[t] && index[w] == index[t])
+        {
             continue;
         }
         let rot = rotations[t];
-        let (maps, valid) = cache.entry(rot).or_insert_with(|| {
+        let preview = &previews[index[t] as usize];
+        let (sw, sh) = (preview.width, preview.height);
+        let (maps, valid) = cache.entry((index[t], rot)).or_insert_with(|| {
             rotate_maps(&preview.data, sw, sh, 3, rot as f64 * 360.0 / steps as f64, false)
         });
         let mut best = f64::INFINITY;

@@ -117,10 +117,10 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
         stage_mesh(&source, *format, opts, &mut stage)?;
         stages.push(stage);
     }
-    if let (Some((dir, (svd, _tmp))), Source::Quilt { path, quilt, .. }) = (&btf, &source) {
+    if let (Some((dir, sample0)), Source::Quilt { path, quilt, .. }) = (&btf, &source) {
         let mut stage = Stage::new(dir)?;
         let sample = opts.sample.clone().unwrap_or_else(|| quilt.sample.clone());
-        stage_surface_btf(path, quilt, svd, &sample, &mut stage)?;
+        stage_surface_btf(path, quilt, &sample0.svd, &sample, &mut stage)?;
         stages.push(stage);
     }
     let mut written = Vec::new();

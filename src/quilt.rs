@@ -2221,7 +2221,11 @@ pub struct Quilt {
     container: Container,
     pub resolution: usize,
     pub gim: PathBuf,
+    /// The sample it was tiled with (`samples[0]`).
     pub sample: PathBuf,
+    /// Every sample its texels draw from: the tiling's first, then each
+    /// other sample painted in (see [`Quilt::sample_index`]).
+    pub samples: Vec<PathBuf>,
 }
 
 impl Quilt {
@@ -2237,10 +2241,26 @@ impl Quilt {
             Some(Param::Int(v)) if *v > 0 => *v as usize,
             _ => return Err(Error::input(path, "metadata parameter 'resolution' is missing")),
         };
+        let sample = text("sample")?;
+        let count = match m.param("sample_count") {
+            None => 1,
+            Some(Param::Int(v)) if (1..=MAX_SAMPLES as i64).contains(v) => *v as usize,
+            Some(_) => {
+                return Err(Error::input(
+                    path,
+                    "metadata parameter 'sample_count' is out of range",
+                ))
+            }
+        };
+        let mut samples = vec![sample.clone()];
+        for k in 1..count {
+            samples.push(text(&format!("sample_{k}"))?);
+        }
         Ok(Quilt {
             resolution,
             gim: text("gim")?,
-            sample: text("sample")?,
+            sample,
+            samples,
             container,
         })
     }
@@ -2273,4 +2293,37 @@ impl Quilt {
     pub fn rotations(&self) -> Result<Vec<u8>> {
         self.container.read_array(self.container.array("rotation")?)
     }
+
+    /// Per texel index into [`Quilt::samples`] (all 0 for a surface that
+    /// draws from one sample, which stores no such array).
+    pub fn sample_index(&self) -> Result<Vec<u8>> {
+        let texels = self.resolution * self.resolution;
+        let Ok(id) = self.container.array("sample") else {
+            return Ok(vec![0; texels]);
+        };
+        let v: Vec<u8> = self.container.read_array(id)?;
+        if v.len() != texels || v.iter().any(|&k| k as usize >= self.samples.len()) {
+            return Err(Error::input(
+                self.container.path(),
+                format!(
+                    "its sample indices do not match its {} samples",
+                    self.samples.len()
+                ),
+            ));
+        }
+        Ok(v)
+    }
+
+    /// Which sample the recorded `sample_mask` belongs to (the last painted
+    /// stroke's sample; 0 for a tiling).
+    pub fn mask_sample(&self) -> usize {
+        match self.container.metadata().param("mask_sample") {
+            Some(Param::Int(v)) if *v >= 0 => *v as usize,
+            _ => 0,
+        }
+    }
 }
+
+/// How many samples one surface may draw from (the tiling's and those
+/// painted in), so a texel's sample index fits a byte.
+pub const MAX_SAMPLES: usize = 255;

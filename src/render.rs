@@ -565,7 +565,8 @@ impl Scene {
                 format!("its sample {} is gone", quilt.sample.display()),
             ));
         }
-        let (svd, _tmp) = open_sample(&quilt, None, budget)?;
+        let sample0 = open_sample(&quilt, None, budget)?;
+        let svd = &sample0.svd;
         let mesh = gim.mesh()?;
         let corner_uv = gim.corner_uv()?;
         if corner_uv.len() != mesh.triangles.len() * 3
@@ -581,7 +582,7 @@ impl Scene {
         let r = quilt.resolution;
         let pairs = svd.views.len() * svd.lights.len();
         let shading = if pairs <= 1 {
-            let (mut texture, covered) = atlas_colour(&quilt, &svd.preview()?)?;
+            let (mut texture, covered) = atlas_colour(&quilt, &[svd.preview()?])?;
             dilate(&mut texture, &covered, 4);
             Shading::Colour(texture)
         } else {
