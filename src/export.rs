@@ -5,9 +5,11 @@
 //!   atlas texture. Formats: OBJ + MTL + PNG, or one binary glTF 2.0 file
 //!   (`mesh.glb`, the texture embedded).
 //! - A decorated mesh's *surface BTF* for other renderers: per atlas texel the
-//!   sample coordinate and frame (`synthesis.exr`), and the sample as its
-//!   factorization (`geometry_maps.exr`, `appearance.csv`, …), described by a
-//!   `FORMAT.md` written beside them.
+//!   sample coordinate and frame (`synthesis.exr`, and which sample when the
+//!   surface draws from several), and each sample as its factorization
+//!   (`geometry_maps.exr`, `appearance.csv`, …; `geometry_maps_K.exr`,
+//!   `appearance_K.csv`, … for sample K ≥ 1), described by a `FORMAT.md`
+//!   written beside them.
 //!
 //! Every export is all-or-nothing: the files are written into a hidden
 //! staging folder inside the output folder and renamed into place only when
@@ -74,6 +76,16 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
     let kind = Container::open(file, opts.budget)?.metadata().kind.clone();
     let source = if kind == crate::quilt::KIND {
         let quilt = Quilt::open(file, opts.budget)?;
+        // `--sample` stands in for the tiling's sample only: the others
+        // must be where the quilt says
+        for (k, path) in quilt.samples.iter().enumerate().skip(1) {
+            if !path.exists() {
+                return Err(Error::input(
+                    file,
+                    format!("its sample {} (painted in, 'sample_{k}') is gone", path.display()),
+                ));
+            }
+        }
         let gim = Gim::open(&quilt.gim, opts.budget)?;
         Source::Quilt {
             path: file,
@@ -105,7 +117,7 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
             }
             Some((
                 dir,
-                bake::open_sample(quilt, opts.sample.as_deref(), opts.budget)?,
+                bake::open_samples(quilt, opts.sample.as_deref(), opts.budget)?,
             ))
         }
         _ => None,
@@ -117,10 +129,14 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
         stage_mesh(&source, *format, opts, &mut stage)?;
         stages.push(stage);
     }
-    if let (Some((dir, sample0)), Source::Quilt { path, quilt, .. }) = (&btf, &source) {
+    if let (Some((dir, samples)), Source::Quilt { path, quilt, .. }) = (&btf, &source) {
         let mut stage = Stage::new(dir)?;
-        let sample = opts.sample.clone().unwrap_or_else(|| quilt.sample.clone());
-        stage_surface_btf(path, quilt, &sample0.svd, &sample, &mut stage)?;
+        let mut paths = quilt.samples.clone();
+        if let Some(first) = &opts.sample {
+            paths[0] = first.clone();
+        }
+        let svds: Vec<&SvdArtifact> = samples.iter().map(|s| &s.svd).collect();
+        stage_surface_btf(path, quilt, &svds, &paths, &mut stage)?;
         stages.push(stage);
     }
     let mut written = Vec::new();
@@ -544,34 +560,60 @@ fn num(v: f32) -> String {
     format!("{v:?}")
 }
 
-/// Writes the surface BTF of a decorated mesh into the stage.
+/// A sample's file name: `stem.ext` for sample 0, `stem_K.ext` for K ≥ 1.
+pub fn sample_file(stem: &str, k: usize, ext: &str) -> String {
+    if k == 0 {
+        format!("{stem}.{ext}")
+    } else {
+        format!("{stem}_{k}.{ext}")
+    }
+}
+
+/// Writes the surface BTF of a decorated mesh into the stage: `svds` and
+/// `paths` are its samples in [`Quilt::samples`] order (sharing one direction
+/// set, as [`bake::open_samples`] checks).
 fn stage_surface_btf(
     quilt_path: &Path,
     quilt: &Quilt,
-    svd: &SvdArtifact,
-    sample: &Path,
+    svds: &[&SvdArtifact],
+    paths: &[PathBuf],
     stage: &mut Stage,
 ) -> Result<()> {
     let r = quilt.resolution;
-    let (w, h, n) = (svd.width, svd.height, svd.terms);
-    let (views, lights) = (&svd.views, &svd.lights);
-    let pairs = views.len() * lights.len();
-    let tileable = matches!(svd.container().metadata().param("tileable"), Some(Param::Int(1)));
+    let svd0 = svds[0];
+    let (views, lights) = (&svd0.views, &svd0.lights);
+    let several = svds.len() > 1;
+    let samples: Vec<SampleFacts> = svds
+        .iter()
+        .zip(paths)
+        .map(|(svd, path)| SampleFacts {
+            path,
+            w: svd.width,
+            h: svd.height,
+            n: svd.terms,
+            tileable: matches!(svd.container().metadata().param("tileable"), Some(Param::Int(1))),
+        })
+        .collect();
 
-    // synthesis.exr: per atlas texel the sample coordinate and frame
+    // synthesis.exr: per atlas texel the sample coordinate and frame (and,
+    // with several samples, which one)
     let coords = quilt.coords()?;
     let patches = quilt.patches()?;
     let jac = quilt.jacobians()?;
-    if coords.len() != r * r || patches.len() != r * r || jac.len() != r * r {
+    let index = quilt.sample_index()?;
+    if coords.len() != r * r || patches.len() != r * r || jac.len() != r * r || index.len() != r * r {
         return Err(Error::input(
             quilt_path,
-            "coord/patch/jacobian arrays disagree with the resolution",
+            "coord/patch/jacobian/sample arrays disagree with the resolution",
         ));
     }
-    let names = ["u", "v", "angle", "dudX", "dvdX", "dudY", "dvdY"];
+    let mut names = vec!["u", "v", "angle", "dudX", "dvdX", "dudY", "dvdY"];
+    if several {
+        names.push("sample");
+    }
     let mut planes = vec![vec![f32::NAN; r * r]; names.len()];
     let mut covered = 0usize;
-    let mut reach = [0f32; 2];
+    let mut reach = vec![[0f32; 2]; svds.len()];
     for t in 0..r * r {
         if patches[t] == NO_PATCH {
             continue;
@@ -579,26 +621,102 @@ fn stage_surface_btf(
         covered += 1;
         let [x, y] = coords[t];
         let j = jac[t];
-        reach = [reach[0].max(x.abs()), reach[1].max(y.abs())];
-        let values = [x, y, j[1].atan2(j[0]).to_degrees(), j[0], j[1], j[2], j[3]];
+        let k = index[t] as usize;
+        reach[k] = [reach[k][0].max(x.abs()), reach[k][1].max(y.abs())];
+        let values = [
+            x,
+            y,
+            j[1].atan2(j[0]).to_degrees(),
+            j[0],
+            j[1],
+            j[2],
+            j[3],
+            k as f32,
+        ];
         for (plane, v) in planes.iter_mut().zip(values) {
             plane[t] = v;
         }
     }
-    if !tileable && (reach[0] > w as f32 || reach[1] > h as f32) {
-        return Err(Error::input(
-            sample,
-            format!(
-                "is {w}×{h} but {} has sample coordinates up to ({}, {}): not the sample it was tiled with",
-                quilt_path.display(),
-                reach[0],
-                reach[1]
-            ),
-        ));
+    for (k, s) in samples.iter().enumerate() {
+        if !s.tileable && (reach[k][0] > s.w as f32 || reach[k][1] > s.h as f32) {
+            let whose = if several {
+                format!(" for its texels of sample {k}")
+            } else {
+                String::new()
+            };
+            return Err(Error::input(
+                s.path,
+                format!(
+                    "is {}×{} but {} has sample coordinates up to ({}, {}){whose}: not the sample it was tiled with",
+                    s.w,
+                    s.h,
+                    quilt_path.display(),
+                    reach[k][0],
+                    reach[k][1]
+                ),
+            ));
+        }
     }
     let channels: Vec<(String, Vec<f32>)> = names.iter().map(|s| s.to_string()).zip(planes).collect();
     imageio::write_exr_channels(&stage.publish("synthesis.exr"), r, r, &channels, false)?;
     drop(channels);
+
+    for (k, svd) in svds.iter().enumerate() {
+        stage_factors(svd, k, views, lights, stage)?;
+    }
+
+    // directions.csv: both lists, with unit vectors in the sample frame
+    let out = stage.publish("directions.csv");
+    imageio::write_atomic(&out, |f| {
+        let io = |e| Error::io(&out, e);
+        writeln!(f, "set,index,theta,phi,x,y,z").map_err(io)?;
+        for (set, list) in [("view", views), ("light", lights)] {
+            for (i, a) in list.iter().enumerate() {
+                let (st, ct) = (a.theta as f64).to_radians().sin_cos();
+                let (sp, cp) = (a.phi as f64).to_radians().sin_cos();
+                writeln!(
+                    f,
+                    "{set},{i},{},{},{},{},{}",
+                    num(a.theta),
+                    num(a.phi),
+                    num((st * cp) as f32),
+                    num((st * sp) as f32),
+                    num(ct as f32)
+                )
+                .map_err(io)?;
+            }
+        }
+        Ok(())
+    })?;
+
+    let facts = Facts {
+        quilt: quilt_path,
+        samples,
+        r,
+        views: views.len(),
+        lights: lights.len(),
+        covered,
+    };
+    let out = stage.publish("FORMAT.md");
+    let text = format_md(&facts);
+    imageio::write_atomic(&out, |f| {
+        f.write_all(text.as_bytes()).map_err(|e| Error::io(&out, e))
+    })
+}
+
+/// Writes sample `k`'s factorization: its geometry maps (one f32 channel
+/// per term), its appearance table (one row per direction pair of the
+/// shared `views` × `lights`) and its singular values, under
+/// [`sample_file`] names.
+fn stage_factors(
+    svd: &SvdArtifact,
+    k: usize,
+    views: &[crate::btf::Angles],
+    lights: &[crate::btf::Angles],
+    stage: &mut Stage,
+) -> Result<()> {
+    let (w, h, n) = (svd.width, svd.height, svd.terms);
+    let pairs = views.len() * lights.len();
 
     // geometry_maps.exr: the n maps of the sample, one f32 channel each
     let g = svd.geometry_maps()?;
@@ -609,12 +727,13 @@ fn stage_surface_btf(
         .map(|(i, name)| (name.clone(), g.iter().skip(i).step_by(n).copied().collect()))
         .collect();
     drop(g);
-    imageio::write_exr_channels(&stage.publish("geometry_maps.exr"), w, h, &channels, false)?;
+    let out = stage.publish(&sample_file("geometry_maps", k, "exr"));
+    imageio::write_exr_channels(&out, w, h, &channels, false)?;
     drop(channels);
 
     // appearance.csv: p_i(pair, c), one row per pair
     let p = svd.appearance()?;
-    let out = stage.publish("appearance.csv");
+    let out = stage.publish(&sample_file("appearance", k, "csv"));
     imageio::write_atomic(&out, |f| {
         let io = |e| Error::io(&out, e);
         let mut head = String::from("pair,view_theta,view_phi,light_theta,light_phi");
@@ -647,32 +766,8 @@ fn stage_surface_btf(
     })?;
     drop(p);
 
-    // directions.csv: both lists, with unit vectors in the sample frame
-    let out = stage.publish("directions.csv");
-    imageio::write_atomic(&out, |f| {
-        let io = |e| Error::io(&out, e);
-        writeln!(f, "set,index,theta,phi,x,y,z").map_err(io)?;
-        for (set, list) in [("view", views), ("light", lights)] {
-            for (i, a) in list.iter().enumerate() {
-                let (st, ct) = (a.theta as f64).to_radians().sin_cos();
-                let (sp, cp) = (a.phi as f64).to_radians().sin_cos();
-                writeln!(
-                    f,
-                    "{set},{i},{},{},{},{},{}",
-                    num(a.theta),
-                    num(a.phi),
-                    num((st * cp) as f32),
-                    num((st * sp) as f32),
-                    num(ct as f32)
-                )
-                .map_err(io)?;
-            }
-        }
-        Ok(())
-    })?;
-
     let sigma = svd.singular_values()?;
-    let out = stage.publish("singular_values.csv");
+    let out = stage.publish(&sample_file("singular_values", k, "csv"));
     imageio::write_atomic(&out, |f| {
         let io = |e| Error::io(&out, e);
         writeln!(f, "term,sigma").map_err(io)?;
@@ -680,70 +775,147 @@ fn stage_surface_btf(
             writeln!(f, "{i},{}", num(*s)).map_err(io)?;
         }
         Ok(())
-    })?;
-
-    let facts = Facts {
-        quilt: quilt_path,
-        sample,
-        r,
-        w,
-        h,
-        n,
-        views: views.len(),
-        lights: lights.len(),
-        covered,
-        tileable,
-    };
-    let out = stage.publish("FORMAT.md");
-    let text = format_md(&facts);
-    imageio::write_atomic(&out, |f| {
-        f.write_all(text.as_bytes()).map_err(|e| Error::io(&out, e))
     })
+}
+
+/// What FORMAT.md says about one sample.
+struct SampleFacts<'a> {
+    path: &'a Path,
+    w: usize,
+    h: usize,
+    n: usize,
+    tileable: bool,
 }
 
 struct Facts<'a> {
     quilt: &'a Path,
-    sample: &'a Path,
+    /// In [`Quilt::samples`] order.
+    samples: Vec<SampleFacts<'a>>,
     r: usize,
-    w: usize,
-    h: usize,
-    n: usize,
     views: usize,
     lights: usize,
     covered: usize,
-    tileable: bool,
 }
 
 /// The description written beside a surface BTF export.
 fn format_md(f: &Facts) -> String {
-    let last = |c: &str| term_names(c, f.n).pop().unwrap_or_default();
+    let s0 = &f.samples[0];
+    let several = f.samples.len() > 1;
+    let last = |c: &str| term_names(c, s0.n).pop().unwrap_or_default();
     let (gl, rl, bl) = (last("g"), last("r"), last("b"));
     let pairs = f.views * f.lights;
-    let edge = if f.tileable {
-        "the sample was factorized `--tileable`: coordinates may lie outside it and wrap (x mod W, y mod H, also for the +1 neighbour of the bilinear lookup)"
+    let list = |pick: &dyn Fn(usize, &SampleFacts) -> String| {
+        f.samples
+            .iter()
+            .enumerate()
+            .map(|(k, s)| pick(k, s))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let sample = if several {
+        format!("samples {}", list(&|_, s| format!("`{}`", s.path.display())))
     } else {
-        "coordinates lie in [0, W−1]×[0, H−1]; clamp the +1 neighbour of the bilinear lookup at the border"
+        format!("sample `{}`", s0.path.display())
+    };
+    let intro = if several {
+        format!(
+            "A decorated surface: every covered atlas texel of the mesh shows a point of\n\
+             one of {count} BTF samples (channel `sample` of `synthesis.exr`), and each\n\
+             sample is given as its own rank-n factorization. Here: atlas R×R = {r}×{r}\n\
+             ({covered} of {texels} texels covered); {samples}; one direction set for all:\n\
+             {views} views × {lights} lights = {pairs} direction pairs.",
+            count = f.samples.len(),
+            r = f.r,
+            covered = f.covered,
+            texels = f.r * f.r,
+            samples = list(&|k, s| format!("sample {k} W×H = {}×{}, n = {} terms", s.w, s.h, s.n)),
+            views = f.views,
+            lights = f.lights,
+        )
+    } else {
+        format!(
+            "A decorated surface: every covered atlas texel of the mesh shows a point of\n\
+             a BTF sample, and the sample is given as its rank-n factorization. Here:\n\
+             atlas R×R = {r}×{r} ({covered} of {texels} texels covered), sample W×H =\n\
+             {w}×{h}, n = {n} terms, {views} views × {lights} lights = {pairs} direction pairs.",
+            r = f.r,
+            covered = f.covered,
+            texels = f.r * f.r,
+            w = s0.w,
+            h = s0.h,
+            n = s0.n,
+            views = f.views,
+            lights = f.lights,
+        )
+    };
+    let sample_channel = if several { ", `sample`" } else { "" };
+    let mut more_files = String::new();
+    for k in 1..f.samples.len() {
+        let _ = write!(
+            more_files,
+            "| `{}`, `{}`, `{}` | sample {k}'s, laid out as sample 0's (its own W×H and n) |\n",
+            sample_file("geometry_maps", k, "exr"),
+            sample_file("appearance", k, "csv"),
+            sample_file("singular_values", k, "csv"),
+        );
+    }
+    let wrap = "coordinates may lie outside it and wrap (x mod W, y mod H, also for the +1 neighbour of the bilinear lookup)";
+    let clamp =
+        "coordinates lie in [0, W−1]×[0, H−1]; clamp the +1 neighbour of the bilinear lookup at the border";
+    let edge = if !several {
+        if s0.tileable {
+            format!("the sample was factorized `--tileable`: {wrap}")
+        } else {
+            clamp.to_string()
+        }
+    } else {
+        let tileable: Vec<String> = (0..f.samples.len())
+            .filter(|&k| f.samples[k].tileable)
+            .map(|k| k.to_string())
+            .collect();
+        if tileable.is_empty() {
+            format!("in every sample {clamp}")
+        } else {
+            format!(
+                "in a sample factorized `--tileable` (here: sample {}) {wrap}; in the others {clamp}",
+                tileable.join(", ")
+            )
+        }
+    };
+    let sample_texel = if several {
+        "\n\n`sample` = the index of the sample the texel shows (0, 1, …, a whole\n\
+         number stored as f32): `u`, `v` and the Jacobian are in that sample's pixels."
+    } else {
+        ""
+    };
+    let reconstruct_several = if several {
+        "\n\nWith several samples, take everything from the texel's own sample s\n\
+         (channel `sample`): g_i from `geometry_maps.exr` for s = 0, else\n\
+         `geometry_maps_s.exr`; p_i from `appearance.csv`, else `appearance_s.csv`;\n\
+         n its number of terms. The g of one sample mean nothing in another's basis:\n\
+         never mix one sample's g with another's p, nor blend g vectors of texels\n\
+         from different samples; filter across such texels by blending their\n\
+         values. The pairs (rows) are the same in every appearance table."
+    } else {
+        ""
     };
     format!(
         r#"# Surface BTF export
 
-Written by btfquilt {version} from `{quilt}` (sample `{sample}`).
+Written by btfquilt {version} from `{quilt}` ({sample}).
 
-A decorated surface: every covered atlas texel of the mesh shows a point of
-a BTF sample, and the sample is given as its rank-n factorization. Here:
-atlas R×R = {r}×{r} ({covered} of {texels} texels covered), sample W×H =
-{w}×{h}, n = {n} terms, {views} views × {lights} lights = {pairs} direction pairs.
+{intro}
 The mesh with the same atlas uvs: `btfquilt export FILE --format gltf -o DIR`
 (`mesh.glb`, `TEXCOORD_0`) or `--format obj` (OBJ's `vt` is y-up: 1 − v).
 
 | file | contents |
 |---|---|
-| `synthesis.exr` | R×R, f32 channels `u`, `v`, `angle`, `dudX`, `dvdX`, `dudY`, `dvdY` |
+| `synthesis.exr` | R×R, f32 channels `u`, `v`, `angle`, `dudX`, `dvdX`, `dudY`, `dvdY`{sample_channel} |
 | `geometry_maps.exr` | W×H, f32 channels `g00` … `{gl}`: g_i = σ_i u_i |
 | `appearance.csv` | one row per pair: `pair,view_theta,view_phi,light_theta,light_phi,r00..{rl},g00..{gl},b00..{bl}` |
 | `directions.csv` | `set,index,theta,phi,x,y,z`: the view list, then the light list |
 | `singular_values.csv` | `term,sigma`: σ_i (already folded into g_i; for information) |
-
+{more_files}
 CSV: a header row, comma separated, numbers in the shortest decimal that
 reads back to the same f32. EXR: scanlines, ZIP compression, lossless f32;
 channels are stored in name order, look them up by name.
@@ -765,7 +937,7 @@ J = [[dudX, dudY], [dvdX, dvdY]]); `angle` = atan2(dvdX, dudX) in degrees,
 (so the sample's +x axis lies at −angle from atlas +X when J is a rotation
 and scale). **Empty texels** (the gutter between charts) are **NaN in every
 channel**. Look texels up with nearest filtering: neighbouring texels may come
-from different patches of the sample.
+from different patches of the sample.{sample_texel}
 
 ## Reconstruction
 
@@ -780,7 +952,7 @@ g(x0,y0) + (g(x1,y0) − g(x0,y0))·fx, bottom the same on row y1, value = top +
 (bottom − top)·fy), and p_i(pair, c) in row `pair` of `appearance.csv`,
 column c followed by i zero-padded as in the header (`r07`: red, term 7). pair = view · {lights} + light,
 both 0-based indices into `directions.csv`. The sum is linear, so summing the
-sample first and interpolating afterwards gives the same value.
+sample first and interpolating afterwards gives the same value.{reconstruct_several}
 
 ## Directions and the frame
 
@@ -801,19 +973,16 @@ listed view and light (or blend neighbours) to find `pair`.
 "#,
         version = env!("CARGO_PKG_VERSION"),
         quilt = f.quilt.display(),
-        sample = f.sample.display(),
-        r = f.r,
-        covered = f.covered,
-        texels = f.r * f.r,
-        w = f.w,
-        h = f.h,
-        n = f.n,
-        views = f.views,
-        lights = f.lights,
-        pairs = pairs,
+        sample = sample,
+        intro = intro,
+        sample_channel = sample_channel,
+        more_files = more_files,
         gl = gl,
         rl = rl,
         bl = bl,
         edge = edge,
+        lights = f.lights,
+        sample_texel = sample_texel,
+        reconstruct_several = reconstruct_several,
     )
 }

@@ -8,7 +8,7 @@
 //! 2. rows are shaded in parallel with rayon. Every pixel depends only on its
 //!    own G-buffer entry, so the image is byte-identical for any thread count.
 //!
-//! Shading depends on the quilt's sample:
+//! Shading depends on the quilt's samples:
 //! - a colour image (one view × one light): the baked preview colour (gutter
 //!   dilated, bilinear in the atlas) × `0.18 + 0.82 Σ_k E_k max(n·l_k, 0)`;
 //! - a BTF (more than one direction pair): per pixel, the nearest covered
@@ -33,6 +33,13 @@
 //!   `cos θ_l` foreshortening (the generator shades `albedo·max(n·l, 0)`), so
 //!   it is not applied again.
 //!
+//! A surface may draw from several samples (one direction set, checked by
+//! [`crate::bake::open_samples`]); each texel looks up its own: the colour
+//! path reads each texel's sample's preview, and the BTF path blends the
+//! geometry vectors of the four texels per sample (a g vector is only
+//! meaningful in its own sample's basis) and sums, over the samples present,
+//! `Σ_i g_i p_i` with each sample's own appearance functions.
+//!
 //! Point lights fall off with the inverse square of the distance, normalised
 //! to their intensity at the distance of the mesh's bounding-box centre.
 
@@ -40,7 +47,7 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use crate::bake::{atlas_colour, bilinear, dilate, open_sample};
+use crate::bake::{atlas_colour, bilinear, dilate, open_samples};
 use crate::btf::Angles;
 use crate::container::MemoryBudget;
 use crate::gim::Gim;
@@ -478,15 +485,29 @@ impl Directions {
     }
 }
 
-/// The BTF data a pixel needs.
-struct BtfShading {
+/// One sample's factorization as the shading needs it. Its g vectors are
+/// only ever dotted with its own p (a texel's value is Σ_i g_i p_i in its
+/// own sample's basis).
+struct Basis {
     width: usize,
     height: usize,
     terms: usize,
+    /// Where this sample's terms start in the per-pixel scratch buffer.
+    offset: usize,
     /// `[y][x][i]`.
     geometry: Vec<f32>,
-    /// `[pair][rgb][i]`.
+    /// `[pair][rgb][i]`, the pairs shared by every sample.
     appearance: Vec<f32>,
+}
+
+/// The BTF data a pixel needs.
+struct BtfShading {
+    /// Every sample the surface draws from, in [`Quilt::samples`] order.
+    samples: Vec<Basis>,
+    /// Σ terms over the samples: the scratch buffer's length.
+    total_terms: usize,
+    /// Per texel: index into `samples`.
+    sample: Vec<u8>,
     views: Directions,
     lights: Directions,
     n_lights: usize,
@@ -504,7 +525,7 @@ enum Shading {
 }
 
 /// A decorated mesh loaded for rendering: mesh, atlas uv, normals and the
-/// sample's shading data. Open once, render many frames.
+/// samples' shading data. Open once, render many frames.
 pub struct Scene {
     mesh: Mesh,
     corner_uv: Vec<[f32; 2]>,
@@ -538,7 +559,7 @@ fn face_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3
 }
 
 impl Scene {
-    /// Opens the quilt, its geometry image and its sample.
+    /// Opens the quilt, its geometry image and its samples.
     pub fn open(quilt_path: &Path, budget: MemoryBudget) -> Result<Scene> {
         let quilt = Quilt::open(quilt_path, budget)?;
         if !quilt.gim.exists() {
@@ -559,14 +580,21 @@ impl Scene {
                 ),
             ));
         }
-        if !quilt.sample.exists() {
-            return Err(Error::input(
-                quilt_path,
-                format!("its sample {} is gone", quilt.sample.display()),
-            ));
+        for (k, path) in quilt.samples.iter().enumerate() {
+            if !path.exists() {
+                let which = if k == 0 {
+                    String::new()
+                } else {
+                    format!(" (painted in, 'sample_{k}')")
+                };
+                return Err(Error::input(
+                    quilt_path,
+                    format!("its sample {}{which} is gone", path.display()),
+                ));
+            }
         }
-        let sample0 = open_sample(&quilt, None, budget)?;
-        let svd = &sample0.svd;
+        let opened = open_samples(&quilt, None, budget)?;
+        let svd0 = &opened[0].svd;
         let mesh = gim.mesh()?;
         let corner_uv = gim.corner_uv()?;
         if corner_uv.len() != mesh.triangles.len() * 3
@@ -580,22 +608,21 @@ impl Scene {
         }
         let normals = mesh.vertex_normals();
         let r = quilt.resolution;
-        let pairs = svd.views.len() * svd.lights.len();
+        // open_samples checked that every sample has sample 0's directions
+        let pairs = svd0.views.len() * svd0.lights.len();
         let shading = if pairs <= 1 {
-            let (mut texture, covered) = atlas_colour(&quilt, &[svd.preview()?])?;
+            let previews = opened
+                .iter()
+                .map(|s| s.svd.preview())
+                .collect::<Result<Vec<_>>>()?;
+            let (mut texture, covered) = atlas_colour(&quilt, &previews)?;
             dilate(&mut texture, &covered, 4);
             Shading::Colour(texture)
         } else {
             let coords = quilt.coords()?;
             let patches = quilt.patches()?;
             let rotations = quilt.rotations()?;
-            let steps = svd.rotations.max(1) as f32;
-            // the rotation's Jacobian, where the stored one is missing or degenerate
-            let from_rotation = |t: usize| {
-                let a = rotations[t] as f32 * std::f32::consts::TAU / steps;
-                let (s, c) = a.sin_cos();
-                [c, -s, s, c]
-            };
+            let sample = quilt.sample_index()?;
             let stored = if quilt.container().array("jacobian").is_ok() {
                 quilt.jacobians()?
             } else {
@@ -604,6 +631,7 @@ impl Scene {
             if coords.len() != r * r
                 || patches.len() != r * r
                 || rotations.len() != r * r
+                || sample.len() != r * r
                 || !(stored.is_empty() || stored.len() == r * r)
             {
                 return Err(Error::input(
@@ -611,6 +639,14 @@ impl Scene {
                     format!("its arrays do not match its {r}² atlas"),
                 ));
             }
+            // the rotation's Jacobian, where the stored one is missing or
+            // degenerate (in steps of the texel's own sample)
+            let from_rotation = |t: usize| {
+                let steps = opened[sample[t] as usize].svd.rotations.max(1) as f32;
+                let a = rotations[t] as f32 * std::f32::consts::TAU / steps;
+                let (s, c) = a.sin_cos();
+                [c, -s, s, c]
+            };
             let jacobians: Vec<[f32; 4]> = (0..r * r)
                 .map(|t| match stored.get(t) {
                     Some(j)
@@ -621,26 +657,38 @@ impl Scene {
                     _ => from_rotation(t),
                 })
                 .collect();
-            let (geometry, appearance) = (svd.geometry_maps()?, svd.appearance()?);
-            let n = svd.terms;
-            if geometry.len() != svd.width * svd.height * n
-                || appearance.len() != pairs * 3 * n
-                || geometry.is_empty()
-            {
-                return Err(Error::input(
-                    svd.container().path(),
-                    "geometry maps and appearance disagree",
-                ));
+            let mut samples = Vec::with_capacity(opened.len());
+            let mut offset = 0;
+            for s in &opened {
+                let svd = &s.svd;
+                let (geometry, appearance) = (svd.geometry_maps()?, svd.appearance()?);
+                let n = svd.terms;
+                if geometry.len() != svd.width * svd.height * n
+                    || appearance.len() != pairs * 3 * n
+                    || geometry.is_empty()
+                {
+                    return Err(Error::input(
+                        svd.container().path(),
+                        "geometry maps and appearance disagree",
+                    ));
+                }
+                samples.push(Basis {
+                    width: svd.width,
+                    height: svd.height,
+                    terms: n,
+                    offset,
+                    geometry,
+                    appearance,
+                });
+                offset += n;
             }
             Shading::Btf(Box::new(BtfShading {
-                width: svd.width,
-                height: svd.height,
-                terms: n,
-                geometry,
-                appearance,
-                views: Directions::new(&svd.views),
-                lights: Directions::new(&svd.lights),
-                n_lights: svd.lights.len(),
+                samples,
+                total_terms: offset,
+                sample,
+                views: Directions::new(&svd0.views),
+                lights: Directions::new(&svd0.lights),
+                n_lights: svd0.lights.len(),
                 coords,
                 jacobians,
                 covered: patches.iter().map(|&p| p != NO_PATCH).collect(),
@@ -658,7 +706,7 @@ impl Scene {
         })
     }
 
-    /// True if the sample is a BTF (more than one direction pair).
+    /// True if the samples are BTFs (more than one direction pair).
     pub fn is_btf(&self) -> bool {
         matches!(self.shading, Shading::Btf(_))
     }
@@ -794,10 +842,23 @@ impl Scene {
         // atlas position continues its own patch to that position through
         // its Jacobian; their g vectors are blended bilinearly, so a patch
         // seam is a one-texel blend instead of a step (inside a patch the
-        // four continuations agree)
-        let nt = btf.terms;
-        scratch.clear();
-        scratch.resize(nt, 0.0);
+        // four continuations agree). Texels of different samples blend in
+        // separate segments of `scratch` (each sample's terms at its
+        // offset), since g vectors of different bases must not be mixed.
+        let mut active = [0usize; 4];
+        let mut n_active = 0;
+        if scratch.len() != btf.total_terms {
+            scratch.clear();
+            scratch.resize(btf.total_terms, 0.0);
+        }
+        let mut activate = |k: usize, scratch: &mut [f32]| {
+            if !active[..n_active].contains(&k) {
+                let b = &btf.samples[k];
+                scratch[b.offset..b.offset + b.terms].fill(0.0);
+                active[n_active] = k;
+                n_active += 1;
+            }
+        };
         let (bx, by) = (xa.floor(), ya.floor());
         let (fxa, fya) = (xa - bx, ya - by);
         let mut total = 0f32;
@@ -819,17 +880,25 @@ impl Scene {
             let (ddx, ddy) = (xa - cx, ya - cy);
             let px = ck[0] + jk[0] * ddx + jk[2] * ddy;
             let py = ck[1] + jk[1] * ddx + jk[3] * ddy;
-            add_geometry(btf, px, py, wgt, scratch);
+            let sk = btf.sample[k] as usize;
+            activate(sk, scratch);
+            add_geometry(&btf.samples[sk], px, py, wgt, scratch);
             total += wgt;
         }
         if total > 0.0 {
-            for a in scratch.iter_mut() {
-                *a /= total;
+            // each sample's share of the blend stays in its segment's scale
+            for &k in &active[..n_active] {
+                let b = &btf.samples[k];
+                for a in scratch[b.offset..b.offset + b.terms].iter_mut() {
+                    *a /= total;
+                }
             }
         } else {
-            add_geometry(btf, sx, sy, 1.0, scratch);
+            let sk = btf.sample[t] as usize;
+            activate(sk, scratch);
+            add_geometry(&btf.samples[sk], sx, sy, 1.0, scratch);
         }
-        let g = &scratch[..];
+        let active = &active[..n_active];
 
         let (vdirs, vcount) = btf.views.nearest(btf.views.clamp(local(view)));
         let mut acc = [0f32; 3];
@@ -848,9 +917,15 @@ impl Scene {
                 for &(li, lw) in &ldirs[..lcount] {
                     let wgt = vw * lw * e * fade;
                     let pair = vi as usize * btf.n_lights + li as usize;
-                    let p = &btf.appearance[pair * 3 * nt..(pair + 1) * 3 * nt];
-                    for (ch, a) in acc.iter_mut().enumerate() {
-                        *a += wgt * dot_n(g, &p[ch * nt..(ch + 1) * nt]);
+                    // Σ over the samples present, each its own g · p
+                    for &k in active {
+                        let b = &btf.samples[k];
+                        let nt = b.terms;
+                        let g = &scratch[b.offset..b.offset + nt];
+                        let p = &b.appearance[pair * 3 * nt..(pair + 1) * 3 * nt];
+                        for (ch, a) in acc.iter_mut().enumerate() {
+                            *a += wgt * dot_n(g, &p[ch * nt..(ch + 1) * nt]);
+                        }
                     }
                 }
             }
@@ -1023,11 +1098,12 @@ fn nearest_covered(covered: &[bool], r: usize, xa: f32, ya: f32) -> Option<(usiz
     None
 }
 
-/// Adds `weight` × the geometry-map vector at sample position `(sx, sy)`
-/// (bilinear, clamped to the sample) to `out`.
-fn add_geometry(btf: &BtfShading, sx: f32, sy: f32, weight: f32, out: &mut [f32]) {
-    let nt = btf.terms;
-    let (w, h) = (btf.width, btf.height);
+/// Adds `weight` × sample `b`'s geometry-map vector at sample position
+/// `(sx, sy)` (bilinear, clamped to the sample) to its segment of `scratch`.
+fn add_geometry(b: &Basis, sx: f32, sy: f32, weight: f32, scratch: &mut [f32]) {
+    let nt = b.terms;
+    let (w, h) = (b.width, b.height);
+    let out = &mut scratch[b.offset..b.offset + nt];
     let gx = sx.clamp(0.0, (w - 1) as f32);
     let gy = sy.clamp(0.0, (h - 1) as f32);
     let (x0, y0) = (gx.floor() as usize, gy.floor() as usize);
@@ -1039,9 +1115,9 @@ fn add_geometry(btf: &BtfShading, sx: f32, sy: f32, weight: f32, out: &mut [f32]
         (y1 * w + x0, (1.0 - fx) * fy),
         (y1 * w + x1, fx * fy),
     ] {
-        let src = &btf.geometry[idx * nt..(idx + 1) * nt];
-        for (a, &b) in out.iter_mut().zip(src) {
-            *a += weight * wgt * b;
+        let src = &b.geometry[idx * nt..(idx + 1) * nt];
+        for (a, &v) in out.iter_mut().zip(src) {
+            *a += weight * wgt * v;
         }
     }
 }
