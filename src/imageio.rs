@@ -49,6 +49,17 @@ enum Kind {
     Exr,
 }
 
+/// Extensions (lower case) of the image files every stage reads.
+pub const IMAGE_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "tif", "tiff", "gif", "exr"];
+
+/// Whether `path` names an image (by its case-insensitive extension) rather
+/// than an artifact or another input.
+pub fn is_image_path(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+}
+
 /// Picks the format from the (case-insensitive) extension.
 fn kind_of(path: &Path) -> Result<Kind> {
     let ext = path
@@ -60,10 +71,13 @@ fn kind_of(path: &Path) -> Result<Kind> {
         "png" => Ok(Kind::Raster(ImageFormat::Png)),
         "jpg" | "jpeg" => Ok(Kind::Raster(ImageFormat::Jpeg)),
         "tif" | "tiff" => Ok(Kind::Raster(ImageFormat::Tiff)),
+        "gif" => Ok(Kind::Raster(ImageFormat::Gif)),
         "exr" => Ok(Kind::Exr),
         _ => Err(Error::input(
             path,
-            format!("unsupported image extension '{ext}' (expected .png, .jpg, .jpeg, .tif, .tiff or .exr)"),
+            format!(
+                "unsupported image extension '{ext}' (expected .png, .jpg, .jpeg, .tif, .tiff, .gif or .exr)"
+            ),
         )),
     }
 }
@@ -727,6 +741,33 @@ mod tests {
         let mid = srgb_to_linear(128.0 / 255.0);
         assert!(img.data.iter().all(|v| (v - mid).abs() < 0.01));
         assert_eq!(image_size(&j).unwrap(), (16, 8));
+    }
+
+    #[test]
+    fn reads_gif_palette_images_like_the_classic_samples() {
+        // a two-colour GIF (the classic basket, jelly and nuts samples are
+        // palette GIFs): both colours come back exactly, sRGB-decoded
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("two.GIF");
+        let (a, b) = ([200u8, 40, 10], [0u8, 90, 250]);
+        image::ImageBuffer::from_fn(5, 4, |x, y| {
+            image::Rgba(if (x + y) % 2 == 0 {
+                [a[0], a[1], a[2], 255]
+            } else {
+                [b[0], b[1], b[2], 255]
+            })
+        })
+        .save_with_format(&p, ImageFormat::Gif)
+        .unwrap();
+        assert!(is_image_path(&p) && crate::factorize::is_image_path(&p));
+        let img = read_rgb(&p).unwrap();
+        assert_eq!((img.width, img.height), (5, 4));
+        for (i, px) in img.data.chunks_exact(3).enumerate() {
+            let (x, y) = (i % 5, i / 5);
+            let want = if (x + y) % 2 == 0 { a } else { b };
+            let want = want.map(|v| srgb_to_linear(v as f32 / 255.0));
+            assert_eq!(px, &want, "pixel ({x}, {y})");
+        }
     }
 
     #[test]

@@ -496,7 +496,7 @@ fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec<bool>> {
     let r = syn.resolution();
     let chart = &syn.graph().chart;
     match ext.as_str() {
-        "png" | "tif" | "tiff" | "jpg" | "jpeg" => {
+        _ if crate::imageio::is_image_path(path) => {
             let mask = crate::imageio::read_sized_mask(path, r, r, "a region mask must be the atlas size")?;
             Ok(mask
                 .iter()
