@@ -2346,11 +2346,48 @@ fn write_quilt(
         let id = w.add_array(ArraySpec::new("sample", DType::U8, &[r, r], &[t, t])?)?;
         w.write_array(id, &state.source)?;
     }
+    let seams = seam_flags(&state.patch, &state.chart, gim.resolution, &gim.zipper_links()?);
+    let id = w.add_array(ArraySpec::new("seam", DType::U8, &[r, r], &[t, t])?)?;
+    w.write_array(id, &seams)?;
     if let (Some(m0), Some(_)) = (&state.target, paint_log) {
         let id = w.add_array(ArraySpec::new("region", DType::F32, &[r, r], &[t, t])?)?;
         w.write_array(id, m0)?;
     }
     w.finish()
+}
+
+/// The seam flags of a texel ([`Quilt::seams`]): a seam to the +x
+/// neighbour in the atlas.
+pub const SEAM_X: u8 = 1;
+/// A seam to the +y neighbour in the atlas.
+pub const SEAM_Y: u8 = 2;
+/// A seam across one of the texel's zipper links (to another chart).
+pub const SEAM_ZIPPER: u8 = 4;
+
+/// Per texel: which of its mesh edges the patches meet across (the seams
+/// the graphcut left), as [`SEAM_X`] | [`SEAM_Y`] | [`SEAM_ZIPPER`].
+fn seam_flags(patch: &[u32], chart: &[u32], r: usize, zipper_links: &[[u32; 2]]) -> Vec<u8> {
+    let mut flags = vec![0u8; r * r];
+    let seam = |a: usize, b: usize| chart[a] == chart[b] && chart[a] != EMPTY && patch[a] != patch[b];
+    for y in 0..r {
+        for x in 0..r {
+            let t = y * r + x;
+            if x + 1 < r && seam(t, t + 1) {
+                flags[t] |= SEAM_X;
+            }
+            if y + 1 < r && seam(t, t + r) {
+                flags[t] |= SEAM_Y;
+            }
+        }
+    }
+    for &[a, b] in zipper_links {
+        let (a, b) = (a as usize, b as usize);
+        if patch[a] != patch[b] {
+            flags[a] |= SEAM_ZIPPER;
+            flags[b] |= SEAM_ZIPPER;
+        }
+    }
+    flags
 }
 
 /// A decorated surface opened for reading.
@@ -2429,6 +2466,12 @@ impl Quilt {
     /// Per texel rotation index.
     pub fn rotations(&self) -> Result<Vec<u8>> {
         self.container.read_array(self.container.array("rotation")?)
+    }
+
+    /// Per texel seam flags ([`SEAM_X`], [`SEAM_Y`], [`SEAM_ZIPPER`]): where
+    /// the patches meet.
+    pub fn seams(&self) -> Result<Vec<u8>> {
+        self.container.read_array(self.container.array("seam")?)
     }
 
     /// Per texel index into [`Quilt::samples`] (all 0 for a surface that
