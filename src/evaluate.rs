@@ -193,7 +193,16 @@ fn painting_measures(quilt: &Quilt, chart: &[u32]) -> Result<String> {
         return Ok(String::new());
     };
     let m0: Vec<f32> = c.read_array(region)?;
-    let mask = crate::imageio::read_rgb(Path::new(mask_path))?;
+    let mask_path = Path::new(mask_path);
+    let (mw, mh) = crate::imageio::image_size(mask_path)?;
+    let mask = crate::imageio::RgbImage {
+        width: mw,
+        height: mh,
+        data: crate::imageio::read_sized_mask(mask_path, mw, mh, "")?
+            .into_iter()
+            .flat_map(|m| [m; 3])
+            .collect(),
+    };
     let coords = quilt.coords()?;
     let (index, painted) = (quilt.sample_index()?, quilt.mask_sample());
     let m = |t: usize| {
