@@ -182,8 +182,9 @@ fn coherence(
 
 /// The painting measures of a painted surface (§IV), as a JSON member line
 /// (empty for a surface that was not painted): the fraction of F (m0 = 1)
-/// covered by foreground texels (m_σ ≥ ½), and the fraction of foreground
-/// texels outside F and its transition zone (m0 = 0).
+/// covered by foreground texels (texels of the painted sample with m_σ ≥ ½),
+/// and the fraction of foreground texels outside F and its transition zone
+/// (m0 = 0).
 fn painting_measures(quilt: &Quilt, chart: &[u32]) -> Result<String> {
     let c = quilt.container();
     let (Ok(region), Some(crate::container::Param::Text(mask_path))) =
@@ -192,9 +193,22 @@ fn painting_measures(quilt: &Quilt, chart: &[u32]) -> Result<String> {
         return Ok(String::new());
     };
     let m0: Vec<f32> = c.read_array(region)?;
-    let mask = crate::imageio::read_rgb(Path::new(mask_path))?;
+    let mask_path = Path::new(mask_path);
+    let (mw, mh) = crate::imageio::image_size(mask_path)?;
+    let mask = crate::imageio::RgbImage {
+        width: mw,
+        height: mh,
+        data: crate::imageio::read_sized_mask(mask_path, mw, mh, "")?
+            .into_iter()
+            .flat_map(|m| [m; 3])
+            .collect(),
+    };
     let coords = quilt.coords()?;
+    let (index, painted) = (quilt.sample_index()?, quilt.mask_sample());
     let m = |t: usize| {
+        if index[t] as usize != painted {
+            return 0.0;
+        }
         let p = crate::bake::bilinear(&mask, coords[t][0], coords[t][1]);
         p.iter().fold(0f32, |a, &b| a.max(b))
     };

@@ -355,11 +355,7 @@ fn orth(m: &Mat<f32>) -> Mat<f32> {
 
 /// Whether `path` names a plain image rather than an artifact.
 pub fn is_image_path(path: &Path) -> bool {
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    matches!(ext.as_str(), "png" | "jpg" | "jpeg" | "tif" | "tiff" | "exr")
+    imageio::is_image_path(path)
 }
 
 /// Writes a colour image as a BTF with one view and one light (both along

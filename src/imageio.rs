@@ -49,6 +49,17 @@ enum Kind {
     Exr,
 }
 
+/// Extensions (lower case) of the image files every stage reads.
+pub const IMAGE_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "tif", "tiff", "gif", "exr"];
+
+/// Whether `path` names an image (by its case-insensitive extension) rather
+/// than an artifact or another input.
+pub fn is_image_path(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+}
+
 /// Picks the format from the (case-insensitive) extension.
 fn kind_of(path: &Path) -> Result<Kind> {
     let ext = path
@@ -60,10 +71,13 @@ fn kind_of(path: &Path) -> Result<Kind> {
         "png" => Ok(Kind::Raster(ImageFormat::Png)),
         "jpg" | "jpeg" => Ok(Kind::Raster(ImageFormat::Jpeg)),
         "tif" | "tiff" => Ok(Kind::Raster(ImageFormat::Tiff)),
+        "gif" => Ok(Kind::Raster(ImageFormat::Gif)),
         "exr" => Ok(Kind::Exr),
         _ => Err(Error::input(
             path,
-            format!("unsupported image extension '{ext}' (expected .png, .jpg, .jpeg, .tif, .tiff or .exr)"),
+            format!(
+                "unsupported image extension '{ext}' (expected .png, .jpg, .jpeg, .tif, .tiff, .gif or .exr)"
+            ),
         )),
     }
 }
@@ -135,20 +149,32 @@ fn is_8bit(img: &DynamicImage) -> bool {
 }
 
 /// A painting mask (a sample's foreground, a region): per pixel its largest
-/// channel, decoded to linear as by [`read_rgb`] and clamped to 0..1 — unlike
-/// [`read_mask`], which averages the stored channels. It must be
-/// `width`×`height`; `must_be` names that size for the error (e.g. "a
-/// region mask must be the atlas size").
+/// channel as stored — a mask is data, not colour, so there is no sRGB
+/// decoding (grey 128 is 0.502, as `generate-btf` writes it) — clamped to
+/// 0..1. It must be `width`×`height`; `must_be` names that size for the
+/// error (e.g. "a region mask must be the atlas size").
 pub fn read_sized_mask(path: &Path, width: usize, height: usize, must_be: &str) -> Result<Vec<f32>> {
-    let img = read_rgb(path)?;
-    if (img.width, img.height) != (width, height) {
+    let (w, h, rgb) = match kind_of(path)? {
+        Kind::Exr => {
+            let img = read_exr_rgb(path)?;
+            (img.width, img.height, img.data)
+        }
+        Kind::Raster(format) => {
+            let img = decode_raster(path, format)?;
+            (
+                img.width() as usize,
+                img.height() as usize,
+                img.to_rgb32f().into_raw(),
+            )
+        }
+    };
+    if (w, h) != (width, height) {
         return Err(Error::input(
             path,
-            format!("is {}×{}, but {must_be} {width}×{height}", img.width, img.height),
+            format!("is {w}×{h}, but {must_be} {width}×{height}"),
         ));
     }
-    Ok(img
-        .data
+    Ok(rgb
         .chunks_exact(3)
         .map(|p| p.iter().fold(0f32, |a, &b| a.max(b)).clamp(0.0, 1.0))
         .collect())
@@ -301,25 +327,6 @@ pub fn image_size(path: &Path) -> Result<(usize, usize)> {
             Ok((w as usize, h as usize))
         }
     }
-}
-
-/// Read a single-channel mask as values in 0..1 (no sRGB decoding; RGB averaged).
-///
-/// EXR masks are read as stored (not clamped).
-pub fn read_mask(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
-    let (width, height, rgb) = match kind_of(path)? {
-        Kind::Exr => {
-            let img = read_exr_rgb(path)?;
-            (img.width, img.height, img.data)
-        }
-        Kind::Raster(format) => {
-            let img = decode_raster(path, format)?;
-            let (w, h) = (img.width() as usize, img.height() as usize);
-            (w, h, img.to_rgb32f().into_raw())
-        }
-    };
-    let values = rgb.chunks_exact(3).map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
-    Ok((width, height, values))
 }
 
 /// Checks dimensions and buffer length before writing.
@@ -664,11 +671,27 @@ mod tests {
         let path = dir.path().join("m.png");
         let values: Vec<f32> = (0..256).map(|i| i as f32 / 255.0).collect();
         write_mask_png(&path, 16, 16, &values).unwrap();
-        let (w, h, back) = read_mask(&path).unwrap();
-        assert_eq!((w, h), (16, 16));
+        let back = read_sized_mask(&path, 16, 16, "it must be").unwrap();
         for (a, b) in values.iter().zip(&back) {
             assert!((a - b).abs() < 1e-6);
         }
+        let e = read_sized_mask(&path, 16, 8, "a region mask must be the atlas size")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("m.png") && e.contains("16×16") && e.contains("atlas size 16×8"),
+            "{e}"
+        );
+        // the largest channel counts, as stored: an RGB mask with a pure red
+        // foreground reads 1 there
+        let rgb = dir.path().join("rgb.png");
+        image::ImageBuffer::from_fn(2, 1, |x, _| {
+            image::Rgb(if x == 0 { [255u8, 0, 0] } else { [0, 64, 0] })
+        })
+        .save(&rgb)
+        .unwrap();
+        let m = read_sized_mask(&rgb, 2, 1, "").unwrap();
+        assert_eq!(m, vec![1.0, 64.0 / 255.0]);
     }
 
     #[test]
@@ -727,6 +750,33 @@ mod tests {
         let mid = srgb_to_linear(128.0 / 255.0);
         assert!(img.data.iter().all(|v| (v - mid).abs() < 0.01));
         assert_eq!(image_size(&j).unwrap(), (16, 8));
+    }
+
+    #[test]
+    fn reads_gif_palette_images_like_the_classic_samples() {
+        // a two-colour GIF (the classic basket, jelly and nuts samples are
+        // palette GIFs): both colours come back exactly, sRGB-decoded
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("two.GIF");
+        let (a, b) = ([200u8, 40, 10], [0u8, 90, 250]);
+        image::ImageBuffer::from_fn(5, 4, |x, y| {
+            image::Rgba(if (x + y) % 2 == 0 {
+                [a[0], a[1], a[2], 255]
+            } else {
+                [b[0], b[1], b[2], 255]
+            })
+        })
+        .save_with_format(&p, ImageFormat::Gif)
+        .unwrap();
+        assert!(is_image_path(&p) && crate::factorize::is_image_path(&p));
+        let img = read_rgb(&p).unwrap();
+        assert_eq!((img.width, img.height), (5, 4));
+        for (i, px) in img.data.chunks_exact(3).enumerate() {
+            let (x, y) = (i % 5, i / 5);
+            let want = if (x + y) % 2 == 0 { a } else { b };
+            let want = want.map(|v| srgb_to_linear(v as f32 / 255.0));
+            assert_eq!(px, &want, "pixel ({x}, {y})");
+        }
     }
 
     #[test]

@@ -235,7 +235,7 @@ enum Command {
     Paint {
         /// The decorated surface (.quilt) to paint on; it is left unchanged.
         file: PathBuf,
-        /// The sample (default, and it must be: the one the surface was tiled with).
+        /// The sample to paint with (default: the last stroke's, or the tiling's): any sample with the surface's direction set.
         #[arg(long)]
         sample: Option<PathBuf>,
         /// The sample's foreground mask (PNG, the sample's size); default: the one the quilt records.

@@ -4,7 +4,7 @@
 use std::io::Write;
 use std::path::{Component, Path, PathBuf};
 
-use crate::imageio::write_atomic;
+use crate::imageio::{write_atomic, IMAGE_EXTENSIONS};
 use crate::{Error, Result};
 
 /// A direction: polar angle θ and azimuth φ, in degrees.
@@ -21,9 +21,6 @@ pub struct PairFile {
     pub view: Angles,
     pub light: Angles,
 }
-
-/// Extensions (lower case) of image files that make up a BTF folder.
-const IMAGE_EXTENSIONS: [&str; 6] = ["png", "exr", "jpg", "jpeg", "tif", "tiff"];
 
 /// Angular tolerance (degrees) under which two directions are the same.
 const SAME_DIR_EPS: f32 = 1e-3;

@@ -30,7 +30,7 @@ use crate::container::Param;
 use crate::gim::{Gim, EMPTY};
 use crate::json::{quote, Json};
 use crate::progress::Progress;
-use crate::quilt::{sample_svd, Quilt, Synthesis, TileConfig};
+use crate::quilt::{same_file, sample_svd, Quilt, Synthesis, TileConfig};
 use crate::{Error, Result};
 
 /// A verbatim copy: where and how the foreground goes.
@@ -45,11 +45,13 @@ pub struct Verbatim {
 /// Options of [`paint`].
 #[derive(Clone, Debug, Default)]
 pub struct PaintConfig {
-    /// The sample to paint with; must be the one the surface was tiled with
-    /// (default: that one).
+    /// The sample to paint with: the one the surface was tiled with, or any
+    /// other with the same direction set (a colour image on a colour
+    /// surface, a BTF measured like the surface's). Default: the sample of
+    /// the last stroke (the tiling's for a surface not yet painted).
     pub sample: Option<PathBuf>,
     /// The sample's foreground mask m_P (a PNG the sample's size); default:
-    /// the one recorded in the quilt.
+    /// the one recorded in the quilt, when it belongs to that sample.
     pub sample_mask: Option<PathBuf>,
     /// The target region F: a mask PNG (atlas space), a PLY/OBJ with vertex
     /// weights or colours, or JSON strokes.
@@ -120,7 +122,7 @@ fn run(
 ) -> Result<PaintReport> {
     let base = Quilt::open(quilt_path, cfg.tile.memory)?;
     let log = match base.container().metadata().param("paint_log") {
-        Some(Param::Text(s)) => PaintLog::parse(s, quilt_path)?,
+        Some(Param::Text(s)) => PaintLog::parse(s, quilt_path, &base.sample)?,
         _ => PaintLog {
             base: quilt_path.to_path_buf(),
             base_hash: base.container().content_hash(),
@@ -139,7 +141,7 @@ pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<Pai
     let Some(Param::Text(text)) = q.container().metadata().param("paint_log") else {
         return Err(Error::input(painted, "has no paint log (it was not painted)"));
     };
-    let log = PaintLog::parse(text, painted)?;
+    let log = PaintLog::parse(text, painted, &q.sample)?;
     let base = Quilt::open(&log.base, crate::container::MemoryBudget::default())?;
     if base.container().content_hash() != log.base_hash {
         return Err(Error::input(
@@ -172,6 +174,7 @@ pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<Pai
 /// One recorded stroke: everything needed to apply it again.
 #[derive(Clone, Debug, PartialEq)]
 struct Stroke {
+    sample: PathBuf,
     sample_mask: PathBuf,
     region: Option<PathBuf>,
     verbatim: Option<Verbatim>,
@@ -184,30 +187,23 @@ struct Stroke {
 
 impl Stroke {
     fn from_config(cfg: &PaintConfig, base: &Quilt, quilt_path: &Path) -> Result<Stroke> {
-        if let Some(s) = &cfg.sample {
-            let same = match (std::fs::canonicalize(s), std::fs::canonicalize(&base.sample)) {
-                (Ok(a), Ok(b)) => a == b,
-                _ => false,
-            };
-            if !same {
-                return Err(Error::input(
-                    s,
-                    format!(
-                        "is not the sample {} was tiled with ({}): paint with that sample (its foreground mask \
-                         marks the imperfections), or tile with this one first",
-                        quilt_path.display(),
-                        base.sample.display()
-                    ),
-                ));
-            }
+        let masked = base.samples.get(base.mask_sample()).unwrap_or(&base.sample);
+        let sample = cfg.sample.clone().unwrap_or_else(|| masked.clone());
+        if !sample.exists() {
+            return Err(Error::input(&sample, "does not exist (the sample to paint with)"));
         }
-        let sample_mask = match (&cfg.sample_mask, base.container().metadata().param("sample_mask")) {
+        let recorded = match base.container().metadata().param("sample_mask") {
+            Some(Param::Text(p)) if same_file(masked, &sample) => Some(PathBuf::from(p)),
+            _ => None,
+        };
+        let sample_mask = match (&cfg.sample_mask, recorded) {
             (Some(p), _) => p.clone(),
-            (None, Some(Param::Text(p))) => PathBuf::from(p),
+            (None, Some(p)) => p,
             _ => {
                 return Err(Error::Config(format!(
-                    "give --sample-mask: {} records no foreground mask for its sample",
-                    quilt_path.display()
+                    "give --sample-mask: {} records no foreground mask for the sample {}",
+                    quilt_path.display(),
+                    sample.display()
                 )))
             }
         };
@@ -224,6 +220,7 @@ impl Stroke {
             return Err(Error::Config("--preview needs --verbatim".into()));
         }
         Ok(Stroke {
+            sample,
             sample_mask,
             region: cfg.region.clone(),
             verbatim: cfg.verbatim,
@@ -256,8 +253,9 @@ impl Stroke {
             None => "null".into(),
         };
         format!(
-            "{{\"sample_mask\": {}, \"region\": {}, \"verbatim\": {verbatim}, \"transition\": {}, \"seed\": {}, \
+            "{{\"sample\": {}, \"sample_mask\": {}, \"region\": {}, \"verbatim\": {verbatim}, \"transition\": {}, \"seed\": {}, \
              \"patch_radius\": {}, \"seam_threshold\": {}, \"constraint_weight\": {}}}",
+            path(&self.sample),
             path(&self.sample_mask),
             self.region.as_deref().map_or("null".into(), path),
             self.transition,
@@ -268,7 +266,9 @@ impl Stroke {
         )
     }
 
-    fn from_json(j: &Json, file: &Path) -> Result<Stroke> {
+    /// `base_sample`: the sample of logs written before strokes recorded
+    /// theirs (the tiling's, the only one they could use).
+    fn from_json(j: &Json, file: &Path, base_sample: &Path) -> Result<Stroke> {
         let bad = || Error::input(file, "has a malformed paint log");
         let text = |k: &str| match j.get(k) {
             Some(Json::String(s)) => Some(PathBuf::from(s)),
@@ -287,6 +287,7 @@ impl Stroke {
             _ => None,
         };
         Ok(Stroke {
+            sample: text("sample").unwrap_or_else(|| base_sample.to_path_buf()),
             sample_mask: text("sample_mask").ok_or_else(bad)?,
             region: text("region"),
             verbatim,
@@ -318,7 +319,7 @@ impl PaintLog {
         )
     }
 
-    fn parse(text: &str, file: &Path) -> Result<PaintLog> {
+    fn parse(text: &str, file: &Path, base_sample: &Path) -> Result<PaintLog> {
         let bad = |why: String| Error::input(file, format!("has a malformed paint log: {why}"));
         let j = Json::parse(text).map_err(bad)?;
         let base = match j.get("base") {
@@ -334,7 +335,7 @@ impl PaintLog {
             .and_then(Json::as_array)
             .ok_or_else(|| bad("no strokes".into()))?
             .iter()
-            .map(|s| Stroke::from_json(s, file))
+            .map(|s| Stroke::from_json(s, file, base_sample))
             .collect::<Result<_>>()?;
         Ok(PaintLog {
             base,
@@ -357,17 +358,17 @@ fn apply_stroke(
     let cfg = stroke.tile_config();
     let gim = Gim::open(&base.gim, cfg.memory)?;
     let matching = stroke.verbatim.is_none();
-    let (svd_path, _tmp) = sample_svd(&base.sample, matching, progress)?;
+    let (svd_path, _tmp) = sample_svd(&stroke.sample, matching, progress)?;
     let trace = |what: &str| {
         if std::env::var_os("BTFQUILT_TRACE").is_some() {
             progress.note(&format!("{what}: {:.3} s", start.elapsed().as_secs_f64()));
         }
     };
     trace("factorized");
-    let mut syn = Synthesis::open(&gim, &base.sample, &svd_path, &cfg, matching)?;
+    let mut syn = Synthesis::open(&gim, &stroke.sample, &svd_path, &cfg, matching)?;
     trace("opened");
     syn.set_mask(&stroke.sample_mask)?;
-    syn.load(base)?;
+    syn.load(base, progress)?;
     syn.painting = true;
     trace("loaded");
     let mut report = PaintReport::default();
@@ -495,7 +496,7 @@ fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec<bool>> {
     let r = syn.resolution();
     let chart = &syn.graph().chart;
     match ext.as_str() {
-        "png" | "tif" | "tiff" | "jpg" | "jpeg" => {
+        _ if crate::imageio::is_image_path(path) => {
             let mask = crate::imageio::read_sized_mask(path, r, r, "a region mask must be the atlas size")?;
             Ok(mask
                 .iter()

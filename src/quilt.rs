@@ -144,6 +144,28 @@ struct Sample {
 }
 
 impl Sample {
+    /// Reads the unrotated geometry maps; rotated copies and the mask come
+    /// later, on demand.
+    fn from_svd(svd: SvdArtifact) -> Result<Sample> {
+        let tileable = matches!(svd.container().metadata().param("tileable"), Some(Param::Int(1)));
+        let rotations = if svd.rotations > 0 {
+            svd.rotations
+        } else {
+            factorize::DEFAULT_ROTATIONS
+        };
+        Ok(Sample {
+            width: svd.width,
+            height: svd.height,
+            n: svd.terms,
+            maps: svd.geometry_maps()?,
+            tileable,
+            rotated: vec![None; rotations],
+            mask: None,
+            rotated_mask: vec![None; rotations],
+            svd,
+        })
+    }
+
     fn rotation(&mut self, r: usize) -> Result<&(Vec<f32>, Vec<f32>)> {
         if self.rotated[r].is_none() {
             let (maps, valid) = self.svd.rotated(r)?;
@@ -234,6 +256,36 @@ impl Sample {
     }
 }
 
+/// Whether two paths name the same file (textually equal when either is
+/// missing).
+pub(crate) fn same_file(a: &Path, b: &Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => a == b,
+    }
+}
+
+fn dot_f32(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// C = P_aᵀ P_k (`n_a × n_k`, row-major) for appearance functions stored
+/// `[pair][rgb][i]` over the same direction pairs: it takes sample k's
+/// geometry-map vectors into sample a's basis.
+fn basis_projection(pa: &[f32], na: usize, pk: &[f32], nk: usize) -> Vec<f32> {
+    let rows = pa.len() / na.max(1);
+    let mut c = vec![0f64; na * nk];
+    for row in 0..rows {
+        let (ra, rk) = (&pa[row * na..(row + 1) * na], &pk[row * nk..(row + 1) * nk]);
+        for (a, &x) in ra.iter().enumerate() {
+            for (k, &y) in rk.iter().enumerate() {
+                c[a * nk + k] += x as f64 * y as f64;
+            }
+        }
+    }
+    c.into_iter().map(|v| v as f32).collect()
+}
+
 fn dist(a: &[f32], b: &[f32]) -> f64 {
     a.iter()
         .zip(b)
@@ -254,6 +306,12 @@ struct State {
     jacobian: Vec<[f32; 4]>,
     rotation: Vec<u8>,
     patch: Vec<u32>,
+    /// Index of the sample each texel draws from ([`Quilt::samples`]).
+    source: Vec<u8>,
+    /// The sample new patches come from.
+    active: u8,
+    /// Geometry-map vectors in the active sample's basis (texels of other
+    /// samples projected into it, see [`Synthesis::load`]).
     features: Vec<f32>,
     /// m_σ(p): the sample's foreground mask at each texel's coordinate
     /// (when the sample has a mask).
@@ -289,6 +347,8 @@ impl State {
             jacobian: vec![[0.0; 4]; texels],
             rotation: vec![0; texels],
             patch: vec![NO_PATCH; texels],
+            source: vec![0; texels],
+            active: 0,
             features: vec![0.0; texels * n],
             mask: vec![0.0; texels],
             target: None,
@@ -1153,6 +1213,12 @@ pub(crate) fn sample_svd(
 pub(crate) struct Synthesis<'a> {
     cfg: &'a TileConfig,
     sample_path: PathBuf,
+    /// Every sample the surface draws from ([`Quilt::samples`]); the active
+    /// one is `sample_paths[state.active]`.
+    sample_paths: Vec<PathBuf>,
+    /// The preview colours of the other samples a loaded surface draws
+    /// from (by index; `None` for the active one and unused ones).
+    other_previews: Vec<Option<crate::imageio::RgbImage>>,
     surface: Surface,
     zipper_triangles: Vec<[u32; 3]>,
     sample: Sample,
@@ -1187,25 +1253,8 @@ impl<'a> Synthesis<'a> {
                 "has no rotated copies (factorize with --rotations 72)",
             ));
         }
-        let tileable = matches!(svd.container().metadata().param("tileable"), Some(Param::Int(1)));
-        let maps = svd.geometry_maps()?;
-        let rotations = if svd.rotations > 0 {
-            svd.rotations
-        } else {
-            factorize::DEFAULT_ROTATIONS
-        };
-        let (sw, sh, n) = (svd.width, svd.height, svd.terms);
-        let sample = Sample {
-            width: sw,
-            height: sh,
-            n,
-            maps,
-            tileable,
-            rotated: vec![None; rotations],
-            mask: None,
-            rotated_mask: vec![None; rotations],
-            svd,
-        };
+        let sample = Sample::from_svd(svd)?;
+        let n = sample.n;
         let r = gim.resolution;
         let surface = Surface {
             r,
@@ -1221,6 +1270,8 @@ impl<'a> Synthesis<'a> {
         Ok(Synthesis {
             cfg,
             sample_path: sample_path.to_path_buf(),
+            sample_paths: vec![sample_path.to_path_buf()],
+            other_previews: Vec::new(),
             zipper_triangles: gim.zipper_triangles()?,
             sample,
             state,
@@ -1300,8 +1351,14 @@ impl<'a> Synthesis<'a> {
     }
 
     /// Starts from a decorated surface: its coordinates, rotations, patch
-    /// ids and Jacobians; the features are looked up in the sample.
-    pub(crate) fn load(&mut self, quilt: &Quilt) -> Result<()> {
+    /// ids, Jacobians and sample indices. The features are looked up in each
+    /// texel's own sample; texels of another sample than the one opened
+    /// (painting with a new sample) are projected into its basis, g ↦ P_aᵀ
+    /// P_k g (both appearance bases orthonormal, so this is the closest
+    /// vector of the active rank-n space to the texel's value), and count as
+    /// background (m_σ = 0). The opened sample joins the surface's list if
+    /// it is new.
+    pub(crate) fn load(&mut self, quilt: &Quilt, progress: &dyn Progress) -> Result<()> {
         let r = self.surface.r;
         if quilt.resolution != r {
             return Err(Error::input(
@@ -1313,8 +1370,41 @@ impl<'a> Synthesis<'a> {
         let patches = quilt.patches()?;
         let rotations = quilt.rotations()?;
         let jacobians = quilt.jacobians()?;
+        let source = quilt.sample_index()?;
+        let mut paths = quilt.samples.clone();
+        let active = match paths.iter().position(|p| same_file(p, &self.sample_path)) {
+            Some(k) => k,
+            None if paths.len() < MAX_SAMPLES => {
+                paths.push(self.sample_path.clone());
+                paths.len() - 1
+            }
+            None => {
+                return Err(Error::input(
+                    quilt.container().path(),
+                    format!("already draws from {MAX_SAMPLES} samples, the most one surface can"),
+                ))
+            }
+        };
+        // the other samples in use, with their projections into the active basis
+        let mut others: Vec<Option<(Sample, Vec<f32>)>> = (0..paths.len()).map(|_| None).collect();
+        let mut previews = vec![None; paths.len()];
+        let mut used = vec![false; paths.len()];
+        for (t, &k) in source.iter().enumerate() {
+            used[k as usize] |= patches[t] != NO_PATCH;
+        }
+        let active_p = self.sample.svd.appearance()?;
+        for k in (0..paths.len()).filter(|&k| used[k] && k != active) {
+            let (svd_path, _tmp) = sample_svd(&paths[k], false, progress)?;
+            let svd = SvdArtifact::open(&svd_path, self.cfg.memory)?;
+            crate::bake::same_directions(&self.sample.svd, &svd)?;
+            let projection = basis_projection(&active_p, self.sample.n, &svd.appearance()?, svd.terms);
+            previews[k] = Some(svd.preview()?);
+            others[k] = Some((Sample::from_svd(svd)?, projection));
+        }
         let n = self.state.n;
+        let mut scratch = Vec::new();
         let st = &mut self.state;
+        st.active = active as u8;
         for b in st.buckets.iter_mut() {
             b.clear();
         }
@@ -1335,12 +1425,29 @@ impl<'a> Synthesis<'a> {
             st.rotation[t] = rotations[t];
             st.patch[t] = patches[t];
             st.jacobian[t] = jacobians[t];
+            st.source[t] = source[t];
             next = next.max(patches[t] + 1);
             let c = [coords[t][0] as f64, coords[t][1] as f64];
-            self.sample.lookup(c, &mut st.features[t * n..(t + 1) * n]);
-            st.mask[t] = self.sample.mask_at(c);
+            let out = &mut st.features[t * n..(t + 1) * n];
+            match &others[source[t] as usize] {
+                None => {
+                    self.sample.lookup(c, out);
+                    st.mask[t] = self.sample.mask_at(c);
+                }
+                Some((other, projection)) => {
+                    scratch.clear();
+                    scratch.resize(other.n, 0f32);
+                    other.lookup(c, &mut scratch);
+                    for (a, o) in out.iter_mut().enumerate() {
+                        *o = dot_f32(&projection[a * other.n..(a + 1) * other.n], &scratch);
+                    }
+                    st.mask[t] = 0.0;
+                }
+            }
         }
         st.next_patch = next;
+        self.sample_paths = paths;
+        self.other_previews = previews;
         Ok(())
     }
 
@@ -1411,6 +1518,7 @@ impl<'a> Synthesis<'a> {
                 &work,
                 &placement,
                 cfg.constraint_weight * self.reference,
+                painting,
             );
             self.report.graphcut_seconds += t.elapsed().as_secs_f64();
             let mean = if fit.seam_edges > 0 {
@@ -1574,7 +1682,12 @@ impl<'a> Synthesis<'a> {
                     let t = (y0 + y) * r + x0 + x;
                     if self.state.synthesized[t] {
                         let c = self.state.coord[t];
-                        let col = crate::bake::bilinear(&colours, c[0], c[1]);
+                        let from = self.other_previews.get(self.state.source[t] as usize);
+                        let col = crate::bake::bilinear(
+                            from.and_then(Option::as_ref).unwrap_or(&colours),
+                            c[0],
+                            c[1],
+                        );
                         data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
                     }
                 }
@@ -1609,6 +1722,7 @@ impl<'a> Synthesis<'a> {
             &work,
             &placement,
             INFINITE.sqrt(),
+            false,
         );
         self.report.graphcut_seconds += t.elapsed().as_secs_f64();
         self.accept(&patch, &fit, progress);
@@ -1882,6 +1996,10 @@ const INFINITE: f64 = 1e30;
 
 /// Graphcut between the old values A and the new patch B over the work
 /// patch's vertices, with seam nodes on old seams (Kwatra et al. 2003, §3).
+/// With `keep_outside_target` (region painting) texels where m0 = 0 keep
+/// their old values, so a stroke changes nothing outside F and its
+/// transition zone.
+#[allow(clippy::too_many_arguments)]
 fn fit_patch(
     sample: &Sample,
     state: &State,
@@ -1890,6 +2008,7 @@ fn fit_patch(
     work: &WorkImage,
     placement: &PlacementChoice,
     data_weight: f64,
+    keep_outside_target: bool,
 ) -> Fit {
     let n = state.n;
     let r = state.r;
@@ -1959,8 +2078,11 @@ fn fit_patch(
             let d_b = (new_mask[i] - m0[t as usize]).abs() as f64;
             g.add_tweights(i as u32, data_weight * d_b, data_weight * d_a);
         }
-        if !valid[i] {
-            // B cannot reach here: keep A (or stay unsynthesized)
+        let outside = keep_outside_target && state.target.as_ref().is_some_and(|m0| m0[t as usize] <= 0.0);
+        if !valid[i] || (synth && outside) {
+            // B cannot reach here, or region painting keeps everything
+            // outside F and its transition zone: keep A (or stay
+            // unsynthesized)
             g.add_tweights(i as u32, INFINITE, 0.0);
         } else if !synth {
             g.add_tweights(i as u32, 0.0, INFINITE);
@@ -2103,6 +2225,7 @@ fn apply(
         state.jacobian[tu] = fit.jacobian;
         state.rotation[tu] = fit.rotation as u8;
         state.patch[tu] = id;
+        state.source[tu] = state.active;
         state.features[tu * n..(tu + 1) * n].copy_from_slice(&fit.new_features[i * n..(i + 1) * n]);
         if sample.mask.is_some() {
             state.mask[tu] = fit.new_mask[i];
@@ -2185,9 +2308,19 @@ fn write_quilt(
         sample.svd.container().content_hash(),
     );
     w.set_param("gim", Param::Text(gim_path.display().to_string()));
-    w.set_param("sample", Param::Text(syn.sample_path.display().to_string()));
+    let paths = &syn.sample_paths;
+    w.set_param("sample", Param::Text(paths[0].display().to_string()));
+    if paths.len() > 1 {
+        w.set_param("sample_count", Param::Int(paths.len() as i64));
+        for (k, p) in paths.iter().enumerate().skip(1) {
+            w.set_param(&format!("sample_{k}"), Param::Text(p.display().to_string()));
+        }
+    }
     if let Some(mask) = &cfg.sample_mask {
         w.set_param("sample_mask", Param::Text(mask.display().to_string()));
+        if state.active > 0 {
+            w.set_param("mask_sample", Param::Int(state.active as i64));
+        }
     }
     if let Some(log) = paint_log {
         w.set_param("paint_log", Param::Text(log.to_string()));
@@ -2209,11 +2342,52 @@ fn write_quilt(
     w.write_array(id, &state.rotation)?;
     let id = w.add_array(ArraySpec::new("patch", DType::U32, &[r, r], &[t, t])?)?;
     w.write_array(id, &state.patch)?;
+    if paths.len() > 1 {
+        let id = w.add_array(ArraySpec::new("sample", DType::U8, &[r, r], &[t, t])?)?;
+        w.write_array(id, &state.source)?;
+    }
+    let seams = seam_flags(&state.patch, &state.chart, gim.resolution, &gim.zipper_links()?);
+    let id = w.add_array(ArraySpec::new("seam", DType::U8, &[r, r], &[t, t])?)?;
+    w.write_array(id, &seams)?;
     if let (Some(m0), Some(_)) = (&state.target, paint_log) {
         let id = w.add_array(ArraySpec::new("region", DType::F32, &[r, r], &[t, t])?)?;
         w.write_array(id, m0)?;
     }
     w.finish()
+}
+
+/// The seam flags of a texel ([`Quilt::seams`]): a seam to the +x
+/// neighbour in the atlas.
+pub const SEAM_X: u8 = 1;
+/// A seam to the +y neighbour in the atlas.
+pub const SEAM_Y: u8 = 2;
+/// A seam across one of the texel's zipper links (to another chart).
+pub const SEAM_ZIPPER: u8 = 4;
+
+/// Per texel: which of its mesh edges the patches meet across (the seams
+/// the graphcut left), as [`SEAM_X`] | [`SEAM_Y`] | [`SEAM_ZIPPER`].
+fn seam_flags(patch: &[u32], chart: &[u32], r: usize, zipper_links: &[[u32; 2]]) -> Vec<u8> {
+    let mut flags = vec![0u8; r * r];
+    let seam = |a: usize, b: usize| chart[a] == chart[b] && chart[a] != EMPTY && patch[a] != patch[b];
+    for y in 0..r {
+        for x in 0..r {
+            let t = y * r + x;
+            if x + 1 < r && seam(t, t + 1) {
+                flags[t] |= SEAM_X;
+            }
+            if y + 1 < r && seam(t, t + r) {
+                flags[t] |= SEAM_Y;
+            }
+        }
+    }
+    for &[a, b] in zipper_links {
+        let (a, b) = (a as usize, b as usize);
+        if patch[a] != patch[b] {
+            flags[a] |= SEAM_ZIPPER;
+            flags[b] |= SEAM_ZIPPER;
+        }
+    }
+    flags
 }
 
 /// A decorated surface opened for reading.
@@ -2292,6 +2466,12 @@ impl Quilt {
     /// Per texel rotation index.
     pub fn rotations(&self) -> Result<Vec<u8>> {
         self.container.read_array(self.container.array("rotation")?)
+    }
+
+    /// Per texel seam flags ([`SEAM_X`], [`SEAM_Y`], [`SEAM_ZIPPER`]): where
+    /// the patches meet.
+    pub fn seams(&self) -> Result<Vec<u8>> {
+        self.container.read_array(self.container.array("seam")?)
     }
 
     /// Per texel index into [`Quilt::samples`] (all 0 for a surface that

@@ -394,11 +394,18 @@ fn bad_paint_inputs_are_refused_and_write_nothing() {
     let other = s.dir.join("other.png");
     std::fs::copy(&s.sample, &other).unwrap();
     let e = err(PaintConfig {
-        sample: Some(other),
+        sample: Some(other.clone()),
+        sample_mask: None,
         region: Some(s.mask.clone()),
         ..paint_cfg(&s)
     });
-    assert!(e.contains("other.png") && e.contains("tiled with"), "{e}");
+    assert!(e.contains("--sample-mask") && e.contains("other.png"), "{e}");
+    let e = err(PaintConfig {
+        sample: Some(s.dir.join("gone.png")),
+        region: Some(s.mask.clone()),
+        ..paint_cfg(&s)
+    });
+    assert!(e.contains("gone.png") && e.contains("does not exist"), "{e}");
     let e = err(paint_cfg(&s));
     assert!(e.contains("--region"), "{e}");
     let empty = s.dir.join("empty.png");
@@ -472,4 +479,121 @@ fn paint_cli_fails_clearly_with_a_non_zero_exit() {
     let o = run(&["replay", out.to_str().unwrap(), "-o", again.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(std::fs::read(&again).unwrap(), std::fs::read(&out).unwrap());
+}
+
+/// A stain sample: green-grey noise with a striped blue disk (its
+/// foreground) in the middle; returns (sample, mask).
+fn stain_sample(dir: &Path) -> (PathBuf, PathBuf) {
+    let disk = |x: usize, y: usize| (x as f32 - 48.0).powi(2) + (y as f32 - 48.0).powi(2) < 22.0f32.powi(2);
+    let noise = |x: usize, y: usize| ((x * 7919 + y * 104_729) % 1000) as f32 / 1000.0;
+    let sample = dir.join("stain.png");
+    write_png(&sample, 96, 96, |x, y| {
+        if disk(x, y) {
+            let stripe = if (x + y) % 6 < 3 { 0.25 } else { 0.05 };
+            [stripe, stripe, 0.7 + 0.2 * noise(x, y)]
+        } else {
+            let v = 0.3 + 0.2 * noise(x, y);
+            [v, v + 0.1, v]
+        }
+    });
+    let mask = dir.join("stain_mask.png");
+    write_png(&mask, 96, 96, |x, y| if disk(x, y) { [1.0; 3] } else { [0.0; 3] });
+    (sample, mask)
+}
+
+#[test]
+fn painting_with_another_sample_adds_it_to_the_surface() {
+    let s = scene();
+    let (stain, stain_mask) = stain_sample(&s.dir);
+    let region = s.dir.join("strokes.json");
+    std::fs::write(&region, r#"[{"point": [0.5, 0.5, 0.0], "radius": 0.12}]"#).unwrap();
+    let out = s.dir.join("stained.quilt");
+    let cfg = PaintConfig {
+        sample: Some(stain.clone()),
+        sample_mask: Some(stain_mask.clone()),
+        region: Some(region.clone()),
+        transition: 4,
+        ..paint_cfg(&s)
+    };
+    let report = paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
+    assert!(report.region_texels > 300, "{report}");
+    let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
+    assert_eq!(q.samples, vec![s.sample.clone(), stain.clone()]);
+    assert_eq!(q.mask_sample(), 1);
+    let index = q.sample_index().unwrap();
+    let m0 = region_array(&out);
+    let from_stain = index.iter().filter(|&&k| k == 1).count();
+    assert!(
+        from_stain >= report.region_texels,
+        "{from_stain} texels from the stain"
+    );
+    for t in 0..R * R {
+        assert!(
+            index[t] == 0 || m0[t] > 0.0,
+            "texel {t} took the stain outside the zone"
+        );
+    }
+    // §IV measures count the stain's foreground: F filled, nothing spilled
+    let (coverage, spill) = painting_figures(&out);
+    assert!(
+        coverage >= 0.95,
+        "F covered by the stain's foreground: {coverage}"
+    );
+    assert!(
+        spill <= 0.05,
+        "stain foreground outside F and the transition zone: {spill}"
+    );
+
+    // the baked colours: blue in F, the base's bricks outside the zone
+    let bake = |q: &Path, png: &str| {
+        let p = s.dir.join(png);
+        btfquilt::bake::bake(q, None, &p, MemoryBudget::default()).unwrap();
+        imageio::read_rgb(&p).unwrap()
+    };
+    let (before, after) = (bake(&s.base, "before.png"), bake(&out, "after.png"));
+    let (mut blue, mut in_f, mut changed_outside) = (0, 0, 0);
+    for t in 0..R * R {
+        let px = &after.data[t * 3..t * 3 + 3];
+        if m0[t] >= 1.0 {
+            in_f += 1;
+            blue += (px[2] > px[0] + 0.2) as usize;
+        } else if m0[t] <= 0.0 && before.data[t * 3..t * 3 + 3] != *px {
+            changed_outside += 1;
+        }
+    }
+    assert!(
+        blue as f64 >= 0.95 * in_f as f64,
+        "{blue} of {in_f} texels of F are blue"
+    );
+    assert_eq!(changed_outside, 0, "texels outside the zone changed colour");
+
+    // the log records the stain: replay gives the same bytes
+    let again = s.dir.join("again.quilt");
+    paint::replay(&out, &again, &Silent).unwrap();
+    assert_eq!(std::fs::read(&again).unwrap(), std::fs::read(&out).unwrap());
+
+    // painting the tiling's sample again keeps both samples, and leaves the
+    // stain where the new zone does not reach
+    let corner = s.dir.join("corner.json");
+    std::fs::write(&corner, r#"[{"point": [0.15, 0.15, 0.0], "radius": 0.08}]"#).unwrap();
+    let twice = s.dir.join("twice.quilt");
+    let cfg2 = PaintConfig {
+        sample: Some(s.sample.clone()),
+        sample_mask: Some(s.mask.clone()),
+        region: Some(corner),
+        ..paint_cfg(&s)
+    };
+    paint::paint(&out, &twice, &cfg2, &Silent).unwrap();
+    let q2 = Quilt::open(&twice, MemoryBudget::default()).unwrap();
+    assert_eq!(q2.samples.len(), 2);
+    assert_eq!(q2.mask_sample(), 0);
+    let (index2, m2) = (q2.sample_index().unwrap(), region_array(&twice));
+    for t in 0..R * R {
+        if m2[t] <= 0.0 {
+            assert_eq!(index2[t], index[t], "texel {t} outside the second zone");
+        }
+    }
+    let again2 = s.dir.join("again2.quilt");
+    paint::replay(&twice, &again2, &Silent).unwrap();
+    assert_eq!(std::fs::read(&again2).unwrap(), std::fs::read(&twice).unwrap());
 }

@@ -96,6 +96,33 @@ fn spot_is_covered_and_baked_and_rendered() {
     assert!(report.cross_chart_patches > 0, "{report}");
     let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
     assert!(q.patches().unwrap().iter().filter(|&&p| p != NO_PATCH).count() == report.texels);
+    // the stored seams are exactly the mesh edges whose ends took different
+    // patches: grid edges inside a chart, and zipper links between charts
+    let (patches, seams) = (q.patches().unwrap(), q.seams().unwrap());
+    let gim = btfquilt::gim::Gim::open(&g, MemoryBudget::default()).unwrap();
+    let chart: Vec<u32> = gim.read("chart").unwrap();
+    let r = 192;
+    let mut want = vec![0u8; r * r];
+    for t in 0..r * r {
+        let inside =
+            |n: usize| chart[n] == chart[t] && chart[t] != btfquilt::gim::EMPTY && patches[n] != patches[t];
+        if t % r + 1 < r && inside(t + 1) {
+            want[t] |= quilt::SEAM_X;
+        }
+        if t / r + 1 < r && inside(t + r) {
+            want[t] |= quilt::SEAM_Y;
+        }
+    }
+    for [a, b] in gim.zipper_links().unwrap() {
+        if patches[a as usize] != patches[b as usize] {
+            want[a as usize] |= quilt::SEAM_ZIPPER;
+            want[b as usize] |= quilt::SEAM_ZIPPER;
+        }
+    }
+    assert_eq!(seams, want);
+    assert!(
+        seams.iter().any(|&f| f & quilt::SEAM_ZIPPER != 0) && seams.iter().any(|&f| f & quilt::SEAM_X != 0)
+    );
     // no visible chart seams: colour differences across zipper links are no
     // larger than across grid edges inside charts
     let json = btfquilt::evaluate::evaluate(&out, None, None, MemoryBudget::default()).unwrap();
