@@ -804,16 +804,13 @@ fn format_md(f: &Facts) -> String {
     let last = |c: &str| term_names(c, s0.n).pop().unwrap_or_default();
     let (gl, rl, bl) = (last("g"), last("r"), last("b"));
     let pairs = f.views * f.lights;
-    let list = |pick: &dyn Fn(usize, &SampleFacts) -> String| {
-        f.samples
-            .iter()
-            .enumerate()
-            .map(|(k, s)| pick(k, s))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
     let sample = if several {
-        format!("samples {}", list(&|_, s| format!("`{}`", s.path.display())))
+        let paths: Vec<String> = f
+            .samples
+            .iter()
+            .map(|s| format!("`{}`", s.path.display()))
+            .collect();
+        format!("samples {}", paths.join(", "))
     } else {
         format!("sample `{}`", s0.path.display())
     };
@@ -822,13 +819,25 @@ fn format_md(f: &Facts) -> String {
             "A decorated surface: every covered atlas texel of the mesh shows a point of\n\
              one of {count} BTF samples (channel `sample` of `synthesis.exr`), and each\n\
              sample is given as its own rank-n factorization. Here: atlas R×R = {r}×{r}\n\
-             ({covered} of {texels} texels covered); {samples}; one direction set for all:\n\
-             {views} views × {lights} lights = {pairs} direction pairs.",
+             ({covered} of {texels} texels covered), {views} views × {lights} lights =\n\
+             {pairs} direction pairs shared by all samples:\n\n{samples}\n",
             count = f.samples.len(),
             r = f.r,
             covered = f.covered,
             texels = f.r * f.r,
-            samples = list(&|k, s| format!("sample {k} W×H = {}×{}, n = {} terms", s.w, s.h, s.n)),
+            samples = f
+                .samples
+                .iter()
+                .enumerate()
+                .map(|(k, s)| format!(
+                    "- sample {k} (`{}`): W×H = {}×{}, n = {} terms",
+                    s.path.display(),
+                    s.w,
+                    s.h,
+                    s.n
+                ))
+                .collect::<Vec<_>>()
+                .join("\n"),
             views = f.views,
             lights = f.lights,
         )
@@ -851,9 +860,9 @@ fn format_md(f: &Facts) -> String {
     let sample_channel = if several { ", `sample`" } else { "" };
     let mut more_files = String::new();
     for k in 1..f.samples.len() {
-        let _ = write!(
+        let _ = writeln!(
             more_files,
-            "| `{}`, `{}`, `{}` | sample {k}'s, laid out as sample 0's (its own W×H and n) |\n",
+            "| `{}`, `{}`, `{}` | sample {k}'s, laid out as sample 0's (its own W×H and n) |",
             sample_file("geometry_maps", k, "exr"),
             sample_file("appearance", k, "csv"),
             sample_file("singular_values", k, "csv"),

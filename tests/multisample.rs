@@ -2,13 +2,14 @@
 //! baking for the mesh export, the surface BTF export, and the errors for a
 //! missing or incompatible second sample.
 //!
-//! Until `paint` writes such surfaces, the fixture is made by hand: a flat
+//! Most fixtures are made by hand, so the split is known exactly: a flat
 //! square is tiled with sample A, then a copy of its `.quilt` gets a per
 //! texel `sample` array marking the left half (x < ½) as sample 1 and the
-//! params `sample_count` = 2, `sample_1` = sample B. A second copy draws
-//! everything from B with the same coordinates, so every texel of sample 1
-//! can be compared with the surface that is all B, and every texel of
-//! sample 0 with the original.
+//! params `sample_count` = 2, `sample_1` = sample B (as `paint --sample`
+//! writes them). A second copy draws everything from B with the same
+//! coordinates, so every texel of sample 1 can be compared with the surface
+//! that is all B, and every texel of sample 0 with the original. The last
+//! test does the same with a surface painted by `paint --sample`.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -405,8 +406,8 @@ fn colour_surface_shows_each_texels_sample() {
         .patches()
         .unwrap();
     let (mut blue_texels, mut red_texels) = (0, 0);
-    for t in 0..ATLAS * ATLAS {
-        if patches[t] == NO_PATCH {
+    for (t, &patch) in patches.iter().enumerate() {
+        if patch == NO_PATCH {
             continue;
         }
         let p = pixel(&atlas, t);
@@ -531,8 +532,8 @@ fn btf_surface_shades_each_texel_in_its_own_basis() {
         ["angle", "dudX", "dudY", "dvdX", "dvdY", "sample", "u", "v"]
     );
     let (u, v, k) = (channel(&syn, "u"), channel(&syn, "v"), channel(&syn, "sample"));
-    for t in 0..ATLAS * ATLAS {
-        if patches[t] == NO_PATCH {
+    for (t, &patch) in patches.iter().enumerate() {
+        if patch == NO_PATCH {
             assert!(k[t].is_nan() && u[t].is_nan(), "empty texel {t}");
         } else {
             assert_eq!(k[t], q.index[t] as f32, "sample index of texel {t}");
@@ -574,10 +575,11 @@ fn btf_surface_shades_each_texel_in_its_own_basis() {
         "`sample`",
         "`geometry_maps_1.exr`",
         "`appearance_1.csv`",
-        "sample 0 W×H = 32×32, n = 8 terms",
-        "sample 1 W×H = 32×32, n = 5 terms",
+        "- sample 0 (`",
+        "bricks.svd`): W×H = 32×32, n = 8 terms",
+        "- sample 1 (`",
+        "weave.svd`): W×H = 32×32, n = 5 terms",
         "12 views × 12 lights",
-        "weave.svd",
     ] {
         assert!(md.contains(needle), "'{needle}' missing from FORMAT.md:\n{md}");
     }
@@ -694,4 +696,131 @@ fn missing_or_incompatible_second_sample_fails_clearly() {
     rewrite_quilt(&a, &q, &[&svd_a, &b], Some(&left));
     ok(&["render", s(&q), "--width", "32", "--height", "24", "-o", s(&png)]);
     assert!(png.exists());
+}
+
+fn write_png(path: &Path, w: usize, h: usize, f: impl Fn(usize, usize) -> bool) {
+    let data = (0..w * h)
+        .flat_map(|i| [if f(i % w, i / w) { 1.0 } else { 0.0 }; 3])
+        .collect();
+    let img = RgbImage {
+        width: w,
+        height: h,
+        data,
+    };
+    imageio::write_png(path, &img, PngDepth::Eight).unwrap();
+}
+
+/// Per pixel of a [`top_camera`] image, the sample of the atlas texel
+/// nearest to the surface point it shows, where every texel in the 5×5
+/// block around that one has the same sample (`None` elsewhere).
+fn pixel_samples(gim: &Path, quilt: &Quilt) -> Vec<Option<u8>> {
+    let gim = Gim::open(gim, MemoryBudget::default()).unwrap();
+    let pos: Vec<f32> = gim.read("position").unwrap();
+    let (index, patches) = (quilt.sample_index().unwrap(), quilt.patches().unwrap());
+    let r = quilt.resolution;
+    let covered: Vec<usize> = (0..r * r).filter(|&t| patches[t] != NO_PATCH).collect();
+    (0..EDGE * EDGE)
+        .map(|i| {
+            let (x, y) = world_at(i % EDGE, i / EDGE);
+            if !(0.06..0.94).contains(&x) || !(0.06..0.94).contains(&y) {
+                return None;
+            }
+            let d = |t: usize| (pos[t * 3] - x).powi(2) + (pos[t * 3 + 1] - y).powi(2);
+            let t = *covered.iter().min_by(|&&a, &&b| d(a).total_cmp(&d(b)))?;
+            let (tx, ty) = ((t % r) as isize, (t / r) as isize);
+            let k = index[t];
+            let mut block = (-2..=2).flat_map(|dy| (-2..=2).map(move |dx| (tx + dx, ty + dy)));
+            block
+                .all(|(bx, by)| {
+                    (0..r as isize).contains(&bx)
+                        && (0..r as isize).contains(&by)
+                        && patches[by as usize * r + bx as usize] != NO_PATCH
+                        && index[by as usize * r + bx as usize] == k
+                })
+                .then_some(k)
+        })
+        .collect()
+}
+
+/// The real thing: `paint --sample B` over the left half of a surface tiled
+/// with A records both samples; the render shows B's own values wherever
+/// the texels are B's and A's where they are A's, and the export's
+/// `sample` channel is the quilt's index.
+#[test]
+fn painted_with_another_sample_renders_and_exports_each_texels_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let svd_a = btf_sample(d, "bricks", Family::Bricks, 2, 7, 4);
+    let svd_b = btf_sample(d, "weave", Family::Weave, 5, 5, 4);
+    let (g, _) = square(d);
+    let base = d.join("base.quilt");
+    let t = TileConfig {
+        patch_radius: Some(12),
+        ..TileConfig::default()
+    };
+    quilt::tile(&g, &svd_a, &base, &t, &Silent).unwrap();
+    let (region, mask) = (d.join("region.png"), d.join("b_mask.png"));
+    write_png(&region, ATLAS, ATLAS, |x, _| x < ATLAS / 2);
+    write_png(&mask, 32, 32, |x, y| {
+        (x as f32 - 16.0).hypot(y as f32 - 16.0) < 10.0
+    });
+    let painted = d.join("painted.quilt");
+    ok(&[
+        "paint",
+        s(&base),
+        "--sample",
+        s(&svd_b),
+        "--sample-mask",
+        s(&mask),
+        "--region",
+        s(&region),
+        "--patch-radius",
+        "8",
+        "-q",
+        "-o",
+        s(&painted),
+    ]);
+    let q = Quilt::open(&painted, MemoryBudget::default()).unwrap();
+    assert_eq!(q.samples.len(), 2, "{:?}", q.samples);
+    let index = q.sample_index().unwrap();
+
+    // the same coordinates drawn all from A and all from B
+    let (all_a, all_b) = (d.join("all_a.quilt"), d.join("all_b.quilt"));
+    rewrite_quilt(&painted, &all_a, &[&svd_a], None);
+    rewrite_quilt(&painted, &all_b, &[&svd_b], None);
+    let lights = vec![
+        Light::directional([0.2, 0.3, 1.0]),
+        Light::directional([-0.5, 0.4, 0.6]),
+    ];
+    let (mixed, a, b) = (
+        render(&painted, lights.clone()),
+        render(&all_a, lights.clone()),
+        render(&all_b, lights),
+    );
+    let mut count = [0usize; 2];
+    for (i, k) in pixel_samples(&g, &q).into_iter().enumerate() {
+        let Some(k) = k else { continue };
+        let want = if k == 1 { &b } else { &a };
+        assert_eq!(pixel(&mixed, i), pixel(want, i), "pixel {i} of sample {k}");
+        count[k as usize] += 1;
+    }
+    assert!(
+        count[0] > 500 && count[1] > 500,
+        "pixels inside one sample: {count:?}"
+    );
+
+    let out = d.join("btf");
+    ok(&["export", s(&painted), "--btf", s(&out)]);
+    let syn = read_exr(&out.join("synthesis.exr"));
+    let (k, u) = (channel(&syn, "sample"), channel(&syn, "u"));
+    let patches = q.patches().unwrap();
+    for t in 0..ATLAS * ATLAS {
+        if patches[t] != NO_PATCH {
+            assert_eq!(k[t], index[t] as f32, "texel {t}");
+        } else {
+            assert!(k[t].is_nan() && u[t].is_nan(), "empty texel {t}");
+        }
+    }
+    let maps = read_exr(&out.join("geometry_maps_1.exr"));
+    assert_eq!(maps.len(), 5, "sample 1 is B, with 5 terms");
 }
