@@ -18,13 +18,19 @@ pub struct OpenSample {
     _tmp: Option<tempfile::TempDir>,
 }
 
-/// Opens one sample (a colour image is factorized into a temporary `.svd`);
-/// `quilt` names the surface in the error when the file is gone.
-fn open_one(quilt: &Quilt, path: &Path, budget: MemoryBudget) -> Result<OpenSample> {
+/// Opens sample `k` of `quilt` from `path` (a colour image is factorized
+/// into a temporary `.svd`); the error names the surface and the sample
+/// when the file is gone.
+fn open_one(quilt: &Quilt, k: usize, path: &Path, budget: MemoryBudget) -> Result<OpenSample> {
     if !path.exists() {
+        let how = if k == 0 {
+            "give --sample".to_string()
+        } else {
+            format!("it was painted in ('sample_{k}'); put it back")
+        };
         return Err(Error::input(
             quilt.container().path(),
-            format!("its sample {} is gone: give --sample", path.display()),
+            format!("its sample {} is gone: {how}", path.display()),
         ));
     }
     if factorize::is_image_path(path) {
@@ -53,7 +59,7 @@ pub fn open_sample(quilt: &Quilt, sample: Option<&Path>, budget: MemoryBudget) -
     let path: PathBuf = sample
         .map(Path::to_path_buf)
         .unwrap_or_else(|| quilt.sample.clone());
-    open_one(quilt, &path, budget)
+    open_one(quilt, 0, &path, budget)
 }
 
 /// Opens every sample a quilt draws from, in [`Quilt::samples`] order
@@ -61,8 +67,8 @@ pub fn open_sample(quilt: &Quilt, sample: Option<&Path>, budget: MemoryBudget) -
 /// direction set, so their values are comparable.
 pub fn open_samples(quilt: &Quilt, first: Option<&Path>, budget: MemoryBudget) -> Result<Vec<OpenSample>> {
     let mut out = vec![open_sample(quilt, first, budget)?];
-    for path in &quilt.samples[1..] {
-        let s = open_one(quilt, path, budget)?;
+    for (k, path) in quilt.samples.iter().enumerate().skip(1) {
+        let s = open_one(quilt, k, path, budget)?;
         same_directions(&out[0].svd, &s.svd)?;
         out.push(s);
     }
