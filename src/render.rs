@@ -445,7 +445,13 @@ impl Directions {
     }
 
     /// The (up to) 3 measured directions nearest to the unit `d` by angle
-    /// and their normalised inverse-angle weights: `(index, weight)`, count.
+    /// and their normalised weights: `(index, weight)`, count. The weights
+    /// are 1/α_k − 1/α_4 (α_4 the angle to the fourth nearest), so a
+    /// direction's weight falls to zero as it stops being among the three
+    /// nearest: the interpolation is continuous as the view or light turns
+    /// over the surface (plain inverse-angle weights over the three nearest
+    /// step where the third changes, a faint line across the render). With
+    /// three directions or fewer, plain inverse-angle weights.
     fn nearest(&self, d: [f32; 3]) -> ([(u32, f32); 3], usize) {
         // a degenerate frame can only give a non-finite direction: take the pole
         let d = if d.iter().all(|v| v.is_finite()) {
@@ -453,11 +459,11 @@ impl Directions {
         } else {
             [0.0, 0.0, 1.0]
         };
-        let mut best = [(f32::NEG_INFINITY, u32::MAX); 3];
+        let mut best = [(f32::NEG_INFINITY, u32::MAX); 4];
         for (j, m) in self.dirs.iter().enumerate() {
             let c = dot(d, *m);
-            if c > best[2].0 {
-                let mut k = 2;
+            if c > best[3].0 {
+                let mut k = 3;
                 while k > 0 && c > best[k - 1].0 {
                     best[k] = best[k - 1];
                     k -= 1;
@@ -465,18 +471,33 @@ impl Directions {
                 best[k] = (c, j as u32);
             }
         }
+        let angle = |k: usize| {
+            let chord = crate::mesh::length(sub(d, self.dirs[best[k].1 as usize]));
+            2.0 * (0.5 * chord).min(1.0).asin()
+        };
         let count = self.dirs.len().min(3);
+        let cut = if self.dirs.len() > 3 {
+            1.0 / angle(3).max(EXACT_HIT)
+        } else {
+            0.0
+        };
         let mut out = [(0u32, 0f32); 3];
         let mut total = 0f32;
         for k in 0..count {
-            let m = self.dirs[best[k].1 as usize];
-            let chord = crate::mesh::length(sub(d, m));
-            let angle = 2.0 * (0.5 * chord).min(1.0).asin();
-            if angle < EXACT_HIT {
+            let a = angle(k);
+            if a < EXACT_HIT {
                 return ([(best[k].1, 1.0), (0, 0.0), (0, 0.0)], 1);
             }
-            out[k] = (best[k].1, 1.0 / angle);
-            total += 1.0 / angle;
+            let w = (1.0 / a - cut).max(0.0);
+            out[k] = (best[k].1, w);
+            total += w;
+        }
+        if !(total > 0.0) {
+            // the four nearest are equally far (a symmetric point): equal weights
+            for o in out.iter_mut().take(count) {
+                o.1 = 1.0 / count as f32;
+            }
+            return (out, count);
         }
         for o in out.iter_mut().take(count) {
             o.1 /= total;
@@ -514,8 +535,9 @@ struct BtfShading {
     coords: Vec<[f32; 2]>,
     jacobians: Vec<[f32; 4]>,
     covered: Vec<bool>,
-    /// Per face: ∂P/∂X, ∂P/∂Y (3D per atlas texel), `None` if degenerate.
-    face_maps: Vec<Option<[[f32; 3]; 2]>>,
+    /// Per corner: ∂P/∂X, ∂P/∂Y (3D per atlas texel) averaged over its
+    /// wedge ([`corner_maps`]), `None` if degenerate.
+    corner_maps: Vec<Option<[[f32; 3]; 2]>>,
 }
 
 enum Shading {
@@ -533,6 +555,43 @@ pub struct Scene {
     resolution: usize,
     centre: [f32; 3],
     shading: Shading,
+}
+
+/// Per corner: the atlas→3D derivatives ∂P/∂X, ∂P/∂Y averaged over the
+/// faces around the corner's vertex that share its atlas uv (the same
+/// chart), so that, interpolated over a face, the sample frame turns
+/// smoothly across the face edges inside a chart instead of stepping at
+/// every edge. `None` where every such face is degenerate.
+fn corner_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3]; 2]>> {
+    let faces = face_maps(mesh, corner_uv, r);
+    // wedge key: vertex and uv bits; sums accumulated in face order
+    let mut wedges: std::collections::HashMap<(u32, u32, u32), ([[f32; 3]; 2], u32)> =
+        std::collections::HashMap::new();
+    let key = |c: usize, v: u32| (v, corner_uv[c][0].to_bits(), corner_uv[c][1].to_bits());
+    for (f, tri) in mesh.triangles.iter().enumerate() {
+        let Some(m) = faces[f] else { continue };
+        for (k, &v) in tri.iter().enumerate() {
+            let e = wedges.entry(key(f * 3 + k, v)).or_insert(([[0.0; 3]; 2], 0));
+            for (a, b) in e.0.iter_mut().zip(&m) {
+                for d in 0..3 {
+                    a[d] += b[d];
+                }
+            }
+            e.1 += 1;
+        }
+    }
+    let mut out = Vec::with_capacity(mesh.triangles.len() * 3);
+    for (f, tri) in mesh.triangles.iter().enumerate() {
+        for (k, &v) in tri.iter().enumerate() {
+            out.push(
+                wedges
+                    .get(&key(f * 3 + k, v))
+                    .map(|(sum, n)| sum.map(|a| a.map(|x| x / *n as f32)))
+                    .or(faces[f]),
+            );
+        }
+    }
+    out
 }
 
 /// Per face: the atlas→3D derivatives ∂P/∂X, ∂P/∂Y in 3D units per atlas
@@ -692,7 +751,7 @@ impl Scene {
                 coords,
                 jacobians,
                 covered: patches.iter().map(|&p| p != NO_PATCH).collect(),
-                face_maps: face_maps(&mesh, &corner_uv, r as f32),
+                corner_maps: corner_maps(&mesh, &corner_uv, r as f32),
             }))
         };
         let (centre, _) = bounds(&mesh.positions);
@@ -766,7 +825,7 @@ impl Scene {
                     }
                     Shading::Btf(btf) => {
                         let view = normalize(sub(cam.eye, pos));
-                        self.shade_btf(btf, f, n, uv, view, &lights, &mut scratch)
+                        self.shade_btf(btf, f, b, n, uv, view, &lights, &mut scratch)
                     }
                 };
                 for k in 0..3 {
@@ -797,6 +856,7 @@ impl Scene {
         &self,
         btf: &BtfShading,
         face: usize,
+        bary: [f32; 3],
         n: [f32; 3],
         uv: [f32; 2],
         view: [f32; 3],
@@ -816,7 +876,21 @@ impl Scene {
         let det = j[0] * j[3] - j[1] * j[2];
         let ax = [j[3] / det, -j[1] / det]; // J⁻¹·(1, 0)
         let ay = [-j[2] / det, j[0] / det]; // J⁻¹·(0, 1)
-        let (x3, y3) = match btf.face_maps[face] {
+                                            // ∂P/∂X, ∂P/∂Y at the pixel: the corners' wedge averages interpolated
+        let corners = &btf.corner_maps[face * 3..face * 3 + 3];
+        let maps = corners.iter().all(Option::is_some).then(|| {
+            let mut m = [[0f32; 3]; 2];
+            for (c, w) in corners.iter().zip(bary) {
+                let c = c.expect("checked");
+                for a in 0..2 {
+                    for d in 0..3 {
+                        m[a][d] += w * c[a][d];
+                    }
+                }
+            }
+            m
+        });
+        let (x3, y3) = match maps {
             Some([dpx, dpy]) => (
                 std::array::from_fn(|k| ax[0] * dpx[k] + ax[1] * dpy[k]),
                 std::array::from_fn(|k| ay[0] * dpx[k] + ay[1] * dpy[k]),
@@ -1118,6 +1192,60 @@ fn add_geometry(b: &Basis, sx: f32, sy: f32, weight: f32, scratch: &mut [f32]) {
         let src = &b.geometry[idx * nt..(idx + 1) * nt];
         for (a, &v) in out.iter_mut().zip(src) {
             *a += weight * wgt * v;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The interpolation weights over the measured directions as a dense
+    /// vector.
+    fn weights(dirs: &Directions, d: [f32; 3]) -> Vec<f32> {
+        let mut w = vec![0f32; dirs.dirs.len()];
+        let (near, count) = dirs.nearest(d);
+        for &(i, x) in &near[..count] {
+            w[i as usize] += x;
+        }
+        w
+    }
+
+    /// The largest L1 change of the weights between consecutive points of
+    /// a sweep over the hemisphere in steps of `step` radians.
+    fn largest_jump(dirs: &Directions, step: f32) -> f32 {
+        let (mut prev, mut worst) = (None::<Vec<f32>>, 0f32);
+        let mut t = 0f32;
+        while t < 2.6 {
+            let (theta, phi) = (0.05 + 0.65 * t.sin().abs(), 0.3 + t);
+            let d = [theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()];
+            let w = weights(dirs, d);
+            assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+            if let Some(p) = &prev {
+                worst = worst.max(w.iter().zip(p).map(|(a, b)| (a - b).abs()).sum());
+            }
+            prev = Some(w);
+            t += step;
+        }
+        worst
+    }
+
+    #[test]
+    fn direction_weights_turn_continuously_and_hit_measured_directions() {
+        let dirs = Directions::new(&crate::btf::default_grid());
+        // continuous: the largest change between neighbouring points of a
+        // sweep shrinks with the step (with plain inverse-angle weights over
+        // the three nearest it stays at 0.64 whatever the step: the weight
+        // of the third nearest is not zero where it changes)
+        let (coarse, fine) = (largest_jump(&dirs, 0.002), largest_jump(&dirs, 0.0002));
+        assert!(
+            fine < 0.2 * coarse,
+            "weights jump: {coarse} at 0.002 rad steps, {fine} at 0.0002"
+        );
+        // on a measured direction, that direction alone
+        for (i, m) in dirs.dirs.iter().enumerate() {
+            let w = weights(&dirs, *m);
+            assert_eq!(w[i], 1.0, "direction {i}");
         }
     }
 }
