@@ -22,8 +22,10 @@
 //!   ([`crate::generate::direction`]: `(sinθ cosφ, sinθ sinφ, cosθ)` in
 //!   sample axes, x right, y down the image, z the normal: φ = 0° is image +x
 //!   and φ = 90° image +y, downwards). Each of view and light is interpolated
-//!   from its 3 nearest measured directions by angle (normalised inverse
-//!   angular distance weights; an exact hit takes weight 1), so the value is
+//!   from its 3 nearest measured directions by angle (normalised weights
+//!   1/α_k − 1/α_4, α the angular distance and α_4 the fourth nearest's, so
+//!   the blend is continuous as directions turn; an exact hit takes weight
+//!   1), so the value is
 //!   `Σ_v Σ_l w_v w_l E Σ_i g_i(x) p_i(v, l)`, with the geometry maps looked
 //!   up bilinearly (clamped at the sample's border). Directions beyond the
 //!   measured θ range are clamped to it; a light below the horizon (n·l ≤ 0)

@@ -274,8 +274,10 @@ fn measured_directions_reproduce_the_factorization() {
                 .map(|c| (by_phi[1][c] - by_phi[2][c]).abs())
                 .fold(0.0, f32::max),
         );
-        // between measured lights: the inverse-angle blend of the 3 nearest
-        // (one beyond θ 75° is clamped onto it and faded by cos θ / cos 75°)
+        // between measured lights: the blend of the 3 nearest with weights
+        // 1/α_k − 1/α_4 (α_4 the fourth nearest's angle, so the blend is
+        // continuous); one beyond θ 75° is clamped onto it and faded by
+        // cos θ / cos 75°
         for light in [
             Angles {
                 theta: 35.0,
@@ -307,13 +309,14 @@ fn measured_directions_reproduce_the_factorization() {
                 near[3].0 - near[2].0 > 0.01,
                 "ambiguous third neighbour for {light:?}"
             );
-            let total: f32 = near[..3].iter().map(|a| 1.0 / a.0).sum();
+            let weight = |a: f32| 1.0 / a - 1.0 / near[3].0;
+            let total: f32 = near[..3].iter().map(|a| weight(a.0)).sum();
             let mut want = [0f32; 3];
             for &(a, k) in &near[..3] {
                 let pair = svd.find_pair(view, svd.lights[k]).unwrap();
                 let v = reconstruct(&svd, &g, &p, pair, coords[t][0], coords[t][1]);
                 for c in 0..3 {
-                    want[c] += fade * v[c] / a / total;
+                    want[c] += fade * v[c] * weight(a) / total;
                 }
             }
             let cfg = RenderConfig {
