@@ -9,12 +9,14 @@
 //!    same eight images reconstructed from the factors with their PSNR.
 //! 3. `atlas`: Spot (shipped in `data/`) at 1024², with chart, normal and
 //!    field pictures.
-//! 4. `tile`: Spot with the bricks BTF by graphcut quilting (its crack layer
-//!    kept out by the foreground mask), rendered with
+//! 4. `tile`: Spot with the same bricks generated without the crack layer
+//!    (same seed, so the same courses; factorized the same way) by graphcut
+//!    quilting, rendered with
 //!    BTF shading under a front, a grazing and a side light, baked, evaluated
 //!    and exported as glTF.
-//! 5. `paint`: the bricks' crack layer painted into a stroke on Spot's
-//!    flank by constrained graphcut, rendered.
+//! 5. `paint`: the cracked bricks (another sample than the tiling's; its
+//!    foreground the cracked zone, the crack lines dilated by 6 texels)
+//!    painted into a stroke on Spot's flank by constrained graphcut, rendered.
 //! 6. `tile`: Spot with a crop of the shipped CC0 brick photo (the colour
 //!    path), baked and rendered.
 
@@ -375,24 +377,56 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         esc(&atlas.to_string())
     );
 
-    // 4. Spot tiled with the bricks BTF
+    // the same bricks without the crack layer (same seed, same courses),
+    // factorized; section 4 paints the cracked ones into a stroke. Its BTF
+    // is removed once factorized (only the .svd is used)
+    let t = Instant::now();
+    let plain_btf = out_dir.join("bricks_plain.btf");
+    let plain_svd = out_dir.join("bricks_plain.svd");
+    generate::generate_btf(
+        &GenerateConfig {
+            family: Family::Bricks,
+            imperfection: Imperfection::None,
+            width: SAMPLE_SIZE,
+            height: SAMPLE_SIZE,
+            memory,
+            seed: 1,
+            ..GenerateConfig::default()
+        },
+        &plain_btf,
+        progress,
+    )?;
+    let fp = factorize::factorize(
+        &plain_btf,
+        &plain_svd,
+        &FactorizeConfig {
+            memory,
+            ..Default::default()
+        },
+        progress,
+    )?;
+    std::fs::remove_file(&plain_btf).map_err(|e| Error::io(&plain_btf, e))?;
+    st.add(
+        "generate + factorize the bricks without cracks",
+        t.elapsed().as_secs_f64(),
+        fp.to_string(),
+    );
+
+    // 4. Spot tiled with the crack-free bricks BTF
     let t = Instant::now();
     let btf_quilt = out_dir.join("spot_bricks_btf.quilt");
-    // with the crack layer's mask, so the background keeps the cracks out
-    // and section 4 paints them where they are wanted
     let tiled = quilt::tile(
         &gim_path,
-        &bricks_svd,
+        &plain_svd,
         &btf_quilt,
         &TileConfig {
             memory,
-            sample_mask: Some(generate::mask_path(&bricks_btf)),
             ..TileConfig::default()
         },
         progress,
     )?;
     st.add(
-        &format!("tile Spot {ATLAS}² with the bricks BTF"),
+        &format!("tile Spot {ATLAS}² with the bricks BTF (no cracks)"),
         t.elapsed().as_secs_f64(),
         tiled.to_string(),
     );
@@ -463,7 +497,7 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
     );
     let _ = write!(
         body,
-        "<h2>3. Spot tiled with the bricks BTF (graphcut quilting, {ATLAS}² atlas)</h2><p>{}</p>\
+        "<h2>3. Spot tiled with the bricks BTF without cracks (bricks_plain.svd; graphcut quilting, {ATLAS}² atlas)</h2><p>{}</p>\
          <p>Rendered with BTF shading: per pixel, the view and light directions in the local frame of the \
          synthesized sample, interpolated between the measured directions, from the 40-term factorization. \
          The same camera, three lights:</p><table><tr>{renders}</tr></table><table><tr>\
@@ -479,8 +513,16 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
     );
 
     // 4. graphcut texture painting: the BTF's crack layer into a stroke on
-    // Spot's flank (the foreground mask is the one the generator wrote)
+    // Spot's flank. The foreground is the cracked zone, the generator's
+    // thin crack lines dilated by 6 texels: with the lines alone, m0 = 1
+    // asks for a crack on every texel of F and the graphcut packs crack
+    // fragments, breaking the bricks up
     let t = Instant::now();
+    let crack_lines = generate::mask_path(&bricks_btf);
+    let (mw, mh) = imageio::image_size(&crack_lines)?;
+    let zone = dilate_wrapping(&imageio::read_sized_mask(&crack_lines, mw, mh, "")?, mw, mh, 6);
+    let crack_zone = out_dir.join("bricks.crackzone.png");
+    imageio::write_mask_png(&crack_zone, mw, mh, &zone)?;
     let strokes = out_dir.join("spot_strokes.json");
     std::fs::write(&strokes, "[{\"point\": [-0.27, 0.17, 0.23], \"radius\": 0.2}]\n")
         .map_err(|e| Error::io(&strokes, e))?;
@@ -489,7 +531,8 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         &btf_quilt,
         &painted,
         &PaintConfig {
-            sample_mask: Some(generate::mask_path(&bricks_btf)),
+            sample: Some(bricks_svd.clone()),
+            sample_mask: Some(crack_zone),
             region: Some(strokes),
             transition: 8,
             tile: TileConfig {
@@ -516,11 +559,12 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
     );
     let _ = write!(
         body,
-        "<h2>4. Graphcut texture painting</h2><p>The crack layer of the bricks BTF (its foreground mask \
-         <code>bricks.mask.png</code>) painted into a stroke of radius 0.2 on Spot's flank \
-         (<code>spot_strokes.json</code>, an 8-texel transition zone) by constrained graphcut: {}. \
-         The surface was tiled with that mask (<code>tile --sample-mask</code>), which keeps the cracks out of the \
-         background.</p><table><tr>\
+        "<h2>4. Graphcut texture painting</h2><p>The cracked bricks (<code>bricks.svd</code>, another sample than \
+         the crack-free <code>bricks_plain.svd</code> the surface was tiled with; its foreground the cracked zone \
+         <code>bricks.crackzone.png</code>, the crack lines of <code>bricks.mask.png</code> dilated by 6 texels) \
+         painted into a stroke of radius 0.2 on Spot's flank (<code>spot_strokes.json</code>, an 8-texel \
+         transition zone) by constrained graphcut: {}. Nothing outside the stroke and its zone changes.\
+         </p><table><tr>\
          <td><a href=\"spot_bricks_btf_front.png\"><img width=480 src=\"spot_bricks_btf_front.png\"></a><br>before</td>\
          <td><a href=\"spot_bricks_painted_front.png\"><img width=480 src=\"spot_bricks_painted_front.png\"></a>\
          <br>painted ({caption})</td></tr></table>",
@@ -648,6 +692,25 @@ pub fn contact_sheet(images: &[&RgbImage], columns: usize, gap: usize) -> RgbIma
     }
 }
 
+/// A binary mask (≥ ½ is foreground) dilated by a disk of `radius` pixels on
+/// a periodic `w`×`h` sample.
+fn dilate_wrapping(mask: &[f32], w: usize, h: usize, radius: usize) -> Vec<f32> {
+    let r = radius as isize;
+    let mut out = vec![0f32; w * h];
+    for y in 0..h as isize {
+        for x in 0..w as isize {
+            let hit = (-r..=r).any(|dy| {
+                (-r..=r).any(|dx| {
+                    let (sx, sy) = ((x + dx).rem_euclid(w as isize), (y + dy).rem_euclid(h as isize));
+                    dx * dx + dy * dy <= r * r && mask[sy as usize * w + sx as usize] >= 0.5
+                })
+            });
+            out[y as usize * w + x as usize] = hit as u8 as f32;
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -662,5 +725,22 @@ mod tests {
         }
         // azimuth 90° is towards the image top: positive world y for this camera
         assert!(light_from_camera(&SPOT_CAMERA, 75.0, 90.0)[1] > 0.9);
+    }
+
+    #[test]
+    fn dilation_is_a_disk_that_wraps_around() {
+        // one foreground pixel in the corner of a 9×7 periodic sample
+        let mut m = vec![0f32; 63];
+        m[0] = 0.7;
+        let d = dilate_wrapping(&m, 9, 7, 2);
+        // the 13 lattice points of a radius-2 disk, split over the four corners
+        assert_eq!(d.iter().filter(|&&v| v == 1.0).count(), 13);
+        for (x, y) in [(0, 0), (2, 0), (7, 0), (0, 2), (0, 5), (8, 6), (1, 1)] {
+            assert_eq!(d[y * 9 + x], 1.0, "({x}, {y})");
+        }
+        assert_eq!(d[6 * 9 + 7], 0.0);
+        assert!(dilate_wrapping(&vec![0.49; 63], 9, 7, 3)
+            .iter()
+            .all(|&v| v == 0.0));
     }
 }
