@@ -134,8 +134,13 @@ struct Sample {
     n: usize,
     maps: Vec<f32>,
     tileable: bool,
-    /// Rotated copies as f32 (maps, validity), loaded lazily.
+    /// Rotated copies as f32 (maps, validity), loaded lazily and dropped
+    /// least recently used first beyond `rotated_budget` bytes.
     rotated: Vec<Option<(Vec<f32>, Vec<f32>)>>,
+    /// When each rotated copy was last asked for.
+    rotated_used: Vec<u64>,
+    rotated_clock: u64,
+    rotated_budget: usize,
     /// The foreground mask m_P (`[y][x]`, 0..1), if painting or keeping the
     /// foreground out.
     mask: Option<Vec<f32>>,
@@ -160,6 +165,9 @@ impl Sample {
             maps: svd.geometry_maps()?,
             tileable,
             rotated: vec![None; rotations],
+            rotated_used: vec![0; rotations],
+            rotated_clock: 0,
+            rotated_budget: usize::MAX,
             mask: None,
             rotated_mask: vec![None; rotations],
             svd,
@@ -167,7 +175,21 @@ impl Sample {
     }
 
     fn rotation(&mut self, r: usize) -> Result<&(Vec<f32>, Vec<f32>)> {
+        self.rotated_clock += 1;
+        self.rotated_used[r] = self.rotated_clock;
         if self.rotated[r].is_none() {
+            // room first: drop the least recently used copies (never the
+            // one asked for; at least one copy always stays)
+            let copy_bytes = self.width * self.height * (self.n + 1) * 4;
+            let mut held = self.rotated.iter().flatten().count() * copy_bytes;
+            while held + copy_bytes > self.rotated_budget && held > 0 {
+                let oldest = (0..self.rotated.len())
+                    .filter(|&k| self.rotated[k].is_some())
+                    .min_by_key(|&k| self.rotated_used[k])
+                    .expect("held > 0");
+                self.rotated[oldest] = None;
+                held -= copy_bytes;
+            }
             let (maps, valid) = self.svd.rotated(r)?;
             let mut m = vec![0f32; maps.len()];
             half::slice::HalfFloatSliceExt::convert_to_f32_slice(&maps[..], &mut m);
@@ -1246,14 +1268,19 @@ impl<'a> Synthesis<'a> {
         cfg: &'a TileConfig,
         matching: bool,
     ) -> Result<Self> {
-        let svd = SvdArtifact::open(svd_path, cfg.memory)?;
+        // --memory is shared by the three caches of the loop: decoded tiles
+        // of the .svd, the rotated copies as f32, and the sample spectra of
+        // the matcher (a quarter each; the per-texel state comes on top)
+        let quarter = (cfg.memory.0 / 4).max(1 << 20);
+        let svd = SvdArtifact::open(svd_path, crate::container::MemoryBudget(quarter))?;
         if matching && svd.rotations == 0 {
             return Err(Error::input(
                 sample_path,
                 "has no rotated copies (factorize with --rotations 72)",
             ));
         }
-        let sample = Sample::from_svd(svd)?;
+        let mut sample = Sample::from_svd(svd)?;
+        sample.rotated_budget = quarter as usize;
         let n = sample.n;
         let r = gim.resolution;
         let surface = Surface {
@@ -1280,7 +1307,7 @@ impl<'a> Synthesis<'a> {
                 index: vec![0; r * r],
                 epoch: 0,
             },
-            matcher: Matcher::new(),
+            matcher: Matcher::with_cache_budget(quarter as usize),
             reference,
             report: TileReport {
                 texels: total,

@@ -94,6 +94,16 @@ fn spot_is_covered_and_baked_and_rendered() {
     let out = dir.path().join("spot.quilt");
     let report = quilt::tile(&g, &sample, &out, &TileConfig::default(), &Silent).unwrap();
     assert!(report.cross_chart_patches > 0, "{report}");
+    // a small --memory (1 MiB for each cache: four of the 72 rotated copies
+    // at a time on Spot's turning field, evicted and read again, and few
+    // cached spectra) gives the same bytes
+    let small = dir.path().join("small.quilt");
+    let cfg_small = TileConfig {
+        memory: MemoryBudget(4 << 20),
+        ..TileConfig::default()
+    };
+    quilt::tile(&g, &sample, &small, &cfg_small, &Silent).unwrap();
+    assert_eq!(std::fs::read(&small).unwrap(), std::fs::read(&out).unwrap());
     let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
     assert!(q.patches().unwrap().iter().filter(|&&p| p != NO_PATCH).count() == report.texels);
     // the stored seams are exactly the mesh edges whose ends took different
