@@ -316,6 +316,9 @@ fn dist(a: &[f32], b: &[f32]) -> f64 {
         .sqrt()
 }
 
+/// No foreign feature vector (a texel of the active sample).
+const NO_FOREIGN: u32 = u32::MAX;
+
 /// Per-texel synthesis state (struct of arrays over the atlas).
 struct State {
     r: usize,
@@ -332,9 +335,14 @@ struct State {
     source: Vec<u8>,
     /// The sample new patches come from.
     active: u8,
-    /// Geometry-map vectors in the active sample's basis (texels of other
-    /// samples projected into it, see [`Synthesis::load`]).
-    features: Vec<f32>,
+    /// Texels of other samples than the active one (painting with a new
+    /// sample): index into `foreign_features` (`NO_FOREIGN` for texels of
+    /// the active sample, whose geometry-map vectors are looked up in it
+    /// at their coordinate when needed, not stored).
+    foreign: Vec<u32>,
+    /// Their geometry-map vectors projected into the active sample's basis
+    /// (see [`Synthesis::load`]), `n` per entry.
+    foreign_features: Vec<f32>,
     /// m_σ(p): the sample's foreground mask at each texel's coordinate
     /// (when the sample has a mask).
     mask: Vec<f32>,
@@ -371,7 +379,8 @@ impl State {
             patch: vec![NO_PATCH; texels],
             source: vec![0; texels],
             active: 0,
-            features: vec![0.0; texels * n],
+            foreign: vec![NO_FOREIGN; texels],
+            foreign_features: Vec::new(),
             mask: vec![0.0; texels],
             target: None,
             next_patch: 0,
@@ -387,8 +396,19 @@ impl State {
         self.buckets.iter().rev().find_map(|b| b.first().copied())
     }
 
-    fn feature(&self, t: u32) -> &[f32] {
-        &self.features[t as usize * self.n..(t as usize + 1) * self.n]
+    /// The geometry-map vector of synthesized texel `t` in the active
+    /// sample's basis, into `out` (`n` values).
+    fn feature_into(&self, sample: &Sample, t: u32, out: &mut [f32]) {
+        let f = self.foreign[t as usize];
+        if f != NO_FOREIGN {
+            let f = f as usize * self.n;
+            out.copy_from_slice(&self.foreign_features[f..f + self.n]);
+            return;
+        }
+        let c = self.coord[t as usize];
+        if !sample.lookup([c[0] as f64, c[1] as f64], out) {
+            out.fill(0.0);
+        }
     }
 }
 
@@ -504,7 +524,7 @@ fn mean_angle(angles: impl Iterator<Item = f64>) -> f64 {
 }
 
 /// In-chart work image: the chart's sub-image around the patch.
-fn chart_work_image(surface: &Surface, state: &State, patch: &WorkPatch) -> WorkImage {
+fn chart_work_image(surface: &Surface, sample: &Sample, state: &State, patch: &WorkPatch) -> WorkImage {
     let r = surface.r;
     let chart = state.chart[patch.texels[0] as usize];
     let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
@@ -524,7 +544,11 @@ fn chart_work_image(surface: &Surface, state: &State, patch: &WorkPatch) -> Work
             let t = (y0 + y) * r + x0 + x;
             if state.chart[t] == chart && state.synthesized[t] {
                 known[y * w + x] = 1.0;
-                features[(y * w + x) * n..(y * w + x + 1) * n].copy_from_slice(state.feature(t as u32));
+                state.feature_into(
+                    sample,
+                    t as u32,
+                    &mut features[(y * w + x) * n..(y * w + x + 1) * n],
+                );
             }
             if let Some(m0) = &state.target {
                 constraint[y * w + x] = m0[t];
@@ -986,6 +1010,7 @@ fn shift_to_origin(coords: &mut [[f64; 2]]) -> (usize, usize) {
 /// a pixel known where a triangle of three synthesized vertices covers it
 /// (features interpolated). `None` if the patch flattened implausibly large.
 fn raster_work_image(
+    sample: &Sample,
     state: &State,
     patch: &WorkPatch,
     tris: &[[u32; 3]],
@@ -1001,6 +1026,7 @@ fn raster_work_image(
     let mut features = vec![0f32; w * h * n];
     let mut known = vec![0f32; w * h];
     let mut constraint = vec![0f32; if state.target.is_some() { w * h } else { 0 }];
+    let mut corner = vec![0f32; 3 * n];
     for tri in tris {
         let ids = [
             patch.texels[tri[0] as usize],
@@ -1009,6 +1035,9 @@ fn raster_work_image(
         ];
         if !ids.iter().all(|&t| state.synthesized[t as usize]) {
             continue;
+        }
+        for (k, &t) in ids.iter().enumerate() {
+            state.feature_into(sample, t, &mut corner[k * n..(k + 1) * n]);
         }
         let p = [
             coords[tri[0] as usize],
@@ -1046,9 +1075,9 @@ fn raster_work_image(
                         + (l2 as f32) * m0[ids[2] as usize];
                 }
                 for c in 0..n {
-                    features[i * n + c] = (l0 as f32) * state.feature(ids[0])[c]
-                        + (l1 as f32) * state.feature(ids[1])[c]
-                        + (l2 as f32) * state.feature(ids[2])[c];
+                    features[i * n + c] = (l0 as f32) * corner[c]
+                        + (l1 as f32) * corner[n + c]
+                        + (l2 as f32) * corner[2 * n + c];
                 }
             }
         }
@@ -1067,8 +1096,10 @@ fn raster_work_image(
 
 /// Cross-chart work image: the patch flattened by [`flatten`] and resampled.
 /// `None` if it cannot be flattened within the distortion bound.
+#[allow(clippy::too_many_arguments)]
 fn flattened_work_image(
     surface: &Surface,
+    sample: &Sample,
     state: &State,
     patch: &WorkPatch,
     bfs: &Bfs,
@@ -1077,7 +1108,7 @@ fn flattened_work_image(
 ) -> Option<(WorkImage, Vec<[f64; 2]>)> {
     let (tris, _, grid_count) = patch_triangles(surface, state, patch, bfs, zipper_triangles);
     let (coords, angle) = flatten(surface, state, patch, bfs, &tris[..grid_count], max_distortion)?;
-    let work = raster_work_image(state, patch, &tris, coords.clone(), angle, surface.r)?;
+    let work = raster_work_image(sample, state, patch, &tris, coords.clone(), angle, surface.r)?;
     Some((work, coords))
 }
 
@@ -1094,6 +1125,7 @@ impl Flattening {
     fn work_image(
         &self,
         surface: &Surface,
+        sample: &Sample,
         state: &State,
         patch: &WorkPatch,
         bfs: &Bfs,
@@ -1110,7 +1142,7 @@ impl Flattening {
             })
             .collect::<Option<_>>()?;
         let (tris, _, _) = patch_triangles(surface, state, patch, bfs, zipper_triangles);
-        raster_work_image(state, patch, &tris, coords, self.angle, surface.r)
+        raster_work_image(sample, state, patch, &tris, coords, self.angle, surface.r)
     }
 }
 
@@ -1118,7 +1150,13 @@ impl Flattening {
 /// its atlas layout (no resampling inside a chart) and is turned rigidly so
 /// that the vector field agrees across the zipper it was entered through.
 /// Used when the patch's triangulation cannot be flattened within T_d.
-fn unfolded_work_image(surface: &Surface, state: &State, patch: &WorkPatch, bfs: &Bfs) -> WorkImage {
+fn unfolded_work_image(
+    surface: &Surface,
+    sample: &Sample,
+    state: &State,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+) -> WorkImage {
     let (mut coords, angle) = unfold(surface, state, patch, bfs);
     let (w, h) = shift_to_origin(&mut coords);
     let n = state.n;
@@ -1131,7 +1169,7 @@ fn unfolded_work_image(surface: &Surface, state: &State, patch: &WorkPatch, bfs:
             let p = (y.min(h - 1)) * w + x.min(w - 1);
             if known[p] == 0.0 {
                 known[p] = 1.0;
-                features[p * n..(p + 1) * n].copy_from_slice(state.feature(t));
+                state.feature_into(sample, t, &mut features[p * n..(p + 1) * n]);
                 if let Some(m0) = &state.target {
                     constraint[p] = m0[t as usize];
                 }
@@ -1455,18 +1493,19 @@ impl<'a> Synthesis<'a> {
             st.source[t] = source[t];
             next = next.max(patches[t] + 1);
             let c = [coords[t][0] as f64, coords[t][1] as f64];
-            let out = &mut st.features[t * n..(t + 1) * n];
             match &others[source[t] as usize] {
                 None => {
-                    self.sample.lookup(c, out);
+                    st.foreign[t] = NO_FOREIGN;
                     st.mask[t] = self.sample.mask_at(c);
                 }
                 Some((other, projection)) => {
                     scratch.clear();
                     scratch.resize(other.n, 0f32);
                     other.lookup(c, &mut scratch);
-                    for (a, o) in out.iter_mut().enumerate() {
-                        *o = dot_f32(&projection[a * other.n..(a + 1) * other.n], &scratch);
+                    st.foreign[t] = (st.foreign_features.len() / n) as u32;
+                    for a in 0..n {
+                        let v = dot_f32(&projection[a * other.n..(a + 1) * other.n], &scratch);
+                        st.foreign_features.push(v);
                     }
                     st.mask[t] = 0.0;
                 }
@@ -1629,17 +1668,23 @@ impl<'a> Synthesis<'a> {
     fn work_image(&self, patch: &WorkPatch, flattening: &mut Option<Flattening>) -> (WorkImage, bool) {
         let (surface, state, bfs, zt) = (&self.surface, &self.state, &self.bfs, &self.zipper_triangles);
         if !patch.crosses_charts {
-            return (chart_work_image(surface, state, patch), false);
+            return (chart_work_image(surface, &self.sample, state, patch), false);
         }
         if let Some(work) = flattening
             .as_ref()
-            .and_then(|f| f.work_image(surface, state, patch, bfs, zt))
+            .and_then(|f| f.work_image(surface, &self.sample, state, patch, bfs, zt))
         {
             return (work, false);
         }
-        if let Some((work, coords)) =
-            flattened_work_image(surface, state, patch, bfs, zt, self.cfg.max_distortion)
-        {
+        if let Some((work, coords)) = flattened_work_image(
+            surface,
+            &self.sample,
+            state,
+            patch,
+            bfs,
+            zt,
+            self.cfg.max_distortion,
+        ) {
             let mut c: Vec<(u32, [f64; 2])> = patch.texels.iter().copied().zip(coords).collect();
             c.sort_unstable_by_key(|e| e.0);
             *flattening = Some(Flattening {
@@ -1648,7 +1693,10 @@ impl<'a> Synthesis<'a> {
             });
             return (work, false);
         }
-        (unfolded_work_image(surface, state, patch, bfs), true)
+        (
+            unfolded_work_image(surface, &self.sample, state, patch, bfs),
+            true,
+        )
     }
 
     /// Verbatim copy (§IV): the sample's foreground, its point `centre`
@@ -2010,7 +2058,6 @@ struct Fit {
     coord: Vec<[f64; 2]>,
     /// m_P at B's coordinate per patch vertex (empty without a mask).
     new_mask: Vec<f32>,
-    new_features: Vec<f32>,
     rotation: usize,
     jacobian: [f32; 4],
     seam_cost: f64,
@@ -2117,7 +2164,14 @@ fn fit_patch(
             g.add_tweights(i as u32, INFINITE, 0.0);
         }
     }
-    let a_at = |t: u32| state.feature(t);
+    // the old values A at the patch's synthesized vertices
+    let mut old_values = vec![0f32; m * n];
+    for (i, &t) in patch.texels.iter().enumerate() {
+        if state.synthesized[t as usize] {
+            state.feature_into(sample, t, &mut old_values[i * n..(i + 1) * n]);
+        }
+    }
+    let a_at = |i: usize| &old_values[i * n..(i + 1) * n];
     let b_at = |i: usize| &new_features[i * n..(i + 1) * n];
     // continue old patch at s one step (dx, dy in atlas texels) into t
     let old_continued = |s_t: u32, step: (f64, f64), out: &mut [f32]| -> bool {
@@ -2153,8 +2207,8 @@ fn fit_patch(
                 continue;
             }
             let (si, sk) = (state.synthesized[t as usize], state.synthesized[nb as usize]);
-            let d_s = if si { dist(a_at(t), b_at(i)) } else { 0.0 };
-            let d_t = if sk { dist(a_at(nb), b_at(k)) } else { 0.0 };
+            let d_s = if si { dist(a_at(i), b_at(i)) } else { 0.0 };
+            let d_t = if sk { dist(a_at(k), b_at(k)) } else { 0.0 };
             let weight = match (si, sk) {
                 (true, true) => d_s + d_t,
                 (true, false) => 2.0 * d_s,
@@ -2168,9 +2222,9 @@ fn fit_patch(
                     let ok_a = old_continued(t, st, &mut tmp_a); // A_s at nb
                     let ok_b = old_continued(nb, (-st.0, -st.1), &mut tmp_b); // A_t at t
                     if ok_a && ok_b {
-                        let m_s = dist(a_at(t), b_at(i)) + dist(&tmp_a, b_at(k));
-                        let m_t = dist(&tmp_b, b_at(i)) + dist(a_at(nb), b_at(k));
-                        let old = dist(a_at(t), &tmp_b) + dist(&tmp_a, a_at(nb));
+                        let m_s = dist(a_at(i), b_at(i)) + dist(&tmp_a, b_at(k));
+                        let m_t = dist(&tmp_b, b_at(i)) + dist(a_at(k), b_at(k));
+                        let old = dist(a_at(i), &tmp_b) + dist(&tmp_a, a_at(k));
                         let node = g.add_node();
                         g.add_edge(i as u32, node, m_s, m_s);
                         g.add_edge(node, k as u32, m_t, m_t);
@@ -2221,7 +2275,6 @@ fn fit_patch(
         take,
         coord,
         new_mask,
-        new_features,
         rotation: placement.rotation,
         jacobian,
         seam_cost,
@@ -2241,7 +2294,6 @@ fn apply(
     id: u32,
     progress: &dyn Progress,
 ) {
-    let n = state.n;
     let mut newly = 0u64;
     for (i, &t) in patch.texels.iter().enumerate() {
         if !fit.take[i] {
@@ -2253,7 +2305,7 @@ fn apply(
         state.rotation[tu] = fit.rotation as u8;
         state.patch[tu] = id;
         state.source[tu] = state.active;
-        state.features[tu * n..(tu + 1) * n].copy_from_slice(&fit.new_features[i * n..(i + 1) * n]);
+        state.foreign[tu] = NO_FOREIGN;
         if sample.mask.is_some() {
             state.mask[tu] = fit.new_mask[i];
         }
