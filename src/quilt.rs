@@ -1715,9 +1715,20 @@ impl<'a> Synthesis<'a> {
         preview: Option<&Path>,
         progress: &dyn Progress,
     ) -> Result<usize> {
+        let t0 = Instant::now();
+        let trace = |what: &str| {
+            if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                progress.note(&format!(
+                    "verbatim {what}: {:.1} ms",
+                    t0.elapsed().as_secs_f64() * 1e3
+                ));
+            }
+        };
         let patch = self.bfs.patch(&self.surface.graph, v, radius);
+        trace("work patch");
         let mut flattening = None;
         let (work, _) = self.work_image(&patch, &mut flattening);
+        trace("work image");
         let rotations = self.sample.rotated.len();
         let rotation = rotation_index(work.angle + angle, rotations);
         let theta = rotation as f64 * std::f64::consts::TAU / rotations as f64;
@@ -1739,6 +1750,7 @@ impl<'a> Synthesis<'a> {
             .map(|&w| to_sample(&self.sample, rotation, placement.dx, placement.dy, w))
             .collect();
         let fg: Vec<f32> = placed.iter().map(|&c| self.sample.mask_at(c)).collect();
+        trace("placed");
         if let Some(out) = preview {
             let colours = self.sample.svd.preview()?;
             let r = self.surface.r;
@@ -1779,7 +1791,9 @@ impl<'a> Synthesis<'a> {
                 height: h,
                 data,
             };
+            trace("projected");
             crate::imageio::write_png(out, &img, crate::imageio::PngDepth::Eight)?;
+            trace("written");
             return Ok(fg.iter().filter(|&&m| m >= 0.5).count());
         }
         // m0 = the placed foreground on the patch, 0 elsewhere
