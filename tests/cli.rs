@@ -1,28 +1,10 @@
 //! The command line: exit codes and messages a user sees.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Command;
 
-fn btfquilt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_btfquilt"))
-        .args(args)
-        .output()
-        .expect("runs")
-}
-
-fn fails_clearly(out: &Output, needles: &[&str]) -> String {
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!out.status.success(), "should fail: {stderr}");
-    assert!(!stderr.contains("panicked"), "panicked: {stderr}");
-    for n in needles {
-        assert!(stderr.contains(n), "'{n}' missing from: {stderr}");
-    }
-    stderr
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+mod common;
+use common::{btfquilt, fails_clearly, s};
 
 #[test]
 fn generate_info_export_round() {

@@ -2,7 +2,6 @@
 //! surface BTF of a decorated mesh, and what bad inputs leave behind.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::SvdArtifact;
@@ -10,36 +9,8 @@ use btfquilt::gim::Gim;
 use btfquilt::json::Json;
 use btfquilt::quilt::{Quilt, NO_PATCH};
 
-fn btfquilt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_btfquilt"))
-        .args(args)
-        .output()
-        .expect("runs")
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = btfquilt(args);
-    assert!(
-        out.status.success(),
-        "btfquilt {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn fails_clearly(out: &Output, needles: &[&str]) -> String {
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!out.status.success(), "should fail: {stderr}");
-    assert!(!stderr.contains("panicked"), "panicked: {stderr}");
-    for n in needles {
-        assert!(stderr.contains(n), "'{n}' missing from: {stderr}");
-    }
-    stderr
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+mod common;
+use common::{btfquilt, fails_clearly, ok, s};
 
 fn spot() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj")

@@ -12,7 +12,6 @@
 //! test does the same with a surface painted by `paint --sample`.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use btfquilt::btf;
 use btfquilt::container::{ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
@@ -25,40 +24,11 @@ use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 use btfquilt::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
 
 mod common;
+use common::{btfquilt, fails_clearly, ok, s};
 
 const ATLAS: usize = 64;
 /// Rendered image edge (pixels).
 const EDGE: usize = 96;
-
-fn btfquilt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_btfquilt"))
-        .args(args)
-        .output()
-        .expect("runs")
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = btfquilt(args);
-    assert!(
-        out.status.success(),
-        "btfquilt {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn fails_clearly(out: &Output, needles: &[&str]) {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "should fail: {stderr}");
-    assert!(!stderr.contains("panicked"), "panicked: {stderr}");
-    for n in needles {
-        assert!(stderr.contains(n), "'{n}' missing from: {stderr}");
-    }
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 /// Copies the `.quilt` at `src` to `out`, drawing from `samples` (the first
 /// replaces the recorded tiling sample) with the per-texel `index` (`None`:

@@ -6,7 +6,6 @@
 //! generated bricks BTF on a 4φ×3θ grid of views and lights (144 pairs).
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use btfquilt::btf::{self, Angles};
 use btfquilt::container::MemoryBudget;
@@ -21,6 +20,7 @@ use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 use btfquilt::render::{self, Camera, Light, RenderConfig, BACKGROUND};
 
 mod common;
+use common::{btfquilt, fails_clearly, s};
 
 const ATLAS: usize = 64;
 
@@ -73,17 +73,6 @@ fn fixture() -> Fixture {
         svd,
         quilt: quilt_path,
     }
-}
-
-fn btfquilt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_btfquilt"))
-        .args(args)
-        .output()
-        .expect("runs")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
@@ -578,15 +567,6 @@ fn output_does_not_depend_on_threads() {
     // and something was drawn
     let img = imageio::read_rgb(&fx.dir.path().join("t1.exr")).unwrap();
     assert!(img.data.chunks_exact(3).filter(|p| !is_background(p)).count() > 96 * 72 / 20);
-}
-
-fn fails_clearly(o: &Output, needles: &[&str]) {
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "should fail: {stderr}");
-    assert!(!stderr.contains("panicked"), "panicked: {stderr}");
-    for n in needles {
-        assert!(stderr.contains(n), "'{n}' missing from: {stderr}");
-    }
 }
 
 fn listing(dir: &Path) -> Vec<String> {

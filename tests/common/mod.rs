@@ -5,6 +5,7 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 
 use btfquilt::imageio::{self, PngDepth, RgbImage};
 
@@ -65,4 +66,40 @@ pub fn brick_crop(dir: &Path, size: usize, origin: Option<(usize, usize)>) -> Pa
     };
     imageio::write_png(&p, &img, PngDepth::Eight).unwrap();
     p
+}
+
+/// Runs the built `btfquilt` binary with `args`.
+pub fn btfquilt(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_btfquilt"))
+        .args(args)
+        .output()
+        .expect("runs")
+}
+
+/// Runs `btfquilt` and asserts it succeeded; its standard output.
+pub fn ok(args: &[&str]) -> String {
+    let out = btfquilt(args);
+    assert!(
+        out.status.success(),
+        "btfquilt {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Asserts a run failed with a non-zero exit, without a panic, and that
+/// its standard error names every needle; the standard error.
+pub fn fails_clearly(out: &Output, needles: &[&str]) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "should fail: {stderr}");
+    assert!(!stderr.contains("panicked"), "panicked: {stderr}");
+    for n in needles {
+        assert!(stderr.contains(n), "'{n}' missing from: {stderr}");
+    }
+    stderr
+}
+
+/// A path as a command-line argument.
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
 }
