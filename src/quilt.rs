@@ -1270,8 +1270,8 @@ pub(crate) fn sample_svd(
 /// The quilting loop's working set: the surface, the sample, the synthesis
 /// state and the reusable buffers. [`tile`] runs it from an empty surface;
 /// painting (`crate::paint`) from a decorated one with a constraint.
-pub(crate) struct Synthesis<'a> {
-    cfg: &'a TileConfig,
+pub(crate) struct Synthesis {
+    cfg: TileConfig,
     sample_path: PathBuf,
     /// Every sample the surface draws from ([`Quilt::samples`]); the active
     /// one is `sample_paths[state.active]`.
@@ -1295,7 +1295,7 @@ pub(crate) struct Synthesis<'a> {
     seam_cnt: usize,
 }
 
-impl<'a> Synthesis<'a> {
+impl Synthesis {
     /// Opens the geometry image and the sample's `.svd`, with an empty state.
     /// Without `matching` (verbatim copy) the rotated copies are not needed:
     /// rotations are then quantized to the default 72 steps.
@@ -1303,7 +1303,7 @@ impl<'a> Synthesis<'a> {
         gim: &Gim,
         sample_path: &Path,
         svd_path: &Path,
-        cfg: &'a TileConfig,
+        cfg: &TileConfig,
         matching: bool,
     ) -> Result<Self> {
         // --memory is shared by the three caches of the loop: decoded tiles
@@ -1333,7 +1333,7 @@ impl<'a> Synthesis<'a> {
         let state = State::new(surface.graph.chart.clone(), n, r);
         let total = state.remaining;
         Ok(Synthesis {
-            cfg,
+            cfg: cfg.clone(),
             sample_path: sample_path.to_path_buf(),
             sample_paths: vec![sample_path.to_path_buf()],
             other_previews: Vec::new(),
@@ -1529,7 +1529,7 @@ impl<'a> Synthesis<'a> {
     ) -> Result<TileReport> {
         self.finish_report(start);
         let report = self.report.clone();
-        write_quilt(out, self.cfg, gim, gim_path, self, paint_log, &report)?;
+        write_quilt(out, &self.cfg, gim, gim_path, self, paint_log, &report)?;
         Ok(report)
     }
 
@@ -1540,7 +1540,7 @@ impl<'a> Synthesis<'a> {
     /// 17 s instead of 35–43 s with a seam ratio of 1.28 instead of 1.40;
     /// with a 192² crop, 48 instead of 64 gave 0.91 instead of 0.97.
     pub(crate) fn radius0(&self) -> usize {
-        let cfg = self.cfg;
+        let cfg = &self.cfg;
         let by_atlas = 32 * self.surface.r / 512;
         let by_sample = self.sample.width.min(self.sample.height) / 4;
         cfg.patch_radius
@@ -1554,7 +1554,8 @@ impl<'a> Synthesis<'a> {
     /// (down to the minimum) while the seam cost exceeds T_c. Returns the
     /// vertices of the accepted work patch.
     pub(crate) fn step(&mut self, v: u32, radius0: usize, progress: &dyn Progress) -> Result<WorkPatch> {
-        let cfg = self.cfg;
+        let cfg = self.cfg.clone();
+        let cfg = &cfg;
         let mut radius = radius0;
         let mut flattening: Option<Flattening> = None;
         let painting = self.painting;

@@ -338,9 +338,30 @@ fn verbatim_copy_places_the_whole_foreground() {
         ..paint_cfg(&s)
     };
     let out = s.dir.join("v.quilt");
-    paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
+    let e = paint::paint(&s.base, &out, &cfg, &Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("--preview"), "{e}");
+    assert!(!out.exists() && !preview.exists());
+    let report = paint::preview(&s.base, &cfg, &Silent).unwrap();
+    let first = std::fs::read(&preview).unwrap();
     assert!(imageio::read_rgb(&preview).unwrap().width > 20);
+    assert!(report.region_texels > 600, "{report}");
     assert!(!out.exists(), "a preview writes no quilt");
+    // a session opens the artifacts once: the same preview, then others
+    let mut session = paint::PreviewSession::open(&s.base, &cfg, &Silent).unwrap();
+    let again = s.dir.join("again.png");
+    assert_eq!(session.preview(v, &again, &Silent).unwrap(), report.region_texels);
+    assert_eq!(std::fs::read(&again).unwrap(), first);
+    let turned = s.dir.join("turned.png");
+    session
+        .preview(Verbatim { angle: 75.0, ..v }, &turned, &Silent)
+        .unwrap();
+    assert_ne!(
+        std::fs::read(&turned).unwrap(),
+        first,
+        "another angle, another picture"
+    );
     let cfg = PaintConfig { preview: None, ..cfg };
     let report = paint::paint(&s.base, &out, &cfg, &Silent).unwrap();
     // the disk has ~800 pixels; every placed foreground texel took the copy
