@@ -225,6 +225,10 @@ enum Command {
         /// foreground (cracks, stains…) out of the tiling.
         #[arg(long)]
         sample_mask: Option<PathBuf>,
+        /// Seam refinement once covered: seams stepping more than this × the
+        /// sample's neighbour difference get another work patch (e.g. 2).
+        #[arg(long)]
+        refine: Option<f64>,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -624,6 +628,7 @@ fn run(cli: Cli) -> Result<()> {
             seam_threshold,
             seed,
             sample_mask,
+            refine,
             output,
             res,
         } => {
@@ -634,6 +639,7 @@ fn run(cli: Cli) -> Result<()> {
                 seed,
                 memory,
                 sample_mask,
+                refine,
                 ..TileConfig::default()
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;

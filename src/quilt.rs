@@ -73,6 +73,12 @@ pub struct TileConfig {
     /// foreground that replaces it (on a flat square with a brick sample,
     /// 2 filled 17 % of F, 4 filled 62 %, 8 filled 79 %, 16 at least 95 %).
     pub constraint_weight: f64,
+    /// Seam refinement after the surface is covered ([`Synthesis::refine`]):
+    /// seams whose step exceeds this × the sample's neighbour difference
+    /// get one more work patch of radius r_w / 2 each. Off by default; on
+    /// Spot at 1024² with the 192² brick crop, 2 took the seam ratio from
+    /// 0.91 to 0.79 in 2.9 s more.
+    pub refine: Option<f64>,
 }
 
 impl Default for TileConfig {
@@ -88,6 +94,7 @@ impl Default for TileConfig {
             level: crate::container::DEFAULT_ZSTD_LEVEL,
             sample_mask: None,
             constraint_weight: 16.0,
+            refine: None,
         }
     }
 }
@@ -101,6 +108,8 @@ pub struct TileReport {
     /// (the flattening exceeded T_d).
     pub unfolded_patches: usize,
     pub shrinks: usize,
+    /// Seam refinements kept ([`TileConfig::refine`]).
+    pub refined: usize,
     pub texels: usize,
     pub mean_seam_cost: f64,
     pub seconds: f64,
@@ -112,12 +121,13 @@ impl std::fmt::Display for TileReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} texels in {} patches ({} across charts, {} of them unfolded, {} shrinks), mean seam cost {:.4}, {:.1} s (matching {:.1} s, graphcut {:.1} s)",
+            "{} texels in {} patches ({} across charts, {} of them unfolded, {} shrinks, {} seams refined), mean seam cost {:.4}, {:.1} s (matching {:.1} s, graphcut {:.1} s)",
             self.texels,
             self.patches,
             self.cross_chart_patches,
             self.unfolded_patches,
             self.shrinks,
+            self.refined,
             self.mean_seam_cost,
             self.seconds,
             self.matching_seconds,
@@ -1586,6 +1596,7 @@ impl Synthesis {
                 &placement,
                 cfg.constraint_weight * self.reference,
                 painting,
+                0,
             );
             self.report.graphcut_seconds += t.elapsed().as_secs_f64();
             let mean = if fit.seam_edges > 0 {
@@ -1642,6 +1653,85 @@ impl Synthesis {
             self.accept(&patch, &fit, progress);
             return Ok(patch);
         }
+    }
+
+    /// Seam refinement (Kwatra et al. 2003, §3.3, "patch placement on
+    /// seams"): once the surface is covered, the most visible seams —
+    /// grid edges across patches whose step exceeds `step` × the sample's
+    /// neighbour difference, largest first — each get one more work patch
+    /// of radius `radius` centred on them, matched against the finished
+    /// surface, whose core (3 hops around the seam) must take the new
+    /// values; the graphcut with seam nodes then places the new seams, and
+    /// the fitting is kept only if its cut costs less than 0.9 × the old
+    /// seams it replaces. Returns how many were kept. Seams already inside
+    /// a refined patch are not visited again.
+    pub(crate) fn refine(&mut self, radius: usize, step: f64, progress: &dyn Progress) -> Result<usize> {
+        let r = self.surface.r;
+        let n = self.state.n;
+        let (mut fa, mut fb) = (vec![0f32; n], vec![0f32; n]);
+        let mut seeds: Vec<(f64, u32)> = Vec::new();
+        for t in 0..(r * r) as u32 {
+            let tu = t as usize;
+            if self.state.chart[tu] == EMPTY {
+                continue;
+            }
+            let (x, y) = (tu % r, tu / r);
+            let mut worst = 0f64;
+            for (ok, nb) in [(x + 1 < r, tu + 1), (y + 1 < r, tu + r)] {
+                if ok
+                    && self.state.chart[nb] == self.state.chart[tu]
+                    && self.state.patch[nb] != self.state.patch[tu]
+                {
+                    self.state.feature_into(&self.sample, t, &mut fa);
+                    self.state.feature_into(&self.sample, nb as u32, &mut fb);
+                    worst = worst.max(dist(&fa, &fb));
+                }
+            }
+            if worst > step * self.reference {
+                seeds.push((worst, t));
+            }
+        }
+        seeds.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        let mut visited = vec![false; r * r];
+        let mut kept = 0;
+        for &(_, v) in &seeds {
+            if visited[v as usize] {
+                continue;
+            }
+            let patch = self.bfs.patch(&self.surface.graph, v, radius);
+            let (work, _) = self.work_image(&patch, &mut None);
+            let placement = place_covering(
+                &mut self.sample,
+                &mut self.matcher,
+                &work,
+                &self.cfg,
+                self.reference,
+                self.report.patches as u64,
+            )?;
+            let fit = fit_patch(
+                &self.sample,
+                &self.state,
+                &self.surface,
+                &patch,
+                &work,
+                &placement,
+                self.cfg.constraint_weight * self.reference,
+                false,
+                3,
+            );
+            let rim = patch.depth.iter().copied().max().unwrap_or(0);
+            for (&t, &d) in patch.texels.iter().zip(&patch.depth) {
+                if d + 2 < rim {
+                    visited[t as usize] = true;
+                }
+            }
+            if fit.taken > 0 && fit.flow < 0.9 * fit.baseline {
+                self.accept(&patch, &fit, progress);
+                self.report.refined += 1;
+                kept += 1;
+            }
+        }
+        Ok(kept)
     }
 
     /// Records an accepted fitting under the next patch id.
@@ -1813,6 +1903,7 @@ impl Synthesis {
             &placement,
             INFINITE.sqrt(),
             false,
+            0,
         );
         self.report.graphcut_seconds += t.elapsed().as_secs_f64();
         self.accept(&patch, &fit, progress);
@@ -1843,6 +1934,11 @@ pub fn tile(
     progress: &dyn Progress,
 ) -> Result<TileReport> {
     let start = Instant::now();
+    if cfg.refine.is_some_and(|r| !(r.is_finite() && r > 0.0)) {
+        return Err(Error::Config(
+            "--refine must be a positive number (a seam step in sample neighbour differences)".into(),
+        ));
+    }
     let gim = Gim::open(gim_path, cfg.memory)?;
     let (svd_path, _tmp) = sample_svd(sample_path, true, progress)?;
     let mut syn = Synthesis::open(&gim, sample_path, &svd_path, cfg, true)?;
@@ -1871,6 +1967,9 @@ pub fn tile(
         syn.step(v, radius0, progress)?;
     }
     progress.end();
+    if let Some(step) = cfg.refine {
+        syn.refine((radius0 / 2).max(cfg.min_radius), step, progress)?;
+    }
     syn.finish_report(start);
     let report = syn.report.clone();
     write_quilt(out, cfg, &gim, gim_path, &syn, None, &report)?;
@@ -2079,6 +2178,10 @@ struct Fit {
     seam_edges: usize,
     taken: usize,
     taken_new_synth: usize,
+    /// The min-cut's cost, and what keeping every old value would cost (the
+    /// old seams inside the patch).
+    flow: f64,
+    baseline: f64,
 }
 
 const INFINITE: f64 = 1e30;
@@ -2087,7 +2190,8 @@ const INFINITE: f64 = 1e30;
 /// patch's vertices, with seam nodes on old seams (Kwatra et al. 2003, §3).
 /// With `keep_outside_target` (region painting) texels where m0 = 0 keep
 /// their old values, so a stroke changes nothing outside F and its
-/// transition zone.
+/// transition zone; synthesized texels less than `core` hops from the seed
+/// must take the new values (seam refinement).
 #[allow(clippy::too_many_arguments)]
 fn fit_patch(
     sample: &Sample,
@@ -2098,6 +2202,7 @@ fn fit_patch(
     placement: &PlacementChoice,
     data_weight: f64,
     keep_outside_target: bool,
+    core: u16,
 ) -> Fit {
     let n = state.n;
     let r = state.r;
@@ -2168,7 +2273,10 @@ fn fit_patch(
             g.add_tweights(i as u32, data_weight * d_b, data_weight * d_a);
         }
         let outside = keep_outside_target && state.target.as_ref().is_some_and(|m0| m0[t as usize] <= 0.0);
-        if !valid[i] || (synth && outside) {
+        if valid[i] && synth && patch.depth[i] < core {
+            // refinement: the core around the seed takes the new patch
+            g.add_tweights(i as u32, 0.0, INFINITE);
+        } else if !valid[i] || (synth && outside) {
             // B cannot reach here, or region painting keeps everything
             // outside F and its transition zone: keep A (or stay
             // unsynthesized)
@@ -2201,6 +2309,9 @@ fn fit_patch(
     let mut tmp_a = vec![0f32; n];
     let mut tmp_b = vec![0f32; n];
     let mut edges: Vec<(usize, usize, f64)> = Vec::new();
+    // the cost of the old seams inside the patch: what keeping every old
+    // value would cost (refinement compares the cut with it)
+    let mut baseline = 0.0;
     for i in 0..m {
         let t = patch.texels[i];
         let (x, y) = (t as usize % r, t as usize / r);
@@ -2240,6 +2351,7 @@ fn fit_patch(
                         let m_s = dist(a_at(i), b_at(i)) + dist(&tmp_a, b_at(k));
                         let m_t = dist(&tmp_b, b_at(i)) + dist(a_at(k), b_at(k));
                         let old = dist(a_at(i), &tmp_b) + dist(&tmp_a, a_at(k));
+                        baseline += old;
                         let node = g.add_node();
                         g.add_edge(i as u32, node, m_s, m_s);
                         g.add_edge(node, k as u32, m_t, m_t);
@@ -2257,7 +2369,7 @@ fn fit_patch(
             }
         }
     }
-    g.maxflow();
+    let flow = g.maxflow();
     if std::env::var_os("BTFQUILT_TRACE").is_some() && !state.synthesized[patch.texels[0] as usize] {
         eprintln!(
             "seed valid {} segment {:?} coord {:?} work {:?}",
@@ -2296,6 +2408,8 @@ fn fit_patch(
         seam_edges,
         taken,
         taken_new_synth,
+        flow,
+        baseline,
     }
 }
 

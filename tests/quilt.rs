@@ -104,6 +104,41 @@ fn spot_is_covered_and_baked_and_rendered() {
     };
     quilt::tile(&g, &sample, &small, &cfg_small, &Silent).unwrap();
     assert_eq!(std::fs::read(&small).unwrap(), std::fs::read(&out).unwrap());
+    // seam refinement: patches placed on the worst seams, each kept only if
+    // its cut costs less than the seams it replaces, so the seams' total
+    // colour step goes down
+    let refined = dir.path().join("refined.quilt");
+    let cfg_refine = TileConfig {
+        refine: Some(2.0),
+        ..TileConfig::default()
+    };
+    let rr = quilt::tile(&g, &sample, &refined, &cfg_refine, &Silent).unwrap();
+    assert!(rr.refined > 0, "{rr}");
+    let total_step = |q: &Path| {
+        let json = btfquilt::evaluate::evaluate(q, None, None, MemoryBudget::default()).unwrap();
+        let doc = btfquilt::json::Json::parse(&json).unwrap();
+        let seam = doc.get("seam").unwrap();
+        let f = |k: &str| seam.get(k).and_then(|v| v.as_f64()).unwrap();
+        f("edges") * f("mean_colour_difference")
+    };
+    let (before, after) = (total_step(&out), total_step(&refined));
+    assert!(
+        after < before,
+        "refinement raised the seams' total step: {before} → {after}"
+    );
+    let e = quilt::tile(
+        &g,
+        &sample,
+        &refined,
+        &TileConfig {
+            refine: Some(0.0),
+            ..TileConfig::default()
+        },
+        &Silent,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("--refine"), "{e}");
     let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
     assert!(q.patches().unwrap().iter().filter(|&&p| p != NO_PATCH).count() == report.texels);
     // the stored seams are exactly the mesh edges whose ends took different
