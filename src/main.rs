@@ -226,9 +226,9 @@ enum Command {
         #[arg(long)]
         sample_mask: Option<PathBuf>,
         /// Seam refinement once covered: seams stepping more than this × the
-        /// sample's neighbour difference get another work patch (e.g. 2).
-        #[arg(long)]
-        refine: Option<f64>,
+        /// sample's neighbour difference get another work patch; 0 turns it off.
+        #[arg(long, default_value_t = 2.0)]
+        refine: f64,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -639,7 +639,7 @@ fn run(cli: Cli) -> Result<()> {
                 seed,
                 memory,
                 sample_mask,
-                refine,
+                refine: (refine != 0.0).then_some(refine),
                 ..TileConfig::default()
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;

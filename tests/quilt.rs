@@ -92,7 +92,11 @@ fn spot_is_covered_and_baked_and_rendered() {
     );
     let sample = brick_crop(dir.path(), 128, Some((100, 100)));
     let out = dir.path().join("spot.quilt");
-    let report = quilt::tile(&g, &sample, &out, &TileConfig::default(), &Silent).unwrap();
+    let unrefined = TileConfig {
+        refine: None,
+        ..TileConfig::default()
+    };
+    let report = quilt::tile(&g, &sample, &out, &unrefined, &Silent).unwrap();
     assert!(report.cross_chart_patches > 0, "{report}");
     // a small --memory (1 MiB for each cache: four of the 72 rotated copies
     // at a time on Spot's turning field, evicted and read again, and few
@@ -100,7 +104,7 @@ fn spot_is_covered_and_baked_and_rendered() {
     let small = dir.path().join("small.quilt");
     let cfg_small = TileConfig {
         memory: MemoryBudget(4 << 20),
-        ..TileConfig::default()
+        ..unrefined.clone()
     };
     quilt::tile(&g, &sample, &small, &cfg_small, &Silent).unwrap();
     assert_eq!(std::fs::read(&small).unwrap(), std::fs::read(&out).unwrap());
@@ -108,10 +112,8 @@ fn spot_is_covered_and_baked_and_rendered() {
     // its cut costs less than the seams it replaces, so the seams' total
     // colour step goes down
     let refined = dir.path().join("refined.quilt");
-    let cfg_refine = TileConfig {
-        refine: Some(2.0),
-        ..TileConfig::default()
-    };
+    let cfg_refine = TileConfig::default();
+    assert_eq!(cfg_refine.refine, Some(2.0), "refinement is on by default");
     let rr = quilt::tile(&g, &sample, &refined, &cfg_refine, &Silent).unwrap();
     assert!(rr.refined > 0, "{rr}");
     let total_step = |q: &Path| {
