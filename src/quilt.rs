@@ -491,6 +491,23 @@ struct WorkImage {
     constraint: Vec<f32>,
 }
 
+impl WorkImage {
+    /// A `width`×`height` work image with nothing known yet: `n` feature
+    /// channels, and an m0 channel when the synthesis is constrained.
+    fn blank(width: usize, height: usize, state: &State, coords: Vec<[f64; 2]>, angle: f64) -> WorkImage {
+        WorkImage {
+            width,
+            height,
+            features: vec![0f32; width * height * state.n],
+            known: vec![0f32; width * height],
+            coords,
+            angle,
+            atlas_to_work: None,
+            constraint: vec![0f32; if state.target.is_some() { width * height } else { 0 }],
+        }
+    }
+}
+
 /// Per face, the atlas-space angle of its field direction (radians, y down).
 fn face_angles(gim: &Gim) -> Result<Vec<f64>> {
     let mesh = gim.mesh()?;
@@ -546,40 +563,27 @@ fn chart_work_image(surface: &Surface, sample: &Sample, state: &State, patch: &W
         y1 = y1.max(y);
     }
     let (w, h, n) = (x1 - x0 + 1, y1 - y0 + 1, state.n);
-    let mut features = vec![0f32; w * h * n];
-    let mut known = vec![0f32; w * h];
-    let mut constraint = vec![0f32; if state.target.is_some() { w * h } else { 0 }];
-    for y in 0..h {
-        for x in 0..w {
-            let t = (y0 + y) * r + x0 + x;
-            if state.chart[t] == chart && state.synthesized[t] {
-                known[y * w + x] = 1.0;
-                state.feature_into(
-                    sample,
-                    t as u32,
-                    &mut features[(y * w + x) * n..(y * w + x + 1) * n],
-                );
-            }
-            if let Some(m0) = &state.target {
-                constraint[y * w + x] = m0[t];
-            }
-        }
-    }
     let coords = patch
         .texels
         .iter()
         .map(|&t| [(t as usize % r - x0) as f64, (t as usize / r - y0) as f64])
         .collect();
-    WorkImage {
-        width: w,
-        height: h,
-        features,
-        known,
-        coords,
-        angle: mean_angle(patch.texels.iter().map(|&t| surface.texel_angle(t))),
-        atlas_to_work: Some([1.0, 0.0, 0.0, 1.0]),
-        constraint,
+    let angle = mean_angle(patch.texels.iter().map(|&t| surface.texel_angle(t)));
+    let mut work = WorkImage::blank(w, h, state, coords, angle);
+    work.atlas_to_work = Some([1.0, 0.0, 0.0, 1.0]);
+    for y in 0..h {
+        for x in 0..w {
+            let (t, p) = ((y0 + y) * r + x0 + x, y * w + x);
+            if state.chart[t] == chart && state.synthesized[t] {
+                work.known[p] = 1.0;
+                state.feature_into(sample, t as u32, &mut work.features[p * n..(p + 1) * n]);
+            }
+            if let Some(m0) = &state.target {
+                work.constraint[p] = m0[t];
+            }
+        }
     }
+    work
 }
 
 /// The patch's triangles (local indices): grid blocks inside charts, then
@@ -1033,9 +1037,7 @@ fn raster_work_image(
         return None;
     }
     let n = state.n;
-    let mut features = vec![0f32; w * h * n];
-    let mut known = vec![0f32; w * h];
-    let mut constraint = vec![0f32; if state.target.is_some() { w * h } else { 0 }];
+    let mut work = WorkImage::blank(w, h, state, coords, angle);
     let mut corner = vec![0f32; 3 * n];
     for tri in tris {
         let ids = [
@@ -1050,9 +1052,9 @@ fn raster_work_image(
             state.feature_into(sample, t, &mut corner[k * n..(k + 1) * n]);
         }
         let p = [
-            coords[tri[0] as usize],
-            coords[tri[1] as usize],
-            coords[tri[2] as usize],
+            work.coords[tri[0] as usize],
+            work.coords[tri[1] as usize],
+            work.coords[tri[2] as usize],
         ];
         let d = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
         if d.abs() < 1e-12 {
@@ -1078,30 +1080,21 @@ fn raster_work_image(
                     continue;
                 }
                 let i = y * w + x;
-                known[i] = 1.0;
+                work.known[i] = 1.0;
                 if let Some(m0) = &state.target {
-                    constraint[i] = (l0 as f32) * m0[ids[0] as usize]
+                    work.constraint[i] = (l0 as f32) * m0[ids[0] as usize]
                         + (l1 as f32) * m0[ids[1] as usize]
                         + (l2 as f32) * m0[ids[2] as usize];
                 }
                 for c in 0..n {
-                    features[i * n + c] = (l0 as f32) * corner[c]
+                    work.features[i * n + c] = (l0 as f32) * corner[c]
                         + (l1 as f32) * corner[n + c]
                         + (l2 as f32) * corner[2 * n + c];
                 }
             }
         }
     }
-    Some(WorkImage {
-        width: w,
-        height: h,
-        features,
-        known,
-        coords,
-        angle,
-        atlas_to_work: None,
-        constraint,
-    })
+    Some(work)
 }
 
 /// Cross-chart work image: the patch flattened by [`flatten`] and resampled.
@@ -1170,32 +1163,22 @@ fn unfolded_work_image(
     let (mut coords, angle) = unfold(surface, state, patch, bfs);
     let (w, h) = shift_to_origin(&mut coords);
     let n = state.n;
-    let mut features = vec![0f32; w * h * n];
-    let mut known = vec![0f32; w * h];
-    let mut constraint = vec![0f32; if state.target.is_some() { w * h } else { 0 }];
+    let mut work = WorkImage::blank(w, h, state, coords, angle);
     for (i, &t) in patch.texels.iter().enumerate() {
         if state.synthesized[t as usize] {
-            let (x, y) = (coords[i][0].round() as usize, coords[i][1].round() as usize);
+            let c = work.coords[i];
+            let (x, y) = (c[0].round() as usize, c[1].round() as usize);
             let p = (y.min(h - 1)) * w + x.min(w - 1);
-            if known[p] == 0.0 {
-                known[p] = 1.0;
-                state.feature_into(sample, t, &mut features[p * n..(p + 1) * n]);
+            if work.known[p] == 0.0 {
+                work.known[p] = 1.0;
+                state.feature_into(sample, t, &mut work.features[p * n..(p + 1) * n]);
                 if let Some(m0) = &state.target {
-                    constraint[p] = m0[t as usize];
+                    work.constraint[p] = m0[t as usize];
                 }
             }
         }
     }
-    WorkImage {
-        width: w,
-        height: h,
-        features,
-        known,
-        coords,
-        angle,
-        atlas_to_work: None,
-        constraint,
-    }
+    work
 }
 
 /// The rigid unfolding of a patch: each chart's part keeps its atlas layout,
