@@ -12,7 +12,6 @@ use std::path::Path;
 use std::time::Duration;
 
 use btfquilt::gim::{self, AtlasConfig};
-use btfquilt::imageio::{self, RgbImage};
 use btfquilt::paint::{self, PaintConfig, PreviewSession, Verbatim};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, TileConfig};
@@ -21,20 +20,12 @@ use criterion::{criterion_group, criterion_main, Criterion, SamplingMode};
 #[path = "../tests/common/mod.rs"]
 mod common;
 
+/// A `size`² mask PNG with a centred disk of `radius` pixels.
 fn disk_mask(path: &Path, size: usize, radius: f32) {
     let c = (size as f32 - 1.0) / 2.0;
-    let data = (0..size * size)
-        .flat_map(|i| {
-            let (x, y) = ((i % size) as f32 - c, (i / size) as f32 - c);
-            [if x * x + y * y < radius * radius { 1.0 } else { 0.0 }; 3]
-        })
-        .collect();
-    let img = RgbImage {
-        width: size,
-        height: size,
-        data,
-    };
-    imageio::write_png(path, &img, imageio::PngDepth::Eight).unwrap();
+    common::write_mask_png(path, size, size, |x, y| {
+        (x as f32 - c).powi(2) + (y as f32 - c).powi(2) < radius * radius
+    });
 }
 
 fn bench_paint(c: &mut Criterion) {

@@ -10,22 +10,10 @@ use btfquilt::json::Json;
 use btfquilt::quilt::{Quilt, NO_PATCH};
 
 mod common;
-use common::{btfquilt, fails_clearly, ok, s};
+use common::{btfquilt, fails_clearly, listing, ok, s};
 
 fn spot() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj")
-}
-
-/// Files (hidden ones included) in a folder, sorted; empty if it is absent.
-fn listing(dir: &Path) -> Vec<String> {
-    let mut names: Vec<String> = match std::fs::read_dir(dir) {
-        Ok(rd) => rd
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect(),
-        Err(_) => Vec::new(),
-    };
-    names.sort();
-    names
 }
 
 /// A decorated Spot (96² atlas) tiled with a small generated BTF

@@ -24,7 +24,7 @@ use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 use btfquilt::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
 
 mod common;
-use common::{btfquilt, fails_clearly, ok, s};
+use common::{btfquilt, fails_clearly, ok, s, write_mask_png};
 
 const ATLAS: usize = 64;
 /// Rendered image edge (pixels).
@@ -668,18 +668,6 @@ fn missing_or_incompatible_second_sample_fails_clearly() {
     assert!(png.exists());
 }
 
-fn write_png(path: &Path, w: usize, h: usize, f: impl Fn(usize, usize) -> bool) {
-    let data = (0..w * h)
-        .flat_map(|i| [if f(i % w, i / w) { 1.0 } else { 0.0 }; 3])
-        .collect();
-    let img = RgbImage {
-        width: w,
-        height: h,
-        data,
-    };
-    imageio::write_png(path, &img, PngDepth::Eight).unwrap();
-}
-
 /// Per pixel of a [`top_camera`] image, the sample of the atlas texel
 /// nearest to the surface point it shows, where every texel in the 5×5
 /// block around that one has the same sample (`None` elsewhere).
@@ -730,8 +718,8 @@ fn painted_with_another_sample_renders_and_exports_each_texels_own() {
     };
     quilt::tile(&g, &svd_a, &base, &t, &Silent).unwrap();
     let (region, mask) = (d.join("region.png"), d.join("b_mask.png"));
-    write_png(&region, ATLAS, ATLAS, |x, _| x < ATLAS / 2);
-    write_png(&mask, 32, 32, |x, y| {
+    write_mask_png(&region, ATLAS, ATLAS, |x, _| x < ATLAS / 2);
+    write_mask_png(&mask, 32, 32, |x, y| {
         (x as f32 - 16.0).hypot(y as f32 - 16.0) < 10.0
     });
     let painted = d.join("painted.quilt");

@@ -6,12 +6,13 @@ use std::path::{Path, PathBuf};
 
 use btfquilt::container::MemoryBudget;
 use btfquilt::gim::{self, AtlasConfig, Gim, EMPTY};
-use btfquilt::imageio::{self, RgbImage};
+use btfquilt::imageio;
 use btfquilt::paint::{self, PaintConfig, Verbatim};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig};
 
 mod common;
+use common::{write_mask_png, write_rgb_png};
 
 const R: usize = 128;
 
@@ -33,25 +34,6 @@ fn square_ply(dir: &Path) -> PathBuf {
     }
     std::fs::write(&p, s).unwrap();
     p
-}
-
-fn write_png(path: &Path, w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) {
-    let mut data = Vec::with_capacity(w * h * 3);
-    for y in 0..h {
-        for x in 0..w {
-            data.extend_from_slice(&f(x, y));
-        }
-    }
-    imageio::write_png(
-        path,
-        &RgbImage {
-            width: w,
-            height: h,
-            data,
-        },
-        imageio::PngDepth::Eight,
-    )
-    .unwrap();
 }
 
 /// A decorated flat square: (gim, sample, its foreground mask, base quilt).
@@ -78,7 +60,7 @@ fn scene() -> Scene {
     let sample = common::brick_crop(&d, 96, Some((100, 100)));
     let mask = d.join("mask.png");
     let disk = |x: usize, y: usize| (x as f32 - 22.0).powi(2) + (y as f32 - 22.0).powi(2) < 16.0f32.powi(2);
-    write_png(&mask, 96, 96, |x, y| if disk(x, y) { [1.0; 3] } else { [0.0; 3] });
+    write_mask_png(&mask, 96, 96, disk);
     let base = d.join("base.quilt");
     let tc = TileConfig {
         sample_mask: Some(mask.clone()),
@@ -149,7 +131,7 @@ fn painting_a_region_fills_it_merges_it_and_replays() {
     let in_f =
         |t: usize| chart[t] != EMPTY && ((t % R) as f32 - cx).powi(2) + ((t / R) as f32 - cy).powi(2) < 196.0;
     let region = s.dir.join("region.png");
-    write_png(
+    write_rgb_png(
         &region,
         R,
         R,
@@ -386,7 +368,7 @@ fn bad_paint_inputs_are_refused_and_write_nothing() {
         e
     };
     let small = s.dir.join("small.png");
-    write_png(&small, 10, 10, |_, _| [1.0; 3]);
+    write_rgb_png(&small, 10, 10, |_, _| [1.0; 3]);
     let e = err(PaintConfig {
         region: Some(small.clone()),
         ..paint_cfg(&s)
@@ -430,7 +412,7 @@ fn bad_paint_inputs_are_refused_and_write_nothing() {
     let e = err(paint_cfg(&s));
     assert!(e.contains("--region"), "{e}");
     let empty = s.dir.join("empty.png");
-    write_png(&empty, R, R, |_, _| [0.0; 3]);
+    write_rgb_png(&empty, R, R, |_, _| [0.0; 3]);
     let e = err(PaintConfig {
         region: Some(empty),
         ..paint_cfg(&s)
@@ -442,7 +424,7 @@ fn bad_paint_inputs_are_refused_and_write_nothing() {
 fn paint_cli_fails_clearly_with_a_non_zero_exit() {
     let s = scene();
     let small = s.dir.join("tiny.png");
-    write_png(&small, 10, 10, |_, _| [1.0; 3]);
+    write_rgb_png(&small, 10, 10, |_, _| [1.0; 3]);
     let out = s.dir.join("cli.quilt");
     let run = |args: &[&str]| {
         std::process::Command::new(env!("CARGO_BIN_EXE_btfquilt"))
@@ -508,7 +490,7 @@ fn stain_sample(dir: &Path) -> (PathBuf, PathBuf) {
     let disk = |x: usize, y: usize| (x as f32 - 48.0).powi(2) + (y as f32 - 48.0).powi(2) < 22.0f32.powi(2);
     let noise = |x: usize, y: usize| ((x * 7919 + y * 104_729) % 1000) as f32 / 1000.0;
     let sample = dir.join("stain.png");
-    write_png(&sample, 96, 96, |x, y| {
+    write_rgb_png(&sample, 96, 96, |x, y| {
         if disk(x, y) {
             let stripe = if (x + y) % 6 < 3 { 0.25 } else { 0.05 };
             [stripe, stripe, 0.7 + 0.2 * noise(x, y)]
@@ -518,7 +500,7 @@ fn stain_sample(dir: &Path) -> (PathBuf, PathBuf) {
         }
     });
     let mask = dir.join("stain_mask.png");
-    write_png(&mask, 96, 96, |x, y| if disk(x, y) { [1.0; 3] } else { [0.0; 3] });
+    write_mask_png(&mask, 96, 96, disk);
     (sample, mask)
 }
 

@@ -5,7 +5,7 @@
 //! Inputs are tiny: a flat 8×8-quad square on a 64² atlas tiled with a 32²
 //! generated bricks BTF on a 4φ×3θ grid of views and lights (144 pairs).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use btfquilt::btf::{self, Angles};
 use btfquilt::container::MemoryBudget;
@@ -20,7 +20,7 @@ use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 use btfquilt::render::{self, Camera, Light, RenderConfig, BACKGROUND};
 
 mod common;
-use common::{btfquilt, fails_clearly, s};
+use common::{btfquilt, fails_clearly, listing, s};
 
 const ATLAS: usize = 64;
 
@@ -567,15 +567,6 @@ fn output_does_not_depend_on_threads() {
     // and something was drawn
     let img = imageio::read_rgb(&fx.dir.path().join("t1.exr")).unwrap();
     assert!(img.data.chunks_exact(3).filter(|p| !is_background(p)).count() > 96 * 72 / 20);
-}
-
-fn listing(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    v.sort();
-    v
 }
 
 /// (e) Bad lights, zero orbit frames, a missing quilt, a quilt whose sample

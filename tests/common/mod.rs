@@ -103,3 +103,31 @@ pub fn fails_clearly(out: &Output, needles: &[&str]) -> String {
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
+
+/// Files (hidden ones included) in a folder, sorted; empty if it is absent.
+pub fn listing(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = match std::fs::read_dir(dir) {
+        Ok(rd) => rd
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect(),
+        Err(_) => Vec::new(),
+    };
+    names.sort();
+    names
+}
+
+/// Writes a `w`×`h` 8-bit PNG whose pixel (x, y) is `f(x, y)` (linear RGB).
+pub fn write_rgb_png(path: &Path, w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) {
+    let data = (0..w * h).flat_map(|i| f(i % w, i / w)).collect();
+    let img = RgbImage {
+        width: w,
+        height: h,
+        data,
+    };
+    imageio::write_png(path, &img, PngDepth::Eight).unwrap();
+}
+
+/// Writes a `w`×`h` mask PNG: white where `f(x, y)`, black elsewhere.
+pub fn write_mask_png(path: &Path, w: usize, h: usize, f: impl Fn(usize, usize) -> bool) {
+    write_rgb_png(path, w, h, |x, y| if f(x, y) { [1.0; 3] } else { [0.0; 3] });
+}
