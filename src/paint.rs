@@ -186,11 +186,7 @@ fn open_synthesis(
     let gim = Gim::open(&base.gim, cfg.memory)?;
     let matching = stroke.verbatim.is_none();
     let (svd_path, tmp) = sample_svd(&stroke.sample, matching, progress)?;
-    let trace = |what: &str| {
-        if std::env::var_os("BTFQUILT_TRACE").is_some() {
-            progress.note(&format!("{what}: {:.3} s", start.elapsed().as_secs_f64()));
-        }
-    };
+    let trace = |what: &str| crate::progress::trace(progress, start, what);
     trace("factorized");
     let mut syn = Synthesis::open(&gim, &stroke.sample, &svd_path, &cfg, matching)?;
     trace("opened");
@@ -441,11 +437,7 @@ fn apply_stroke(
     progress: &dyn Progress,
 ) -> Result<PaintReport> {
     let start = Instant::now();
-    let trace = |what: &str| {
-        if std::env::var_os("BTFQUILT_TRACE").is_some() {
-            progress.note(&format!("{what}: {:.3} s", start.elapsed().as_secs_f64()));
-        }
-    };
+    let trace = |what: &str| crate::progress::trace(progress, start, what);
     let (mut syn, gim, _tmp) = open_synthesis(base, stroke, progress)?;
     let mut report = PaintReport::default();
     if let Some(v) = stroke.verbatim {

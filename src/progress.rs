@@ -18,3 +18,11 @@ pub trait Progress: Send + Sync {
 pub struct Silent;
 
 impl Progress for Silent {}
+
+/// With `BTFQUILT_TRACE` set, notes how long it is since `start` that `what`
+/// finished (a developer's timing trace; silent otherwise).
+pub(crate) fn trace(progress: &dyn Progress, start: std::time::Instant, what: &str) {
+    if std::env::var_os("BTFQUILT_TRACE").is_some() {
+        progress.note(&format!("{what}: {:.3} s", start.elapsed().as_secs_f64()));
+    }
+}

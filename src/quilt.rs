@@ -1559,29 +1559,7 @@ impl Synthesis {
         loop {
             let patch = self.bfs.patch(&self.surface.graph, v, radius);
             let (work, unfolded) = self.work_image(&patch, &mut flattening);
-            let t = Instant::now();
-            let placement = place_covering(
-                &mut self.sample,
-                &mut self.matcher,
-                &work,
-                cfg,
-                self.reference,
-                self.report.patches as u64,
-            )?;
-            self.report.matching_seconds += t.elapsed().as_secs_f64();
-            let t = Instant::now();
-            let fit = fit_patch(
-                &self.sample,
-                &self.state,
-                &self.surface,
-                &patch,
-                &work,
-                &placement,
-                cfg.constraint_weight * self.reference,
-                painting,
-                0,
-            );
-            self.report.graphcut_seconds += t.elapsed().as_secs_f64();
+            let fit = self.match_and_fit(&patch, &work, painting, 0)?;
             let mean = if fit.seam_edges > 0 {
                 fit.seam_cost / fit.seam_edges as f64
             } else {
@@ -1683,25 +1661,7 @@ impl Synthesis {
             }
             let patch = self.bfs.patch(&self.surface.graph, v, radius);
             let (work, _) = self.work_image(&patch, &mut None);
-            let placement = place_covering(
-                &mut self.sample,
-                &mut self.matcher,
-                &work,
-                &self.cfg,
-                self.reference,
-                self.report.patches as u64,
-            )?;
-            let fit = fit_patch(
-                &self.sample,
-                &self.state,
-                &self.surface,
-                &patch,
-                &work,
-                &placement,
-                self.cfg.constraint_weight * self.reference,
-                false,
-                3,
-            );
+            let fit = self.match_and_fit(&patch, &work, false, 3)?;
             let rim = patch.depth.iter().copied().max().unwrap_or(0);
             for (&t, &d) in patch.texels.iter().zip(&patch.depth) {
                 if d + 2 < rim {
@@ -1715,6 +1675,42 @@ impl Synthesis {
             }
         }
         Ok(kept)
+    }
+
+    /// Patch matching of the work image against the sample, then the
+    /// graphcut fitting of the chosen placement ([`fit_patch`], which says
+    /// what `keep_outside_target` and `core` do), timed into the report.
+    fn match_and_fit(
+        &mut self,
+        patch: &WorkPatch,
+        work: &WorkImage,
+        keep_outside_target: bool,
+        core: u16,
+    ) -> Result<Fit> {
+        let t = Instant::now();
+        let placement = place_covering(
+            &mut self.sample,
+            &mut self.matcher,
+            work,
+            &self.cfg,
+            self.reference,
+            self.report.patches as u64,
+        )?;
+        self.report.matching_seconds += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let fit = fit_patch(
+            &self.sample,
+            &self.state,
+            &self.surface,
+            patch,
+            work,
+            &placement,
+            self.cfg.constraint_weight * self.reference,
+            keep_outside_target,
+            core,
+        );
+        self.report.graphcut_seconds += t.elapsed().as_secs_f64();
+        Ok(fit)
     }
 
     /// Records an accepted fitting under the next patch id.
@@ -1790,14 +1786,7 @@ impl Synthesis {
         progress: &dyn Progress,
     ) -> Result<usize> {
         let t0 = Instant::now();
-        let trace = |what: &str| {
-            if std::env::var_os("BTFQUILT_TRACE").is_some() {
-                progress.note(&format!(
-                    "verbatim {what}: {:.1} ms",
-                    t0.elapsed().as_secs_f64() * 1e3
-                ));
-            }
-        };
+        let trace = |what: &str| crate::progress::trace(progress, t0, &format!("verbatim {what}"));
         let patch = self.bfs.patch(&self.surface.graph, v, radius);
         trace("work patch");
         let mut flattening = None;
