@@ -10,7 +10,7 @@ use btfquilt::json::Json;
 use btfquilt::quilt::{Quilt, NO_PATCH};
 
 mod common;
-use common::{btfquilt, fails_clearly, listing, ok, s};
+use common::{btfquilt, channel, fails_clearly, listing, ok, read_exr, s};
 
 fn spot() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj")
@@ -398,31 +398,6 @@ fn bilinear(maps: &[f32], w: usize, h: usize, n: usize, x: f32, y: f32) -> Vec<f
             top + (bottom - top) * fy
         })
         .collect()
-}
-
-/// The f32 channels of an EXR by name, and its size.
-fn read_exr(path: &Path) -> (usize, usize, Vec<(String, Vec<f32>)>) {
-    let img = exr::prelude::read_first_flat_layer_from_file(path).unwrap();
-    let layer = img.layer_data;
-    let size = layer.size;
-    let channels = layer
-        .channel_data
-        .list
-        .into_iter()
-        .map(|c| match c.sample_data {
-            exr::prelude::FlatSamples::F32(v) => (c.name.to_string(), v),
-            _ => panic!("channel {} is not f32", c.name),
-        })
-        .collect();
-    (size.0, size.1, channels)
-}
-
-fn channel<'a>(channels: &'a [(String, Vec<f32>)], name: &str) -> &'a [f32] {
-    &channels
-        .iter()
-        .find(|(n, _)| n == name)
-        .unwrap_or_else(|| panic!("no channel {name}"))
-        .1
 }
 
 fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {

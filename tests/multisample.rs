@@ -24,7 +24,7 @@ use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 use btfquilt::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
 
 mod common;
-use common::{btfquilt, fails_clearly, ok, s, write_mask_png};
+use common::{btfquilt, channel, fails_clearly, ok, read_exr, s, write_mask_png};
 
 const ATLAS: usize = 64;
 /// Rendered image edge (pixels).
@@ -494,7 +494,7 @@ fn btf_surface_shades_each_texel_in_its_own_basis() {
     );
     let quilt = Quilt::open(&q.mixed, budget).unwrap();
     let (coords, patches) = (quilt.coords().unwrap(), quilt.patches().unwrap());
-    let syn = read_exr(&out.join("synthesis.exr"));
+    let (_, _, syn) = read_exr(&out.join("synthesis.exr"));
     let mut chans: Vec<&str> = syn.iter().map(|(n, _)| n.as_str()).collect();
     chans.sort();
     assert_eq!(
@@ -512,7 +512,7 @@ fn btf_surface_shades_each_texel_in_its_own_basis() {
     }
     for (k, svd) in [(0, &a), (1, &b)] {
         let suffix = if k == 0 { String::new() } else { format!("_{k}") };
-        let maps = read_exr(&out.join(format!("geometry_maps{suffix}.exr")));
+        let (_, _, maps) = read_exr(&out.join(format!("geometry_maps{suffix}.exr")));
         let n = svd.terms;
         assert_eq!(maps.len(), n, "sample {k}: {n} terms");
         let mut g = vec![0f32; svd.width * svd.height * n];
@@ -557,35 +557,13 @@ fn btf_surface_shades_each_texel_in_its_own_basis() {
     // a surface from one sample keeps the seven channels and file names
     let single = d.join("single");
     ok(&["export", s(&q.a), "--btf", s(&single)]);
-    let syn = read_exr(&single.join("synthesis.exr"));
+    let (_, _, syn) = read_exr(&single.join("synthesis.exr"));
     let mut chans: Vec<&str> = syn.iter().map(|(n, _)| n.as_str()).collect();
     chans.sort();
     assert_eq!(chans, ["angle", "dudX", "dudY", "dvdX", "dvdY", "u", "v"]);
     assert!(!single.join("geometry_maps_1.exr").exists());
     let md = std::fs::read_to_string(single.join("FORMAT.md")).unwrap();
     assert!(!md.contains("`sample`") && md.contains("(sample `"), "{md}");
-}
-
-/// The f32 channels of an EXR by name.
-fn read_exr(path: &Path) -> Vec<(String, Vec<f32>)> {
-    let img = exr::prelude::read_first_flat_layer_from_file(path).unwrap();
-    img.layer_data
-        .channel_data
-        .list
-        .into_iter()
-        .map(|c| match c.sample_data {
-            exr::prelude::FlatSamples::F32(v) => (c.name.to_string(), v),
-            _ => panic!("channel {} is not f32", c.name),
-        })
-        .collect()
-}
-
-fn channel<'a>(channels: &'a [(String, Vec<f32>)], name: &str) -> &'a [f32] {
-    &channels
-        .iter()
-        .find(|(n, _)| n == name)
-        .unwrap_or_else(|| panic!("no channel {name}"))
-        .1
 }
 
 /// A second sample that is gone, or that has other directions (or is a
@@ -769,7 +747,7 @@ fn painted_with_another_sample_renders_and_exports_each_texels_own() {
 
     let out = d.join("btf");
     ok(&["export", s(&painted), "--btf", s(&out)]);
-    let syn = read_exr(&out.join("synthesis.exr"));
+    let (_, _, syn) = read_exr(&out.join("synthesis.exr"));
     let (k, u) = (channel(&syn, "sample"), channel(&syn, "u"));
     let patches = q.patches().unwrap();
     for t in 0..ATLAS * ATLAS {
@@ -779,6 +757,6 @@ fn painted_with_another_sample_renders_and_exports_each_texels_own() {
             assert!(k[t].is_nan() && u[t].is_nan(), "empty texel {t}");
         }
     }
-    let maps = read_exr(&out.join("geometry_maps_1.exr"));
+    let (_, _, maps) = read_exr(&out.join("geometry_maps_1.exr"));
     assert_eq!(maps.len(), 5, "sample 1 is B, with 5 terms");
 }

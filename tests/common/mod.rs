@@ -131,3 +131,29 @@ pub fn write_rgb_png(path: &Path, w: usize, h: usize, f: impl Fn(usize, usize) -
 pub fn write_mask_png(path: &Path, w: usize, h: usize, f: impl Fn(usize, usize) -> bool) {
     write_rgb_png(path, w, h, |x, y| if f(x, y) { [1.0; 3] } else { [0.0; 3] });
 }
+
+/// The f32 channels of an EXR by name, and its size.
+pub fn read_exr(path: &Path) -> (usize, usize, Vec<(String, Vec<f32>)>) {
+    let img = exr::prelude::read_first_flat_layer_from_file(path).unwrap();
+    let layer = img.layer_data;
+    let size = layer.size;
+    let channels = layer
+        .channel_data
+        .list
+        .into_iter()
+        .map(|c| match c.sample_data {
+            exr::prelude::FlatSamples::F32(v) => (c.name.to_string(), v),
+            _ => panic!("channel {} is not f32", c.name),
+        })
+        .collect();
+    (size.0, size.1, channels)
+}
+
+/// The values of the channel `name` (panics naming it if it is absent).
+pub fn channel<'a>(channels: &'a [(String, Vec<f32>)], name: &str) -> &'a [f32] {
+    &channels
+        .iter()
+        .find(|(n, _)| n == name)
+        .unwrap_or_else(|| panic!("no channel {name}"))
+        .1
+}
