@@ -1051,30 +1051,14 @@ impl Scene {
             if !(area.abs() >= 1e-12) {
                 continue;
             }
-            let lo_x = p
-                .iter()
-                .map(|q| q[0])
-                .fold(f32::INFINITY, f32::min)
-                .floor()
-                .max(0.0);
-            let hi_x = p
-                .iter()
-                .map(|q| q[0])
-                .fold(f32::NEG_INFINITY, f32::max)
-                .ceil()
-                .min(width as f32);
-            let lo_y = p
-                .iter()
-                .map(|q| q[1])
-                .fold(f32::INFINITY, f32::min)
-                .floor()
-                .max(0.0);
-            let hi_y = p
-                .iter()
-                .map(|q| q[1])
-                .fold(f32::NEG_INFINITY, f32::max)
-                .ceil()
-                .min(height as f32);
+            // the triangle's pixel span along axis k, clipped to [0, size]
+            let span = |k: usize, size: usize| {
+                let (lo, hi) = p.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), q| {
+                    (lo.min(q[k]), hi.max(q[k]))
+                });
+                (lo.floor().max(0.0), hi.ceil().min(size as f32))
+            };
+            let ((lo_x, hi_x), (lo_y, hi_y)) = (span(0, width), span(1, height));
             if !(lo_x < hi_x && lo_y < hi_y) {
                 continue;
             }
