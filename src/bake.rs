@@ -58,7 +58,7 @@ fn open_one(quilt: &Quilt, k: usize, path: &Path, budget: MemoryBudget) -> Resul
 pub fn open_sample(quilt: &Quilt, sample: Option<&Path>, budget: MemoryBudget) -> Result<OpenSample> {
     let path: PathBuf = sample
         .map(Path::to_path_buf)
-        .unwrap_or_else(|| quilt.sample.clone());
+        .unwrap_or_else(|| quilt.samples[0].clone());
     open_one(quilt, 0, &path, budget)
 }
 

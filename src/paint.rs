@@ -206,7 +206,7 @@ fn run(quilt_path: &Path, out: &Path, cfg: &PaintConfig, progress: &dyn Progress
     }
     let base = Quilt::open(quilt_path, cfg.tile.memory)?;
     let log = match base.container().metadata().param("paint_log") {
-        Some(Param::Text(s)) => PaintLog::parse(s, quilt_path, &base.sample)?,
+        Some(Param::Text(s)) => PaintLog::parse(s, quilt_path, &base.samples[0])?,
         _ => PaintLog {
             base: quilt_path.to_path_buf(),
             base_hash: base.container().content_hash(),
@@ -224,7 +224,7 @@ pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<Pai
     let Some(Param::Text(text)) = q.container().metadata().param("paint_log") else {
         return Err(Error::input(painted, "has no paint log (it was not painted)"));
     };
-    let log = PaintLog::parse(text, painted, &q.sample)?;
+    let log = PaintLog::parse(text, painted, &q.samples[0])?;
     let base = Quilt::open(&log.base, crate::container::MemoryBudget::default())?;
     if base.container().content_hash() != log.base_hash {
         return Err(Error::input(
@@ -270,7 +270,7 @@ struct Stroke {
 
 impl Stroke {
     fn from_config(cfg: &PaintConfig, base: &Quilt, quilt_path: &Path) -> Result<Stroke> {
-        let masked = base.samples.get(base.mask_sample()).unwrap_or(&base.sample);
+        let masked = base.samples.get(base.mask_sample()).unwrap_or(&base.samples[0]);
         let sample = cfg.sample.clone().unwrap_or_else(|| masked.clone());
         if !sample.exists() {
             return Err(Error::input(&sample, "does not exist (the sample to paint with)"));

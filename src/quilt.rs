@@ -2575,10 +2575,8 @@ pub struct Quilt {
     container: Container,
     pub resolution: usize,
     pub gim: PathBuf,
-    /// The sample it was tiled with (`samples[0]`).
-    pub sample: PathBuf,
-    /// Every sample its texels draw from: the tiling's first, then each
-    /// other sample painted in (see [`Quilt::sample_index`]).
+    /// Every sample its texels draw from: the one it was tiled with first,
+    /// then each other sample painted in (see [`Quilt::sample_index`]).
     pub samples: Vec<PathBuf>,
 }
 
@@ -2606,14 +2604,13 @@ impl Quilt {
                 ))
             }
         };
-        let mut samples = vec![sample.clone()];
+        let mut samples = vec![sample];
         for k in 1..count {
             samples.push(text(&format!("sample_{k}"))?);
         }
         Ok(Quilt {
             resolution,
             gim: text("gim")?,
-            sample,
             samples,
             container,
         })
