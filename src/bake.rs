@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::container::MemoryBudget;
-use crate::factorize::{self, FactorizeConfig, SvdArtifact};
+use crate::factorize::SvdArtifact;
 use crate::imageio::{self, PngDepth, RgbImage};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
@@ -33,24 +33,11 @@ fn open_one(quilt: &Quilt, k: usize, path: &Path, budget: MemoryBudget) -> Resul
             format!("its sample {} is gone: {how}", path.display()),
         ));
     }
-    if factorize::is_image_path(path) {
-        let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
-        let p = dir.path().join("sample.svd");
-        let cfg = FactorizeConfig {
-            rotations: 0,
-            ..FactorizeConfig::default()
-        };
-        factorize::factorize(path, &p, &cfg, &crate::progress::Silent)?;
-        Ok(OpenSample {
-            svd: SvdArtifact::open(&p, budget)?,
-            _tmp: Some(dir),
-        })
-    } else {
-        Ok(OpenSample {
-            svd: SvdArtifact::open(path, budget)?,
-            _tmp: None,
-        })
-    }
+    let (svd_path, tmp) = crate::quilt::sample_svd(path, false, &crate::progress::Silent)?;
+    Ok(OpenSample {
+        svd: SvdArtifact::open(&svd_path, budget)?,
+        _tmp: tmp,
+    })
 }
 
 /// Opens the sample a quilt was tiled with (`sample` overrides the
