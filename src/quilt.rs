@@ -430,6 +430,22 @@ pub(crate) struct WorkPatch {
     crosses_charts: bool,
 }
 
+impl WorkPatch {
+    /// The patch's bounding box in an `r`×`r` atlas: `(x0, y0, width,
+    /// height)`.
+    fn atlas_box(&self, r: usize) -> (usize, usize, usize, usize) {
+        let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+        for &t in &self.texels {
+            let (x, y) = (t as usize % r, t as usize / r);
+            x0 = x0.min(x);
+            y0 = y0.min(y);
+            x1 = x1.max(x);
+            y1 = y1.max(y);
+        }
+        (x0, y0, x1 - x0 + 1, y1 - y0 + 1)
+    }
+}
+
 /// Reusable BFS buffers.
 struct Bfs {
     stamp: Vec<u32>,
@@ -554,15 +570,8 @@ fn mean_angle(angles: impl Iterator<Item = f64>) -> f64 {
 fn chart_work_image(surface: &Surface, sample: &Sample, state: &State, patch: &WorkPatch) -> WorkImage {
     let r = surface.r;
     let chart = state.chart[patch.texels[0] as usize];
-    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
-    for &t in &patch.texels {
-        let (x, y) = (t as usize % r, t as usize / r);
-        x0 = x0.min(x);
-        y0 = y0.min(y);
-        x1 = x1.max(x);
-        y1 = y1.max(y);
-    }
-    let (w, h, n) = (x1 - x0 + 1, y1 - y0 + 1, state.n);
+    let (x0, y0, w, h) = patch.atlas_box(r);
+    let n = state.n;
     let coords = patch
         .texels
         .iter()
@@ -1817,15 +1826,7 @@ impl Synthesis {
         if let Some(out) = preview {
             let colours = self.sample.svd.preview()?;
             let r = self.surface.r;
-            let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
-            for &t in &patch.texels {
-                let (x, y) = (t as usize % r, t as usize / r);
-                x0 = x0.min(x);
-                y0 = y0.min(y);
-                x1 = x1.max(x);
-                y1 = y1.max(y);
-            }
-            let (w, h) = (x1 - x0 + 1, y1 - y0 + 1);
+            let (x0, y0, w, h) = patch.atlas_box(r);
             let mut data = vec![0f32; w * h * 3];
             for y in 0..h {
                 for x in 0..w {
