@@ -3,10 +3,13 @@
 //!
 //! User keys (a direction at a few faces) are interpolated over the surface
 //! with Gaussian radial basis functions centred at the key faces and
-//! projected into each face's plane. Without keys, a smooth default field is
-//! the mesh's principal axis projected into each face plane, smoothed by a few
-//! rounds of neighbour averaging (its singularities sit where the axis meets
-//! the surface head-on, as any field on a sphere must have some).
+//! projected into each face's plane. Without keys, the default field is the
+//! smoothest field (Knöppel, Crane, Pinkall, Schröder 2013, "Globally Optimal
+//! Direction Fields"), turned by the one global angle that best aligns its
+//! lines with the mesh's principal axis projected into each face plane. The
+//! smoothness places the singularities that every field on a closed surface
+//! of genus ≠ 1 must have where they cost least (a torus gets none), instead
+//! of wherever the axis meets the surface head-on.
 
 use std::path::Path;
 
@@ -141,34 +144,14 @@ pub fn face_field(mesh: &Mesh, topology: &Topology, keys: &[FieldKey]) -> Vec<[f
         ])
     };
     let mut field: Vec<[f32; 3]> = if keys.is_empty() {
-        (0..nf).map(default_dir).collect()
+        let prior: Vec<[f32; 3]> = (0..nf).map(|f| project(a1, normals[f])).collect();
+        match smoothest_field(mesh, topology, &normals, &prior) {
+            Some(u) => u,
+            None => (0..nf).map(default_dir).collect(),
+        }
     } else {
         rbf_field(mesh, &normals, keys, &default_dir)
     };
-    if keys.is_empty() {
-        // Jacobi smoothing: each face takes the mean of its own and its
-        // neighbours' directions, projected into its plane
-        for _ in 0..8 {
-            let next: Vec<[f32; 3]> = (0..nf)
-                .map(|f| {
-                    let mut s = field[f];
-                    for &g in &topology.face_adjacency[f] {
-                        if g != NO_FACE {
-                            let v = field[g as usize];
-                            s = [s[0] + v[0], s[1] + v[1], s[2] + v[2]];
-                        }
-                    }
-                    let p = normalize(project(s, normals[f]));
-                    if dot(p, p) > 0.5 {
-                        p
-                    } else {
-                        field[f]
-                    }
-                })
-                .collect();
-            field = next;
-        }
-    }
     // a face whose direction vanished (degenerate normal) gets any tangent
     for (f, v) in field.iter_mut().enumerate() {
         if !(dot(*v, *v) > 0.5) {
@@ -182,6 +165,229 @@ pub fn face_field(mesh: &Mesh, topology: &Topology, keys: &[FieldKey]) -> Vec<[f
         }
     }
     field
+}
+
+/// The shift ε of L + εM in the inverse iteration, in units of
+/// 1 / (bounding-box diagonal)²: small against the eigenvalues of a curved
+/// surface's smoothest fields, large enough to keep a flat one's (zero)
+/// factorizable.
+const SMOOTHEST_SHIFT: f64 = 1e-3;
+
+/// Inverse-iteration steps of [`smoothest_field`].
+const INVERSE_ITERATIONS: usize = 40;
+
+/// Each face's tangent frame: the unit first edge and the normal × it.
+fn face_frame(mesh: &Mesh, f: usize, n: [f32; 3]) -> ([f64; 3], [f64; 3]) {
+    let [a, b, _] = mesh.corners(f);
+    let e1 = normalize(sub(b, a));
+    let e2 = cross(n, e1);
+    let w = |v: [f32; 3]| [v[0] as f64, v[1] as f64, v[2] as f64];
+    (w(e1), w(e2))
+}
+
+/// The angle of 3D vector `d` in frame `(e1, e2)`.
+fn frame_angle(d: [f32; 3], (e1, e2): ([f64; 3], [f64; 3])) -> f64 {
+    let d = [d[0] as f64, d[1] as f64, d[2] as f64];
+    let x = d[0] * e1[0] + d[1] * e1[1] + d[2] * e1[2];
+    let y = d[0] * e2[0] + d[1] * e2[1] + d[2] * e2[2];
+    y.atan2(x)
+}
+
+/// The discrete connection of a face pair: for each interior edge (f, g)
+/// with f < g, the dual weight |e| / |c_f − c_g| and the transport angle ρ
+/// that carries g's frame angles into f's (u_f ≈ e^{iρ} u_g).
+fn connection(
+    mesh: &Mesh,
+    topology: &Topology,
+    frames: &[([f64; 3], [f64; 3])],
+) -> Vec<(u32, u32, f64, f64)> {
+    let mut edges = Vec::new();
+    for (f, adj) in topology.face_adjacency.iter().enumerate() {
+        for (i, &g) in adj.iter().enumerate() {
+            if g == NO_FACE || (g as usize) <= f {
+                continue;
+            }
+            let t = mesh.triangles[f];
+            let d = sub(
+                mesh.positions[t[(i + 1) % 3] as usize],
+                mesh.positions[t[i] as usize],
+            );
+            let h = sub(face_center(mesh, f), face_center(mesh, g as usize));
+            let (l, h) = (dot(d, d).sqrt() as f64, dot(h, h).sqrt() as f64);
+            if !(l > 0.0 && h > 0.0) {
+                continue;
+            }
+            let rho = frame_angle(d, frames[f]) - frame_angle(d, frames[g as usize]);
+            edges.push((f as u32, g, l / h, rho));
+        }
+    }
+    edges
+}
+
+/// The connection Dirichlet energy Σ w |u_f − e^{iρ} u_g|² of a tangent
+/// field (what [`smoothest_field`] minimises, less the prior term).
+pub fn field_energy(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> f64 {
+    let normals: Vec<[f32; 3]> = (0..mesh.triangles.len()).map(|f| mesh.face_normal(f)).collect();
+    let frames: Vec<_> = (0..normals.len())
+        .map(|f| face_frame(mesh, f, normals[f]))
+        .collect();
+    connection(mesh, topology, &frames)
+        .into_iter()
+        .map(|(f, g, w, rho)| {
+            let (f, g) = (f as usize, g as usize);
+            let a = frame_angle(field[f], frames[f]);
+            let b = frame_angle(field[g], frames[g]) + rho;
+            w * ((a.cos() - b.cos()).powi(2) + (a.sin() - b.sin()).powi(2))
+        })
+        .sum()
+}
+
+/// The smoothest unit field (Knöppel et al. 2013, section 5.1): the
+/// eigenvector of the connection Laplacian, Σ w |u_f − e^{iρ} u_g|² over
+/// complex u_f in per-face frames, with the smallest eigenvalue relative to
+/// the area mass, by inverse iteration (one sparse Cholesky factorization of
+/// the real 2F × 2F form of L + εM, [`INVERSE_ITERATIONS`] solves) run
+/// separately on each connected component. Each component's field is then
+/// turned by the global angle that best aligns its lines with `prior`'s
+/// (pointing along `prior` rather than against it), and
+/// normalised; faces where it vanishes (the singularities) keep the prior's
+/// direction. None if the system cannot be solved.
+fn smoothest_field(
+    mesh: &Mesh,
+    topology: &Topology,
+    normals: &[[f32; 3]],
+    prior: &[[f32; 3]],
+) -> Option<Vec<[f32; 3]>> {
+    use faer::sparse::{SparseColMat, Triplet};
+    let nf = mesh.triangles.len();
+    if nf == 0 {
+        return Some(Vec::new());
+    }
+    let frames: Vec<_> = (0..nf).map(|f| face_frame(mesh, f, normals[f])).collect();
+    let diag = (mesh.bbox_diagonal() as f64).max(1e-30);
+    let mass: Vec<f64> = (0..nf).map(|f| mesh.face_area(f) as f64).collect();
+    let in_frame = |f: usize, v: [f32; 3]| {
+        let (e1, e2) = frames[f];
+        let d = |e: [f64; 3]| v[0] as f64 * e[0] + v[1] as f64 * e[1] + v[2] as f64 * e[2];
+        (d(e1), d(e2))
+    };
+    let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(nf * 12);
+    let shift = SMOOTHEST_SHIFT / (diag * diag);
+    let mut diagonal: Vec<f64> = mass.iter().map(|m| shift * m).collect();
+    for (f, g, w, rho) in connection(mesh, topology, &frames) {
+        let (f, g) = (f as usize, g as usize);
+        diagonal[f] += w;
+        diagonal[g] += w;
+        // the complex entry −w e^{iρ} at (f, g) as the real block [[a, −b], [b, a]];
+        // only the upper triangle (row ≤ column) is given, and f < g
+        let (a, b) = (-w * rho.cos(), -w * rho.sin());
+        trip.push(Triplet::new(2 * f, 2 * g, a));
+        trip.push(Triplet::new(2 * f, 2 * g + 1, -b));
+        trip.push(Triplet::new(2 * f + 1, 2 * g, b));
+        trip.push(Triplet::new(2 * f + 1, 2 * g + 1, a));
+    }
+    for (f, &d) in diagonal.iter().enumerate() {
+        trip.push(Triplet::new(2 * f, 2 * f, d));
+        trip.push(Triplet::new(2 * f + 1, 2 * f + 1, d));
+    }
+    let h = SparseColMat::<usize, f64>::try_new_from_triplets(2 * nf, 2 * nf, &trip).ok()?;
+    let factor = crate::atlas::lscm::SpdFactor::new(&h).ok()?;
+    let components = topology.components.max(1);
+    let component = |f: usize| topology.face_component.get(f).map_or(0, |&c| c as usize);
+    // normalise each component's part to unit mass-norm (each component is
+    // its own eigenproblem: L and M are block diagonal over components)
+    let normalise = |u: &mut [f64]| {
+        let mut norm = vec![0f64; components];
+        for f in 0..nf {
+            norm[component(f)] += mass[f] * (u[2 * f] * u[2 * f] + u[2 * f + 1] * u[2 * f + 1]);
+        }
+        for f in 0..nf {
+            let n = norm[component(f)].sqrt();
+            if n > 0.0 {
+                u[2 * f] /= n;
+                u[2 * f + 1] /= n;
+            }
+        }
+    };
+    let mut u = vec![0f64; 2 * nf];
+    for f in 0..nf {
+        let (x, y) = in_frame(f, prior[f]);
+        // the start must not be orthogonal to the wanted eigenvector: add a
+        // fixed, non-symmetric perturbation to the prior
+        let (px, py) = ((f as f64 * 0.618_034).fract(), (f as f64 * 0.414_214).fract());
+        u[2 * f] = x + 0.1 * (px - 0.5);
+        u[2 * f + 1] = y + 0.1 * (py - 0.5);
+    }
+    normalise(&mut u);
+    for _ in 0..INVERSE_ITERATIONS {
+        let b: Vec<f64> = (0..2 * nf).map(|k| mass[k / 2] * u[k]).collect();
+        u = factor.solve(b);
+        if !u.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        normalise(&mut u);
+    }
+    // per component, the global angle θ that best aligns the field with the
+    // prior's lines: θ maximises Σ A_f |p_f|² cos 2(θ + arg u_f − arg p_f),
+    // θ = ½ arg Σ A_f (p_f conj û_f)²; then of θ and θ + π the one that points
+    // along the prior rather than against it
+    let unit = |x: f64, y: f64| {
+        let r = (x * x + y * y).sqrt();
+        if r > 0.0 {
+            (x / r, y / r)
+        } else {
+            (0.0, 0.0)
+        }
+    };
+    let mut lines = vec![(0f64, 0f64); components];
+    for f in 0..nf {
+        let (px, py) = in_frame(f, prior[f]);
+        let (ux, uy) = unit(u[2 * f], u[2 * f + 1]);
+        // q = p conj(û), then q²
+        let (qx, qy) = (px * ux + py * uy, py * ux - px * uy);
+        let l = &mut lines[component(f)];
+        l.0 += mass[f] * (qx * qx - qy * qy);
+        l.1 += mass[f] * 2.0 * qx * qy;
+    }
+    let mut align: Vec<(f64, f64)> = lines
+        .iter()
+        .map(|&(re, im)| {
+            let t = 0.5 * im.atan2(re);
+            (t.cos(), t.sin())
+        })
+        .collect();
+    let mut along = vec![0f64; components];
+    for f in 0..nf {
+        let (px, py) = in_frame(f, prior[f]);
+        let (c, s) = align[component(f)];
+        let (ux, uy) = unit(u[2 * f], u[2 * f + 1]);
+        // Re(p conj(e^{iθ} û))
+        along[component(f)] += mass[f] * (px * (c * ux - s * uy) + py * (s * ux + c * uy));
+    }
+    for (a, &d) in align.iter_mut().zip(&along) {
+        if d < 0.0 {
+            *a = (-a.0, -a.1);
+        }
+    }
+    let field = (0..nf)
+        .map(|f| {
+            let (e1, e2) = frames[f];
+            let (c, s) = align[component(f)];
+            let (ux, uy) = (u[2 * f], u[2 * f + 1]);
+            let (x, y) = (c * ux - s * uy, s * ux + c * uy);
+            let v = [
+                (x * e1[0] + y * e2[0]) as f32,
+                (x * e1[1] + y * e2[1]) as f32,
+                (x * e1[2] + y * e2[2]) as f32,
+            ];
+            if dot(v, v) > 1e-20 && v.iter().all(|c| c.is_finite()) {
+                normalize(v)
+            } else {
+                normalize(prior[f])
+            }
+        })
+        .collect();
+    Some(field)
 }
 
 /// Gaussian RBF interpolation of the key directions (DESIGN.md: "interpolated
@@ -337,6 +543,64 @@ mod tests {
         let f = face_field(&m, &m.topology(), &[]);
         for v in &f {
             assert!(v[0].abs() > 0.99, "{v:?}");
+        }
+    }
+
+    /// A torus around the z axis, radii `big` and `small`, n×m quads.
+    fn torus(n: usize, m: usize, big: f32, small: f32) -> Mesh {
+        let mut mesh = Mesh::default();
+        for i in 0..n {
+            for j in 0..m {
+                let (a, b) = (
+                    i as f32 / n as f32 * std::f32::consts::TAU,
+                    j as f32 / m as f32 * std::f32::consts::TAU,
+                );
+                let r = big + small * b.cos();
+                mesh.positions.push([r * a.cos(), r * a.sin(), small * b.sin()]);
+            }
+        }
+        let id = |i: usize, j: usize| ((i % n) * m + j % m) as u32;
+        for i in 0..n {
+            for j in 0..m {
+                mesh.triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                mesh.triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        mesh
+    }
+
+    #[test]
+    fn default_field_on_a_torus_is_smoother_than_the_projected_axis() {
+        // stretched along x so the principal axis lies in the ring's plane and
+        // its projection has singularities where it meets the tube head-on;
+        // a torus has a singularity-free field (around the ring), far smoother
+        let mut m = torus(64, 24, 1.0, 0.35);
+        for p in &mut m.positions {
+            p[0] *= 1.3;
+        }
+        let topo = m.topology();
+        let smooth = face_field(&m, &topo, &[]);
+        let (a1, _) = principal_axes(&m);
+        assert!(a1[0].abs() > 0.99, "{a1:?}");
+        let axis: Vec<[f32; 3]> = (0..m.triangles.len())
+            .map(|f| normalize(project(a1, m.face_normal(f))))
+            .collect();
+        // the field around the ring: no singularities, the obvious smooth field
+        let ring: Vec<[f32; 3]> = (0..m.triangles.len())
+            .map(|f| {
+                let c = face_center(&m, f);
+                normalize(project([-c[1], c[0], 0.0], m.face_normal(f)))
+            })
+            .collect();
+        let energy = |field: &[[f32; 3]]| field_energy(&m, &topo, field);
+        let (e_smooth, e_axis, e_ring) = (energy(&smooth), energy(&axis), energy(&ring));
+        assert!(
+            e_smooth < 0.2 * e_axis && e_smooth <= 1.05 * e_ring,
+            "smoothest {e_smooth}, axis {e_axis}, ring {e_ring}"
+        );
+        for (f, v) in smooth.iter().enumerate() {
+            let n = m.face_normal(f);
+            assert!((dot(*v, *v) - 1.0).abs() < 1e-4 && dot(*v, n).abs() < 1e-4);
         }
     }
 
