@@ -74,7 +74,8 @@ fn project(v: [f32; 3], n: [f32; 3]) -> [f32; 3] {
     [v[0] - d * n[0], v[1] - d * n[1], v[2] - d * n[2]]
 }
 
-/// The two leading principal axes of the area-weighted face centres.
+/// The two leading principal axes of the area-weighted face centres (a
+/// world axis and the direction across it when the two are about equal).
 fn principal_axes(mesh: &Mesh) -> ([f32; 3], [f32; 3]) {
     let (mut mean, mut total) = ([0f64; 3], 0f64);
     for f in 0..mesh.triangles.len() {
@@ -121,9 +122,43 @@ fn principal_axes(mesh: &Mesh) -> ([f32; 3], [f32; 3]) {
     };
     let a = power(None);
     let b = power(Some(a));
+    let rayleigh = |v: [f64; 3]| -> f64 {
+        (0..3)
+            .map(|i| (0..3).map(|j| v[i] * cov[i][j] * v[j]).sum::<f64>())
+            .sum()
+    };
     let f = |v: [f64; 3]| normalize([v[0] as f32, v[1] as f32, v[2] as f32]);
+    let (la, lb) = (rayleigh(a), rayleigh(b));
+    if lb > ISOTROPIC * la {
+        // no clear long axis (a square, a disk, a sphere): the world axis that
+        // lies most in the leading plane, x before y before z on ties, so a
+        // flat square in the xy plane is tiled along x like a 2D synthesis
+        let in_plane = |e: [f64; 3]| {
+            let (pa, pb) = (
+                e[0] * a[0] + e[1] * a[1] + e[2] * a[2],
+                e[0] * b[0] + e[1] * b[1] + e[2] * b[2],
+            );
+            pa * pa + pb * pb
+        };
+        let axes = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let mut best = axes[0];
+        for &e in &axes[1..] {
+            if in_plane(e) > in_plane(best) + 1e-3 {
+                best = e;
+            }
+        }
+        let d: f64 = (0..3).map(|k| best[k] * a[k]).sum();
+        let e: f64 = (0..3).map(|k| best[k] * b[k]).sum();
+        let other = [-e * a[0] + d * b[0], -e * a[1] + d * b[1], -e * a[2] + d * b[2]];
+        return (f(best), f(other));
+    }
     (f(a), f(b))
 }
+
+/// When the second principal variance exceeds this fraction of the first,
+/// the mesh has no clear long axis ([`principal_axes`] then takes a world
+/// axis).
+const ISOTROPIC: f64 = 0.9;
 
 /// A unit tangent direction per face: RBF-interpolated `keys`, or the
 /// smooth default field when `keys` is empty.
@@ -601,6 +636,21 @@ mod tests {
         for (f, v) in smooth.iter().enumerate() {
             let n = m.face_normal(f);
             assert!((dot(*v, *v) - 1.0).abs() < 1e-4 && dot(*v, n).abs() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn default_field_on_a_square_runs_along_x_like_a_2d_synthesis() {
+        for m in [grid(10), {
+            // the same square in the xz plane: along x too
+            let mut m = grid(10);
+            m.positions.iter_mut().for_each(|p| *p = [p[0], 0.0, p[1]]);
+            m
+        }] {
+            let f = face_field(&m, &m.topology(), &[]);
+            for v in &f {
+                assert!(v[0] > 0.999, "{v:?}");
+            }
         }
     }
 

@@ -174,6 +174,10 @@ enum Command {
         /// Weld vertices closer than this fraction of the bounding-box diagonal.
         #[arg(long, default_value_t = 1e-6)]
         weld: f32,
+        /// Split a chart whose L2 texture stretch exceeds this (≥ 1; lower: more
+        /// charts, more even texel density).
+        #[arg(long)]
+        max_stretch: Option<f32>,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -578,17 +582,21 @@ fn run(cli: Cli) -> Result<()> {
             gutter,
             field,
             weld,
+            max_stretch,
             output,
             res,
         } => {
             let (_, bars) = res.apply()?;
-            let cfg = AtlasConfig {
+            let mut cfg = AtlasConfig {
                 resolution,
                 gutter,
                 field_keys: field,
                 load: LoadOptions { weld_tolerance: weld },
                 ..AtlasConfig::default()
             };
+            if let Some(s) = max_stretch {
+                cfg.charts.max_stretch = s;
+            }
             let report = gim::build_gim(&mesh, &output, &cfg, &bars)?;
             say!("{}: {}", mesh.display(), report.repair);
             say!("wrote {}: {report}", output.display());
