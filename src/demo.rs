@@ -17,8 +17,8 @@
 //! 5. `paint`: the cracked bricks (another sample than the tiling's; its
 //!    foreground the cracked zone, the crack lines dilated by 6 texels)
 //!    painted into a stroke on Spot's flank by constrained graphcut, rendered.
-//! 6. `tile`: Spot with a crop of the shipped CC0 brick photo (the colour
-//!    path), baked and rendered.
+//! 6. `tile`: Spot with the shipped brick wall (`data/brick_wall.png`, made
+//!    from the CC0 brick photo; the colour path), baked and rendered.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -66,8 +66,9 @@ const LIGHTS: [(f32, f32); 8] = [
 /// Atlas edge for Spot (its geometry image and both tilings).
 const ATLAS: usize = 1024;
 
-/// Edge of the crop of `data/brick.png` used as the colour sample.
-const PHOTO_CROP: usize = 192;
+/// The colour sample next to Spot in `data/`: a frontal brick wall made
+/// from the CC0 brick photo (see `data/README.md`).
+const BRICK_WALL: &str = "brick_wall.png";
 
 /// Render size.
 const RENDER: (usize, usize) = (800, 600);
@@ -571,25 +572,13 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         esc(&paint_report.to_string())
     );
 
-    // 5. Spot tiled with a crop of the CC0 brick photo (the colour path)
+    // 5. Spot tiled with the brick wall made from the CC0 brick photo (the
+    // colour path)
     let t = Instant::now();
-    let brick = imageio::read_rgb(&spot.with_file_name("brick.png"))?;
-    let size = PHOTO_CROP.min(brick.width).min(brick.height);
-    let mut crop = Vec::with_capacity(size * size * 3);
-    for y in 0..size {
-        let row = (y + (brick.height - size) / 2) * brick.width + (brick.width - size) / 2;
-        crop.extend_from_slice(&brick.data[row * 3..(row + size) * 3]);
-    }
-    let photo = out_dir.join(format!("brick{size}.png"));
-    imageio::write_png(
-        &photo,
-        &RgbImage {
-            width: size,
-            height: size,
-            data: crop,
-        },
-        PngDepth::Eight,
-    )?;
+    let wall = spot.with_file_name(BRICK_WALL);
+    let photo = out_dir.join(BRICK_WALL);
+    std::fs::copy(&wall, &photo).map_err(|e| Error::io(&wall, e))?;
+    let size = imageio::image_size(&photo)?.0;
     let photo_quilt = out_dir.join("spot_brick_photo.quilt");
     let tiled = quilt::tile(
         &gim_path,
@@ -617,13 +606,13 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
     }
     drop(scene);
     st.add(
-        &format!("tile Spot {ATLAS}² with a {size}² brick photo + bake + 2 renders"),
+        &format!("tile Spot {ATLAS}² with the {size}² brick wall + bake + 2 renders"),
         t.elapsed().as_secs_f64(),
         tiled.to_string(),
     );
     let _ = write!(
         body,
-        "<h2>5. Spot tiled with a colour sample ({size}² crop of the CC0 brick photo, {ATLAS}² atlas)</h2>\
+        "<h2>5. Spot tiled with a colour sample ({size}² brick wall made from the CC0 brick photo, {ATLAS}² atlas)</h2>\
          <p>{}</p><table><tr><td><img width={size} src=\"{}\"><br>sample</td>\
          <td><a href=\"spot_brick_photo_front.png\"><img width=480 src=\"spot_brick_photo_front.png\"></a></td>\
          <td><a href=\"spot_brick_photo_back.png\"><img width=480 src=\"spot_brick_photo_back.png\"></a></td>\

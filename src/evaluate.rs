@@ -195,22 +195,25 @@ fn painting_measures(quilt: &Quilt, chart: &[u32]) -> Result<String> {
     let m0: Vec<f32> = c.read_array(region)?;
     let mask_path = Path::new(mask_path);
     let (mw, mh) = crate::imageio::image_size(mask_path)?;
-    let mask = crate::imageio::RgbImage {
-        width: mw,
-        height: mh,
-        data: crate::imageio::read_sized_mask(mask_path, mw, mh, "")?
-            .into_iter()
-            .flat_map(|m| [m; 3])
-            .collect(),
-    };
+    let mask = crate::imageio::read_sized_mask(mask_path, mw, mh, "")?;
     let coords = quilt.coords()?;
     let (index, painted) = (quilt.sample_index()?, quilt.mask_sample());
+    // a generated BTF may be tileable; the synthesis then wraps its mask
+    let tileable = match quilt.samples.get(painted) {
+        Some(p) if !crate::imageio::is_image_path(p) => {
+            let svd = crate::container::Container::open(p, MemoryBudget::default())?;
+            matches!(
+                svd.metadata().param("tileable"),
+                Some(crate::container::Param::Int(1))
+            )
+        }
+        _ => false,
+    };
     let m = |t: usize| {
         if index[t] as usize != painted {
             return 0.0;
         }
-        let p = crate::bake::bilinear(&mask, coords[t][0], coords[t][1]);
-        p.iter().fold(0f32, |a, &b| a.max(b))
+        crate::imageio::mask_bilinear(&mask, mw, mh, coords[t].map(f64::from), tileable)
     };
     let (mut f, mut f_covered, mut fg, mut fg_outside) = (0usize, 0usize, 0usize, 0usize);
     for t in 0..m0.len() {

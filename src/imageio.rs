@@ -184,6 +184,38 @@ pub fn read_sized_mask(path: &Path, width: usize, height: usize, must_be: &str) 
 ///
 /// PNG/JPEG/TIFF are decoded from sRGB with the exact transfer function
 /// (a float TIFF is taken as already linear); EXR is read as is. Alpha is
+/// A foreground mask value at sample coordinates `c` (pixel indices, `[y][x]`
+/// storage), bilinear between pixel centres. A tileable sample wraps round
+/// its borders; any other reads 0 outside `[0, width − 1] × [0, height − 1]`.
+/// The one mask lookup of the synthesis and of `evaluate`'s painting
+/// measures, so both count the same texels as foreground.
+pub fn mask_bilinear(values: &[f32], width: usize, height: usize, c: [f64; 2], tileable: bool) -> f32 {
+    let (w, h) = (width, height);
+    if w == 0 || h == 0 || values.len() < w * h {
+        return 0.0;
+    }
+    let (mut x, mut y) = (c[0], c[1]);
+    if !(x.is_finite() && y.is_finite()) {
+        return 0.0;
+    }
+    if tileable {
+        x = x.rem_euclid(w as f64);
+        y = y.rem_euclid(h as f64);
+    } else if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
+        return 0.0;
+    }
+    let (x0, y0) = ((x.floor() as usize).min(w - 1), (y.floor() as usize).min(h - 1));
+    let (x1, y1) = if tileable {
+        ((x0 + 1) % w, (y0 + 1) % h)
+    } else {
+        ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1))
+    };
+    let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+    let top = values[y0 * w + x0] + (values[y0 * w + x1] - values[y0 * w + x0]) * fx;
+    let bottom = values[y1 * w + x0] + (values[y1 * w + x1] - values[y1 * w + x0]) * fx;
+    top + (bottom - top) * fy
+}
+
 /// dropped; a grey image or a single-channel EXR is replicated into R, G, B.
 pub fn read_rgb(path: &Path) -> Result<RgbImage> {
     match kind_of(path)? {
@@ -535,6 +567,28 @@ pub fn linear_to_srgb(v: f32) -> f32 {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn mask_lookup_wraps_only_tileable_samples() {
+        // 3×2: column values 0, 1, 0.5 on both rows
+        let v = [0.0, 1.0, 0.5, 0.0, 1.0, 0.5];
+        let at = |x: f64, y: f64, t: bool| mask_bilinear(&v, 3, 2, [x, y], t);
+        // inside, both agree and interpolate between pixel centres
+        for t in [false, true] {
+            assert_eq!(at(0.5, 0.0, t), 0.5);
+            assert_eq!(at(1.0, 0.7, t), 1.0);
+            assert_eq!(at(1.5, 1.0, t), 0.75);
+        }
+        // between the last column and the first: a tileable sample blends
+        // them, any other reads nothing there
+        assert_eq!(at(2.5, 0.0, true), 0.25);
+        assert_eq!(at(2.5, 0.0, false), 0.0);
+        assert_eq!(at(-0.5, 0.0, true), 0.25);
+        assert_eq!(at(-0.5, 0.0, false), 0.0);
+        assert_eq!(at(4.0, 0.0, true), 1.0);
+        assert_eq!(at(f64::NAN, 0.0, true), 0.0);
+    }
+
     use super::*;
 
     /// Deterministic pseudo-random numbers (xorshift64*).

@@ -223,21 +223,7 @@ impl Sample {
     /// there is no mask or outside the sample).
     fn mask_at(&self, c: [f64; 2]) -> f32 {
         let Some(mask) = &self.mask else { return 0.0 };
-        let (w, h) = (self.width, self.height);
-        let (mut x, mut y) = (c[0], c[1]);
-        if self.tileable {
-            x = x.rem_euclid(w as f64);
-            y = y.rem_euclid(h as f64);
-        }
-        if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
-            return 0.0;
-        }
-        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
-        let top = mask[y0 * w + x0] + (mask[y0 * w + x1] - mask[y0 * w + x0]) * fx;
-        let bottom = mask[y1 * w + x0] + (mask[y1 * w + x1] - mask[y1 * w + x0]) * fx;
-        top + (bottom - top) * fy
+        crate::imageio::mask_bilinear(mask, self.width, self.height, c, self.tileable)
     }
 
     /// Bilinear geometry-map vector at unrotated sample coordinates (pixel
