@@ -308,7 +308,10 @@ fn smoothest_field(
     };
     let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(nf * 12);
     let shift = SMOOTHEST_SHIFT / (diag * diag);
-    let mut diagonal: Vec<f64> = mass.iter().map(|m| shift * m).collect();
+    // a degenerate (zero-area) face cut off from its neighbours would leave a
+    // zero row: its shift term gets a floor
+    let floor = 1e-6 * mass.iter().sum::<f64>() / nf as f64;
+    let mut diagonal: Vec<f64> = mass.iter().map(|m| shift * m.max(floor)).collect();
     for (f, g, w, rho) in connection(mesh, topology, &frames) {
         let (f, g) = (f as usize, g as usize);
         diagonal[f] += w;
