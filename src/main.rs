@@ -178,6 +178,10 @@ enum Command {
         /// charts, more even texel density).
         #[arg(long)]
         max_stretch: Option<f32>,
+        /// Split a chart when over 5 % of its area has a texel density off the
+        /// chart's mean by more than this factor (≥ 1; default 1.5).
+        #[arg(long)]
+        max_area_distortion: Option<f32>,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -583,6 +587,7 @@ fn run(cli: Cli) -> Result<()> {
             field,
             weld,
             max_stretch,
+            max_area_distortion,
             output,
             res,
         } => {
@@ -596,6 +601,9 @@ fn run(cli: Cli) -> Result<()> {
             };
             if let Some(s) = max_stretch {
                 cfg.charts.max_stretch = s;
+            }
+            if let Some(a) = max_area_distortion {
+                cfg.charts.max_area_distortion = a;
             }
             let report = gim::build_gim(&mesh, &output, &cfg, &bars)?;
             say!("{}: {}", mesh.display(), report.repair);

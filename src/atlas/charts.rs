@@ -40,6 +40,11 @@ pub struct ChartConfig {
     pub max_normal_deviation: f32,
     /// A chart whose L2 stretch exceeds this is split. Default 1.25.
     pub max_stretch: f32,
+    /// A chart is split when more than 5 % of its area has its texel density
+    /// off the chart's mean by more than this factor (LSCM is conformal, not
+    /// equiareal, so a round chart shrinks towards its rim and the texture
+    /// quilted into it grows there). Default 1.5.
+    pub max_area_distortion: f32,
 }
 
 impl Default for ChartConfig {
@@ -47,6 +52,7 @@ impl Default for ChartConfig {
         ChartConfig {
             max_normal_deviation: 70.0,
             max_stretch: 1.25,
+            max_area_distortion: 1.5,
         }
     }
 }
@@ -86,6 +92,7 @@ struct Ctx<'a> {
     weight: Vec<[f64; 3]>,
     cos_max: f64,
     max_stretch: f64,
+    max_area_distortion: f64,
 }
 
 fn p64(p: [f32; 3]) -> [f64; 3] {
@@ -165,6 +172,7 @@ impl<'a> Ctx<'a> {
             weight,
             cos_max: (cfg.max_normal_deviation as f64).to_radians().cos(),
             max_stretch: cfg.max_stretch as f64,
+            max_area_distortion: cfg.max_area_distortion as f64,
         }
     }
 }
@@ -522,6 +530,9 @@ fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
     if faces.len() > 1 && (l2.is_nan() || l2 > ctx.max_stretch) {
         return None;
     }
+    if faces.len() > 1 && area_distortion_p95(&positions, &triangles, &uv) > ctx.max_area_distortion {
+        return None;
+    }
     let uv = normalize_uv(&positions, &triangles, &uv);
     Some(Chart {
         faces: faces.to_vec(),
@@ -531,6 +542,39 @@ fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
         l2_stretch: l2 as f32,
         linf_stretch: linf as f32,
     })
+}
+
+/// The area-weighted 95th percentile over triangles of max(r, 1/r), r the
+/// triangle's uv-to-3D area ratio over the chart's.
+fn area_distortion_p95(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) -> f64 {
+    let uv_areas = super::lscm::signed_uv_areas(uv, triangles);
+    let mut pairs: Vec<(f64, f64)> = triangles
+        .iter()
+        .zip(&uv_areas)
+        .map(|(&t, &u)| (super::lscm::area3(positions, t), u.abs()))
+        .collect();
+    let (s3, suv) = pairs.iter().fold((0.0, 0.0), |(x, y), p| (x + p.0, y + p.1));
+    if !(s3 > 0.0 && suv > 0.0) {
+        return f64::INFINITY;
+    }
+    let norm = suv / s3;
+    let mut d: Vec<(f64, f64)> = pairs
+        .drain(..)
+        .filter(|p| p.0 > 0.0)
+        .map(|(a, u)| {
+            let r = u / a / norm;
+            (if r > 0.0 { r.max(1.0 / r) } else { f64::INFINITY }, a)
+        })
+        .collect();
+    d.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let mut acc = 0.0;
+    for &(v, a) in &d {
+        acc += a;
+        if acc >= 0.95 * s3 {
+            return v;
+        }
+    }
+    d.last().map_or(1.0, |x| x.0)
 }
 
 /// Scales uv to the 3D area, rotates the longer side of the minimum-area
@@ -810,6 +854,12 @@ pub fn build_charts(mesh: &Mesh, topology: &Topology, cfg: &ChartConfig) -> Resu
             cfg.max_stretch
         )));
     }
+    if cfg.max_area_distortion.is_nan() || cfg.max_area_distortion < 1.0 {
+        return Err(Error::Config(format!(
+            "max_area_distortion must be at least 1, got {}",
+            cfg.max_area_distortion
+        )));
+    }
     if nf == 0 {
         return Ok(Vec::new());
     }
@@ -939,12 +989,80 @@ mod tests {
         assert_eq!(charts.len(), 7, "six cube sides and the strip");
     }
 
+    /// A dome: the sphere's cap down to 80° from the pole, `n` rings.
+    fn dome(n: usize) -> Mesh {
+        let (rings, segments) = (n, 4 * n);
+        let mut p = vec![[0.0, 0.0, 1.0]];
+        for i in 1..=rings {
+            let th = (80f64 * i as f64 / rings as f64).to_radians();
+            for j in 0..segments {
+                let ph = std::f64::consts::TAU * j as f64 / segments as f64;
+                p.push([
+                    (th.sin() * ph.cos()) as f32,
+                    (th.sin() * ph.sin()) as f32,
+                    th.cos() as f32,
+                ]);
+            }
+        }
+        let id = |i: usize, j: usize| (1 + (i - 1) * segments + j % segments) as u32;
+        let mut t = Vec::new();
+        for j in 0..segments {
+            t.push([0, id(1, j), id(1, j + 1)]);
+        }
+        for i in 1..rings {
+            for j in 0..segments {
+                t.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                t.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        mesh(p, t)
+    }
+
+    #[test]
+    fn charts_keep_their_texel_density_within_the_area_limit() {
+        // a conformal map of a dome shrinks its rim against its pole: with
+        // the stretch and normal limits out of the way, only the area limit
+        // splits it
+        let m = dome(12);
+        let topo = m.topology();
+        let loose = ChartConfig {
+            max_normal_deviation: 180.0,
+            max_stretch: 100.0,
+            max_area_distortion: 100.0,
+        };
+        let one = build_charts(&m, &topo, &loose).unwrap();
+        let worst = |charts: &[Chart]| {
+            charts
+                .iter()
+                .map(|c| {
+                    let pos: Vec<[f32; 3]> = c.vertices.iter().map(|&v| m.positions[v as usize]).collect();
+                    let uv: Vec<[f64; 2]> = c.uv.iter().map(|q| [q[0] as f64, q[1] as f64]).collect();
+                    area_distortion_p95(&pos, &c.triangles, &uv)
+                })
+                .fold(1.0f64, f64::max)
+        };
+        assert!(worst(&one) > 1.5, "the dome in few charts: {}", worst(&one));
+        let strict = ChartConfig {
+            max_area_distortion: 1.5,
+            ..loose
+        };
+        let split = build_charts(&m, &topo, &strict).unwrap();
+        assert!(coverage(&m, &split).iter().all(|&s| s == 1));
+        assert!(split.len() > one.len(), "{} vs {}", split.len(), one.len());
+        assert!(worst(&split) <= 1.5, "{}", worst(&split));
+    }
+
     #[test]
     fn bad_input() {
         let m = cube();
         let topo = m.topology();
         let bad = ChartConfig {
             max_stretch: 0.5,
+            ..ChartConfig::default()
+        };
+        assert!(build_charts(&m, &topo, &bad).is_err());
+        let bad = ChartConfig {
+            max_area_distortion: 0.9,
             ..ChartConfig::default()
         };
         assert!(build_charts(&m, &topo, &bad).is_err());

@@ -360,7 +360,7 @@ fn uv_area(uv: &[[f64; 2]], t: [u32; 3]) -> f64 {
     0.5 * ((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]))
 }
 
-fn area3(positions: &[[f32; 3]], t: [u32; 3]) -> f64 {
+pub(crate) fn area3(positions: &[[f32; 3]], t: [u32; 3]) -> f64 {
     let p = [
         p64(positions[t[0] as usize]),
         p64(positions[t[1] as usize]),
