@@ -1613,7 +1613,7 @@ impl Synthesis {
 
     /// Seam refinement (Kwatra et al. 2003, §3.3, "patch placement on
     /// seams"): once the surface is covered, the most visible seams —
-    /// grid edges across patches whose step exceeds `step` × the sample's
+    /// edges of the dense graph (grid edges and zipper links) across patches whose step exceeds `step` × the sample's
     /// neighbour difference, largest first — each get one more work patch
     /// of radius `radius` centred on them, matched against the finished
     /// surface, whose core (3 hops around the seam) must take the new
@@ -1626,22 +1626,28 @@ impl Synthesis {
         let n = self.state.n;
         let (mut fa, mut fb) = (vec![0f32; n], vec![0f32; n]);
         let mut seeds: Vec<(f64, u32)> = Vec::new();
+        let mut across: Vec<u32> = Vec::with_capacity(8);
         for t in 0..(r * r) as u32 {
             let tu = t as usize;
             if self.state.chart[tu] == EMPTY {
                 continue;
             }
-            let (x, y) = (tu % r, tu / r);
-            let mut worst = 0f64;
-            for (ok, nb) in [(x + 1 < r, tu + 1), (y + 1 < r, tu + r)] {
-                if ok
-                    && self.state.chart[nb] == self.state.chart[tu]
-                    && self.state.patch[nb] != self.state.patch[tu]
-                {
-                    self.state.feature_into(&self.sample, t, &mut fa);
-                    self.state.feature_into(&self.sample, nb as u32, &mut fb);
-                    worst = worst.max(dist(&fa, &fb));
+            // seams inside charts and across zippers alike: a seam that runs
+            // along a chart border is as visible as any other
+            across.clear();
+            self.surface.graph.for_each_neighbour(t, |nb, _| {
+                if nb > t && self.state.patch[nb as usize] != self.state.patch[tu] {
+                    across.push(nb);
                 }
+            });
+            if across.is_empty() {
+                continue;
+            }
+            self.state.feature_into(&self.sample, t, &mut fa);
+            let mut worst = 0f64;
+            for &nb in &across {
+                self.state.feature_into(&self.sample, nb, &mut fb);
+                worst = worst.max(dist(&fa, &fb));
             }
             if worst > step * self.reference {
                 seeds.push((worst, t));

@@ -589,10 +589,12 @@ fn limits_are_enforced() {
     let loose = ChartConfig {
         max_normal_deviation: 180.0,
         max_stretch: 1.25,
+        max_area_distortion: 1.5,
     };
     let strict = ChartConfig {
         max_normal_deviation: 25.0,
         max_stretch: 1.02,
+        max_area_distortion: 1.1,
     };
     for (name, mesh) in [("icosphere", icosphere(3)), ("torus", torus(48, 16, 1.0, 0.4))] {
         run_with(&format!("{name} loose"), &mesh, 50, &loose);
