@@ -237,6 +237,11 @@ enum Command {
         /// sample's neighbour difference get another work patch; 0 turns it off.
         #[arg(long, default_value_t = 2.0)]
         refine: f64,
+        /// Seam refinement fits this many distinct good placements per seam and
+        /// keeps the cheapest cut (1: only the best match; more: lower seams,
+        /// longer runs).
+        #[arg(long, default_value_t = quilt::REFINE_PLACEMENTS)]
+        refine_placements: usize,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -645,6 +650,7 @@ fn run(cli: Cli) -> Result<()> {
             seed,
             sample_mask,
             refine,
+            refine_placements,
             output,
             res,
         } => {
@@ -656,6 +662,7 @@ fn run(cli: Cli) -> Result<()> {
                 memory,
                 sample_mask,
                 refine: (refine != 0.0).then_some(refine),
+                refine_placements,
                 ..TileConfig::default()
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;

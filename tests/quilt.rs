@@ -141,6 +141,33 @@ fn spot_is_covered_and_baked_and_rendered() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("--refine"), "{e}");
+    let e = quilt::tile(
+        &g,
+        &sample,
+        &refined,
+        &TileConfig {
+            refine_placements: 0,
+            ..TileConfig::default()
+        },
+        &Silent,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("--refine-placements"), "{e}");
+    // one placement per seam (the cheapest match) also lowers the seams
+    let single = dir.path().join("single.quilt");
+    let rs = quilt::tile(
+        &g,
+        &sample,
+        &single,
+        &TileConfig {
+            refine_placements: 1,
+            ..TileConfig::default()
+        },
+        &Silent,
+    )
+    .unwrap();
+    assert!(rs.refined > 0 && total_step(&single) < before, "{rs}");
     let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
     assert!(q.patches().unwrap().iter().filter(|&&p| p != NO_PATCH).count() == report.texels);
     // the stored seams are exactly the mesh edges whose ends took different
