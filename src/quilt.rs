@@ -1706,19 +1706,31 @@ impl Synthesis {
         )?;
         self.report.matching_seconds += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let fit = fit_patch(
+        let fit = self.fit_placement(patch, work, &placement, keep_outside_target, core);
+        self.report.graphcut_seconds += t.elapsed().as_secs_f64();
+        Ok(fit)
+    }
+
+    /// The graphcut fitting of one placement ([`fit_patch`]).
+    fn fit_placement(
+        &self,
+        patch: &WorkPatch,
+        work: &WorkImage,
+        placement: &PlacementChoice,
+        keep_outside_target: bool,
+        core: u16,
+    ) -> Fit {
+        fit_patch(
             &self.sample,
             &self.state,
             &self.surface,
             patch,
             work,
-            &placement,
+            placement,
             self.cfg.constraint_weight * self.reference,
             keep_outside_target,
             core,
-        );
-        self.report.graphcut_seconds += t.elapsed().as_secs_f64();
-        Ok(fit)
+        )
     }
 
     /// Seam refinement's fitting: the graphcut of each of the `count` best
@@ -1753,17 +1765,7 @@ impl Synthesis {
                 dx: p.dx as f64,
                 dy: p.dy as f64,
             };
-            let fit = fit_patch(
-                &self.sample,
-                &self.state,
-                &self.surface,
-                patch,
-                work,
-                &placement,
-                self.cfg.constraint_weight * self.reference,
-                false,
-                core,
-            );
+            let fit = self.fit_placement(patch, work, &placement, false, core);
             if best.as_ref().is_none_or(|b| fit.flow < b.flow) {
                 best = Some(fit);
             }
