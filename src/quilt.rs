@@ -80,10 +80,9 @@ pub struct TileConfig {
     /// ratio from 0.91 to 0.80 (50 refinements kept) in 3 s more.
     pub refine: Option<f64>,
     /// Seam refinement fits this many distinct good placements per seam
-    /// (graphcut each, the cheapest cut kept). Default 4: on Spot at 1024²
-    /// with the brick wall, 65 refinements kept instead of 45, seam ratio
-    /// 0.69 → 0.66, 8.3 → 12.1 s; the crack-free bricks BTF 1.23 → 1.21,
-    /// 29.4 → 39.0 s.
+    /// (graphcut each, the cheapest cut kept). Default 2: on Spot at 1024²
+    /// with the brick wall, back to back, seam ratio 0.684 (1 placement),
+    /// 0.667 (2), 0.658 (4) in 12.1, 12.2 and 15.0 s.
     pub refine_placements: usize,
 }
 
@@ -2006,7 +2005,7 @@ pub fn tile(
 
 /// Refinement tries this many distinct placements per seam by default
 /// ([`TileConfig::refine_placements`]).
-pub const REFINE_PLACEMENTS: usize = 4;
+pub const REFINE_PLACEMENTS: usize = 2;
 
 /// Placements tried by a refinement are at least this many pixels apart.
 const REFINE_SPACING: i32 = 4;
