@@ -80,9 +80,10 @@ pub struct TileConfig {
     /// ratio from 0.91 to 0.80 (50 refinements kept) in 3 s more.
     pub refine: Option<f64>,
     /// Seam refinement fits this many distinct good placements per seam
-    /// (graphcut each, the cheapest cut kept). Default 2: on Spot at 1024²
-    /// with the brick wall, back to back, seam ratio 0.684 (1 placement),
-    /// 0.667 (2), 0.658 (4) in 12.1, 12.2 and 15.0 s.
+    /// (graphcut each, the cheapest cut kept). Default 1, the cheapest
+    /// match: on Spot at 1024² with the brick wall, back to back, seam ratio
+    /// 0.684 (1 placement), 0.667 (2), 0.658 (4); each extra placement costs
+    /// a graphcut per refined seam (there 2-3 s more per placement).
     pub refine_placements: usize,
 }
 
@@ -2003,9 +2004,9 @@ pub fn tile(
     Ok(report)
 }
 
-/// Refinement tries this many distinct placements per seam by default
+/// Refinement fits this many distinct placements per seam by default
 /// ([`TileConfig::refine_placements`]).
-pub const REFINE_PLACEMENTS: usize = 2;
+pub const REFINE_PLACEMENTS: usize = 1;
 
 /// Placements tried by a refinement are at least this many pixels apart.
 const REFINE_SPACING: i32 = 4;
