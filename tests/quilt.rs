@@ -154,20 +154,20 @@ fn spot_is_covered_and_baked_and_rendered() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("--refine-placements"), "{e}");
-    // one placement per seam (the cheapest match) also lowers the seams
-    let single = dir.path().join("single.quilt");
+    // several placements per seam (the cheapest cut of three) lower them too
+    let several = dir.path().join("several.quilt");
     let rs = quilt::tile(
         &g,
         &sample,
-        &single,
+        &several,
         &TileConfig {
-            refine_placements: 1,
+            refine_placements: 3,
             ..TileConfig::default()
         },
         &Silent,
     )
     .unwrap();
-    assert!(rs.refined > 0 && total_step(&single) < before, "{rs}");
+    assert!(rs.refined > 0 && total_step(&several) < before, "{rs}");
     let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
     assert!(q.patches().unwrap().iter().filter(|&&p| p != NO_PATCH).count() == report.texels);
     // the stored seams are exactly the mesh edges whose ends took different
