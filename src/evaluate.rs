@@ -9,7 +9,7 @@
 
 use std::path::Path;
 
-use crate::bake::{atlas_colour, open_samples};
+use crate::bake::{atlas_colour, open_samples, OpenSample};
 use crate::container::MemoryBudget;
 use crate::factorize::rotate_maps;
 use crate::gim::{Gim, EMPTY};
@@ -88,7 +88,7 @@ pub fn evaluate(
         p.dedup();
         p.len()
     };
-    let painting = painting_measures(&quilt, &chart)?;
+    let painting = painting_measures(&quilt, &chart, &samples)?;
     Ok(format!(
         "{{\n  \"texels\": {},\n  \"patches\": {patch_count},{painting}\n  \"seam\": {{\"edges\": {}, \"fraction_of_edges\": {:.5}, \"mean_colour_difference\": {:.6}, \"median\": {:.6}, \"p95\": {:.6}, \"max\": {:.6}, \"inside_patches_mean\": {:.6}, \"ratio_to_inside\": {:.4}}},\n  \"zipper\": {{\"links\": {}, \"mean_colour_difference\": {:.6}, \"inside_charts_mean\": {:.6}, \"ratio\": {:.4}}},\n  \"coherence\": {{\"windows\": {}, \"mean_rgb_distance_to_nearest_sample_window\": {:.6}}}\n}}",
         covered.iter().filter(|&&c| c).count(),
@@ -185,7 +185,7 @@ fn coherence(
 /// covered by foreground texels (texels of the painted sample with m_σ ≥ ½),
 /// and the fraction of foreground texels outside F and its transition zone
 /// (m0 = 0).
-fn painting_measures(quilt: &Quilt, chart: &[u32]) -> Result<String> {
+fn painting_measures(quilt: &Quilt, chart: &[u32], samples: &[OpenSample]) -> Result<String> {
     let c = quilt.container();
     let (Ok(region), Some(crate::container::Param::Text(mask_path))) =
         (c.array("region"), c.metadata().param("sample_mask"))
@@ -199,16 +199,7 @@ fn painting_measures(quilt: &Quilt, chart: &[u32]) -> Result<String> {
     let coords = quilt.coords()?;
     let (index, painted) = (quilt.sample_index()?, quilt.mask_sample());
     // a generated BTF may be tileable; the synthesis then wraps its mask
-    let tileable = match quilt.samples.get(painted) {
-        Some(p) if !crate::imageio::is_image_path(p) => {
-            let svd = crate::container::Container::open(p, MemoryBudget::default())?;
-            matches!(
-                svd.metadata().param("tileable"),
-                Some(crate::container::Param::Int(1))
-            )
-        }
-        _ => false,
-    };
+    let tileable = samples.get(painted).is_some_and(|s| s.svd.tileable());
     let m = |t: usize| {
         if index[t] as usize != painted {
             return 0.0;

@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use crate::bake;
-use crate::container::{Container, MemoryBudget, Param};
+use crate::container::{Container, MemoryBudget};
 use crate::factorize::SvdArtifact;
 use crate::gim::Gim;
 use crate::imageio;
@@ -591,7 +591,7 @@ fn stage_surface_btf(
             w: svd.width,
             h: svd.height,
             n: svd.terms,
-            tileable: matches!(svd.container().metadata().param("tileable"), Some(Param::Int(1))),
+            tileable: svd.tileable(),
         })
         .collect();
 

@@ -762,6 +762,12 @@ pub struct SvdArtifact {
 }
 
 impl SvdArtifact {
+    /// Whether the sample was factorized `--tileable` (its lookups wrap
+    /// round its borders).
+    pub fn tileable(&self) -> bool {
+        matches!(self.container().metadata().param("tileable"), Some(Param::Int(1)))
+    }
+
     /// Opens a `.svd`, checking its kind and arrays.
     pub fn open(path: &Path, budget: MemoryBudget) -> Result<SvdArtifact> {
         let container = Container::open_kind(path, KIND, budget)?;

@@ -169,7 +169,7 @@ impl Sample {
     /// Reads the unrotated geometry maps; rotated copies and the mask come
     /// later, on demand.
     fn from_svd(svd: SvdArtifact) -> Result<Sample> {
-        let tileable = matches!(svd.container().metadata().param("tileable"), Some(Param::Int(1)));
+        let tileable = svd.tileable();
         let rotations = if svd.rotations > 0 {
             svd.rotations
         } else {
