@@ -530,7 +530,7 @@ fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
     if faces.len() > 1 && (l2.is_nan() || l2 > ctx.max_stretch) {
         return None;
     }
-    if faces.len() > 1 && area_distortion_p95(&positions, &triangles, &uv) > ctx.max_area_distortion {
+    if faces.len() > 1 && area_distortion_tail(&positions, &triangles, &uv) > ctx.max_area_distortion {
         return None;
     }
     let uv = normalize_uv(&positions, &triangles, &uv);
@@ -544,37 +544,15 @@ fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
     })
 }
 
-/// The area-weighted 95th percentile over triangles of max(r, 1/r), r the
-/// triangle's uv-to-3D area ratio over the chart's.
-fn area_distortion_p95(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) -> f64 {
-    let uv_areas = super::lscm::signed_uv_areas(uv, triangles);
-    let mut pairs: Vec<(f64, f64)> = triangles
-        .iter()
-        .zip(&uv_areas)
-        .map(|(&t, &u)| (super::lscm::area3(positions, t), u.abs()))
-        .collect();
-    let (s3, suv) = pairs.iter().fold((0.0, 0.0), |(x, y), p| (x + p.0, y + p.1));
-    if !(s3 > 0.0 && suv > 0.0) {
-        return f64::INFINITY;
-    }
-    let norm = suv / s3;
-    let mut d: Vec<(f64, f64)> = pairs
-        .drain(..)
-        .filter(|p| p.0 > 0.0)
-        .map(|(a, u)| {
-            let r = u / a / norm;
-            (if r > 0.0 { r.max(1.0 / r) } else { f64::INFINITY }, a)
-        })
-        .collect();
-    d.sort_by(|x, y| x.0.total_cmp(&y.0));
-    let mut acc = 0.0;
-    for &(v, a) in &d {
-        acc += a;
-        if acc >= 0.95 * s3 {
-            return v;
-        }
-    }
-    d.last().map_or(1.0, |x| x.0)
+/// A chart is split when more than this fraction of its area is off its
+/// mean texel density by more than [`ChartConfig::max_area_distortion`].
+const AREA_DISTORTION_SHARE: f64 = 0.05;
+
+/// The chart's area distortion at the [`AREA_DISTORTION_SHARE`] tail: the
+/// area-weighted (1 − share)-quantile of max(r, 1/r), r a triangle's
+/// uv-to-3D area ratio over the chart's.
+fn area_distortion_tail(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) -> f64 {
+    super::lscm::area_distortion_quantile(positions, triangles, uv, 1.0 - AREA_DISTORTION_SHARE)
 }
 
 /// Scales uv to the 3D area, rotates the longer side of the minimum-area
@@ -1037,7 +1015,7 @@ mod tests {
                 .map(|c| {
                     let pos: Vec<[f32; 3]> = c.vertices.iter().map(|&v| m.positions[v as usize]).collect();
                     let uv: Vec<[f64; 2]> = c.uv.iter().map(|q| [q[0] as f64, q[1] as f64]).collect();
-                    area_distortion_p95(&pos, &c.triangles, &uv)
+                    area_distortion_tail(&pos, &c.triangles, &uv)
                 })
                 .fold(1.0f64, f64::max)
         };

@@ -360,7 +360,7 @@ fn uv_area(uv: &[[f64; 2]], t: [u32; 3]) -> f64 {
     0.5 * ((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]))
 }
 
-pub(crate) fn area3(positions: &[[f32; 3]], t: [u32; 3]) -> f64 {
+fn area3(positions: &[[f32; 3]], t: [u32; 3]) -> f64 {
     let p = [
         p64(positions[t[0] as usize]),
         p64(positions[t[1] as usize]),
@@ -435,31 +435,71 @@ pub fn stretch(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) 
     ((l2_num / a3_sum * k).sqrt(), linf * k.sqrt())
 }
 
-/// Area distortion used for work patches: max over triangles of max(r, 1/r)
-/// with r = (uv area / 3D area) / (total uv area / total 3D area). A flipped
-/// or zero-area uv triangle (with positive 3D area) gives +∞; triangles with
-/// zero 3D area are ignored.
-pub fn area_distortion(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) -> f64 {
+/// Per triangle of positive 3D area, its area distortion max(r, 1/r) with
+/// r = (uv area / 3D area) / (total uv area / total 3D area), and its 3D
+/// area. A flipped or zero-area uv triangle gives +∞. `None` if either total
+/// area is not positive.
+fn area_distortions(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    uv: &[[f64; 2]],
+) -> Option<Vec<(f64, f64)>> {
     let a3: Vec<f64> = triangles.iter().map(|&t| area3(positions, t)).collect();
     let auv = signed_uv_areas(uv, triangles);
     let a3_sum: f64 = a3.iter().sum();
     let auv_sum: f64 = auv.iter().map(|a| a.abs()).sum();
     if !positive(a3_sum) || !positive(auv_sum) {
-        return f64::INFINITY;
+        return None;
     }
     let norm = auv_sum / a3_sum;
-    let mut worst = 1.0f64;
-    for (&a, &u) in a3.iter().zip(&auv) {
-        if a <= 0.0 {
-            continue;
-        }
-        if u <= 0.0 {
-            return f64::INFINITY;
-        }
-        let r = u / a / norm;
-        worst = worst.max(r).max(1.0 / r);
+    Some(
+        a3.iter()
+            .zip(&auv)
+            .filter(|(&a, _)| a > 0.0)
+            .map(|(&a, &u)| {
+                if u <= 0.0 {
+                    return (f64::INFINITY, a);
+                }
+                let r = u / a / norm;
+                (r.max(1.0 / r), a)
+            })
+            .collect(),
+    )
+}
+
+/// Area distortion used for work patches: max over triangles of max(r, 1/r)
+/// with r = (uv area / 3D area) / (total uv area / total 3D area). A flipped
+/// or zero-area uv triangle (with positive 3D area) gives +∞; triangles with
+/// zero 3D area are ignored.
+pub fn area_distortion(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) -> f64 {
+    match area_distortions(positions, triangles, uv) {
+        None => f64::INFINITY,
+        Some(d) => d.iter().fold(1.0f64, |w, &(v, _)| w.max(v)),
     }
-    worst
+}
+
+/// The area-weighted `q`-quantile of the same per-triangle area distortion:
+/// the smallest value that triangles of at least a fraction `q` of the 3D
+/// area do not exceed (used to split charts).
+pub(crate) fn area_distortion_quantile(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    uv: &[[f64; 2]],
+    q: f64,
+) -> f64 {
+    let Some(mut d) = area_distortions(positions, triangles, uv) else {
+        return f64::INFINITY;
+    };
+    let total: f64 = d.iter().map(|&(_, a)| a).sum();
+    d.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let mut acc = 0.0;
+    for &(v, a) in &d {
+        acc += a;
+        if acc >= q * total {
+            return v;
+        }
+    }
+    d.last().map_or(1.0, |x| x.0)
 }
 
 #[cfg(test)]
