@@ -220,11 +220,15 @@ fn face_frame(mesh: &Mesh, f: usize, n: [f32; 3]) -> ([f64; 3], [f64; 3]) {
     (w(e1), w(e2))
 }
 
+/// The coordinates of 3D vector `d` in frame `(e1, e2)`.
+fn frame_coords(d: [f32; 3], (e1, e2): ([f64; 3], [f64; 3])) -> (f64, f64) {
+    let along = |e: [f64; 3]| d[0] as f64 * e[0] + d[1] as f64 * e[1] + d[2] as f64 * e[2];
+    (along(e1), along(e2))
+}
+
 /// The angle of 3D vector `d` in frame `(e1, e2)`.
-fn frame_angle(d: [f32; 3], (e1, e2): ([f64; 3], [f64; 3])) -> f64 {
-    let d = [d[0] as f64, d[1] as f64, d[2] as f64];
-    let x = d[0] * e1[0] + d[1] * e1[1] + d[2] * e1[2];
-    let y = d[0] * e2[0] + d[1] * e2[1] + d[2] * e2[2];
+fn frame_angle(d: [f32; 3], frame: ([f64; 3], [f64; 3])) -> f64 {
+    let (x, y) = frame_coords(d, frame);
     y.atan2(x)
 }
 
@@ -259,8 +263,9 @@ fn connection(
     edges
 }
 
-/// The connection Dirichlet energy Σ w |u_f − e^{iρ} u_g|² of a tangent
-/// field (what [`smoothest_field`] minimises, less the prior term).
+/// The connection Dirichlet energy Σ w |u_f − e^{iρ} u_g|² of a unit
+/// tangent field (the quadratic form whose smallest eigenvector, relative to
+/// the area mass, [`smoothest_field`] finds).
 pub fn field_energy(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> f64 {
     let normals: Vec<[f32; 3]> = (0..mesh.triangles.len()).map(|f| mesh.face_normal(f)).collect();
     let frames: Vec<_> = (0..normals.len())
@@ -301,11 +306,7 @@ fn smoothest_field(
     let frames: Vec<_> = (0..nf).map(|f| face_frame(mesh, f, normals[f])).collect();
     let diag = (mesh.bbox_diagonal() as f64).max(1e-30);
     let mass: Vec<f64> = (0..nf).map(|f| mesh.face_area(f) as f64).collect();
-    let in_frame = |f: usize, v: [f32; 3]| {
-        let (e1, e2) = frames[f];
-        let d = |e: [f64; 3]| v[0] as f64 * e[0] + v[1] as f64 * e[1] + v[2] as f64 * e[2];
-        (d(e1), d(e2))
-    };
+    let in_frame = |f: usize, v: [f32; 3]| frame_coords(v, frames[f]);
     let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(nf * 12);
     let shift = SMOOTHEST_SHIFT / (diag * diag);
     // a degenerate (zero-area) face cut off from its neighbours would leave a
