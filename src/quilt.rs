@@ -1752,19 +1752,31 @@ impl Synthesis {
             &self.cfg,
             self.reference,
         )?;
-        let picks = distinct_best(&covering, count, REFINE_SPACING);
-        self.report.matching_seconds += t.elapsed().as_secs_f64();
-        if picks.is_empty() {
-            return self.match_and_fit(patch, work, false, core);
-        }
-        let t = Instant::now();
-        let mut best: Option<Fit> = None;
-        for p in picks {
-            let placement = PlacementChoice {
+        let mut picks: Vec<PlacementChoice> = distinct_best(&covering, count, REFINE_SPACING)
+            .into_iter()
+            .map(|p| PlacementChoice {
                 rotation,
                 dx: p.dx as f64,
                 dy: p.dy as f64,
-            };
+            })
+            .collect();
+        if picks.is_empty() {
+            // no match covers the patch: the seeded spot the quilting step
+            // would take
+            let counter = self.report.patches as u64;
+            picks.push(choose_placement(
+                &self.sample,
+                work,
+                &self.cfg,
+                counter,
+                rotation,
+                &covering,
+            ));
+        }
+        self.report.matching_seconds += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let mut best: Option<Fit> = None;
+        for placement in picks {
             let fit = self.fit_placement(patch, work, &placement, false, core);
             if best.as_ref().is_none_or(|b| fit.flow < b.flow) {
                 best = Some(fit);
@@ -2104,13 +2116,28 @@ fn place_covering(
     counter: u64,
 ) -> Result<PlacementChoice> {
     let (rotation, covering) = covering_candidates(sample, matcher, work, cfg, reference)?;
+    Ok(choose_placement(sample, work, cfg, counter, rotation, &covering))
+}
+
+/// A seeded choice among the near-minimal `covering` matches
+/// ([`matching::choose`]), or, when there is none, a seeded spot on the
+/// sample (one that best agrees with the constraint when the work image has
+/// one).
+fn choose_placement(
+    sample: &Sample,
+    work: &WorkImage,
+    cfg: &TileConfig,
+    counter: u64,
+    rotation: usize,
+    covering: &[matching::Placement],
+) -> PlacementChoice {
     let step = (work.coords.len() / 400).max(1);
-    if let Some(p) = matching::choose(&covering, cfg.tolerance, cfg.seed, counter) {
-        return Ok(PlacementChoice {
+    if let Some(p) = matching::choose(covering, cfg.tolerance, cfg.seed, counter) {
+        return PlacementChoice {
             rotation,
             dx: p.dx as f64,
             dy: p.dy as f64,
-        });
+        };
     }
     // nothing known yet, or no match covers the patch: a seeded spot that
     // covers the seed's neighbourhood (the sample centre ± a margin)
@@ -2158,13 +2185,13 @@ fn place_covering(
                 best = (cost, choice);
             }
         }
-        return Ok(best.1);
+        return best.1;
     }
     let margin = 0.25;
-    Ok(place([
+    place([
         (sw - 1.0) / 2.0 + jitter(h, margin * sw),
         (sh - 1.0) / 2.0 + jitter(h >> 16, margin * sh),
-    ]))
+    ])
 }
 
 /// The rotation for the work image's field direction and the best matches
