@@ -11,6 +11,11 @@ use crate::imageio::{self, PngDepth, RgbImage};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
 
+/// Whether two paths name the same file, or are equal as text.
+fn same_file_or_equal(a: &Path, b: &Path) -> bool {
+    a == b || crate::staging::same_file(a, b)
+}
+
 /// A sample opened for reading: its `.svd`, and the temporary directory
 /// holding it when it was factorized from a colour image.
 pub struct OpenSample {
@@ -23,8 +28,10 @@ pub struct OpenSample {
 /// when the file is gone.
 fn open_one(quilt: &Quilt, k: usize, path: &Path, budget: MemoryBudget) -> Result<OpenSample> {
     if !path.exists() {
-        let how = if k == 0 {
-            "give --sample".to_string()
+        let how = if k == 0 && same_file_or_equal(path, &quilt.samples[0]) {
+            "put it back, or give --sample".to_string()
+        } else if k == 0 {
+            "check the --sample path".to_string()
         } else {
             format!("it was painted in ('sample_{k}'); put it back")
         };
@@ -33,6 +40,12 @@ fn open_one(quilt: &Quilt, k: usize, path: &Path, budget: MemoryBudget) -> Resul
             format!("its sample {} is gone: {how}", path.display()),
         ));
     }
+    let role = if k == 0 {
+        "sample".to_string()
+    } else {
+        format!("sample_{k}")
+    };
+    quilt.verify(&role, path)?;
     let (svd_path, tmp) = crate::quilt::sample_svd(path, false, &crate::progress::Silent)?;
     Ok(OpenSample {
         svd: SvdArtifact::open(&svd_path, budget)?,
@@ -211,6 +224,10 @@ pub fn dilate(img: &mut RgbImage, covered: &[bool], passes: usize) {
 /// Bakes the quilt's preview colour to `out` (PNG or EXR), gutter dilated.
 pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: MemoryBudget) -> Result<()> {
     let quilt = Quilt::open(quilt_path, budget)?;
+    quilt.check_output(out)?;
+    if let Some(s) = sample {
+        crate::staging::check_output(out, &[("the sample", s)])?;
+    }
     let samples = open_samples(&quilt, sample, budget)?;
     let previews = samples
         .iter()

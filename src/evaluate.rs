@@ -12,7 +12,7 @@ use std::path::Path;
 use crate::bake::{atlas_colour, open_samples, OpenSample};
 use crate::container::MemoryBudget;
 use crate::factorize::rotate_maps;
-use crate::gim::{Gim, EMPTY};
+use crate::gim::EMPTY;
 use crate::imageio::RgbImage;
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
@@ -32,7 +32,7 @@ pub fn evaluate(
     budget: MemoryBudget,
 ) -> Result<String> {
     let quilt = Quilt::open(quilt_path, budget)?;
-    let gim = Gim::open(gim_path.unwrap_or(&quilt.gim), budget)?;
+    let gim = quilt.open_gim(gim_path, budget)?;
     let samples = open_samples(&quilt, sample, budget)?;
     let previews = samples
         .iter()
@@ -187,13 +187,11 @@ fn coherence(
 /// (m0 = 0).
 fn painting_measures(quilt: &Quilt, chart: &[u32], samples: &[OpenSample]) -> Result<String> {
     let c = quilt.container();
-    let (Ok(region), Some(crate::container::Param::Text(mask_path))) =
-        (c.array("region"), c.metadata().param("sample_mask"))
-    else {
+    let (Ok(region), Some(mask_path)) = (c.array("region"), &quilt.sample_mask) else {
         return Ok(String::new());
     };
+    quilt.verify("sample_mask", mask_path)?;
     let m0: Vec<f32> = c.read_array(region)?;
-    let mask_path = Path::new(mask_path);
     let (mw, mh) = crate::imageio::image_size(mask_path)?;
     let mask = crate::imageio::read_sized_mask(mask_path, mw, mh, "")?;
     let coords = quilt.coords()?;

@@ -86,7 +86,7 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
                 ));
             }
         }
-        let gim = Gim::open(&quilt.gim, opts.budget)?;
+        let gim = quilt.open_gim(None, opts.budget)?;
         Source::Quilt {
             path: file,
             quilt,
@@ -138,6 +138,21 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
         let svds: Vec<&SvdArtifact> = samples.iter().map(|s| &s.svd).collect();
         stage_surface_btf(path, quilt, &svds, &paths, &mut stage)?;
         stages.push(stage);
+    }
+    // no published file may land on an input (the artifact, its geometry
+    // image or samples): checked for all before any is renamed
+    let mut inputs: Vec<(String, PathBuf)> = match &source {
+        Source::Quilt { quilt, .. } => quilt.input_files(),
+        Source::Gim(gim) => vec![("the geometry image".into(), gim.container().path().to_path_buf())],
+    };
+    if let Some(p) = &opts.sample {
+        inputs.push(("the sample".into(), p.clone()));
+    }
+    let inputs: Vec<(&str, &Path)> = inputs.iter().map(|(r, p)| (r.as_str(), p.as_path())).collect();
+    for stage in &stages {
+        for name in &stage.publish {
+            crate::staging::check_output(&stage.dir.join(name), &inputs)?;
+        }
     }
     let mut written = Vec::new();
     for stage in stages {
@@ -252,16 +267,14 @@ impl Stage {
     fn new(dir: &Path) -> Result<Stage> {
         let created = !dir.exists();
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-        let tmp = tempfile::Builder::new()
-            .prefix(".btfquilt-export-")
-            .tempdir_in(dir);
+        let tmp = crate::staging::staging_dir_in(dir, "export");
         let tmp = match tmp {
             Ok(t) => t,
             Err(e) => {
                 if created {
                     let _ = std::fs::remove_dir(dir);
                 }
-                return Err(Error::io(dir, e));
+                return Err(e);
             }
         };
         Ok(Stage {

@@ -390,6 +390,7 @@ pub fn factorize(
     progress: &dyn Progress,
 ) -> Result<FactorizeReport> {
     let start = Instant::now();
+    crate::staging::check_output(out, &[("the input", input)])?;
     // dense QR/SVD run sequentially: products with A are parallel over
     // chunks already, and a fixed order keeps results thread-count independent
     faer::set_global_parallelism(Par::Seq);

@@ -367,6 +367,11 @@ pub fn build_gim(
             "--resolution {r}: must be between 16 and 32768"
         )));
     }
+    let mut inputs = vec![("the input mesh", mesh_path)];
+    if let Some(keys) = &cfg.field_keys {
+        inputs.push(("the vector-field keys", keys.as_path()));
+    }
+    crate::staging::check_output(out, &inputs)?;
     let (mesh, repair) = io::load(mesh_path, &cfg.load)?;
     let topology = mesh.topology();
     let keys: Vec<FieldKey> = match &cfg.field_keys {

@@ -521,19 +521,7 @@ where
     if path.file_name().is_none() {
         return Err(Error::input(path, "not a file path"));
     }
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut builder = tempfile::Builder::new();
-    builder.prefix(".btfquilt-").suffix(".tmp");
-    #[cfg(unix)]
-    {
-        // The usual mode for new files (the umask still applies), not tempfile's 0600.
-        use std::os::unix::fs::PermissionsExt;
-        builder.permissions(std::fs::Permissions::from_mode(0o666));
-    }
-    let mut tmp = builder.tempfile_in(dir).map_err(|e| Error::io(path, e))?;
+    let mut tmp = crate::staging::staged_file(path)?;
     {
         let mut out = BufWriter::new(tmp.as_file_mut());
         write(&mut out)?;

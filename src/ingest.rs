@@ -75,6 +75,9 @@ pub fn list_inputs(input: &Path) -> Result<Vec<PairFile>> {
 /// except unreadable pixel data, which aborts the write and leaves no output.
 pub fn ingest(input: &Path, out: &Path, cfg: &IngestConfig, progress: &dyn Progress) -> Result<IngestReport> {
     let files = list_inputs(input)?;
+    let mut inputs = vec![("the input", input)];
+    inputs.extend(files.iter().map(|f| ("an input image", f.path.as_path())));
+    crate::staging::check_output(out, &inputs)?;
     let (views, lights, grid) = naming::organise_pairs(input, &files)?;
     // all images must share one size: check headers before streaming
     let (width, height) = imageio::image_size(&files[0].path)?;
@@ -210,7 +213,9 @@ pub fn pair_image(btf: &Btf, view: Angles, light: Angles) -> Result<RgbImage> {
 
 /// Writes every (view, light) image of a BTF into `dir`, named the way
 /// [`ingest`] reads (`btf_tlΘ_plΦ_tvΘ_pvΦ.ext`), plus a `manifest.csv`.
-/// Returns the number of images written.
+/// The folder is staged and renamed into place whole; an existing `dir` must
+/// be empty or a previous export (it holds a `manifest.csv`), which is
+/// replaced. Returns the number of images written.
 pub fn export_all(
     btf: &Btf,
     dir: &Path,
@@ -218,7 +223,9 @@ pub fn export_all(
     memory: MemoryBudget,
     progress: &dyn Progress,
 ) -> Result<usize> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    crate::staging::check_output_dir(dir, &["manifest.csv"], &[("the BTF", btf.container().path())])?;
+    // the folder is built whole beside `dir` and renamed into place at the end
+    let stage = crate::staging::StagedDir::new(dir, Some("manifest.csv"))?;
     let l = btf.layout();
     let per_image = (l.width * l.height * 3 * 4) as u64;
     let group = ((memory.bytes() / 4 / per_image.max(1)) as usize).clamp(1, l.band);
@@ -236,7 +243,7 @@ pub fn export_all(
                 let view = l.views[p / l.lights.len()];
                 let light = l.lights[p % l.lights.len()];
                 let name = naming::format_pair_name("btf", view, light, format.ext());
-                let path = dir.join(&name);
+                let path = stage.path().join(&name);
                 (path.clone(), PairFile { path, view, light })
             })
             .collect();
@@ -255,7 +262,8 @@ pub fn export_all(
         progress.advance((p1 - p0) as u64);
         p0 = p1;
     }
-    naming::write_manifest(&dir.join("manifest.csv"), &listed)?;
+    naming::write_manifest(&stage.path().join("manifest.csv"), &listed)?;
+    stage.commit()?;
     progress.end();
     Ok(listed.len())
 }

@@ -31,5 +31,6 @@ pub mod quilt;
 pub mod render;
 mod rng;
 pub mod show;
+pub mod staging;
 
 pub use error::{Error, Result};

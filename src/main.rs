@@ -420,11 +420,23 @@ fn parse_angles(s: &str, what: &str) -> Result<Angles> {
     Ok(Angles { theta, phi })
 }
 
+/// The most worker threads `--threads` may ask for, per core: beyond a few
+/// per core, threads only add scheduling and memory cost.
+const MAX_THREADS_PER_CORE: usize = 4;
+
 impl Resources {
     fn apply(&self) -> Result<(MemoryBudget, Bars)> {
-        if let Some(n) = self.threads {
+        if let Some(mut n) = self.threads {
             if n == 0 {
                 bail!("--threads must be at least 1");
+            }
+            let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+            let cap = MAX_THREADS_PER_CORE * cores;
+            if n > cap {
+                eprintln!(
+                    "note: --threads {n} capped at {cap} ({MAX_THREADS_PER_CORE} per core, {cores} cores); results do not depend on it"
+                );
+                n = cap;
             }
             rayon::ThreadPoolBuilder::new()
                 .num_threads(n)
@@ -436,10 +448,37 @@ impl Resources {
 }
 
 fn main() {
-    if let Err(e) = run(Cli::parse()) {
-        eprintln!("error: {e:#}");
+    let result = run(Cli::parse());
+    for r in btfquilt::staging::take_removed_partials() {
+        eprintln!(
+            "note: removed {} ({}), a partial output left by process {} that no longer runs",
+            r.path.display(),
+            btfquilt::container::human_bytes(r.bytes),
+            r.pid
+        );
+    }
+    if let Err(e) = result {
+        eprintln!("error: {}", error_chain(&e));
         std::process::exit(1);
     }
+}
+
+/// The error and its causes, `: `-separated, each said once (a cause whose
+/// text its parent already ends with, such as an OS error the library's
+/// message quotes, is not repeated).
+fn error_chain(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if out.ends_with(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -528,6 +567,7 @@ fn run(cli: Cli) -> Result<()> {
                     say!("wrote {n} images and manifest.csv into {}", dir.display());
                 }
                 (None, Some(out)) => {
+                    btfquilt::staging::check_output(&out, &[("the BTF", file.as_path())])?;
                     let view =
                         parse_angles(view.as_deref().context("--view θ,φ is required with -o")?, "view")?;
                     let light = parse_angles(
@@ -575,6 +615,11 @@ fn run(cli: Cli) -> Result<()> {
             res,
         } => {
             let (memory, _) = res.apply()?;
+            let mut inputs = vec![("the factorization", file.as_path())];
+            if let Some(o) = &original {
+                inputs.push(("the original", o.as_path()));
+            }
+            btfquilt::staging::check_output(&output, &inputs)?;
             let svd = SvdArtifact::open(&file, memory)?;
             let pair = svd.find_pair(parse_angles(&view, "view")?, parse_angles(&light, "light")?)?;
             let img = svd.reconstruct_pair(pair)?;

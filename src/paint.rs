@@ -114,6 +114,7 @@ pub fn preview(quilt_path: &Path, cfg: &PaintConfig, progress: &dyn Progress) ->
             "a preview needs --verbatim and --preview IMAGE".into(),
         ));
     };
+    check_paint_output(&Quilt::open(quilt_path, cfg.tile.memory)?, cfg, out)?;
     let mut session = PreviewSession::open(quilt_path, cfg, progress)?;
     let t = Instant::now();
     let taken = session.preview(v, out, progress)?;
@@ -183,7 +184,7 @@ fn open_synthesis(
 ) -> Result<(Synthesis, Gim, Option<tempfile::TempDir>)> {
     let start = Instant::now();
     let cfg = stroke.tile_config();
-    let gim = Gim::open(&base.gim, cfg.memory)?;
+    let gim = base.open_gim(None, cfg.memory)?;
     let matching = stroke.verbatim.is_none();
     let (svd_path, tmp) = sample_svd(&stroke.sample, matching, progress)?;
     let trace = |what: &str| crate::progress::trace(progress, start, what);
@@ -205,6 +206,7 @@ fn run(quilt_path: &Path, out: &Path, cfg: &PaintConfig, progress: &dyn Progress
         ));
     }
     let base = Quilt::open(quilt_path, cfg.tile.memory)?;
+    check_paint_output(&base, cfg, out)?;
     let log = match base.container().metadata().param("paint_log") {
         Some(Param::Text(s)) => PaintLog::parse(s, quilt_path, &base.samples[0])?,
         _ => PaintLog {
@@ -217,6 +219,23 @@ fn run(quilt_path: &Path, out: &Path, cfg: &PaintConfig, progress: &dyn Progress
     apply_stroke(&base, &stroke, out, &log, progress)
 }
 
+/// Refuses `out` when it is the surface, a file it depends on, or a file
+/// the stroke reads.
+fn check_paint_output(base: &Quilt, cfg: &PaintConfig, out: &Path) -> Result<()> {
+    base.check_output(out)?;
+    let mut inputs = Vec::new();
+    if let Some(p) = &cfg.sample {
+        inputs.push(("the sample to paint with", p.as_path()));
+    }
+    if let Some(p) = &cfg.sample_mask {
+        inputs.push(("the sample's foreground mask", p.as_path()));
+    }
+    if let Some(p) = &cfg.region {
+        inputs.push(("the target region", p.as_path()));
+    }
+    crate::staging::check_output(out, &inputs)
+}
+
 /// Replays the paint log of `painted` onto its recorded base quilt, writing
 /// the result to `out` (byte-identical to `painted` when nothing changed).
 pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<PaintReport> {
@@ -225,7 +244,9 @@ pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<Pai
         return Err(Error::input(painted, "has no paint log (it was not painted)"));
     };
     let log = PaintLog::parse(text, painted, &q.samples[0])?;
+    q.check_output(out)?;
     let base = Quilt::open(&log.base, crate::container::MemoryBudget::default())?;
+    base.check_output(out)?;
     if base.container().content_hash() != log.base_hash {
         return Err(Error::input(
             &log.base,
@@ -275,8 +296,11 @@ impl Stroke {
         if !sample.exists() {
             return Err(Error::input(&sample, "does not exist (the sample to paint with)"));
         }
-        let recorded = match base.container().metadata().param("sample_mask") {
-            Some(Param::Text(p)) if same_file(masked, &sample) => Some(PathBuf::from(p)),
+        let recorded = match &base.sample_mask {
+            Some(p) if same_file(masked, &sample) => {
+                base.verify("sample_mask", p)?;
+                Some(p.clone())
+            }
             _ => None,
         };
         let sample_mask = match (&cfg.sample_mask, recorded) {

@@ -1979,6 +1979,11 @@ pub fn tile(
     if cfg.refine_placements == 0 {
         return Err(Error::Config("--refine-placements must be at least 1".into()));
     }
+    let mut inputs = vec![("the geometry image", gim_path), ("the sample", sample_path)];
+    if let Some(mask) = &cfg.sample_mask {
+        inputs.push(("the sample's foreground mask", mask.as_path()));
+    }
+    crate::staging::check_output(out, &inputs)?;
     let gim = Gim::open(gim_path, cfg.memory)?;
     let (svd_path, _tmp) = sample_svd(sample_path, true, progress)?;
     let mut syn = Synthesis::open(&gim, sample_path, &svd_path, cfg, true)?;
@@ -2608,22 +2613,17 @@ fn write_quilt(
     let mut w = ContainerWriter::create(out, KIND)?;
     w.set_level(cfg.level);
     w.set_seed(cfg.seed);
-    w.add_input(&gim_path.display().to_string(), gim.container().content_hash());
-    w.add_input(
-        &syn.sample_path.display().to_string(),
-        sample.svd.container().content_hash(),
-    );
-    w.set_param("gim", Param::Text(gim_path.display().to_string()));
+    record_dependency(&mut w, out, "gim", gim_path)?;
     let paths = &syn.sample_paths;
-    w.set_param("sample", Param::Text(paths[0].display().to_string()));
+    record_dependency(&mut w, out, "sample", &paths[0])?;
     if paths.len() > 1 {
         w.set_param("sample_count", Param::Int(paths.len() as i64));
         for (k, p) in paths.iter().enumerate().skip(1) {
-            w.set_param(&format!("sample_{k}"), Param::Text(p.display().to_string()));
+            record_dependency(&mut w, out, &format!("sample_{k}"), p)?;
         }
     }
     if let Some(mask) = &cfg.sample_mask {
-        w.set_param("sample_mask", Param::Text(mask.display().to_string()));
+        record_dependency(&mut w, out, "sample_mask", mask)?;
         if state.active > 0 {
             w.set_param("mask_sample", Param::Int(state.active as i64));
         }
@@ -2660,6 +2660,71 @@ fn write_quilt(
         w.write_array(id, m0)?;
     }
     w.finish()
+}
+
+/// Records a file the quilt at `out` depends on under `role` (a parameter of
+/// that name): its path relative to the quilt's folder (so the quilt and its
+/// inputs can move together, and be read from any working directory), its
+/// length (`ROLE_bytes`) and its content hash (an input of that name).
+fn record_dependency(w: &mut ContainerWriter, out: &Path, role: &str, path: &Path) -> Result<()> {
+    let (bytes, hash) = crate::container::file_identity(path)?;
+    w.add_input(role, hash);
+    w.set_param(role, Param::Text(relative_to_folder_of(out, path)));
+    w.set_param(&format!("{role}_bytes"), Param::Int(bytes as i64));
+    Ok(())
+}
+
+/// `path` relative to the folder of `artifact` (both resolved), or `path`
+/// made absolute when no relative form exists.
+fn relative_to_folder_of(artifact: &Path, path: &Path) -> String {
+    let folder = match artifact.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let (Ok(from), Ok(to)) = (std::fs::canonicalize(folder), std::fs::canonicalize(path)) else {
+        return std::path::absolute(path)
+            .unwrap_or_else(|_| path.to_path_buf())
+            .display()
+            .to_string();
+    };
+    let (a, b): (Vec<_>, Vec<_>) = (from.components().collect(), to.components().collect());
+    let common = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    if common == 0 {
+        return to.display().to_string();
+    }
+    let mut rel = PathBuf::new();
+    for _ in common..a.len() {
+        rel.push("..");
+    }
+    for c in &b[common..] {
+        rel.push(c);
+    }
+    rel.display().to_string()
+}
+
+/// One file a decorated surface depends on, as its quilt records it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Dependency {
+    /// What it is: `gim`, `sample`, `sample_K` (painted in) or `sample_mask`.
+    pub role: String,
+    /// Where it is: the recorded path, resolved against the quilt's folder.
+    pub path: PathBuf,
+    /// Its recorded length in bytes.
+    pub bytes: u64,
+    /// Its recorded content hash ([`crate::container::file_identity`]).
+    pub hash: u64,
+}
+
+impl Dependency {
+    /// What the role means, for messages.
+    fn what(&self) -> String {
+        match self.role.as_str() {
+            "gim" => "the geometry image".into(),
+            "sample" => "the sample".into(),
+            "sample_mask" => "the sample's foreground mask".into(),
+            r => format!("the sample painted in as '{r}'"),
+        }
+    }
 }
 
 /// The seam flags of a texel ([`Quilt::seams`]): a seam to the +x
@@ -2704,6 +2769,11 @@ pub struct Quilt {
     /// Every sample its texels draw from: the one it was tiled with first,
     /// then each other sample painted in (see [`Quilt::sample_index`]).
     pub samples: Vec<PathBuf>,
+    /// The foreground mask of the last stroke's (or the tiling's) sample, if
+    /// one was given.
+    pub sample_mask: Option<PathBuf>,
+    /// The files it depends on, with what they held when it was written.
+    pub dependencies: Vec<Dependency>,
 }
 
 impl Quilt {
@@ -2711,15 +2781,56 @@ impl Quilt {
     pub fn open(path: &Path, budget: MemoryBudget) -> Result<Quilt> {
         let container = Container::open_kind(path, KIND, budget)?;
         let m = container.metadata();
-        let text = |k: &str| match m.param(k) {
-            Some(Param::Text(s)) => Ok(PathBuf::from(s)),
-            _ => Err(Error::input(path, format!("metadata parameter '{k}' is missing"))),
+        let folder = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let mut dependencies = Vec::new();
+        let mut dependency = |role: &str| -> Result<PathBuf> {
+            let Some(Param::Text(s)) = m.param(role) else {
+                return Err(Error::input(
+                    path,
+                    format!("metadata parameter '{role}' is missing"),
+                ));
+            };
+            let stored = PathBuf::from(s);
+            let resolved = if stored.is_absolute() {
+                stored
+            } else {
+                folder.join(stored)
+            };
+            let bytes = match m.param(&format!("{role}_bytes")) {
+                Some(Param::Int(b)) if *b >= 0 => *b as u64,
+                _ => {
+                    return Err(Error::input(
+                        path,
+                        format!(
+                            "records no size and content hash for its {role} {}: it was written by an older btfquilt; tile it again",
+                            resolved.display()
+                        ),
+                    ))
+                }
+            };
+            let hash = m
+                .inputs
+                .iter()
+                .find(|i| i.name == role)
+                .map(|i| i.hash)
+                .ok_or_else(|| Error::input(path, format!("records no content hash for its {role}")))?;
+            dependencies.push(Dependency {
+                role: role.to_string(),
+                path: resolved.clone(),
+                bytes,
+                hash,
+            });
+            Ok(resolved)
         };
         let resolution = match m.param("resolution") {
             Some(Param::Int(v)) if *v > 0 => *v as usize,
             _ => return Err(Error::input(path, "metadata parameter 'resolution' is missing")),
         };
-        let sample = text("sample")?;
+        let gim = dependency("gim")?;
+        let sample = dependency("sample")?;
         let count = match m.param("sample_count") {
             None => 1,
             Some(Param::Int(v)) if (1..=MAX_SAMPLES as i64).contains(v) => *v as usize,
@@ -2732,14 +2843,88 @@ impl Quilt {
         };
         let mut samples = vec![sample];
         for k in 1..count {
-            samples.push(text(&format!("sample_{k}"))?);
+            samples.push(dependency(&format!("sample_{k}"))?);
         }
+        let sample_mask = match m.param("sample_mask") {
+            Some(_) => Some(dependency("sample_mask")?),
+            None => None,
+        };
         Ok(Quilt {
             resolution,
-            gim: text("gim")?,
+            gim,
             samples,
+            sample_mask,
+            dependencies,
             container,
         })
+    }
+
+    /// The recorded dependency of `role`, if the quilt has one.
+    pub fn dependency(&self, role: &str) -> Option<&Dependency> {
+        self.dependencies.iter().find(|d| d.role == role)
+    }
+
+    /// Checks that the file at `at` (the recorded path, or one the user
+    /// gave in its place) is the one the quilt was made from: same length,
+    /// same content hash. The error names the quilt and the file.
+    pub fn verify(&self, role: &str, at: &Path) -> Result<()> {
+        let Some(d) = self.dependency(role) else {
+            return Err(Error::input(
+                self.container.path(),
+                format!("has no '{role}' dependency"),
+            ));
+        };
+        if !at.exists() {
+            return Err(Error::input(
+                self.container.path(),
+                format!("{} {} is gone: put it back", d.what(), at.display()),
+            ));
+        }
+        let (bytes, hash) = crate::container::file_identity(at)?;
+        if (bytes, hash) != (d.bytes, d.hash) {
+            return Err(Error::input(
+                at,
+                format!(
+                    "is not {} that {} was made from (recorded {} bytes, content {:016x}; found {} bytes, content {:016x}): \
+                     put the original back, or decorate again",
+                    d.what(),
+                    self.container.path().display(),
+                    d.bytes,
+                    d.hash,
+                    bytes,
+                    hash
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Opens the geometry image (`at`, or the recorded one), after checking
+    /// it is the one the quilt was made from.
+    pub fn open_gim(&self, at: Option<&Path>, budget: MemoryBudget) -> Result<Gim> {
+        let path = at.unwrap_or(&self.gim);
+        self.verify("gim", path)?;
+        Gim::open(path, budget)
+    }
+
+    /// Refuses `out` when it is the quilt or one of the files it depends on.
+    pub fn check_output(&self, out: &Path) -> Result<()> {
+        let files = self.input_files();
+        let inputs: Vec<(&str, &Path)> = files.iter().map(|(r, p)| (r.as_str(), p.as_path())).collect();
+        crate::staging::check_output(out, &inputs)
+    }
+
+    /// Every file the quilt depends on, with its role for messages: what an
+    /// output must never overwrite.
+    pub fn input_files(&self) -> Vec<(String, PathBuf)> {
+        self.dependencies
+            .iter()
+            .map(|d| (d.what(), d.path.clone()))
+            .chain(std::iter::once((
+                "the decorated surface".to_string(),
+                self.container.path().to_path_buf(),
+            )))
+            .collect()
     }
 
     /// The container underneath.

@@ -52,7 +52,6 @@ use rayon::prelude::*;
 use crate::bake::{atlas_colour, bilinear, dilate, open_samples};
 use crate::btf::Angles;
 use crate::container::MemoryBudget;
-use crate::gim::Gim;
 use crate::imageio::{self, PngDepth, RgbImage};
 use crate::mesh::{cross, dot, normalize, sub, Mesh};
 use crate::quilt::{Quilt, NO_PATCH};
@@ -346,6 +345,7 @@ fn write(out: &Path, img: &RgbImage) -> Result<()> {
 pub fn render(quilt_path: &Path, cfg: &RenderConfig, out: &Path, budget: MemoryBudget) -> Result<()> {
     cfg.validate()?;
     check_output(out)?;
+    Quilt::open(quilt_path, budget)?.check_output(out)?;
     let scene = Scene::open(quilt_path, budget)?;
     let img = scene.render_image(cfg)?;
     write(out, &img)
@@ -392,6 +392,10 @@ pub fn render_frames(
     let scene = Scene::open(quilt_path, budget)?;
     let camera = cfg.camera.unwrap_or_else(|| scene.default_camera());
     let paths = frame_paths(out, frames);
+    let quilt = Quilt::open(quilt_path, budget)?;
+    for p in &paths {
+        quilt.check_output(p)?;
+    }
     for (k, path) in paths.iter().enumerate() {
         let mut c = cfg.clone();
         c.camera = Some(camera);
@@ -623,13 +627,7 @@ impl Scene {
     /// Opens the quilt, its geometry image and its samples.
     pub fn open(quilt_path: &Path, budget: MemoryBudget) -> Result<Scene> {
         let quilt = Quilt::open(quilt_path, budget)?;
-        if !quilt.gim.exists() {
-            return Err(Error::input(
-                quilt_path,
-                format!("its geometry image {} is gone", quilt.gim.display()),
-            ));
-        }
-        let gim = Gim::open(&quilt.gim, budget)?;
+        let gim = quilt.open_gim(None, budget)?;
         if gim.resolution != quilt.resolution {
             return Err(Error::input(
                 quilt_path,

@@ -349,24 +349,7 @@ pub struct ContainerWriter {
 impl ContainerWriter {
     /// Starts an artifact of `kind` that will be renamed to `path`.
     pub fn create(path: &Path, kind: &str) -> Result<ContainerWriter> {
-        let dir = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let file_name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let prefix = format!(".{file_name}.");
-        let mut builder = tempfile::Builder::new();
-        builder.prefix(&prefix).suffix(".partial");
-        #[cfg(unix)]
-        {
-            // the usual mode for new files (the umask applies), not tempfile's 0600
-            use std::os::unix::fs::PermissionsExt;
-            builder.permissions(std::fs::Permissions::from_mode(0o666));
-        }
-        let tmp = builder.tempfile_in(&dir).map_err(|e| Error::io(path, e))?;
+        let tmp = crate::staging::staged_file(path)?;
         let file = tmp.as_file().try_clone().map_err(|e| Error::io(path, e))?;
         let mut out = BufWriter::with_capacity(1 << 20, file);
         // A zeroed header (version 0) marks the file unfinished until `finish`.
@@ -948,4 +931,32 @@ pub fn human_bytes(b: u64) -> String {
     } else {
         format!("{v:.2} {}", UNITS[u])
     }
+}
+
+/// What a file held, cheaply: its length and a content hash — for a
+/// container, its [`Container::content_hash`] (metadata and every chunk's
+/// checksum, read from its header); for any other file (an image, a mask),
+/// the xxh3 of its bytes. Artifacts record it for each file they depend on,
+/// and readers check it before trusting the file at that path.
+pub fn file_identity(path: &Path) -> Result<(u64, u64)> {
+    use std::io::Read;
+    let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    let mut head = [0u8; 8];
+    let is_container = len >= HEADER_LEN as u64 && file.read_exact(&mut head).is_ok() && head == MAGIC;
+    if is_container {
+        let c = Container::open(path, MemoryBudget::default())?;
+        return Ok((len, c.content_hash()));
+    }
+    file.seek(SeekFrom::Start(0)).map_err(|e| Error::io(path, e))?;
+    let mut hasher = xxhash_rust::xxh3::Xxh3::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = file.read(&mut buf).map_err(|e| Error::io(path, e))?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    Ok((len, hasher.digest()))
 }

@@ -1,0 +1,386 @@
+//! Staged outputs: every file or folder a command writes is built under a
+//! hidden name beside its destination and renamed into place only when it is
+//! complete, so a failed or killed run never leaves a file that looks
+//! finished and never replaces a good one with half of a new one.
+//!
+//! A staged file is named `.NAME.PID.RANDOM.partial` (a folder
+//! `.NAME.PID.RANDOM.partial.d`), where PID is the writing process. Before a
+//! new output is staged, partial files of the same destination left by a
+//! process that no longer runs (a killed run) are removed; what was removed
+//! is kept for the caller to report ([`take_removed_partials`]). Liveness is
+//! read from `/proc`: where it is absent, nothing is removed.
+//!
+//! [`check_outputs`] refuses an output that is one of the command's inputs (or
+//! a file an input depends on), after resolving links: writing it would
+//! destroy the input.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use crate::{Error, Result};
+
+const SUFFIX: &str = ".partial";
+const DIR_SUFFIX: &str = ".partial.d";
+
+/// A partial output left by a process that no longer runs, and removed.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RemovedPartial {
+    /// The partial file or folder that was removed.
+    pub path: PathBuf,
+    /// The process that had written it.
+    pub pid: u32,
+    /// Its size in bytes (files only; 0 for a folder).
+    pub bytes: u64,
+}
+
+static REMOVED: Mutex<Vec<RemovedPartial>> = Mutex::new(Vec::new());
+
+/// The stale partial outputs removed so far by this process (and forgets
+/// them), for the command line to say what it cleaned up.
+pub fn take_removed_partials() -> Vec<RemovedPartial> {
+    std::mem::take(&mut *REMOVED.lock().unwrap_or_else(|e| e.into_inner()))
+}
+
+/// The folder a destination lives in (`.` for a bare file name).
+fn parent_dir(dest: &Path) -> &Path {
+    match dest.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
+fn file_name(dest: &Path) -> Result<String> {
+    dest.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .ok_or_else(|| Error::input(dest, "not a file path"))
+}
+
+/// Whether process `pid` is running, if this system can tell.
+fn process_alive(pid: u32) -> Option<bool> {
+    let proc = Path::new("/proc");
+    if !proc.join("self").exists() {
+        return None;
+    }
+    Some(proc.join(pid.to_string()).exists())
+}
+
+/// The writer of a partial name `.NAME.PID.RANDOM<suffix>` for destination
+/// `NAME`, if the name is one.
+fn partial_writer(entry: &str, name: &str, suffix: &str) -> Option<u32> {
+    let rest = entry.strip_prefix('.')?.strip_prefix(name)?.strip_prefix('.')?;
+    let rest = rest.strip_suffix(suffix)?;
+    let (pid, random) = rest.split_once('.')?;
+    if random.is_empty() || random.contains('.') {
+        return None;
+    }
+    pid.parse().ok()
+}
+
+/// Removes partial outputs of `dest` whose writing process is gone.
+fn remove_stale(dest: &Path) {
+    let Ok(name) = file_name(dest) else { return };
+    let dir = parent_dir(dest);
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let me = std::process::id();
+    for entry in entries.flatten() {
+        let entry_name = entry.file_name().to_string_lossy().into_owned();
+        let (pid, is_dir) = match (
+            partial_writer(&entry_name, &name, SUFFIX),
+            partial_writer(&entry_name, &name, DIR_SUFFIX),
+        ) {
+            (Some(pid), _) => (pid, false),
+            (None, Some(pid)) => (pid, true),
+            (None, None) => continue,
+        };
+        if pid == me || process_alive(pid) != Some(false) {
+            continue;
+        }
+        let path = entry.path();
+        let bytes = if is_dir {
+            0
+        } else {
+            entry.metadata().map(|m| m.len()).unwrap_or(0)
+        };
+        let removed = if is_dir {
+            std::fs::remove_dir_all(&path)
+        } else {
+            std::fs::remove_file(&path)
+        };
+        if removed.is_ok() {
+            REMOVED
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .push(RemovedPartial { path, pid, bytes });
+        }
+    }
+}
+
+/// A new staged file for `dest`: a temporary file beside it, deleted when
+/// dropped, to be renamed onto `dest` with `persist` once complete. Stale
+/// partial files of the same destination are removed first.
+pub fn staged_file(dest: &Path) -> Result<tempfile::NamedTempFile> {
+    let name = file_name(dest)?;
+    remove_stale(dest);
+    let prefix = format!(".{name}.{}.", std::process::id());
+    let mut b = tempfile::Builder::new();
+    b.prefix(&prefix).suffix(SUFFIX).rand_bytes(8);
+    #[cfg(unix)]
+    {
+        // the usual mode for new files (the umask applies), not tempfile's 0600
+        use std::os::unix::fs::PermissionsExt;
+        b.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    b.tempfile_in(parent_dir(dest)).map_err(|e| Error::io(dest, e))
+}
+
+/// A folder output built whole under a hidden name beside its destination
+/// and renamed into place by [`StagedDir::commit`]; dropped uncommitted, it is
+/// removed.
+pub struct StagedDir {
+    dest: PathBuf,
+    tmp: Option<tempfile::TempDir>,
+}
+
+impl StagedDir {
+    /// Stages the folder `dest`. It may not exist yet, be empty, or hold a
+    /// previous output of the same kind (`marker`, e.g. its `manifest.csv`),
+    /// which the commit replaces whole; a folder holding anything else is
+    /// refused, so no user file is ever removed.
+    pub fn new(dest: &Path, marker: Option<&str>) -> Result<StagedDir> {
+        let name = file_name(dest)?;
+        if dest.exists() {
+            if !dest.is_dir() {
+                return Err(Error::input(dest, "exists and is not a folder"));
+            }
+            let empty = std::fs::read_dir(dest)
+                .map_err(|e| Error::io(dest, e))?
+                .next()
+                .is_none();
+            let ours = marker.is_some_and(|m| dest.join(m).is_file());
+            if !empty && !ours {
+                return Err(Error::input(
+                    dest,
+                    "is a folder that holds other files: give a new or empty folder",
+                ));
+            }
+        }
+        let dir = parent_dir(dest);
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        remove_stale(dest);
+        let prefix = format!(".{name}.{}.", std::process::id());
+        let tmp = tempfile::Builder::new()
+            .prefix(&prefix)
+            .suffix(DIR_SUFFIX)
+            .rand_bytes(8)
+            .tempdir_in(dir)
+            .map_err(|e| Error::io(dest, e))?;
+        Ok(StagedDir {
+            dest: dest.to_path_buf(),
+            tmp: Some(tmp),
+        })
+    }
+
+    /// The staging folder: write the output's files here.
+    pub fn path(&self) -> &Path {
+        self.tmp.as_ref().expect("an uncommitted stage").path()
+    }
+
+    /// The destination folder.
+    pub fn dest(&self) -> &Path {
+        &self.dest
+    }
+
+    /// Renames the staged folder onto the destination, replacing a previous
+    /// output there whole (moved aside first, removed after).
+    pub fn commit(mut self) -> Result<PathBuf> {
+        let tmp = self.tmp.take().expect("commit runs once");
+        let staged = tmp.keep();
+        let dest = self.dest.clone();
+        let fail = |e: std::io::Error| {
+            let _ = std::fs::remove_dir_all(&staged);
+            Error::io(&dest, e)
+        };
+        if dest.exists() {
+            let name = file_name(&dest)?;
+            let aside = parent_dir(&dest).join(format!(".{name}.{}.old{DIR_SUFFIX}", std::process::id()));
+            std::fs::rename(&dest, &aside).map_err(fail)?;
+            if let Err(e) = std::fs::rename(&staged, &dest) {
+                let _ = std::fs::rename(&aside, &dest);
+                return Err(fail(e));
+            }
+            let _ = std::fs::remove_dir_all(&aside);
+        } else {
+            std::fs::rename(&staged, &dest).map_err(fail)?;
+        }
+        Ok(dest)
+    }
+}
+
+/// The identity of an existing file after resolving links (device and inode
+/// on Unix, the canonical path elsewhere).
+fn identity(path: &Path) -> Option<(u64, u64, PathBuf)> {
+    let canonical = std::fs::canonicalize(path).ok()?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        let m = std::fs::metadata(&canonical).ok()?;
+        Some((m.dev(), m.ino(), PathBuf::new()))
+    }
+    #[cfg(not(unix))]
+    {
+        Some((0, 0, canonical))
+    }
+}
+
+/// Whether `a` and `b` name the same existing file (links resolved).
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    match (identity(a), identity(b)) {
+        (Some(x), Some(y)) => x == y,
+        _ => false,
+    }
+}
+
+/// Refuses to write `output` when it is (the same file as) one of `inputs`:
+/// the command's own inputs and the files they depend on. `role` names what
+/// the input is, for the message.
+pub fn check_output(output: &Path, inputs: &[(&str, &Path)]) -> Result<()> {
+    for (role, input) in inputs {
+        if same_file(output, input) {
+            let named = if output == *input {
+                String::new()
+            } else {
+                format!(" {}", input.display())
+            };
+            return Err(Error::input(
+                output,
+                format!("is {role}{named}: writing it would destroy it; choose another output"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses to write into the folder `dir` when one of `inputs` lies inside
+/// it under one of `names` (the files the folder output will hold).
+pub fn check_output_dir(dir: &Path, names: &[&str], inputs: &[(&str, &Path)]) -> Result<()> {
+    for name in names {
+        check_output(&dir.join(name), inputs)?;
+    }
+    for (role, input) in inputs {
+        if same_file(dir, input) {
+            return Err(Error::input(
+                dir,
+                format!("is {role} {}; choose another output folder", input.display()),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// A hidden staging folder inside `dir` for an output made of several files
+/// that are renamed into `dir` one by one (`name` tells outputs apart);
+/// removed when dropped. Stale ones of dead writers are removed first.
+pub fn staging_dir_in(dir: &Path, name: &str) -> Result<tempfile::TempDir> {
+    remove_stale(&dir.join(name));
+    tempfile::Builder::new()
+        .prefix(&format!(".{name}.{}.", std::process::id()))
+        .suffix(DIR_SUFFIX)
+        .rand_bytes(8)
+        .tempdir_in(dir)
+        .map_err(|e| Error::io(dir, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn partial_names_parse_only_for_their_destination() {
+        assert_eq!(
+            partial_writer(".a.gim.123.Xy7Qz0aB.partial", "a.gim", SUFFIX),
+            Some(123)
+        );
+        assert_eq!(
+            partial_writer(".a.gim.123.Xy7Qz0aB.partial", "b.gim", SUFFIX),
+            None
+        );
+        assert_eq!(partial_writer(".a.gim.x.Xy7Qz0aB.partial", "a.gim", SUFFIX), None);
+        assert_eq!(partial_writer("a.gim.123.Xy.partial", "a.gim", SUFFIX), None);
+        assert_eq!(partial_writer(".d.7.abc.partial.d", "d", DIR_SUFFIX), Some(7));
+    }
+
+    #[test]
+    fn stale_partials_of_dead_writers_are_removed_live_ones_kept() {
+        if process_alive(std::process::id()) != Some(true) {
+            eprintln!("no /proc: liveness unknown, nothing is removed; skipped");
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let dest = dir.path().join("x.quilt");
+        // a pid that cannot be running: above the kernel's pid_max (2^22)
+        let dead = dir.path().join(".x.quilt.4294967.abcdefgh.partial");
+        let live = dir
+            .path()
+            .join(format!(".x.quilt.{}.abcdefgh.partial", std::process::id()));
+        let other = dir.path().join(".y.quilt.4294967.abcdefgh.partial");
+        for p in [&dead, &live, &other] {
+            std::fs::write(p, b"partial").unwrap();
+        }
+        let tmp = staged_file(&dest).unwrap();
+        assert!(!dead.exists(), "the dead writer's partial stays");
+        assert!(live.exists() && other.exists());
+        let removed = take_removed_partials();
+        assert!(removed
+            .iter()
+            .any(|r| r.path == dead && r.pid == 4294967 && r.bytes == 7));
+        drop(tmp);
+    }
+
+    #[test]
+    fn output_equal_to_an_input_is_refused_through_links() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("m.obj");
+        std::fs::write(&input, b"v 0 0 0\n").unwrap();
+        let e = check_output(&input, &[("the input mesh", &input)]).unwrap_err();
+        assert!(e.to_string().contains("m.obj") && e.to_string().contains("would destroy"));
+        #[cfg(unix)]
+        {
+            let link = dir.path().join("link.obj");
+            std::os::unix::fs::symlink(&input, &link).unwrap();
+            assert!(check_output(&link, &[("the input mesh", &input)]).is_err());
+        }
+        let other = dir.path().join("out.gim");
+        assert!(check_output(&other, &[("the input mesh", &input)]).is_ok());
+    }
+
+    #[test]
+    fn staged_dir_replaces_its_own_output_and_refuses_foreign_folders() {
+        let dir = tempfile::tempdir().unwrap();
+        let dest = dir.path().join("out");
+        let s = StagedDir::new(&dest, Some("manifest.csv")).unwrap();
+        std::fs::write(s.path().join("manifest.csv"), b"one").unwrap();
+        std::fs::write(s.path().join("a.png"), b"a").unwrap();
+        s.commit().unwrap();
+        let s = StagedDir::new(&dest, Some("manifest.csv")).unwrap();
+        std::fs::write(s.path().join("manifest.csv"), b"two").unwrap();
+        s.commit().unwrap();
+        assert_eq!(std::fs::read(dest.join("manifest.csv")).unwrap(), b"two");
+        assert!(!dest.join("a.png").exists(), "the old output is replaced whole");
+        let foreign = dir.path().join("mine");
+        std::fs::create_dir(&foreign).unwrap();
+        std::fs::write(foreign.join("notes.txt"), b"keep").unwrap();
+        assert!(StagedDir::new(&foreign, Some("manifest.csv")).is_err());
+        assert_eq!(std::fs::read(foreign.join("notes.txt")).unwrap(), b"keep");
+        // dropped uncommitted: nothing is left
+        let s = StagedDir::new(&dir.path().join("never"), None).unwrap();
+        drop(s);
+        let left: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name())
+            .collect();
+        assert_eq!(left.len(), 2, "{left:?}");
+    }
+}
