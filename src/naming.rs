@@ -172,13 +172,34 @@ pub fn scan_folder(dir: &Path) -> Result<Vec<PairFile>> {
             "no BTF images found (expected .png/.exr/.jpg/.jpeg/.tif/.tiff files named like prefix_tl015_pl000_tv030_pv045.png)",
         ));
     }
-    named
+    let files: Vec<PairFile> = named
         .into_iter()
         .map(|(name, path)| match parse_pair_name(&name) {
             Ok((view, light)) => Ok(PairFile { path, view, light }),
             Err(reason) => Err(Error::input(&path, reason)),
         })
-        .collect()
+        .collect::<Result<_>>()?;
+    // one BTF per folder: images of two formats are two exports mixed
+    let ext = |p: &Path| {
+        p.extension()
+            .map(|e| match e.to_string_lossy().to_ascii_lowercase().as_str() {
+                "jpeg" => "jpg".to_string(),
+                "tiff" => "tif".to_string(),
+                e => e.to_string(),
+            })
+            .unwrap_or_default()
+    };
+    let first = ext(&files[0].path);
+    if let Some(other) = files.iter().find(|f| ext(&f.path) != first) {
+        return Err(Error::input(
+            dir,
+            format!(
+                "holds BTF images of more than one format (.{first} and {}): one BTF per folder",
+                other.path.display()
+            ),
+        ));
+    }
+    Ok(files)
 }
 
 /// Splits one CSV line into trimmed fields; `"..."` quoting with `""` escapes.
