@@ -208,7 +208,7 @@ fn run(quilt_path: &Path, out: &Path, cfg: &PaintConfig, progress: &dyn Progress
     let base = Quilt::open(quilt_path, cfg.tile.memory)?;
     check_paint_output(&base, cfg, out)?;
     let log = match base.container().metadata().param("paint_log") {
-        Some(Param::Text(s)) => PaintLog::parse(s, quilt_path, &base.samples[0])?,
+        Some(Param::Text(s)) => PaintLog::parse(s, quilt_path, &base.samples[0])?.resolved_in(quilt_path),
         _ => PaintLog {
             base: quilt_path.to_path_buf(),
             base_hash: base.container().content_hash(),
@@ -243,7 +243,7 @@ pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<Pai
     let Some(Param::Text(text)) = q.container().metadata().param("paint_log") else {
         return Err(Error::input(painted, "has no paint log (it was not painted)"));
     };
-    let log = PaintLog::parse(text, painted, &q.samples[0])?;
+    let log = PaintLog::parse(text, painted, &q.samples[0])?.resolved_in(painted);
     q.check_output(out)?;
     let base = Quilt::open(&log.base, crate::container::MemoryBudget::default())?;
     base.check_output(out)?;
@@ -407,6 +407,49 @@ impl Stroke {
     }
 }
 
+impl PaintLog {
+    /// The log with every path it records made relative to the folder of
+    /// the quilt `out` that will store it, so a painted surface and its
+    /// inputs can move together and be replayed from any working directory.
+    fn relative_to(&self, out: &Path) -> PaintLog {
+        let rel = |p: &Path| PathBuf::from(crate::staging::relative_to_folder_of(out, p));
+        PaintLog {
+            base: rel(&self.base),
+            base_hash: self.base_hash,
+            strokes: self
+                .strokes
+                .iter()
+                .map(|s| Stroke {
+                    sample: rel(&s.sample),
+                    sample_mask: rel(&s.sample_mask),
+                    region: s.region.as_deref().map(rel),
+                    ..s.clone()
+                })
+                .collect(),
+        }
+    }
+
+    /// The log read from the quilt `file`, its paths resolved against that
+    /// quilt's folder.
+    fn resolved_in(self, file: &Path) -> PaintLog {
+        let abs = |p: &Path| crate::staging::resolve_in_folder_of(file, p);
+        PaintLog {
+            base: abs(&self.base),
+            base_hash: self.base_hash,
+            strokes: self
+                .strokes
+                .into_iter()
+                .map(|s| Stroke {
+                    sample: abs(&s.sample),
+                    sample_mask: abs(&s.sample_mask),
+                    region: s.region.as_deref().map(abs),
+                    ..s
+                })
+                .collect(),
+        }
+    }
+}
+
 /// The paint log stored in a painted quilt: its base and its strokes.
 #[derive(Clone, Debug)]
 struct PaintLog {
@@ -524,7 +567,7 @@ fn apply_stroke(
     }
     let mut log = log.clone();
     log.strokes.push(stroke.clone());
-    syn.write(out, &gim, &base.gim, Some(&log.to_json()), start)?;
+    syn.write(out, &gim, &base.gim, Some(&log.relative_to(out).to_json()), start)?;
     report.seconds = start.elapsed().as_secs_f64();
     Ok(report)
 }

@@ -2669,37 +2669,12 @@ fn write_quilt(
 fn record_dependency(w: &mut ContainerWriter, out: &Path, role: &str, path: &Path) -> Result<()> {
     let (bytes, hash) = crate::container::file_identity(path)?;
     w.add_input(role, hash);
-    w.set_param(role, Param::Text(relative_to_folder_of(out, path)));
+    w.set_param(
+        role,
+        Param::Text(crate::staging::relative_to_folder_of(out, path)),
+    );
     w.set_param(&format!("{role}_bytes"), Param::Int(bytes as i64));
     Ok(())
-}
-
-/// `path` relative to the folder of `artifact` (both resolved), or `path`
-/// made absolute when no relative form exists.
-fn relative_to_folder_of(artifact: &Path, path: &Path) -> String {
-    let folder = match artifact.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let (Ok(from), Ok(to)) = (std::fs::canonicalize(folder), std::fs::canonicalize(path)) else {
-        return std::path::absolute(path)
-            .unwrap_or_else(|_| path.to_path_buf())
-            .display()
-            .to_string();
-    };
-    let (a, b): (Vec<_>, Vec<_>) = (from.components().collect(), to.components().collect());
-    let common = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
-    if common == 0 {
-        return to.display().to_string();
-    }
-    let mut rel = PathBuf::new();
-    for _ in common..a.len() {
-        rel.push("..");
-    }
-    for c in &b[common..] {
-        rel.push(c);
-    }
-    rel.display().to_string()
 }
 
 /// One file a decorated surface depends on, as its quilt records it.
@@ -2781,10 +2756,6 @@ impl Quilt {
     pub fn open(path: &Path, budget: MemoryBudget) -> Result<Quilt> {
         let container = Container::open_kind(path, KIND, budget)?;
         let m = container.metadata();
-        let folder = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
         let mut dependencies = Vec::new();
         let mut dependency = |role: &str| -> Result<PathBuf> {
             let Some(Param::Text(s)) = m.param(role) else {
@@ -2793,12 +2764,7 @@ impl Quilt {
                     format!("metadata parameter '{role}' is missing"),
                 ));
             };
-            let stored = PathBuf::from(s);
-            let resolved = if stored.is_absolute() {
-                stored
-            } else {
-                folder.join(stored)
-            };
+            let resolved = crate::staging::resolve_in_folder_of(path, Path::new(s));
             let bytes = match m.param(&format!("{role}_bytes")) {
                 Some(Param::Int(b)) if *b >= 0 => *b as u64,
                 _ => {

@@ -234,6 +234,41 @@ fn identity(path: &Path) -> Option<(u64, u64, PathBuf)> {
     }
 }
 
+/// `path` relative to the folder of `artifact` (both resolved), or `path`
+/// made absolute when no relative form exists.
+pub fn relative_to_folder_of(artifact: &Path, path: &Path) -> String {
+    let folder = parent_dir(artifact);
+    let (Ok(from), Ok(to)) = (std::fs::canonicalize(folder), std::fs::canonicalize(path)) else {
+        return std::path::absolute(path)
+            .unwrap_or_else(|_| path.to_path_buf())
+            .display()
+            .to_string();
+    };
+    let (a, b): (Vec<_>, Vec<_>) = (from.components().collect(), to.components().collect());
+    let common = a.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    if common == 0 {
+        return to.display().to_string();
+    }
+    let mut rel = PathBuf::new();
+    for _ in common..a.len() {
+        rel.push("..");
+    }
+    for c in &b[common..] {
+        rel.push(c);
+    }
+    rel.display().to_string()
+}
+
+/// A path recorded in `artifact`, resolved against the artifact's folder
+/// (absolute paths stay as they are).
+pub fn resolve_in_folder_of(artifact: &Path, recorded: &Path) -> PathBuf {
+    if recorded.is_absolute() {
+        recorded.to_path_buf()
+    } else {
+        parent_dir(artifact).join(recorded)
+    }
+}
+
 /// Whether `a` and `b` name the same existing file (links resolved).
 pub fn same_file(a: &Path, b: &Path) -> bool {
     match (identity(a), identity(b)) {

@@ -40,23 +40,36 @@ fn rewrite_quilt(src: &Path, out: &Path, samples: &[&Path], index: Option<&[u8]>
     if let Some(seed) = m.seed {
         w.set_seed(seed);
     }
-    for i in &m.inputs {
-        w.add_input(&i.name, i.hash);
-    }
+    let role = |k: &str| k.strip_suffix("_bytes").unwrap_or(k).to_string();
     let ours = |k: &str| {
+        let k = role(k);
         k == "sample" || k == "sample_count" || (k.starts_with("sample_") && k[7..].parse::<usize>().is_ok())
     };
+    for i in &m.inputs {
+        if !ours(&i.name) {
+            w.add_input(&i.name, i.hash);
+        }
+    }
     for (k, v) in &m.params {
         if !ours(k) {
             w.set_param(k, v.clone());
         }
     }
-    w.set_param("sample", Param::Text(s(samples[0]).to_string()));
+    // each sample recorded as `paint --sample` records it: path, size and
+    // content hash (a missing one with none, so readers find it gone)
     if samples.len() > 1 {
         w.set_param("sample_count", Param::Int(samples.len() as i64));
-        for (k, p) in samples.iter().enumerate().skip(1) {
-            w.set_param(&format!("sample_{k}"), Param::Text(s(p).to_string()));
-        }
+    }
+    for (k, p) in samples.iter().enumerate() {
+        let name = if k == 0 {
+            "sample".to_string()
+        } else {
+            format!("sample_{k}")
+        };
+        let (bytes, hash) = btfquilt::container::file_identity(p).unwrap_or((0, 0));
+        w.add_input(&name, hash);
+        w.set_param(&name, Param::Text(s(p).to_string()));
+        w.set_param(&format!("{name}_bytes"), Param::Int(bytes as i64));
     }
     let mut patch_spec = None;
     for spec in &m.arrays {
