@@ -419,3 +419,47 @@ fn threads_are_capped_and_messages_said_once() {
     );
     assert!(!e.contains("give --sample"), "{e}");
 }
+
+#[test]
+fn a_painted_surface_moves_with_its_inputs_and_replays_from_anywhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let work = dir.path().join("work");
+    std::fs::create_dir(&work).unwrap();
+    let (_, _, _, quilt) = decorated(&work);
+    let mask = work.join("mask.png");
+    crate::common::write_mask_png(&mask, 32, 32, |x, y| (x / 4 + y / 4) % 3 == 0);
+    let strokes = work.join("strokes.json");
+    std::fs::write(&strokes, r#"[{"point": [0.5, 0.5, 0.0], "radius": 0.2}]"#).unwrap();
+    let painted = work.join("painted.quilt");
+    ok(&[
+        "paint",
+        s(&quilt),
+        "--sample-mask",
+        s(&mask),
+        "--region",
+        s(&strokes),
+        "--patch-radius",
+        "8",
+        "-q",
+        "-o",
+        s(&painted),
+    ]);
+    let moved = dir.path().join("moved");
+    std::fs::rename(&work, &moved).unwrap();
+    let painted = moved.join("painted.quilt");
+    let elsewhere = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_btfquilt"))
+        .current_dir(elsewhere.path())
+        .args(["replay", s(&painted), "-q", "-o", "again.quilt"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // the same strokes on the same base: the same surface, its log naming
+    // the same files from its own folder
+    let again = elsewhere.path().join("again.quilt");
+    let a = btfquilt::quilt::Quilt::open(&painted, Default::default()).unwrap();
+    let b = btfquilt::quilt::Quilt::open(&again, Default::default()).unwrap();
+    assert_eq!(a.patches().unwrap(), b.patches().unwrap());
+    assert_eq!(a.coords().unwrap(), b.coords().unwrap());
+    ok(&["evaluate", s(&again)]);
+}
