@@ -782,7 +782,12 @@ impl SvdArtifact {
         let (width, height, terms, rotations) =
             (int("width")?, int("height")?, int("terms")?, int("rotations")?);
         let dirs = |name: &str| -> Result<Vec<Angles>> {
-            let v: Vec<f32> = container.read_array(container.array(name)?)?;
+            let id = container.array(name)?;
+            let spec = container.spec(id);
+            if spec.dtype != DType::F32 || spec.shape.len() != 2 || spec.shape[1] != 2 {
+                return Err(Error::input(path, format!("array '{name}' must be f32 [n, 2]")));
+            }
+            let v: Vec<f32> = container.read_array(id)?;
             Ok(v.chunks_exact(2)
                 .map(|a| Angles {
                     theta: a[0],
@@ -800,6 +805,14 @@ impl SvdArtifact {
                 path,
                 "geometry_maps/appearance shapes disagree with the metadata",
             ));
+        }
+        let (h, w, n, r) = (height as u64, width as u64, terms as u64, rotations as u64);
+        let why = format!("parameters width {width}, height {height}, terms {terms}, rotations {rotations}");
+        container.array_shaped("singular_values", DType::F32, &[n], &why)?;
+        container.array_shaped("preview", DType::F32, &[h, w, 3], &why)?;
+        if rotations > 0 {
+            container.array_shaped("rotated_maps", DType::F16, &[r, h, w, n], &why)?;
+            container.array_shaped("rotated_valid", DType::U8, &[r, h, w], &why)?;
         }
         Ok(SvdArtifact {
             container,

@@ -362,9 +362,9 @@ pub fn build_gim(
         }
     };
     let r = cfg.resolution;
-    if !(16..=32768).contains(&r) {
+    if !(16..=MAX_RESOLUTION).contains(&r) {
         return Err(Error::Config(format!(
-            "--resolution {r}: must be between 16 and 32768"
+            "--resolution {r}: must be between 16 and {MAX_RESOLUTION}"
         )));
     }
     let mut inputs = vec![("the input mesh", mesh_path)];
@@ -795,16 +795,24 @@ fn sorted3(mut t: [u32; 3]) -> [u32; 3] {
     t
 }
 
+/// Largest atlas resolution `atlas` writes and readers accept.
+pub const MAX_RESOLUTION: usize = 32768;
+
 /// A geometry image opened for reading.
 pub struct Gim {
     container: Container,
     pub resolution: usize,
     pub charts: usize,
     pub texel_size: f64,
+    /// Vertices and faces of the stored mesh (the row counts of its arrays).
+    vertices: u64,
+    faces: u64,
 }
 
 impl Gim {
-    /// Opens a `.gim`, checking its kind.
+    /// Opens a `.gim`, checking its kind, its parameters against the shapes
+    /// of its arrays, and (as each is read, see [`Gim::read`]) the indices
+    /// its arrays hold against the counts they index.
     pub fn open(path: &Path, budget: MemoryBudget) -> Result<Gim> {
         let container = Container::open_kind(path, KIND, budget)?;
         let m = container.metadata();
@@ -816,12 +824,117 @@ impl Gim {
             Some(Param::Float(v)) => *v,
             _ => return Err(Error::input(path, "metadata parameter 'texel_size' is missing")),
         };
+        let (resolution, charts) = (int("resolution")?, int("charts")?);
+        let r = resolution as u64;
+        let why = format!("parameter 'resolution' is {resolution}");
+        for (name, dtype, channels) in [
+            ("chart", DType::U32, 1),
+            ("face", DType::U32, 1),
+            ("bary", DType::F32, 2),
+            ("position", DType::F32, 3),
+            ("normal", DType::F32, 3),
+            ("tangent", DType::F32, 3),
+        ] {
+            let shape = if channels == 1 {
+                vec![r, r]
+            } else {
+                vec![r, r, channels]
+            };
+            container.array_shaped(name, dtype, &shape, &why)?;
+        }
+        if resolution > MAX_RESOLUTION {
+            return Err(Error::input(
+                path,
+                format!("parameter 'resolution' is {resolution}, more than the {MAX_RESOLUTION} an atlas may have"),
+            ));
+        }
+        // per-row arrays: their row counts are the mesh's vertex and face counts
+        let rows = |name: &str, dtype: DType, cols: u64| -> Result<u64> {
+            let spec = container.spec(container.array(name)?);
+            if spec.dtype != dtype || spec.shape.len() != 2 || spec.shape[1] != cols {
+                return Err(Error::input(
+                    path,
+                    format!(
+                        "array '{name}' is {} {}, expected N×{cols} {}",
+                        crate::container::dims(&spec.shape),
+                        spec.dtype.name(),
+                        dtype.name()
+                    ),
+                ));
+            }
+            Ok(spec.shape[0])
+        };
+        let vertices = rows("mesh_positions", DType::F32, 3)?;
+        let faces = rows("mesh_triangles", DType::U32, 3)?;
+        let faces_why = format!("array 'mesh_triangles' has {faces} faces");
+        for (name, dtype, shape) in [
+            ("corner_uv", DType::F32, [faces * 3, 2]),
+            ("face_chart", DType::U32, [faces, 1]),
+            ("face_field", DType::F32, [faces, 3]),
+        ] {
+            if container.array(name).is_ok() {
+                container.array_shaped(name, dtype, &shape, &faces_why)?;
+            }
+        }
+        rows("zipper_links", DType::U32, 2)?;
+        rows("zipper_triangles", DType::U32, 3)?;
         Ok(Gim {
-            resolution: int("resolution")?,
-            charts: int("charts")?,
+            resolution,
+            charts,
             texel_size,
+            vertices,
+            faces,
             container,
         })
+    }
+
+    /// Checks the indices a `u32` array holds against what they index, so
+    /// that no reader can index out of range with them: mesh triangles
+    /// against the vertex count, texel faces (of covered texels) against the
+    /// face count, texel charts and face charts against the chart count,
+    /// zipper links and triangles against the texel count.
+    fn check_indices(&self, name: &str, values: &[u32]) -> Result<()> {
+        let texels = (self.resolution * self.resolution) as u64;
+        let charts = self.charts as u64;
+        let (bound, what, empty_ok) = match name {
+            "mesh_triangles" => (self.vertices, "vertices", false),
+            "face_chart" => (charts, "charts", false),
+            "chart" => (charts, "charts", true),
+            "zipper_links" | "zipper_triangles" => (texels, "texels", false),
+            "face" => {
+                // empty texels hold NO_FACE; covered ones a face
+                let chart: Vec<u32> = self.container.read_array(self.container.array("chart")?)?;
+                self.check_indices("chart", &chart)?;
+                let bad = values
+                    .iter()
+                    .zip(&chart)
+                    .position(|(&f, &c)| c != EMPTY && f as u64 >= self.faces);
+                return match bad {
+                    None => Ok(()),
+                    Some(t) => Err(Error::input(
+                        self.container.path(),
+                        format!(
+                            "array 'face' holds face {} at covered texel {t}, but the mesh has {} faces",
+                            values[t], self.faces
+                        ),
+                    )),
+                };
+            }
+            _ => return Ok(()),
+        };
+        match values
+            .iter()
+            .position(|&v| v as u64 >= bound && !(empty_ok && v == EMPTY))
+        {
+            None => Ok(()),
+            Some(i) => Err(Error::input(
+                self.container.path(),
+                format!(
+                    "array '{name}' holds index {} at element {i}, but there are {bound} {what}",
+                    values[i]
+                ),
+            )),
+        }
     }
 
     /// The container underneath.
@@ -829,9 +942,14 @@ impl Gim {
         &self.container
     }
 
-    /// A whole named array.
+    /// A whole named array; an index array's values are checked against
+    /// what they index (an error names the file and array).
     pub fn read<T: Element>(&self, name: &str) -> Result<Vec<T>> {
-        self.container.read_array(self.container.array(name)?)
+        let v: Vec<T> = self.container.read_array(self.container.array(name)?)?;
+        if T::DTYPE == DType::U32 {
+            self.check_indices(name, bytemuck::cast_slice(&v))?;
+        }
+        Ok(v)
     }
 
     /// The repaired input mesh.

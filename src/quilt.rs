@@ -2795,6 +2795,36 @@ impl Quilt {
             Some(Param::Int(v)) if *v > 0 => *v as usize,
             _ => return Err(Error::input(path, "metadata parameter 'resolution' is missing")),
         };
+        // the arrays must match the resolution everything sizes itself by
+        let why = format!("parameter 'resolution' is {resolution}");
+        let r = resolution as u64;
+        for (name, dtype, channels, required) in [
+            ("coord", DType::F32, 2, true),
+            ("jacobian", DType::F32, 4, false),
+            ("rotation", DType::U8, 1, false),
+            ("patch", DType::U32, 1, false),
+            ("sample", DType::U8, 1, false),
+            ("seam", DType::U8, 1, false),
+            ("region", DType::F32, 1, false),
+        ] {
+            if required || container.array(name).is_ok() {
+                let shape = if channels == 1 {
+                    vec![r, r]
+                } else {
+                    vec![r, r, channels]
+                };
+                container.array_shaped(name, dtype, &shape, &why)?;
+            }
+        }
+        if resolution > crate::gim::MAX_RESOLUTION {
+            return Err(Error::input(
+                path,
+                format!(
+                    "parameter 'resolution' is {resolution}, more than the {} an atlas may have",
+                    crate::gim::MAX_RESOLUTION
+                ),
+            ));
+        }
         let gim = dependency("gim")?;
         let sample = dependency("sample")?;
         let count = match m.param("sample_count") {

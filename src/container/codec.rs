@@ -157,9 +157,28 @@ pub fn encode<T: Element>(values: &[T], level: i32) -> EncodedChunk {
 
 /// Decodes a stored chunk of `elements` values of `dtype`, verifying the
 /// checksum. The error string says what is wrong (the caller adds file,
-/// array and chunk).
+/// array and chunk). Never allocates more than the chunk's declared raw size
+/// (which readers bound by [`super::MAX_CHUNK_BYTES`]), and nothing at all
+/// when the zstd frame header announces a different size.
 pub fn decode(stored: &[u8], dtype: DType, elements: usize, expect: u64) -> Result<ChunkData, String> {
-    let raw_len = elements * dtype.size();
+    let raw_len = elements
+        .checked_mul(dtype.size())
+        .ok_or_else(|| format!("{elements} elements of {} overflow", dtype.name()))?;
+    if raw_len as u64 > (stored.len() as u64).saturating_mul(super::MAX_ZSTD_RATIO) {
+        return Err(format!(
+            "{} stored bytes cannot decode to the chunk's {raw_len}",
+            stored.len()
+        ));
+    }
+    match zstd::zstd_safe::get_frame_content_size(stored) {
+        Ok(Some(n)) if n != raw_len as u64 => {
+            return Err(format!(
+                "the compressed frame holds {n} bytes, the chunk {raw_len}"
+            ))
+        }
+        Ok(_) => {}
+        Err(_) => return Err("not a zstd frame".into()),
+    }
     let shuffled = zstd::bulk::decompress(stored, raw_len).map_err(|e| format!("zstd: {e}"))?;
     if shuffled.len() != raw_len {
         return Err(format!("decoded {} bytes, expected {raw_len}", shuffled.len()));

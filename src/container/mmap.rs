@@ -11,10 +11,21 @@
 //! place (every writer writes a temporary file and renames it over the
 //! destination, which leaves the inode that readers have mapped untouched).
 //! Other programs must not modify an artifact while btfquilt reads it, the same
-//! contract as any memory-mapping tool. Whatever the mapping yields is still
-//! checked: every chunk's decoded bytes are verified against their checksum.
+//! contract as any memory-mapping tool.
+//!
+//! What btfquilt does when someone breaks the contract anyway: before every
+//! read through the map it asks the kept file handle for the file's current
+//! length (one `fstat`, well under a microsecond next to decoding a chunk) and
+//! returns an I/O error naming the file — "changed size while being read (was
+//! N bytes, now M)" — instead of touching the mapping if the file shrank. This
+//! turns the common accident (an artifact truncated or overwritten in place
+//! by another program while a long `tile`/`bake` runs) into a clean error. It
+//! cannot close the race entirely: a file truncated between the check and the
+//! access (within the one `f` call) still raises `SIGBUS`; btfquilt installs
+//! no signal handler to catch it. Bytes rewritten in place at the same size
+//! are caught by the chunk checksums: every chunk's decoded bytes are verified.
 //! Set `BTFQUILT_NO_MMAP=1` to use plain reads instead (slower on random access,
-//! no contract needed).
+//! no contract needed: a shrunk file then gives an ordinary read error).
 #![allow(unsafe_code)]
 
 use std::fs::File;
@@ -28,9 +39,9 @@ const RELEASE_EVERY: u64 = 32 << 20;
 
 /// Read-only random access to the bytes of one file.
 pub(crate) enum ByteSource {
-    /// The whole file mapped read-only, and the bytes read since its pages
-    /// were last released.
-    Mapped(Mmap, AtomicU64),
+    /// The whole file mapped read-only, the file (to check its length before
+    /// each read), and the bytes read since its pages were last released.
+    Mapped(Mmap, File, AtomicU64),
     /// Positioned reads (`pread`) on the open file.
     Plain(File),
 }
@@ -48,7 +59,7 @@ impl ByteSource {
                 // Chunks are read in any order: no readahead into large folios
                 // that a fault would then map whole.
                 let _ = map.advise(memmap2::Advice::Random);
-                return ByteSource::Mapped(map, AtomicU64::new(0));
+                return ByteSource::Mapped(map, file, AtomicU64::new(0));
             }
         }
         ByteSource::Plain(file)
@@ -63,11 +74,24 @@ impl ByteSource {
         f: impl FnOnce(&[u8]) -> R,
     ) -> std::io::Result<R> {
         match self {
-            ByteSource::Mapped(map, since_release) => {
-                let start = offset as usize;
-                let bytes = map.get(start..start + len).ok_or_else(|| {
-                    std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "range past end of file")
-                })?;
+            ByteSource::Mapped(map, file, since_release) => {
+                let start = usize::try_from(offset).unwrap_or(usize::MAX);
+                let bytes = start
+                    .checked_add(len)
+                    .and_then(|end| map.get(start..end))
+                    .ok_or_else(|| {
+                        std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "range past end of file")
+                    })?;
+                // A file truncated under the map would raise SIGBUS on access:
+                // refuse instead (see the module's safety contract).
+                let was = map.len() as u64;
+                let now = file.metadata()?.len();
+                if now < was {
+                    return Err(std::io::Error::new(
+                        std::io::ErrorKind::UnexpectedEof,
+                        format!("changed size while being read (was {was} bytes, now {now})"),
+                    ));
+                }
                 let out = f(bytes);
                 // Decoded chunks live in the cache; mapped pages would only
                 // add to resident memory (and the kernel maps whole page-cache

@@ -43,6 +43,21 @@ pub const FORMAT_VERSION: u32 = 1;
 const HEADER_LEN: usize = 64;
 /// Default zstd level: 1-3 is the sweet spot for shuffled f16 data.
 pub const DEFAULT_ZSTD_LEVEL: i32 = 3;
+/// Most dimensions an array may have (the writers use up to 4).
+pub const MAX_DIMS: usize = 8;
+/// Largest decoded chunk, in bytes, that a reader will allocate. The writers'
+/// chunks are far smaller (a few KiB to a few MiB: 64×64-texel tiles, 16×16
+/// BTF tiles of one band, 65536 mesh rows); the bound keeps a crafted file
+/// from asking for terabytes (readers check every spec on opening).
+pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
+/// Largest decoded array, in bytes (256 TiB): big BTFs are streamed chunk by
+/// chunk, so this only rules out sizes that overflow later arithmetic.
+pub const MAX_ARRAY_BYTES: u64 = 1 << 48;
+/// Most decoded bytes one stored byte can stand for: a zstd block holds at
+/// most 128 KiB and takes at least 4 bytes (an RLE block), so no chunk decodes
+/// to more than 32768 times its stored size (all-zero data comes close:
+/// 1 GiB of zeros stores as ~33 KiB). Readers refuse arrays that claim more.
+pub const MAX_ZSTD_RATIO: u64 = 32768;
 
 fn bincode_config() -> impl bincode::config::Config {
     bincode::config::standard()
@@ -90,24 +105,65 @@ pub struct ArraySpec {
 }
 
 impl ArraySpec {
-    /// A spec; errors if the dimensions disagree or a chunk extent is zero.
+    /// A spec; errors if it breaks a rule of [`ArraySpec::check`] (the
+    /// dimensions disagree, a chunk extent is zero, a chunk is too large...).
     pub fn new(name: &str, dtype: DType, shape: &[u64], chunk_shape: &[u64]) -> Result<ArraySpec> {
-        if shape.len() != chunk_shape.len() || shape.is_empty() {
-            return Err(Error::Config(format!(
-                "array '{name}': shape {shape:?} and chunk shape {chunk_shape:?} must have the same, non-zero number of dimensions"
-            )));
-        }
-        if chunk_shape.iter().any(|&c| c == 0) {
-            return Err(Error::Config(format!(
-                "array '{name}': chunk extents must be positive, got {chunk_shape:?}"
-            )));
-        }
-        Ok(ArraySpec {
+        let spec = ArraySpec {
             name: name.to_string(),
             dtype,
             shape: shape.to_vec(),
             chunk_shape: chunk_shape.to_vec(),
-        })
+        };
+        spec.check()
+            .map_err(|reason| Error::Config(format!("array '{name}': {reason}")))?;
+        Ok(spec)
+    }
+
+    /// Checks that the spec can be read without overflow or an outsize
+    /// allocation: 1..=[`MAX_DIMS`] dimensions, as many chunk extents as
+    /// shape extents, every chunk extent positive, element and chunk counts
+    /// that fit in `u64`, at most [`MAX_ARRAY_BYTES`] in all and at most
+    /// [`MAX_CHUNK_BYTES`] per decoded chunk. Every other method of the spec
+    /// assumes this holds; readers check it when opening a file, writers in
+    /// [`ArraySpec::new`]. The error says what is wrong (the caller names
+    /// the file and array).
+    pub fn check(&self) -> std::result::Result<(), String> {
+        let (shape, chunk) = (&self.shape, &self.chunk_shape);
+        if shape.is_empty() || shape.len() > MAX_DIMS || shape.len() != chunk.len() {
+            return Err(format!(
+                "shape {shape:?} and chunk shape {chunk:?} must have the same number of dimensions, 1 to {MAX_DIMS}"
+            ));
+        }
+        if chunk.iter().any(|&c| c == 0) {
+            return Err(format!("chunk extents must be positive, got {chunk:?}"));
+        }
+        let size = self.dtype.size() as u64;
+        let bytes = shape
+            .iter()
+            .try_fold(size, |acc, &s| acc.checked_mul(s))
+            .filter(|&b| b <= MAX_ARRAY_BYTES);
+        if bytes.is_none() {
+            return Err(format!(
+                "shape {shape:?} of {} exceeds the {} an array may hold",
+                self.dtype.name(),
+                human_bytes(MAX_ARRAY_BYTES)
+            ));
+        }
+        // the largest (unclipped) chunk actually inside the shape
+        let chunk_bytes = shape
+            .iter()
+            .zip(chunk)
+            .try_fold(size, |acc, (&s, &c)| acc.checked_mul(s.min(c)))
+            .filter(|&b| b <= MAX_CHUNK_BYTES);
+        if chunk_bytes.is_none() {
+            return Err(format!(
+                "chunk shape {chunk:?} of {} exceeds the {} a decoded chunk may hold",
+                self.dtype.name(),
+                human_bytes(MAX_CHUNK_BYTES)
+            ));
+        }
+        // the chunk grid is at most the element count, which fits (above)
+        Ok(())
     }
 
     /// Number of chunks along each dimension.
@@ -533,6 +589,44 @@ impl ContainerWriter {
     }
 }
 
+/// Test support: writes `meta` and the given stored chunks (per array, in
+/// chunk order) as a finished container at `path`, with valid checksums but
+/// WITHOUT checking anything — so tests can craft hostile files that the
+/// readers must refuse. Not for use outside tests.
+#[doc(hidden)]
+pub fn write_unchecked(path: &Path, meta: &Metadata, chunks: &[Vec<EncodedChunk>]) -> Result<()> {
+    let mut bytes = vec![0u8; HEADER_LEN];
+    let mut index = Vec::new();
+    for array in chunks {
+        let mut entries = Vec::new();
+        for c in array {
+            entries.push(ChunkEntry {
+                offset: bytes.len() as u64,
+                stored_len: c.bytes.len() as u64,
+                checksum: c.checksum,
+            });
+            bytes.extend_from_slice(&c.bytes);
+        }
+        index.push(entries);
+    }
+    let meta_offset = bytes.len() as u64;
+    let meta_block = encode_block(meta);
+    bytes.extend_from_slice(&meta_block);
+    let index_offset = bytes.len() as u64;
+    let index_block = encode_block(&index);
+    bytes.extend_from_slice(&index_block);
+    let header = Header {
+        version: FORMAT_VERSION,
+        meta_offset,
+        meta_len: meta_block.len() as u64,
+        index_offset,
+        index_len: index_block.len() as u64,
+        file_len: bytes.len() as u64,
+    };
+    bytes[..HEADER_LEN].copy_from_slice(&header.to_bytes());
+    std::fs::write(path, bytes).map_err(|e| Error::io(path, e))
+}
+
 /// Calls `f(source_offset, len)` for every contiguous innermost row of the
 /// region `origin + extent` inside a row-major array of `shape`.
 pub(crate) fn for_each_row(shape: &[u64], origin: &[u64], extent: &[u64], mut f: impl FnMut(usize, usize)) {
@@ -624,6 +718,10 @@ impl Container {
                 meta.arrays.len()
             )));
         }
+        for spec in &meta.arrays {
+            spec.check()
+                .map_err(|reason| Error::input(path, format!("array '{}': {reason}", spec.name)))?;
+        }
         for (spec, entries) in meta.arrays.iter().zip(&index) {
             if entries.len() as u64 != spec.chunk_count() {
                 return Err(bad_index(format!(
@@ -632,6 +730,22 @@ impl Container {
                     entries.len(),
                     spec.chunk_count()
                 )));
+            }
+            let stored = entries
+                .iter()
+                .fold(0u64, |acc, e| acc.saturating_add(e.stored_len));
+            if spec.raw_bytes() > stored.saturating_mul(MAX_ZSTD_RATIO) {
+                return Err(Error::input(
+                    path,
+                    format!(
+                        "array '{}' declares {} of data ({} {}) in {} stored bytes, more than zstd can expand to",
+                        spec.name,
+                        human_bytes(spec.raw_bytes()),
+                        dims(&spec.shape),
+                        spec.dtype.name(),
+                        stored
+                    ),
+                ));
             }
             if let Some(e) = entries.iter().find(|e| {
                 e.offset
@@ -706,6 +820,27 @@ impl Container {
             .ok_or_else(|| Error::input(&self.path, format!("has no array named '{name}'")))
     }
 
+    /// An array that must hold `dtype` in `shape`; `why` says where the
+    /// expected shape comes from (e.g. "parameter 'resolution' is 100000").
+    /// The error names the file, the array, what it is and what was expected.
+    pub fn array_shaped(&self, name: &str, dtype: DType, shape: &[u64], why: &str) -> Result<ArrayId> {
+        let id = self.array(name)?;
+        let spec = self.spec(id);
+        if spec.dtype != dtype || spec.shape != shape {
+            return Err(Error::input(
+                &self.path,
+                format!(
+                    "{why} but array '{name}' is {} {} (expected {} {})",
+                    dims(&spec.shape),
+                    spec.dtype.name(),
+                    dims(shape),
+                    dtype.name()
+                ),
+            ));
+        }
+        Ok(id)
+    }
+
     /// The spec of an array.
     pub fn spec(&self, id: ArrayId) -> &ArraySpec {
         &self.meta.arrays[id.0 as usize]
@@ -762,7 +897,9 @@ impl Container {
     pub fn read_region<T: Element>(&self, id: ArrayId, origin: &[u64], extent: &[u64]) -> Result<Vec<T>> {
         let spec = self.spec(id).clone();
         let nd = spec.shape.len();
-        if origin.len() != nd || extent.len() != nd || (0..nd).any(|d| origin[d] + extent[d] > spec.shape[d])
+        if origin.len() != nd
+            || extent.len() != nd
+            || (0..nd).any(|d| origin[d].checked_add(extent[d]).is_none_or(|e| e > spec.shape[d]))
         {
             return Err(Error::Config(format!(
                 "{}: region {origin:?}+{extent:?} is outside array '{}' of shape {:?}",
@@ -771,7 +908,20 @@ impl Container {
                 spec.shape
             )));
         }
-        let mut out = vec![T::zeroed(); extent.iter().product::<u64>() as usize];
+        let n = extent.iter().product::<u64>() as usize;
+        let mut out = Vec::new();
+        out.try_reserve_exact(n).map_err(|_| {
+            Error::input(
+                &self.path,
+                format!(
+                    "array '{}': cannot allocate {} for a region of {}",
+                    spec.name,
+                    human_bytes(n as u64 * spec.dtype.size() as u64),
+                    dims(extent)
+                ),
+            )
+        })?;
+        out.resize(n, T::zeroed());
         // chunk-grid range that the region touches
         let lo: Vec<u64> = (0..nd).map(|d| origin[d] / spec.chunk_shape[d]).collect();
         let hi: Vec<u64> = (0..nd)
@@ -826,6 +976,31 @@ impl Container {
     pub fn read_array<T: Element>(&self, id: ArrayId) -> Result<Vec<T>> {
         let shape = self.spec(id).shape.clone();
         self.read_region(id, &vec![0; shape.len()], &shape)
+    }
+
+    /// Test support: the stored (still compressed) chunks of every array, in
+    /// chunk order, to rewrite with [`write_unchecked`]. Not for use outside
+    /// tests.
+    #[doc(hidden)]
+    pub fn stored_chunks(&self) -> Result<Vec<Vec<EncodedChunk>>> {
+        let mut out = Vec::new();
+        for (spec, entries) in self.meta.arrays.iter().zip(&self.index) {
+            let mut array = Vec::new();
+            for (c, e) in entries.iter().enumerate() {
+                let bytes = self
+                    .source
+                    .with_bytes(e.offset, e.stored_len as usize, |b| b.to_vec())
+                    .map_err(|err| Error::io(&self.path, err))?;
+                array.push(EncodedChunk {
+                    bytes,
+                    checksum: e.checksum,
+                    dtype: spec.dtype,
+                    elements: spec.chunk_len(c as u64) as u64,
+                });
+            }
+            out.push(array);
+        }
+        Ok(out)
     }
 
     /// Decodes and checks every chunk of every array (in parallel, bypassing
@@ -915,6 +1090,11 @@ impl Container {
         );
         s
     }
+}
+
+/// `[64, 64, 2]` → `"64×64×2"`.
+pub fn dims(shape: &[u64]) -> String {
+    shape.iter().map(|d| d.to_string()).collect::<Vec<_>>().join("×")
 }
 
 /// `1536` → `"1.50 KiB"`.
