@@ -66,7 +66,7 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<(Mesh, RepairReport)> {
         return Err(Error::input(
             path,
             format!(
-                "no triangles: the file has {} vertices and no faces",
+                "no usable triangles: the file has {} vertices and no faces",
                 mesh.positions.len()
             ),
         ));
@@ -236,10 +236,10 @@ fn diagnose_no_triangles(text: &str) -> String {
         }
     }
     if faces == 0 {
-        format!("no triangles: the file has {vertices} vertices but no faces ('f' lines)")
+        format!("no usable triangles: the file has {vertices} vertices but no faces ('f' lines)")
     } else if short == faces {
         format!(
-            "no triangles: {} fewer than 3 vertices, and a face needs at least 3 to be a surface",
+            "no usable triangles: {} fewer than 3 vertices, and a face needs at least 3 to be a surface",
             if faces == 1 {
                 "its only face ('f' line) has".to_string()
             } else {
@@ -247,7 +247,7 @@ fn diagnose_no_triangles(text: &str) -> String {
             }
         )
     } else {
-        format!("no triangles: none of its {faces} faces ('f' lines) could be read as a polygon")
+        format!("no usable triangles: none of its {faces} faces ('f' lines) could be read as a polygon")
     }
 }
 
@@ -514,7 +514,7 @@ fn read_ply_from(path: &Path, file: File) -> Result<Mesh> {
         return Err(Error::input(
             path,
             format!(
-                "no triangles: {} fewer than 3 vertices, and a face needs at least 3 to be a surface",
+                "no usable triangles: {} fewer than 3 vertices, and a face needs at least 3 to be a surface",
                 if faces.len() == 1 {
                     "its only face has".to_string()
                 } else {
