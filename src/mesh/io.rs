@@ -38,6 +38,13 @@ impl Default for LoadOptions {
 /// unparseable file, non-finite coordinates, out-of-range indices, or no usable
 /// triangles.
 pub fn load(path: &Path, opts: &LoadOptions) -> Result<(Mesh, RepairReport)> {
+    if !(opts.weld_tolerance.is_finite() && (0.0..=0.5).contains(&opts.weld_tolerance)) {
+        return Err(Error::Config(format!(
+            "--weld {}: must be a finite number in 0..=0.5 (a fraction of the median edge length; \
+             0 welds exact duplicates only)",
+            opts.weld_tolerance
+        )));
+    }
     let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
     let mut mesh = match ext.as_deref() {
         Some("obj") => read_obj(path)?,
@@ -55,12 +62,6 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<(Mesh, RepairReport)> {
             ))
         }
     };
-    if !(opts.weld_tolerance.is_finite() && opts.weld_tolerance >= 0.0) {
-        return Err(Error::Config(format!(
-            "weld tolerance must be a finite number >= 0, got {}",
-            opts.weld_tolerance
-        )));
-    }
     validate(path, &mesh)?;
     if mesh.triangles.is_empty() {
         return Err(Error::input(
