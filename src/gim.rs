@@ -128,6 +128,9 @@ struct FaceRaster<'a> {
     vertex_normals: Vec<[f32; 3]>,
     field: Vec<[f32; 3]>,
     resolution: usize,
+    /// Maps the (possibly rescaled, see [`Mesh::normalize_extreme_scale`])
+    /// mesh positions back to the user's units; 1.0 for ordinary meshes.
+    unscale: f64,
 }
 
 /// The best triangle found for one texel.
@@ -325,7 +328,12 @@ fn tile_arrays(fr: &FaceRaster, t: &TileRaster) -> TileArrays {
             a.bary[i * 2] = c.bary[1] as f32;
             a.bary[i * 2 + 1] = c.bary[2] as f32;
             let (p, nrm, tan) = fr.attributes(c);
-            a.position[i * 3..i * 3 + 3].copy_from_slice(&p);
+            let user = if fr.unscale == 1.0 {
+                p
+            } else {
+                p.map(|x| (x as f64 * fr.unscale) as f32)
+            };
+            a.position[i * 3..i * 3 + 3].copy_from_slice(&user);
             a.normal[i * 3..i * 3 + 3].copy_from_slice(&nrm);
             a.tangent[i * 3..i * 3 + 3].copy_from_slice(&tan);
             let (xi, yi) = (x as isize, y as isize);
@@ -372,7 +380,10 @@ pub fn build_gim(
         inputs.push(("the vector-field keys", keys.as_path()));
     }
     crate::staging::check_output(out, &inputs)?;
-    let (mesh, repair) = io::load(mesh_path, &cfg.load)?;
+    let (mut mesh, repair) = io::load(mesh_path, &cfg.load)?;
+    // A mesh of extreme size is worked on rescaled by a power of two (exact),
+    // and its positions written back in the user's units.
+    let unscale = mesh.normalize_extreme_scale();
     let topology = mesh.topology();
     let keys: Vec<FieldKey> = match &cfg.field_keys {
         Some(p) => field::read_keys(p, mesh.triangles.len())?,
@@ -432,6 +443,7 @@ pub fn build_gim(
         vertex_normals: mesh.vertex_normals(),
         field,
         resolution: r,
+        unscale,
     };
     // bucket faces by the tiles their dilated texel bounding box touches
     let nt = r.div_ceil(TILE);
@@ -521,6 +533,9 @@ pub fn build_gim(
     let linf = charts.iter().map(|c| c.linf_stretch as f64).fold(0.0, f64::max);
     let utilization = covered as f64 / (r * r) as f64;
 
+    // the zipper above worked in the rescaled units; the file and the
+    // report speak the user's
+    let texel_size = texel_size * unscale;
     write_mesh_arrays(&mut w, &mesh, &fr, &charts, &links, &zip_tris)?;
     w.add_input(&mesh_path.display().to_string(), hash_file(mesh_path)?);
     if let Some(p) = &cfg.field_keys {
@@ -599,7 +614,18 @@ fn write_mesh_arrays(
         DType::F32,
         nv,
         3,
-        &mesh.positions.iter().flatten().copied().collect::<Vec<f32>>(),
+        &mesh
+            .positions
+            .iter()
+            .flatten()
+            .map(|&c| {
+                if fr.unscale == 1.0 {
+                    c
+                } else {
+                    (c as f64 * fr.unscale) as f32
+                }
+            })
+            .collect::<Vec<f32>>(),
     )?;
     write_flat(
         w,

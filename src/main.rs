@@ -171,7 +171,7 @@ enum Command {
         /// Vector-field keys: JSON [{"face": 12, "dir": [1, 0, 0]}, …].
         #[arg(long)]
         field: Option<PathBuf>,
-        /// Weld vertices closer than this fraction of the bounding-box diagonal.
+        /// Weld vertices closer than this fraction of the median edge length (0..=0.5; 0: exact duplicates only).
         #[arg(long, default_value_t = 1e-6)]
         weld: f32,
         /// Split a chart whose L2 texture stretch exceeds this (≥ 1; lower: more
@@ -417,6 +417,9 @@ fn parse_angles(s: &str, what: &str) -> Result<Angles> {
         .trim()
         .parse()
         .with_context(|| format!("--{what} '{s}': φ is not a number"))?;
+    if !(theta.is_finite() && phi.is_finite()) {
+        bail!("--{what} '{s}': θ and φ must be finite numbers of degrees");
+    }
     Ok(Angles { theta, phi })
 }
 
@@ -738,7 +741,7 @@ fn run(cli: Cli) -> Result<()> {
                     .collect::<std::result::Result<_, _>>()
                     .ok()
                     .filter(|v: &Vec<f32>| v.len() == 3 && v.iter().all(|c| c.is_finite()))
-                    .ok_or_else(|| anyhow::anyhow!("--at '{at}': expected x,y,z"))?;
+                    .ok_or_else(|| anyhow::anyhow!("--at '{at}': expected x,y,z (three finite numbers)"))?;
                 Some(btfquilt::paint::Verbatim {
                     at: [v[0], v[1], v[2]],
                     angle,

@@ -166,7 +166,7 @@ impl PreviewSession {
     /// colours) to `out`; returns the foreground texels it covers.
     pub fn preview(&mut self, v: Verbatim, out: &Path, progress: &dyn Progress) -> Result<usize> {
         let (centre, extent) = foreground_extent(&self.syn);
-        let vertex = nearest_vertex(&self.syn, v.at);
+        let vertex = verbatim_vertex(&self.syn, &v)?;
         let radius = (extent * 1.15).ceil() as usize + 4;
         self.syn
             .verbatim(vertex, radius, v.angle.to_radians(), centre, Some(out), progress)
@@ -326,6 +326,10 @@ impl Stroke {
         if cfg.preview.is_some() && cfg.verbatim.is_none() {
             return Err(Error::Config("--preview needs --verbatim".into()));
         }
+        if let Some(v) = &cfg.verbatim {
+            check_verbatim(v)?;
+        }
+        cfg.tile.validate()?;
         Ok(Stroke {
             sample,
             sample_mask,
@@ -509,7 +513,7 @@ fn apply_stroke(
     let mut report = PaintReport::default();
     if let Some(v) = stroke.verbatim {
         let (centre, extent) = foreground_extent(&syn);
-        let vertex = nearest_vertex(&syn, v.at);
+        let vertex = verbatim_vertex(&syn, &v)?;
         let radius = (extent * 1.15).ceil() as usize + 4;
         let taken = syn.verbatim(vertex, radius, v.angle.to_radians(), centre, None, progress)?;
         report.repainted = taken;
@@ -594,22 +598,107 @@ fn foreground_extent(syn: &Synthesis) -> ([f64; 2], f64) {
     (c, extent)
 }
 
-/// The dense vertex nearest to a 3D point (lowest id among equals).
-fn nearest_vertex(syn: &Synthesis, p: [f32; 3]) -> u32 {
+/// The dense vertex nearest to a 3D point (lowest id among equals),
+/// computed in f64 so that far points compare correctly. Refuses, with the
+/// reason, a point that is not finite or that lies farther from the surface
+/// than the surface's own size (its bounding-box diagonal): such a point was
+/// meant for another mesh or other units, and its "nearest vertex" would be
+/// an arbitrary one.
+fn nearest_vertex(syn: &Synthesis, p: [f64; 3]) -> std::result::Result<u32, String> {
+    let show = |p: [f64; 3]| format!("({}, {}, {})", short(p[0]), short(p[1]), short(p[2]));
+    if !p.iter().all(|c| c.is_finite()) {
+        return Err(format!("point {} is not a finite position", show(p)));
+    }
     let r = syn.resolution();
     let graph = syn.graph();
-    let mut best = (f32::INFINITY, 0u32);
+    let mut best: Option<(f64, u32)> = None;
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
     for t in 0..(r * r) as u32 {
         if graph.chart[t as usize] == EMPTY {
             continue;
         }
-        let q = syn.position(t);
-        let d = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2);
-        if d < best.0 {
-            best = (d, t);
+        let q = syn.position(t).map(|c| c as f64);
+        if !q.iter().all(|c| c.is_finite()) {
+            continue;
+        }
+        for k in 0..3 {
+            lo[k] = lo[k].min(q[k]);
+            hi[k] = hi[k].max(q[k]);
+        }
+        let d = (0..3).map(|k| (q[k] - p[k]).powi(2)).sum::<f64>();
+        if best.map_or(true, |(b, _)| d < b) {
+            best = Some((d, t));
         }
     }
-    best.1
+    let Some((d2, t)) = best else {
+        return Err("the surface has no dense vertex to place it on".into());
+    };
+    let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    let d = d2.sqrt();
+    if !d.is_finite() || d > diag {
+        return Err(format!(
+            "point {} is {} from the surface, farther than the surface's size \
+             (bounding-box diagonal {}): give a point on or near the mesh, in its units",
+            show(p),
+            short(d),
+            short(diag)
+        ));
+    }
+    Ok(t)
+}
+
+/// A number for a message: 4 decimals in ordinary ranges, else scientific.
+fn short(x: f64) -> String {
+    if x != 0.0 && x.is_finite() && !(1e-3..1e6).contains(&x.abs()) {
+        format!("{x:.3e}")
+    } else {
+        format!("{}", (x * 1e4).round() / 1e4)
+    }
+}
+
+/// Checks a verbatim copy's numbers: a finite point and a finite angle.
+fn check_verbatim(v: &Verbatim) -> Result<()> {
+    if !v.at.iter().all(|c| c.is_finite()) {
+        return Err(Error::Config(format!(
+            "--at {},{},{}: each coordinate must be a finite number",
+            v.at[0], v.at[1], v.at[2]
+        )));
+    }
+    if !v.angle.is_finite() {
+        return Err(Error::Config(format!(
+            "--angle {}: must be a finite number of degrees",
+            v.angle
+        )));
+    }
+    Ok(())
+}
+
+/// The dense vertex for a verbatim copy at `v.at`.
+fn verbatim_vertex(syn: &Synthesis, v: &Verbatim) -> Result<u32> {
+    check_verbatim(v)?;
+    nearest_vertex(syn, v.at.map(|c| c as f64)).map_err(|why| Error::Config(format!("--at: {why}")))
+}
+
+/// Checks stroke `k` of the strokes file `path` after parsing: a finite
+/// point and a finite radius > 0; the error names the file and the stroke.
+fn check_stroke(path: &Path, k: usize, point: [f64; 3], radius: f64) -> Result<()> {
+    if !point.iter().all(|c| c.is_finite()) {
+        return Err(Error::input(
+            path,
+            format!(
+                "stroke {k}: \"point\" [{}, {}, {}] is not a finite position",
+                point[0], point[1], point[2]
+            ),
+        ));
+    }
+    if !(radius.is_finite() && radius > 0.0) {
+        return Err(Error::input(
+            path,
+            format!("stroke {k}: \"radius\" {radius} must be a finite number > 0"),
+        ));
+    }
+    Ok(())
 }
 
 /// The region F per atlas texel, from a mask PNG, a mesh with vertex paint,
@@ -734,7 +823,9 @@ fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
             .and_then(Json::as_f64)
             .filter(|r| *r > 0.0 && r.is_finite())
             .ok_or_else(|| bad(&format!("stroke {k} has no positive \"radius\"")))?;
-        let source = nearest_vertex(syn, point.map(|c| c as f32));
+        check_stroke(path, k, point, radius)?;
+        let source =
+            nearest_vertex(syn, point).map_err(|why| Error::input(path, format!("stroke {k}: {why}")))?;
         // Dijkstra bounded by the radius
         let mut touched = vec![source];
         dist[source as usize] = 0.0;

@@ -106,6 +106,44 @@ impl Default for TileConfig {
     }
 }
 
+impl TileConfig {
+    /// Checks the numbers a user gives (each must be finite and in range),
+    /// naming the command-line flag and the value.
+    pub fn validate(&self) -> Result<()> {
+        let check = |flag: &str, v: f64, ok: bool, want: &str| {
+            if v.is_finite() && ok {
+                Ok(())
+            } else {
+                Err(Error::Config(format!("{flag} {v}: must be {want}")))
+            }
+        };
+        check(
+            "--seam-threshold",
+            self.seam_threshold,
+            self.seam_threshold > 0.0,
+            "a finite number > 0 (a mean seam cost in sample neighbour differences)",
+        )?;
+        check(
+            "--constraint-weight",
+            self.constraint_weight,
+            self.constraint_weight >= 0.0,
+            "a finite number ≥ 0 (sample neighbour differences per texel)",
+        )?;
+        if let Some(r) = self.refine {
+            check(
+                "--refine",
+                r,
+                r > 0.0,
+                "a finite number > 0 (a seam step in sample neighbour differences), or 0 for none",
+            )?;
+        }
+        if self.refine_placements == 0 {
+            return Err(Error::Config("--refine-placements must be at least 1".into()));
+        }
+        Ok(())
+    }
+}
+
 /// What [`tile`] did.
 #[derive(Clone, Debug, Default)]
 pub struct TileReport {
@@ -1971,14 +2009,7 @@ pub fn tile(
     progress: &dyn Progress,
 ) -> Result<TileReport> {
     let start = Instant::now();
-    if cfg.refine.is_some_and(|r| !(r.is_finite() && r > 0.0)) {
-        return Err(Error::Config(
-            "--refine must be a positive number (a seam step in sample neighbour differences)".into(),
-        ));
-    }
-    if cfg.refine_placements == 0 {
-        return Err(Error::Config("--refine-placements must be at least 1".into()));
-    }
+    cfg.validate()?;
     let mut inputs = vec![("the geometry image", gim_path), ("the sample", sample_path)];
     if let Some(mask) = &cfg.sample_mask {
         inputs.push(("the sample's foreground mask", mask.as_path()));

@@ -93,7 +93,7 @@ impl Camera {
             .map(|x| x.trim().parse::<f32>())
             .collect::<std::result::Result<_, _>>()
             .map_err(|_| bad())?;
-        if v.len() != 10 || v.iter().any(|x| !x.is_finite()) || !(1.0..179.0).contains(&v[9]) {
+        if v.len() != 10 {
             return Err(bad());
         }
         let cam = Camera {
@@ -102,13 +102,36 @@ impl Camera {
             up: [v[6], v[7], v[8]],
             fov: v[9],
         };
+        cam.check()
+            .map_err(|why| Error::Config(format!("--camera '{s}': {why}")))?;
+        Ok(cam)
+    }
+
+    /// Checks the numbers: all finite, a field of view in 1..179 degrees,
+    /// an eye apart from the target and an up not along the view.
+    fn check(&self) -> std::result::Result<(), String> {
+        let names = ["eye", "target", "up"];
+        for (name, v) in names.iter().zip([self.eye, self.target, self.up]) {
+            if let Some(k) = v.iter().position(|x| !x.is_finite()) {
+                return Err(format!(
+                    "the {name}'s {} coordinate is {}: every number must be finite",
+                    ["x", "y", "z"][k],
+                    v[k]
+                ));
+            }
+        }
+        if !(1.0..179.0).contains(&self.fov) {
+            return Err(format!(
+                "the field of view {} must be a finite number of degrees in 1..179",
+                self.fov
+            ));
+        }
+        let cam = self;
         let f = normalize(sub(cam.target, cam.eye));
         if dot(f, f) < 0.5 || crate::mesh::length(cross(f, normalize(cam.up))) < 1e-4 {
-            return Err(Error::Config(format!(
-                "--camera '{s}': the eye must differ from the target and up must not be along the view"
-            )));
+            return Err("the eye must differ from the target and up must not be along the view".into());
         }
-        Ok(cam)
+        Ok(())
     }
 
     /// A three-quarter view framing the given positions.
@@ -290,6 +313,23 @@ impl RenderConfig {
                 "--exposure {}: expected stops in -64..=64",
                 self.exposure
             )));
+        }
+        if let Some(c) = &self.camera {
+            c.check().map_err(|why| {
+                Error::Config(format!(
+                    "--camera {},{},{},{},{},{},{},{},{},{}: {why}",
+                    c.eye[0],
+                    c.eye[1],
+                    c.eye[2],
+                    c.target[0],
+                    c.target[1],
+                    c.target[2],
+                    c.up[0],
+                    c.up[1],
+                    c.up[2],
+                    c.fov
+                ))
+            })?;
         }
         for l in &self.lights {
             let ok = match *l {

@@ -826,15 +826,15 @@ pub fn build_charts(mesh: &Mesh, topology: &Topology, cfg: &ChartConfig) -> Resu
             cfg.max_normal_deviation
         )));
     }
-    if cfg.max_stretch.is_nan() || cfg.max_stretch < 1.0 {
+    if !(cfg.max_stretch.is_finite() && cfg.max_stretch >= 1.0) {
         return Err(Error::Config(format!(
-            "max_stretch must be at least 1, got {}",
+            "--max-stretch {}: must be a finite number ≥ 1",
             cfg.max_stretch
         )));
     }
-    if cfg.max_area_distortion.is_nan() || cfg.max_area_distortion < 1.0 {
+    if !(cfg.max_area_distortion.is_finite() && cfg.max_area_distortion >= 1.0) {
         return Err(Error::Config(format!(
-            "max_area_distortion must be at least 1, got {}",
+            "--max-area-distortion {}: must be a finite number ≥ 1",
             cfg.max_area_distortion
         )));
     }

@@ -15,7 +15,7 @@ use std::path::Path;
 /// How [`load`] cleans up a mesh.
 #[derive(Clone, Debug)]
 pub struct LoadOptions {
-    /// Weld vertices closer than this fraction of the bounding-box diagonal
+    /// Weld vertices closer than this fraction of the median edge length
     /// (0 = exact duplicates only). Default 1e-6.
     pub weld_tolerance: f32,
 }
@@ -38,6 +38,13 @@ impl Default for LoadOptions {
 /// unparseable file, non-finite coordinates, out-of-range indices, or no usable
 /// triangles.
 pub fn load(path: &Path, opts: &LoadOptions) -> Result<(Mesh, RepairReport)> {
+    if !(opts.weld_tolerance.is_finite() && (0.0..=0.5).contains(&opts.weld_tolerance)) {
+        return Err(Error::Config(format!(
+            "--weld {}: must be a finite number in 0..=0.5 (a fraction of the median edge length; \
+             0 welds exact duplicates only)",
+            opts.weld_tolerance
+        )));
+    }
     let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
     let mut mesh = match ext.as_deref() {
         Some("obj") => read_obj(path)?,
@@ -55,12 +62,6 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<(Mesh, RepairReport)> {
             ))
         }
     };
-    if !(opts.weld_tolerance.is_finite() && opts.weld_tolerance >= 0.0) {
-        return Err(Error::Config(format!(
-            "weld tolerance must be a finite number >= 0, got {}",
-            opts.weld_tolerance
-        )));
-    }
     validate(path, &mesh)?;
     if mesh.triangles.is_empty() {
         return Err(Error::input(
@@ -76,8 +77,12 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<(Mesh, RepairReport)> {
         return Err(Error::input(
             path,
             format!(
-                "no usable triangles: all {} faces are degenerate (repeated vertices or zero area)",
-                report.input_faces
+                "no usable triangles: {} degenerate (repeated vertices or zero area), so the mesh has no surface",
+                if report.input_faces == 1 {
+                    "its only triangle is".to_string()
+                } else {
+                    format!("all {} triangles are", report.input_faces)
+                }
             ),
         ));
     }
@@ -203,12 +208,48 @@ fn read_obj(path: &Path) -> Result<Mesh> {
     if has_colors {
         mesh.vertex_colors = Some(colors);
     }
+    if mesh.triangles.is_empty() {
+        return Err(Error::input(path, diagnose_no_triangles(text)));
+    }
     if mesh.positions.iter().any(|p| !p.iter().all(|c| c.is_finite())) {
         let reason =
             locate_nonfinite_obj(text).unwrap_or_else(|| "a vertex has a non-finite coordinate".into());
         return Err(Error::input(path, reason));
     }
     Ok(mesh)
+}
+
+/// Says why an OBJ the parser read gave no triangles, counting its own
+/// `v` and `f` lines.
+fn diagnose_no_triangles(text: &str) -> String {
+    let (mut vertices, mut faces, mut short) = (0usize, 0usize, 0usize);
+    for line in text.lines() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => vertices += 1,
+            Some("f") => {
+                faces += 1;
+                if words.count() < 3 {
+                    short += 1;
+                }
+            }
+            _ => {}
+        }
+    }
+    if faces == 0 {
+        format!("no usable triangles: the file has {vertices} vertices but no faces ('f' lines)")
+    } else if short == faces {
+        format!(
+            "no usable triangles: {} fewer than 3 vertices, and a face needs at least 3 to be a surface",
+            if faces == 1 {
+                "its only face ('f' line) has".to_string()
+            } else {
+                format!("all {faces} faces ('f' lines) have")
+            }
+        )
+    } else {
+        format!("no usable triangles: none of its {faces} faces ('f' lines) could be read as a polygon")
+    }
 }
 
 /// Finds the first bad vertex line or face index in an OBJ the parser
@@ -445,6 +486,7 @@ fn read_ply_from(path: &Path, file: File) -> Result<Mesh> {
             }
         }
     }
+    check_ply_end(path, &mut reader, &header)?;
     let n = vertices.len();
     let mut mesh = Mesh {
         positions: Vec::with_capacity(n),
@@ -468,6 +510,19 @@ fn read_ply_from(path: &Path, file: File) -> Result<Mesh> {
     }
     if has_weights {
         mesh.vertex_weights = Some(vertices.iter().map(|v| v.weight).collect());
+    }
+    if !faces.is_empty() && faces.iter().all(|f| !f.bad && f.indices.len() < 3) {
+        return Err(Error::input(
+            path,
+            format!(
+                "no usable triangles: {} fewer than 3 vertices, and a face needs at least 3 to be a surface",
+                if faces.len() == 1 {
+                    "its only face has".to_string()
+                } else {
+                    format!("all {} faces have", faces.len())
+                }
+            ),
+        ));
     }
     for (f, face) in faces.iter().enumerate() {
         if face.bad {
@@ -497,6 +552,44 @@ fn read_ply_from(path: &Path, file: File) -> Result<Mesh> {
         }
     }
     Ok(mesh)
+}
+
+/// Refuses data after the last element the header declares (an ASCII file:
+/// anything but white space; a binary one: any byte), which means the header
+/// under-counts that element and the rest would be silently dropped.
+fn check_ply_end(
+    path: &Path,
+    reader: &mut Reader<BufReader<File>>,
+    header: &ply_rs_bw::ply::Header,
+) -> Result<()> {
+    use std::io::Read;
+    let ascii = matches!(header.encoding, ply_rs_bw::ply::Encoding::Ascii);
+    let mut rest = [0u8; 4096];
+    loop {
+        let got = reader.get_mut().read(&mut rest).map_err(|e| Error::io(path, e))?;
+        if got == 0 {
+            return Ok(());
+        }
+        if rest[..got].iter().any(|b| !ascii || !b.is_ascii_whitespace()) {
+            let what = match header.elements.iter().last() {
+                Some((name, def)) => match name.as_str() {
+                    "face" if def.count == 1 => "the header declares 1 face".to_string(),
+                    "face" => format!("the header declares {} faces", def.count),
+                    "vertex" if def.count == 1 => "the header declares 1 vertex".to_string(),
+                    "vertex" => format!("the header declares {} vertices", def.count),
+                    _ => format!("the header declares {} '{name}' elements", def.count),
+                },
+                None => "the header declares no elements".to_string(),
+            };
+            return Err(Error::input(
+                path,
+                format!(
+                    "{what} but more data follows them: the header under-counts an element \
+                     (fix its 'element' line)"
+                ),
+            ));
+        }
+    }
 }
 
 fn check_indices(path: &Path, mesh: &Mesh) -> Result<()> {

@@ -39,6 +39,24 @@ pub struct Topology {
     pub components: usize,
 }
 
+/// Bounding-box diagonal of the finite positions, in f64 (0 if none).
+pub(crate) fn finite_diagonal_f64(positions: &[[f32; 3]]) -> f64 {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    let mut any = false;
+    for p in positions.iter().filter(|p| p.iter().all(|c| c.is_finite())) {
+        any = true;
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k] as f64);
+            hi[k] = hi[k].max(p[k] as f64);
+        }
+    }
+    if !any {
+        return 0.0;
+    }
+    ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt()
+}
+
 pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -125,6 +143,31 @@ impl Mesh {
         } else {
             length(sub(hi, lo))
         }
+    }
+
+    /// Rescales a mesh of extreme size so that the atlas computations (which
+    /// work in f32 and have absolute thresholds) see ordinary numbers: if the
+    /// bounding-box diagonal lies outside [2⁻²⁰, 2²⁰] (about 1e-6 to 1e6
+    /// units), every position is multiplied by the power of two that brings
+    /// the diagonal nearest to 1. Returns the factor that maps the rescaled
+    /// positions back to the user's units (1.0 if nothing changed). Scaling
+    /// by a power of two is exact, so mapping back restores the input bits
+    /// (barring f32 denormals).
+    pub fn normalize_extreme_scale(&mut self) -> f64 {
+        let diag = finite_diagonal_f64(&self.positions);
+        if !(diag.is_finite() && diag > 0.0) {
+            return 1.0;
+        }
+        let (lo, hi) = (2f64.powi(-20), 2f64.powi(20));
+        if (lo..=hi).contains(&diag) {
+            return 1.0;
+        }
+        let k = -diag.log2().round() as i32;
+        let scale = 2f64.powi(k);
+        for p in &mut self.positions {
+            *p = p.map(|c| (c as f64 * scale) as f32);
+        }
+        1.0 / scale
     }
 
     /// Total surface area.

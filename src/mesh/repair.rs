@@ -126,7 +126,7 @@ impl fmt::Display for RepairReport {
 }
 
 /// Repairs `mesh` in place: weld vertices within `weld_tolerance` times the
-/// bounding-box diagonal (lowest index survives), drop degenerate and duplicate
+/// median edge length (lowest index survives), drop degenerate and duplicate
 /// faces, separate faces at non-manifold edges and give every fan of faces
 /// around a vertex its own vertex copy, orient each orientable component
 /// consistently (keeping the majority orientation), and remove unreferenced
@@ -145,9 +145,9 @@ pub fn repair(mesh: &mut Mesh, weld_tolerance: f32) -> RepairReport {
     if let Some(w) = &mut mesh.vertex_weights {
         w.resize(n, 0.0);
     }
-    let diag = finite_diagonal(&mesh.positions);
-    report.welded_vertices = weld(mesh, weld_tolerance, diag);
-    report.degenerate_faces = drop_degenerate(mesh, diag);
+    let edge = median_edge_length(mesh);
+    report.welded_vertices = weld(mesh, weld_tolerance, edge);
+    report.degenerate_faces = drop_degenerate(mesh);
     let (nonmanifold, split) = make_manifold(mesh);
     report.nonmanifold_edges = nonmanifold;
     report.split_vertices = split;
@@ -163,35 +163,47 @@ fn is_finite(p: [f32; 3]) -> bool {
     p.iter().all(|c| c.is_finite())
 }
 
-/// Bounding-box diagonal over the finite positions, in f64.
-fn finite_diagonal(positions: &[[f32; 3]]) -> f64 {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    let mut any = false;
-    for p in positions.iter().filter(|p| is_finite(**p)) {
-        any = true;
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k] as f64);
-            hi[k] = hi[k].max(p[k] as f64);
+/// Median length (f64) of the finite, non-zero edges of faces whose indices
+/// are in range; 0 if there is none.
+fn median_edge_length(mesh: &Mesh) -> f64 {
+    let n = mesh.positions.len();
+    let mut lengths: Vec<f64> = Vec::with_capacity(mesh.triangles.len() * 3);
+    for t in &mesh.triangles {
+        if t.iter().any(|&v| v as usize >= n) {
+            continue;
+        }
+        for i in 0..3 {
+            let (a, b) = (
+                mesh.positions[t[i] as usize],
+                mesh.positions[t[(i + 1) % 3] as usize],
+            );
+            let d = dist2(a, b).sqrt();
+            if d.is_finite() && d > 0.0 {
+                lengths.push(d);
+            }
         }
     }
-    if !any {
+    if lengths.is_empty() {
         return 0.0;
     }
-    ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt()
+    let mid = lengths.len() / 2;
+    *lengths.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1
 }
 
 fn dist2(a: [f32; 3], b: [f32; 3]) -> f64 {
     (0..3).map(|k| (a[k] as f64 - b[k] as f64).powi(2)).sum()
 }
 
-/// Welds vertices; returns how many were merged into others.
-fn weld(mesh: &mut Mesh, tolerance: f32, diag: f64) -> usize {
+/// Welds vertices closer than `tolerance` times `edge` (the median edge
+/// length; a length of the surface's own detail, so that a small component
+/// far from the rest keeps its vertices apart, unlike a tolerance relative to
+/// the bounding box); returns how many were merged into others.
+fn weld(mesh: &mut Mesh, tolerance: f32, edge: f64) -> usize {
     let n = mesh.positions.len();
     let pos = &mesh.positions;
     let mut target: Vec<u32> = (0..n as u32).collect();
     let tol = if tolerance.is_finite() && tolerance > 0.0 {
-        tolerance as f64 * diag
+        tolerance as f64 * edge
     } else {
         0.0
     };
@@ -262,11 +274,12 @@ fn weld(mesh: &mut Mesh, tolerance: f32, diag: f64) -> usize {
     welded
 }
 
-/// Drops faces with bad or repeated indices, zero area, or the same vertex
+/// Drops faces with bad or repeated indices, zero area (at most 1e-12 times
+/// the square of the face's own longest edge: a sliver judged by its own size,
+/// so a small component far from the rest is not dropped), or the same vertex
 /// set as an earlier face; returns how many.
-fn drop_degenerate(mesh: &mut Mesh, diag: f64) -> usize {
+fn drop_degenerate(mesh: &mut Mesh) -> usize {
     let n = mesh.positions.len();
-    let min_area = 1e-12 * diag * diag;
     let pos = &mesh.positions;
     let usable = |t: &[u32; 3]| {
         if t.iter().any(|&v| v as usize >= n) || t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
@@ -281,7 +294,8 @@ fn drop_degenerate(mesh: &mut Mesh, diag: f64) -> usize {
         let cx = e1[1] * e2[2] - e1[2] * e2[1];
         let cy = e1[2] * e2[0] - e1[0] * e2[2];
         let cz = e1[0] * e2[1] - e1[1] * e2[0];
-        0.5 * (cx * cx + cy * cy + cz * cz).sqrt() > min_area
+        let longest2 = dist2(a, b).max(dist2(b, c)).max(dist2(c, a));
+        0.5 * (cx * cx + cy * cy + cz * cz).sqrt() > 1e-12 * longest2
     };
     let before = mesh.triangles.len();
     let kept: Vec<[u32; 3]> = mesh.triangles.iter().copied().filter(|t| usable(t)).collect();
