@@ -557,7 +557,9 @@ impl WorkImage {
 
 /// Per face, the atlas-space angle of its field direction (radians, y down).
 fn face_angles(gim: &Gim) -> Result<Vec<f64>> {
-    let mesh = gim.mesh()?;
+    let mut mesh = gim.mesh()?;
+    // angles do not depend on the scale; f32 products of extreme ones would overflow
+    mesh.normalize_extreme_scale();
     let uv = gim.corner_uv()?;
     let field: Vec<f32> = gim.read("face_field")?;
     Ok((0..mesh.triangles.len())
@@ -577,7 +579,10 @@ struct Surface {
     r: usize,
     graph: crate::gim::DenseGraph,
     face: Vec<u32>,
+    /// Dense positions multiplied by `unit` (exactly: a power of two, 1 but
+    /// for a mesh of extreme size, see [`crate::mesh::extreme_scale`]).
     position: Vec<f32>,
+    unit: f32,
     normal: Vec<f32>,
     face_angle: Vec<f64>,
 }
@@ -1354,11 +1359,20 @@ impl Synthesis {
         sample.rotated_budget = quarter as usize;
         let n = sample.n;
         let r = gim.resolution;
+        let mut position: Vec<f32> = gim.read("position")?;
+        let unit = {
+            let points: Vec<[f32; 3]> = position.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
+            crate::mesh::extreme_scale(&points) as f32
+        };
+        if unit != 1.0 {
+            position.iter_mut().for_each(|c| *c *= unit);
+        }
         let surface = Surface {
             r,
             graph: gim.graph()?,
             face: gim.read("face")?,
-            position: gim.read("position")?,
+            position,
+            unit,
             normal: gim.read("normal")?,
             face_angle: face_angles(gim)?,
         };
@@ -1427,10 +1441,10 @@ impl Synthesis {
         &self.surface.graph
     }
 
-    /// 3D position of a dense vertex.
+    /// 3D position of a dense vertex, in the mesh's units.
     pub(crate) fn position(&self, t: u32) -> [f32; 3] {
         let p = &self.surface.position[t as usize * 3..t as usize * 3 + 3];
-        [p[0], p[1], p[2]]
+        [p[0], p[1], p[2]].map(|c| c / self.surface.unit)
     }
 
     /// The constraint function m0 (empty when unconstrained).

@@ -601,6 +601,10 @@ pub struct Scene {
     resolution: usize,
     centre: [f32; 3],
     shading: Shading,
+    /// The power of two the mesh's positions are multiplied by (1 but for a
+    /// mesh of extreme size, which f32 shading would overflow or underflow);
+    /// cameras and point lights given in the user's units are scaled alike.
+    unit: f32,
 }
 
 /// Per corner: the atlas→3D derivatives ∂P/∂X, ∂P/∂Y averaged over the
@@ -694,7 +698,8 @@ impl Scene {
         }
         let opened = open_samples(&quilt, None, budget)?;
         let svd0 = &opened[0].svd;
-        let mesh = gim.mesh()?;
+        let mut mesh = gim.mesh()?;
+        let unit = (1.0 / mesh.normalize_extreme_scale()) as f32;
         let corner_uv = gim.corner_uv()?;
         if corner_uv.len() != mesh.triangles.len() * 3
             || mesh
@@ -802,6 +807,7 @@ impl Scene {
             resolution: r,
             centre,
             shading,
+            unit,
         })
     }
 
@@ -810,15 +816,36 @@ impl Scene {
         matches!(self.shading, Shading::Btf(_))
     }
 
-    /// The default camera: a three-quarter view framing the mesh.
+    /// The default camera: a three-quarter view framing the mesh (in the
+    /// mesh's units).
     pub fn default_camera(&self) -> Camera {
-        Camera::framing(&self.mesh.positions)
+        let c = Camera::framing(&self.mesh.positions);
+        if self.unit == 1.0 {
+            return c;
+        }
+        Camera {
+            eye: c.eye.map(|v| v / self.unit),
+            target: c.target.map(|v| v / self.unit),
+            ..c
+        }
+    }
+
+    /// A camera in the mesh's units as the scene's positions see it.
+    fn in_scene_units(&self, c: Camera) -> Camera {
+        if self.unit == 1.0 {
+            return c;
+        }
+        Camera {
+            eye: c.eye.map(|v| v * self.unit),
+            target: c.target.map(|v| v * self.unit),
+            ..c
+        }
     }
 
     /// Renders one frame (linear RGB).
     pub fn render_image(&self, cfg: &RenderConfig) -> Result<RgbImage> {
         cfg.validate()?;
-        let cam = cfg.camera.unwrap_or_else(|| self.default_camera());
+        let cam = self.in_scene_units(cfg.camera.unwrap_or_else(|| self.default_camera()));
         let (width, height) = (cfg.width, cfg.height);
         let g = self.rasterize(&cam, width, height);
         let scale = cfg.exposure.exp2();
@@ -881,6 +908,7 @@ impl Scene {
         match *light {
             Light::Directional { direction, intensity } => (normalize(direction), intensity),
             Light::Point { position, intensity } => {
+                let position = position.map(|v| v * self.unit);
                 let d = sub(position, pos);
                 let d2 = dot(d, d).max(1e-20);
                 let c = sub(position, self.centre);

@@ -57,6 +57,21 @@ pub(crate) fn finite_diagonal_f64(positions: &[[f32; 3]]) -> f64 {
     ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt()
 }
 
+/// The power of two that brings the bounding-box diagonal of `positions`
+/// nearest to 1 when it lies outside [2⁻²⁰, 2²⁰] (about 1e-6 to 1e6 units),
+/// else 1: every stage that computes in f32 works on positions multiplied by
+/// it, exactly (see [`Mesh::normalize_extreme_scale`]).
+pub fn extreme_scale(positions: &[[f32; 3]]) -> f64 {
+    let diag = finite_diagonal_f64(positions);
+    if !(diag.is_finite() && diag > 0.0) {
+        return 1.0;
+    }
+    if (2f64.powi(-20)..=2f64.powi(20)).contains(&diag) {
+        return 1.0;
+    }
+    2f64.powi(-diag.log2().round() as i32)
+}
+
 pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -154,16 +169,10 @@ impl Mesh {
     /// by a power of two is exact, so mapping back restores the input bits
     /// (barring f32 denormals).
     pub fn normalize_extreme_scale(&mut self) -> f64 {
-        let diag = finite_diagonal_f64(&self.positions);
-        if !(diag.is_finite() && diag > 0.0) {
+        let scale = extreme_scale(&self.positions);
+        if scale == 1.0 {
             return 1.0;
         }
-        let (lo, hi) = (2f64.powi(-20), 2f64.powi(20));
-        if (lo..=hi).contains(&diag) {
-            return 1.0;
-        }
-        let k = -diag.log2().round() as i32;
-        let scale = 2f64.powi(k);
         for p in &mut self.positions {
             *p = p.map(|c| (c as f64 * scale) as f32);
         }

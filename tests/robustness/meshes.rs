@@ -96,6 +96,30 @@ fn mesh_extreme_scales_give_an_atlas_in_the_users_units() {
         &unit,
         "64",
     );
+    let sample = crate::common::brick_crop(dir.path(), 32, None);
+    let unit_quilt = dir.path().join("unit.quilt");
+    crate::common::ok(&[
+        "tile",
+        "--gim",
+        s(&unit),
+        "--sample",
+        s(&sample),
+        "-q",
+        "-o",
+        s(&unit_quilt),
+    ]);
+    let unit_png = dir.path().join("unit.png");
+    crate::common::ok(&[
+        "render",
+        s(&unit_quilt),
+        "--width",
+        "48",
+        "--height",
+        "36",
+        "-o",
+        s(&unit_png),
+    ]);
+    let unit_render = btfquilt::imageio::read_rgb(&unit_png).unwrap();
     let unit = Gim::open(&unit, MemoryBudget::default()).unwrap().mesh().unwrap();
     for scale in [1e30, 1e-30] {
         let obj = write(dir.path(), "scaled.obj", &squares_obj(&[(0.0, scale)]));
@@ -131,6 +155,49 @@ fn mesh_extreme_scales_give_an_atlas_in_the_users_units() {
         assert!(covered
             .iter()
             .all(|&t| pos[3 * t..3 * t + 3].iter().all(|c| c.is_finite())));
+        // decorated and rendered, it looks as the unit square does (no
+        // blank image from f32 overflow in the renderer)
+        let quilt = dir.path().join("scaled.quilt");
+        crate::common::ok(&[
+            "tile",
+            "--gim",
+            s(&gim),
+            "--sample",
+            s(&sample),
+            "-q",
+            "-o",
+            s(&quilt),
+        ]);
+        let png = dir.path().join("scaled.png");
+        crate::common::ok(&[
+            "render",
+            s(&quilt),
+            "--width",
+            "48",
+            "--height",
+            "36",
+            "-o",
+            s(&png),
+        ]);
+        let img = btfquilt::imageio::read_rgb(&png).unwrap();
+        // the same silhouette as the unit square's, shaded (the tiling
+        // itself may differ in the last bits of its f32 frames)
+        let bg = |d: &[f32], k: usize| d[3 * k..3 * k + 3] == d[0..3];
+        let pixels = img.data.len() / 3;
+        let same = (0..pixels)
+            .filter(|&k| bg(&img.data, k) == bg(&unit_render.data, k))
+            .count();
+        let drawn = (0..pixels).filter(|&k| !bg(&img.data, k)).count();
+        assert!(
+            drawn > pixels / 10,
+            "scale {scale}: a blank render ({drawn} pixels drawn)"
+        );
+        assert!(
+            same * 100 >= pixels * 97,
+            "scale {scale}: silhouette differs on {} of {pixels} pixels",
+            pixels - same
+        );
+        assert!(img.data.iter().all(|v| v.is_finite()));
     }
 }
 
