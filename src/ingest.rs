@@ -113,7 +113,7 @@ pub fn ingest(input: &Path, out: &Path, cfg: &IngestConfig, progress: &dyn Progr
             .into_par_iter()
             .map(|p| {
                 let f = &files[grid[p]];
-                let img = imageio::read_rgb(&f.path)?;
+                let img = imageio::read_rgb_within(&f.path, cfg.memory.bytes())?;
                 if (img.width, img.height) != (width, height) {
                     return Err(Error::input(
                         &f.path,
