@@ -113,7 +113,9 @@ pub fn ingest(input: &Path, out: &Path, cfg: &IngestConfig, progress: &dyn Progr
             .into_par_iter()
             .map(|p| {
                 let f = &files[grid[p]];
-                let img = imageio::read_rgb_within(&f.path, cfg.memory.bytes())?;
+                // the budget sizes the bands (at least one image each), so
+                // one image is held to the default decode bound, not to it
+                let img = imageio::read_rgb(&f.path)?;
                 if (img.width, img.height) != (width, height) {
                     return Err(Error::input(
                         &f.path,
