@@ -496,7 +496,7 @@ pub fn glb_bytes(mesh: &SplitMesh, png: &[u8]) -> std::result::Result<Vec<u8>, S
     let _ = write!(
         j,
         "{{\"asset\":{{\"version\":\"2.0\",\"generator\":{}}},",
-        crate::json::quote(&format!("btfquilt {}", env!("CARGO_PKG_VERSION")))
+        serde_json::Value::from(format!("btfquilt {}", env!("CARGO_PKG_VERSION")))
     );
     j += "\"scene\":0,\"scenes\":[{\"nodes\":[0]}],\"nodes\":[{\"mesh\":0,\"name\":\"mesh\"}],";
     let _ = write!(

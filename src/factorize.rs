@@ -360,8 +360,9 @@ pub fn is_image_path(path: &Path) -> bool {
 
 /// Writes a colour image as a BTF with one view and one light (both along
 /// the normal): the path by which colour samples enter every stage.
-pub fn image_to_btf(image: &Path, out: &Path) -> Result<()> {
-    let img = imageio::read_rgb(image)?;
+/// The image is held to `budget` decoded (see [`imageio::read_rgb_within`]).
+pub fn image_to_btf(image: &Path, out: &Path, budget: MemoryBudget) -> Result<()> {
+    let img = imageio::read_rgb_within(image, budget.bytes())?;
     let head_on = Angles { theta: 0.0, phi: 0.0 };
     let layout = BtfLayout::new(img.width, img.height, vec![head_on], vec![head_on]);
     let mut w = BtfWriter::create(out, layout.clone())?;
@@ -398,7 +399,7 @@ pub fn factorize(
     let (btf_path, source_kind): (PathBuf, &str) = if is_image_path(input) {
         let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
         let p = dir.path().join("image.btf");
-        image_to_btf(input, &p)?;
+        image_to_btf(input, &p, cfg.memory)?;
         _tmp_dir = dir;
         (p, "image")
     } else {
@@ -936,7 +937,7 @@ impl SvdArtifact {
             return Ok(None);
         }
         if is_image_path(&source) {
-            return imageio::read_rgb(&source).map(Some);
+            return imageio::read_rgb_within(&source, budget.bytes()).map(Some);
         }
         let btf = Btf::open(&source, budget)?;
         if original.is_none() && Some(btf.container().content_hash()) != recorded {

@@ -13,7 +13,6 @@
 
 use std::path::Path;
 
-use crate::json::Json;
 use crate::mesh::{cross, dot, normalize, sub, Mesh, Topology, NO_FACE};
 use crate::{Error, Result};
 
@@ -24,29 +23,32 @@ pub struct FieldKey {
     pub dir: [f32; 3],
 }
 
+/// One key as a keys file gives it.
+#[derive(serde::Deserialize)]
+struct KeyRecord {
+    face: f64,
+    dir: [f64; 3],
+}
+
 /// Reads keys from JSON: `[{"face": 12, "dir": [1, 0, 0]}, …]`.
 pub fn read_keys(path: &Path, face_count: usize) -> Result<Vec<FieldKey>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let doc = Json::parse(&text).map_err(|e| Error::input(path, format!("not valid JSON: {e}")))?;
-    let items = doc
-        .as_array()
-        .ok_or_else(|| Error::input(path, "expected a JSON array of {\"face\": N, \"dir\": [x, y, z]}"))?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let items: Vec<KeyRecord> = serde_json::from_slice(&bytes).map_err(|e| {
+        Error::input(
+            path,
+            format!("not valid JSON field keys (expected a JSON array of {{\"face\": N, \"dir\": [x, y, z]}}): {e}"),
+        )
+    })?;
     let mut keys = Vec::with_capacity(items.len());
     for (i, item) in items.iter().enumerate() {
         let bad = |what: &str| Error::input(path, format!("key {i}: {what}"));
-        let face = item
-            .get("face")
-            .and_then(Json::as_f64)
-            .ok_or_else(|| bad("missing \"face\" number"))?;
+        let face = item.face;
         if face < 0.0 || face.fract() != 0.0 || face >= face_count as f64 {
             return Err(bad(&format!(
                 "face {face} is not a face index (the mesh has {face_count} faces)"
             )));
         }
-        let d = item
-            .get("dir")
-            .and_then(Json::as_vec::<3>)
-            .ok_or_else(|| bad("\"dir\" must be [x, y, z]"))?;
+        let d = item.dir;
         let dir = [d[0] as f32, d[1] as f32, d[2] as f32];
         if !dir.iter().all(|v| v.is_finite()) || dot(dir, dir) == 0.0 {
             return Err(bad("\"dir\" must be a finite, non-zero vector"));

@@ -5,7 +5,7 @@
 //! renamed into place only once it is complete ([`write_atomic`]).
 
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Write};
+use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::Path;
 use std::sync::OnceLock;
 
@@ -105,10 +105,131 @@ fn exr_err(path: &Path, e: x::Error) -> Error {
     }
 }
 
-/// Decodes a PNG/JPEG/TIFF into a `DynamicImage`.
-fn decode_raster(path: &Path, format: ImageFormat) -> Result<DynamicImage> {
+/// The longest side, in pixels, of any image btfquilt reads. Samples and
+/// masks are photographs or atlases of at most a few thousand pixels; a
+/// header declaring more than this is refused before anything is decoded.
+pub const MAX_IMAGE_SIDE: usize = 32768;
+
+/// The decoded size an image read may reach when the caller has no memory
+/// budget at hand: 4 GiB of linear f32 RGB (12 bytes a pixel), about a
+/// 18900² image.
+pub const DEFAULT_DECODE_BYTES: u64 = 4 << 30;
+
+/// Bytes of the linear f32 RGB a `width`×`height` image decodes to.
+fn decoded_bytes(width: usize, height: usize) -> u128 {
+    width as u128 * height as u128 * 12
+}
+
+/// `bytes` for a message: "3.2 GiB", "512.0 MiB", "900 bytes".
+fn human_bytes(bytes: u128) -> String {
+    const KIB: f64 = 1024.0;
+    let b = bytes as f64;
+    if b >= KIB * KIB * KIB {
+        format!("{:.1} GiB", b / (KIB * KIB * KIB))
+    } else if b >= KIB * KIB {
+        format!("{:.1} MiB", b / (KIB * KIB))
+    } else if b >= KIB {
+        format!("{:.1} KiB", b / KIB)
+    } else {
+        format!("{bytes} bytes")
+    }
+}
+
+/// Refuses, from the size a file's header declares and before any decoding,
+/// an empty image, one with a side over [`MAX_IMAGE_SIDE`], or one whose
+/// decoded linear RGB would exceed `max_bytes`.
+fn check_declared(path: &Path, width: usize, height: usize, max_bytes: u64) -> Result<()> {
+    if width == 0 || height == 0 {
+        return Err(Error::input(
+            path,
+            format!("declares an empty {width}×{height} image"),
+        ));
+    }
+    if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+        return Err(Error::input(
+            path,
+            format!(
+                "declares {width}×{height} pixels, more than the largest image btfquilt reads ({MAX_IMAGE_SIDE} px a side)"
+            ),
+        ));
+    }
+    let need = decoded_bytes(width, height);
+    if need > max_bytes as u128 {
+        return Err(Error::input(
+            path,
+            format!(
+                "declares {width}×{height} pixels, which would need {} decoded, over the memory budget of {} (see --memory)",
+                human_bytes(need),
+                human_bytes(max_bytes as u128)
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The size a PNG/JPEG/TIFF/GIF header declares, without decoding pixels.
+/// A PNG's is read from its IHDR chunk directly: the `image` PNG decoder
+/// sets up its row buffers (and checks them against its limits) already
+/// when it reads the header.
+fn raster_size(path: &Path, format: ImageFormat) -> Result<(usize, usize)> {
+    if format == ImageFormat::Png {
+        let mut head = Vec::with_capacity(24);
+        open(path)?
+            .take(24)
+            .read_to_end(&mut head)
+            .map_err(|e| Error::io(path, e))?;
+        if head.len() < 24 || &head[..8] != b"\x89PNG\r\n\x1a\n" || &head[12..16] != b"IHDR" {
+            return Err(Error::input(
+                path,
+                "cannot decode image: not a PNG (it does not start with the PNG signature and IHDR header)",
+            ));
+        }
+        let be = |b: &[u8]| u32::from_be_bytes([b[0], b[1], b[2], b[3]]) as usize;
+        return Ok((be(&head[16..20]), be(&head[20..24])));
+    }
+    let (w, h) = image::ImageReader::with_format(open(path)?, format)
+        .into_dimensions()
+        .map_err(|e| image_err(path, e))?;
+    Ok((w as usize, h as usize))
+}
+
+/// An OpenEXR's headers (no pixels are read).
+fn exr_meta(path: &Path) -> Result<x::MetaData> {
+    x::MetaData::read_from_buffered(open(path)?, false).map_err(|e| exr_err(path, e))
+}
+
+/// The size of an OpenEXR's largest layer as its header declares it (the
+/// header only; no pixels are read).
+fn exr_size(path: &Path) -> Result<(usize, usize)> {
+    let meta = exr_meta(path)?;
+    let mut largest: Option<(usize, usize)> = None;
+    for header in &meta.headers {
+        let size = (header.layer_size.width(), header.layer_size.height());
+        if largest.map_or(true, |l| decoded_bytes(size.0, size.1) > decoded_bytes(l.0, l.1)) {
+            largest = Some(size);
+        }
+    }
+    largest.ok_or_else(|| Error::input(path, "OpenEXR file has no layers"))
+}
+
+/// The declared size of any image this module reads.
+fn declared_size(path: &Path, kind: Kind) -> Result<(usize, usize)> {
+    match kind {
+        Kind::Exr => exr_size(path),
+        Kind::Raster(format) => raster_size(path, format),
+    }
+}
+
+/// Decodes a PNG/JPEG/TIFF/GIF whose header [`check_declared`] has passed
+/// into a `DynamicImage`, with the decoder itself held to the same bounds (a
+/// file changed in between, or a decoder's own buffers, cannot exceed them).
+fn decode_raster(path: &Path, format: ImageFormat, max_bytes: u64) -> Result<DynamicImage> {
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_IMAGE_SIDE as u32);
+    limits.max_image_height = Some(MAX_IMAGE_SIDE as u32);
+    limits.max_alloc = Some(max_bytes);
     let mut reader = image::ImageReader::with_format(open(path)?, format);
-    reader.no_limits();
+    reader.limits(limits);
     reader.decode().map_err(|e| image_err(path, e))
 }
 
@@ -153,14 +274,26 @@ fn is_8bit(img: &DynamicImage) -> bool {
 /// decoding (grey 128 is 0.502, as `generate-btf` writes it) — clamped to
 /// 0..1. It must be `width`×`height`; `must_be` names that size for the
 /// error (e.g. "a region mask must be the atlas size").
+///
+/// The size is checked from the file's header before anything is decoded,
+/// and the decoded image is held to [`DEFAULT_DECODE_BYTES`].
 pub fn read_sized_mask(path: &Path, width: usize, height: usize, must_be: &str) -> Result<Vec<f32>> {
-    let (w, h, rgb) = match kind_of(path)? {
+    let kind = kind_of(path)?;
+    let (w, h) = declared_size(path, kind)?;
+    if (w, h) != (width, height) {
+        return Err(Error::input(
+            path,
+            format!("is {w}×{h}, but {must_be} {width}×{height}"),
+        ));
+    }
+    check_declared(path, w, h, DEFAULT_DECODE_BYTES)?;
+    let (w, h, rgb) = match kind {
         Kind::Exr => {
-            let img = read_exr_rgb(path)?;
+            let img = read_exr_rgb(path, DEFAULT_DECODE_BYTES)?;
             (img.width, img.height, img.data)
         }
         Kind::Raster(format) => {
-            let img = decode_raster(path, format)?;
+            let img = decode_raster(path, format, DEFAULT_DECODE_BYTES)?;
             (
                 img.width() as usize,
                 img.height() as usize,
@@ -171,7 +304,7 @@ pub fn read_sized_mask(path: &Path, width: usize, height: usize, must_be: &str) 
     if (w, h) != (width, height) {
         return Err(Error::input(
             path,
-            format!("is {w}×{h}, but {must_be} {width}×{height}"),
+            format!("decoded size {w}×{h} differs from its header {width}×{height}"),
         ));
     }
     Ok(rgb
@@ -217,11 +350,24 @@ pub fn mask_bilinear(values: &[f32], width: usize, height: usize, c: [f64; 2], t
 }
 
 /// dropped; a grey image or a single-channel EXR is replicated into R, G, B.
+///
+/// The decoded image is held to [`DEFAULT_DECODE_BYTES`]; see
+/// [`read_rgb_within`] to pass a memory budget instead.
 pub fn read_rgb(path: &Path) -> Result<RgbImage> {
-    match kind_of(path)? {
-        Kind::Exr => read_exr_rgb(path),
+    read_rgb_within(path, DEFAULT_DECODE_BYTES)
+}
+
+/// [`read_rgb`] with the decoded linear RGB held to `max_bytes` (e.g. the
+/// command's memory budget): the size the header declares is checked against
+/// it, and against [`MAX_IMAGE_SIDE`], before anything is decoded.
+pub fn read_rgb_within(path: &Path, max_bytes: u64) -> Result<RgbImage> {
+    let kind = kind_of(path)?;
+    let (w, h) = declared_size(path, kind)?;
+    check_declared(path, w, h, max_bytes)?;
+    match kind {
+        Kind::Exr => read_exr_rgb(path, max_bytes),
         Kind::Raster(format) => {
-            let img = decode_raster(path, format)?;
+            let img = decode_raster(path, format, max_bytes)?;
             let (width, height) = (img.width() as usize, img.height() as usize);
             let data: Vec<f32> = if is_float(&img) {
                 img.to_rgb32f().into_raw()
@@ -246,7 +392,31 @@ pub fn read_rgb(path: &Path) -> Result<RgbImage> {
 }
 
 /// Reads the first valid layer of an EXR with all its channels.
-fn read_exr_layer(path: &Path) -> Result<x::Layer<x::AnyChannels<x::FlatSamples>>> {
+/// Before reading, every layer's declared samples (all its channels, as
+/// stored) are held to `max_bytes`, as the whole layer is decoded at once.
+fn read_exr_layer(path: &Path, max_bytes: u64) -> Result<x::Layer<x::AnyChannels<x::FlatSamples>>> {
+    for header in &exr_meta(path)?.headers {
+        let (w, h) = (header.layer_size.width(), header.layer_size.height());
+        check_declared(path, w, h, max_bytes)?;
+        let per_pixel: u128 = header
+            .channels
+            .list
+            .iter()
+            .map(|c| c.sample_type.bytes_per_sample() as u128)
+            .sum();
+        let stored = w as u128 * h as u128 * per_pixel;
+        if stored > max_bytes as u128 {
+            return Err(Error::input(
+                path,
+                format!(
+                    "OpenEXR layer of {w}×{h} pixels and {} channels would need {} decoded, over the memory budget of {} (see --memory)",
+                    header.channels.list.len(),
+                    human_bytes(stored),
+                    human_bytes(max_bytes as u128)
+                ),
+            ));
+        }
+    }
     let image = x::read()
         .no_deep_data()
         .largest_resolution_level()
@@ -277,8 +447,8 @@ fn find_channel<'a>(channels: &'a [x::AnyChannel<x::FlatSamples>], name: &str) -
 }
 
 /// Reads R,G,B (or a single grey/Y channel) from an EXR as linear f32.
-fn read_exr_rgb(path: &Path) -> Result<RgbImage> {
-    let layer = read_exr_layer(path)?;
+fn read_exr_rgb(path: &Path, max_bytes: u64) -> Result<RgbImage> {
+    let layer = read_exr_layer(path, max_bytes)?;
     let (width, height) = (layer.size.width(), layer.size.height());
     let n = sample_count(path, width, height, 1)?;
     let list = &layer.channel_data.list;
@@ -341,24 +511,13 @@ fn read_exr_rgb(path: &Path) -> Result<RgbImage> {
     Ok(RgbImage { width, height, data })
 }
 
-/// Only the size, cheaply (header only where the decoder allows).
+/// Only the size, from the header (no pixels are decoded). A size no read
+/// would accept (a side over [`MAX_IMAGE_SIDE`], more than
+/// [`DEFAULT_DECODE_BYTES`] decoded, empty) is refused here already.
 pub fn image_size(path: &Path) -> Result<(usize, usize)> {
-    match kind_of(path)? {
-        Kind::Exr => {
-            let meta = x::MetaData::read_from_buffered(open(path)?, false).map_err(|e| exr_err(path, e))?;
-            let header = meta
-                .headers
-                .first()
-                .ok_or_else(|| Error::input(path, "OpenEXR file has no layers"))?;
-            Ok((header.layer_size.width(), header.layer_size.height()))
-        }
-        Kind::Raster(format) => {
-            let (w, h) = image::ImageReader::with_format(open(path)?, format)
-                .into_dimensions()
-                .map_err(|e| image_err(path, e))?;
-            Ok((w as usize, h as usize))
-        }
-    }
+    let (w, h) = declared_size(path, kind_of(path)?)?;
+    check_declared(path, w, h, DEFAULT_DECODE_BYTES)?;
+    Ok((w, h))
 }
 
 /// Checks dimensions and buffer length before writing.

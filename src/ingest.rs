@@ -116,6 +116,8 @@ pub fn ingest(input: &Path, out: &Path, cfg: &IngestConfig, progress: &dyn Progr
             .into_par_iter()
             .map(|p| {
                 let f = &files[grid[p]];
+                // the budget sizes the bands (at least one image each), so
+                // one image is held to the default decode bound, not to it
                 let img = imageio::read_rgb(&f.path)?;
                 if (img.width, img.height) != (width, height) {
                     return Err(Error::input(

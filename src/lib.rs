@@ -20,7 +20,6 @@ pub mod generate;
 pub mod gim;
 pub mod imageio;
 pub mod ingest;
-pub mod json;
 pub mod matching;
 pub mod maxflow;
 pub mod mesh;

@@ -28,7 +28,6 @@ use std::time::Instant;
 
 use crate::container::Param;
 use crate::gim::{Gim, EMPTY};
-use crate::json::{quote, Json};
 use crate::progress::Progress;
 use crate::quilt::{same_file, sample_svd, Quilt, Synthesis, TileConfig};
 use crate::{Error, Result};
@@ -354,60 +353,136 @@ impl Stroke {
         }
     }
 
-    fn to_json(&self) -> String {
-        let path = |p: &Path| quote(&p.display().to_string());
-        let verbatim = match &self.verbatim {
-            Some(v) => format!(
-                "{{\"at\": [{}, {}, {}], \"angle\": {}}}",
-                v.at[0], v.at[1], v.at[2], v.angle
-            ),
-            None => "null".into(),
-        };
-        format!(
-            "{{\"sample\": {}, \"sample_mask\": {}, \"region\": {}, \"verbatim\": {verbatim}, \"transition\": {}, \"seed\": {}, \
-             \"patch_radius\": {}, \"seam_threshold\": {}, \"constraint_weight\": {}}}",
-            path(&self.sample),
-            path(&self.sample_mask),
-            self.region.as_deref().map_or("null".into(), path),
-            self.transition,
-            self.seed,
-            self.patch_radius.map_or("null".into(), |r| r.to_string()),
-            self.seam_threshold,
-            self.constraint_weight
-        )
+    /// The stroke as the paint log records it.
+    fn to_record(&self) -> StrokeRecord {
+        let text = |p: &Path| p.display().to_string();
+        StrokeRecord {
+            sample: Some(text(&self.sample)),
+            sample_mask: text(&self.sample_mask),
+            region: self.region.as_deref().map(text),
+            verbatim: self.verbatim.map(|v| VerbatimRecord {
+                at: v.at,
+                angle: v.angle,
+            }),
+            transition: self.transition,
+            seed: self.seed,
+            patch_radius: self.patch_radius,
+            seam_threshold: self.seam_threshold,
+            constraint_weight: self.constraint_weight,
+        }
     }
 
     /// `base_sample`: the sample of logs written before strokes recorded
     /// theirs (the tiling's, the only one they could use).
-    fn from_json(j: &Json, file: &Path, base_sample: &Path) -> Result<Stroke> {
-        let bad = || Error::input(file, "has a malformed paint log");
-        let text = |k: &str| match j.get(k) {
-            Some(Json::String(s)) => Some(PathBuf::from(s)),
-            _ => None,
-        };
-        let num = |k: &str| j.get(k).and_then(Json::as_f64);
-        let verbatim = match j.get("verbatim") {
-            Some(Json::Object(_)) => {
-                let v = j.get("verbatim").expect("checked");
-                let at = v.get("at").and_then(|a| a.as_vec::<3>()).ok_or_else(bad)?;
-                Some(Verbatim {
-                    at: at.map(|c| c as f32),
-                    angle: v.get("angle").and_then(Json::as_f64).ok_or_else(bad)?,
-                })
-            }
-            _ => None,
-        };
-        Ok(Stroke {
-            sample: text("sample").unwrap_or_else(|| base_sample.to_path_buf()),
-            sample_mask: text("sample_mask").ok_or_else(bad)?,
-            region: text("region"),
-            verbatim,
-            transition: num("transition").ok_or_else(bad)? as usize,
-            seed: num("seed").ok_or_else(bad)? as u64,
-            patch_radius: num("patch_radius").map(|r| r as usize),
-            seam_threshold: num("seam_threshold").ok_or_else(bad)?,
-            constraint_weight: num("constraint_weight").ok_or_else(bad)?,
-        })
+    fn from_record(r: StrokeRecord, base_sample: &Path) -> Stroke {
+        Stroke {
+            sample: r.sample.map_or_else(|| base_sample.to_path_buf(), PathBuf::from),
+            sample_mask: PathBuf::from(r.sample_mask),
+            region: r.region.map(PathBuf::from),
+            verbatim: r.verbatim.map(|v| Verbatim {
+                at: v.at,
+                angle: v.angle,
+            }),
+            transition: r.transition,
+            seed: r.seed,
+            patch_radius: r.patch_radius,
+            seam_threshold: r.seam_threshold,
+            constraint_weight: r.constraint_weight,
+        }
+    }
+}
+
+/// A stroke in the paint log's JSON. The fields are written in this order;
+/// `sample` is absent from logs written before strokes recorded it.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct StrokeRecord {
+    #[serde(default)]
+    sample: Option<String>,
+    sample_mask: String,
+    #[serde(default)]
+    region: Option<String>,
+    #[serde(default)]
+    verbatim: Option<VerbatimRecord>,
+    transition: usize,
+    seed: u64,
+    #[serde(default)]
+    patch_radius: Option<usize>,
+    seam_threshold: f64,
+    constraint_weight: f64,
+}
+
+/// A verbatim copy in the paint log's JSON.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct VerbatimRecord {
+    at: [f32; 3],
+    angle: f64,
+}
+
+/// The paint log's JSON: its base, the base's content hash (16 hex digits)
+/// and the strokes.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct LogRecord {
+    base: String,
+    base_hash: String,
+    strokes: Vec<StrokeRecord>,
+}
+
+/// The paint log's JSON layout, as logs have always been written (they are
+/// stored in `.quilt` files and replayed): `", "` and `": "` between items,
+/// numbers as Rust prints them (`3`, not `3.0`), and control characters
+/// other than a line feed as `\u00XX`.
+struct LogFormatter;
+
+impl serde_json::ser::Formatter for LogFormatter {
+    fn begin_array_value<W: ?Sized + std::io::Write>(
+        &mut self,
+        w: &mut W,
+        first: bool,
+    ) -> std::io::Result<()> {
+        if first {
+            Ok(())
+        } else {
+            w.write_all(b", ")
+        }
+    }
+
+    fn begin_object_key<W: ?Sized + std::io::Write>(
+        &mut self,
+        w: &mut W,
+        first: bool,
+    ) -> std::io::Result<()> {
+        self.begin_array_value(w, first)
+    }
+
+    fn begin_object_value<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        w.write_all(b": ")
+    }
+
+    fn write_f32<W: ?Sized + std::io::Write>(&mut self, w: &mut W, v: f32) -> std::io::Result<()> {
+        write!(w, "{v}")
+    }
+
+    fn write_f64<W: ?Sized + std::io::Write>(&mut self, w: &mut W, v: f64) -> std::io::Result<()> {
+        write!(w, "{v}")
+    }
+
+    fn write_char_escape<W: ?Sized + std::io::Write>(
+        &mut self,
+        w: &mut W,
+        escape: serde_json::ser::CharEscape,
+    ) -> std::io::Result<()> {
+        use serde_json::ser::CharEscape as E;
+        match escape {
+            E::Quote => w.write_all(b"\\\""),
+            E::ReverseSolidus => w.write_all(b"\\\\"),
+            E::Solidus => w.write_all(b"/"),
+            E::LineFeed => w.write_all(b"\\n"),
+            E::Backspace => write!(w, "\\u{:04x}", 0x08),
+            E::FormFeed => write!(w, "\\u{:04x}", 0x0c),
+            E::CarriageReturn => write!(w, "\\u{:04x}", 0x0d),
+            E::Tab => write!(w, "\\u{:04x}", 0x09),
+            E::AsciiControl(c) => write!(w, "\\u{c:04x}"),
+        }
     }
 }
 
@@ -463,38 +538,32 @@ struct PaintLog {
 }
 
 impl PaintLog {
-    fn to_json(&self) -> String {
-        let strokes: Vec<String> = self.strokes.iter().map(Stroke::to_json).collect();
-        format!(
-            "{{\"base\": {}, \"base_hash\": \"{:016x}\", \"strokes\": [{}]}}",
-            quote(&self.base.display().to_string()),
-            self.base_hash,
-            strokes.join(", ")
-        )
+    fn to_json(&self) -> Result<String> {
+        let record = LogRecord {
+            base: self.base.display().to_string(),
+            base_hash: format!("{:016x}", self.base_hash),
+            strokes: self.strokes.iter().map(Stroke::to_record).collect(),
+        };
+        let mut out = Vec::new();
+        let mut ser = serde_json::Serializer::with_formatter(&mut out, LogFormatter);
+        serde::Serialize::serialize(&record, &mut ser)
+            .map_err(|e| Error::Config(format!("cannot write the paint log: {e}")))?;
+        String::from_utf8(out).map_err(|e| Error::Config(format!("cannot write the paint log: {e}")))
     }
 
     fn parse(text: &str, file: &Path, base_sample: &Path) -> Result<PaintLog> {
         let bad = |why: String| Error::input(file, format!("has a malformed paint log: {why}"));
-        let j = Json::parse(text).map_err(bad)?;
-        let base = match j.get("base") {
-            Some(Json::String(s)) => PathBuf::from(s),
-            _ => return Err(bad("no base".into())),
-        };
-        let base_hash = match j.get("base_hash") {
-            Some(Json::String(s)) => u64::from_str_radix(s, 16).map_err(|e| bad(e.to_string()))?,
-            _ => return Err(bad("no base_hash".into())),
-        };
-        let strokes = j
-            .get("strokes")
-            .and_then(Json::as_array)
-            .ok_or_else(|| bad("no strokes".into()))?
-            .iter()
-            .map(|s| Stroke::from_json(s, file, base_sample))
-            .collect::<Result<_>>()?;
+        let record: LogRecord = serde_json::from_str(text).map_err(|e| bad(e.to_string()))?;
+        let base_hash = u64::from_str_radix(&record.base_hash, 16)
+            .map_err(|e| bad(format!("base_hash \"{}\": {e}", record.base_hash)))?;
         Ok(PaintLog {
-            base,
+            base: PathBuf::from(record.base),
             base_hash,
-            strokes,
+            strokes: record
+                .strokes
+                .into_iter()
+                .map(|s| Stroke::from_record(s, base_sample))
+                .collect(),
         })
     }
 }
@@ -571,7 +640,7 @@ fn apply_stroke(
     }
     let mut log = log.clone();
     log.strokes.push(stroke.clone());
-    syn.write(out, &gim, &base.gim, Some(&log.relative_to(out).to_json()), start)?;
+    syn.write(out, &gim, &base.gim, Some(&log.relative_to(out).to_json()?), start)?;
     report.seconds = start.elapsed().as_secs_f64();
     Ok(report)
 }
@@ -798,14 +867,82 @@ fn vertex_paint_region(gim: &Gim, chart: &[u32], path: &Path) -> Result<Vec<bool
         .collect())
 }
 
+#[cfg(test)]
+mod log_json_tests {
+    use super::*;
+
+    #[test]
+    fn the_paint_log_keeps_its_text_and_reads_back() {
+        let stroke = |region: Option<&str>, verbatim| Stroke {
+            sample: PathBuf::from("dir/s.png"),
+            sample_mask: PathBuf::from("m \"q\"\\\ttab\nline.png"),
+            region: region.map(PathBuf::from),
+            verbatim,
+            transition: 8,
+            seed: u64::MAX,
+            patch_radius: Some(5),
+            seam_threshold: 3.0,
+            constraint_weight: 0.1,
+        };
+        let log = PaintLog {
+            base: PathBuf::from("q.quilt"),
+            base_hash: 0xa2c2_693c_3c2e_8b45,
+            strokes: vec![
+                stroke(Some("st.json"), None),
+                stroke(
+                    None,
+                    Some(Verbatim {
+                        at: [0.3, -0.6, 0.0],
+                        angle: 12.5,
+                    }),
+                ),
+            ],
+        };
+        let text = log.to_json().unwrap();
+        // the text logs have always had: ", " and ": ", numbers as Rust
+        // prints them, control characters but the line feed as \u00XX
+        let s1 = "{\"sample\": \"dir/s.png\", \"sample_mask\": \"m \\\"q\\\"\\\\\\u0009tab\\nline.png\", ";
+        let tail = "\"transition\": 8, \"seed\": 18446744073709551615, \"patch_radius\": 5, \"seam_threshold\": 3, \"constraint_weight\": 0.1}";
+        let want = format!(
+            "{{\"base\": \"q.quilt\", \"base_hash\": \"a2c2693c3c2e8b45\", \"strokes\": [\
+             {s1}\"region\": \"st.json\", \"verbatim\": null, {tail}, \
+             {s1}\"region\": null, \"verbatim\": {{\"at\": [0.3, -0.6, 0], \"angle\": 12.5}}, {tail}]}}"
+        );
+        assert_eq!(text, want);
+        let back = PaintLog::parse(&text, Path::new("p.quilt"), Path::new("base.png")).unwrap();
+        assert_eq!(back.to_json().unwrap(), text);
+        assert_eq!(back.base_hash, log.base_hash);
+        assert_eq!(back.strokes[1].verbatim, log.strokes[1].verbatim);
+        // a log without a stroke's sample (older logs) reads the base's
+        let old = text.replacen("\"sample\": \"dir/s.png\", ", "", 1);
+        let back = PaintLog::parse(&old, Path::new("p.quilt"), Path::new("base.png")).unwrap();
+        assert_eq!(back.strokes[0].sample, PathBuf::from("base.png"));
+        // malformed: named, with the position
+        let e = PaintLog::parse("{\"base\": 1}", Path::new("p.quilt"), Path::new("b.png"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("p.quilt") && e.contains("malformed paint log") && e.contains("column"),
+            "{e}"
+        );
+    }
+}
+
+/// One stroke of a strokes file.
+#[derive(serde::Deserialize)]
+struct StrokeSpec {
+    point: [f64; 3],
+    radius: f64,
+}
+
 /// F from JSON strokes `[{"point": [x, y, z], "radius": r}, …]`: the union
 /// of geodesic disks on the dense mesh (Dijkstra over its edges with their
 /// 3D lengths, from the vertex nearest each point).
 fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let bad = |why: &str| Error::input(path, format!("is not a stroke list ({why})"));
-    let json = Json::parse(&text).map_err(|e| bad(&e))?;
-    let strokes = json.as_array().ok_or_else(|| bad("expected a JSON array"))?;
+    let strokes: Vec<StrokeSpec> = serde_json::from_slice(&bytes)
+        .map_err(|e| bad(&format!("[{{\"point\": [x, y, z], \"radius\": r}}, …]: {e}")))?;
     if strokes.is_empty() {
         return Err(bad("the list is empty"));
     }
@@ -814,15 +951,10 @@ fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
     let mut region = vec![false; r * r];
     let mut dist = vec![f32::INFINITY; r * r];
     for (k, s) in strokes.iter().enumerate() {
-        let point = s
-            .get("point")
-            .and_then(|p| p.as_vec::<3>())
-            .ok_or_else(|| bad(&format!("stroke {k} has no \"point\": [x, y, z]")))?;
-        let radius = s
-            .get("radius")
-            .and_then(Json::as_f64)
-            .filter(|r| *r > 0.0 && r.is_finite())
-            .ok_or_else(|| bad(&format!("stroke {k} has no positive \"radius\"")))?;
+        let (point, radius) = (s.point, s.radius);
+        if !(radius > 0.0 && radius.is_finite()) {
+            return Err(bad(&format!("stroke {k} has no positive \"radius\"")));
+        }
         check_stroke(path, k, point, radius)?;
         let source =
             nearest_vertex(syn, point).map_err(|why| Error::input(path, format!("stroke {k}: {why}")))?;

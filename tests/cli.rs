@@ -317,7 +317,7 @@ fn tile_bake_evaluate_render_export_a_square() {
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let json = btfquilt(&["evaluate", s(&quilt)]);
-    let doc = btfquilt::json::Json::parse(&String::from_utf8_lossy(&json.stdout)).unwrap();
+    let doc = serde_json::from_slice::<serde_json::Value>(&json.stdout).unwrap();
     assert!(doc.get("zipper").is_some() && doc.get("coherence").is_some());
     let png = dir.path().join("view.png");
     assert!(btfquilt(&[

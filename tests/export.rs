@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::SvdArtifact;
 use btfquilt::gim::Gim;
-use btfquilt::json::Json;
 use btfquilt::quilt::{Quilt, NO_PATCH};
+use serde_json::Value as Json;
 
 mod common;
 use common::{btfquilt, channel, fails_clearly, listing, ok, read_exr, s};
@@ -94,7 +94,7 @@ fn parse_glb(bytes: &[u8]) -> Glb {
     let text = std::str::from_utf8(json_bytes).unwrap();
     let trimmed = text.trim_end_matches(' ');
     assert!(trimmed.ends_with('}') && json_len - trimmed.len() < 4);
-    let json = Json::parse(text).unwrap();
+    let json: Json = serde_json::from_str(text).unwrap();
     // chunk 1: BIN, padded with zeros, ends the file
     let bin_at = 20 + json_len;
     let bin_len = u32_at(bytes, bin_at) as usize;
@@ -184,7 +184,14 @@ fn parse_glb(bytes: &[u8]) -> Glb {
     // POSITION min/max: present and equal to the real bounds
     let pa = &accessors[int(attrs, "POSITION")];
     for (key, pick) in [("min", f32::min as fn(f32, f32) -> f32), ("max", f32::max)] {
-        let declared = pa.get(key).and_then(|v| v.as_vec::<3>()).unwrap();
+        let declared: Vec<f64> = pa
+            .get(key)
+            .and_then(Json::as_array)
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        assert_eq!(declared.len(), 3, "POSITION {key}");
         for k in 0..3 {
             let real = positions.iter().map(|p| p[k]).reduce(pick).unwrap();
             assert_eq!(declared[k] as f32, real, "POSITION {key}[{k}]");
