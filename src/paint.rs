@@ -640,7 +640,13 @@ fn apply_stroke(
     }
     let mut log = log.clone();
     log.strokes.push(stroke.clone());
-    syn.write(out, &gim, &base.gim, Some(&log.relative_to(out).to_json()?), start)?;
+    syn.write(
+        out,
+        &gim,
+        &base.gim,
+        Some(&log.relative_to(out).to_json()?),
+        start,
+    )?;
     report.seconds = start.elapsed().as_secs_f64();
     Ok(report)
 }

@@ -128,3 +128,26 @@ pub fn mutate(bytes: &[u8], rng: &mut Rng) -> Vec<u8> {
     }
     b
 }
+
+/// One mutation case: runs `args` (which read the mutated `file` and write
+/// `out`) and asserts the run either succeeded with its output written or
+/// refused cleanly — an exit code (no signal), no panic, the file named,
+/// nothing at `out`. Returns whether it succeeded.
+pub fn read_or_refused(label: &str, args: &[&str], file: &Path, out: &Path) -> bool {
+    let _ = std::fs::remove_file(out);
+    let o = run_bounded(args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code().is_some(), "{label}: killed by a signal: {err}");
+    assert!(!err.contains("panicked"), "{label}: {err}");
+    if o.status.success() {
+        assert!(out.exists(), "{label}: success without output");
+        return true;
+    }
+    let name = file.file_name().unwrap().to_string_lossy();
+    assert!(
+        err.contains(&*name),
+        "{label}: refusal does not name {name}: {err}"
+    );
+    assert!(!out.exists(), "{label}: refusal left {}", out.display());
+    false
+}

@@ -390,7 +390,7 @@ fn mesh_paint_points_far_or_not_finite() {
         (
             "inf.json",
             r#"[{"point": [1e999, 0, 0], "radius": 0.1}]"#,
-            "stroke 0",
+            "number out of range",
         ),
         (
             "far.json",
@@ -400,12 +400,12 @@ fn mesh_paint_points_far_or_not_finite() {
         (
             "radius.json",
             r#"[{"point": [0.5, 0.5, 0], "radius": 1e999}]"#,
-            "radius",
+            "number out of range",
         ),
         (
             "negative.json",
             r#"[{"point": [0.5, 0.5, 0], "radius": -1}]"#,
-            "radius",
+            "has no positive \"radius\"",
         ),
     ] {
         let strokes = write(d, name, stroke);
