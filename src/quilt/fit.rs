@@ -1,0 +1,334 @@
+//! Patch fitting (section III-B, step 5): the graphcut between the old
+//! values and the new patch over P(v), with seam nodes on old seams, and
+//! applying the result to the state.
+
+#[allow(unused_imports)]
+use super::*;
+
+/// The outcome of a graphcut fitting.
+pub(super) struct Fit {
+    /// Per patch vertex: take the new patch B? with its sample coordinate.
+    pub(super) take: Vec<bool>,
+    pub(super) coord: Vec<[f64; 2]>,
+    /// m_P at B's coordinate per patch vertex (empty without a mask).
+    pub(super) new_mask: Vec<f32>,
+    pub(super) rotation: usize,
+    pub(super) jacobian: [f32; 4],
+    pub(super) seam_cost: f64,
+    pub(super) seam_edges: usize,
+    pub(super) taken: usize,
+    pub(super) taken_new_synth: usize,
+    /// The min-cut's cost, and what keeping every old value would cost (the
+    /// old seams inside the patch).
+    pub(super) flow: f64,
+    pub(super) baseline: f64,
+}
+
+pub(super) const INFINITE: f64 = 1e30;
+
+/// Graphcut between the old values A and the new patch B over the work
+/// patch's vertices, with seam nodes on old seams (Kwatra et al. 2003, §3).
+/// With `keep_outside_target` (region painting) texels where m0 = 0 keep
+/// their old values, so a stroke changes nothing outside F and its
+/// transition zone; synthesized texels less than `core` hops from the seed
+/// must take the new values (seam refinement).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn fit_patch(
+    sample: &Sample,
+    state: &State,
+    surface: &Surface,
+    patch: &WorkPatch,
+    work: &WorkImage,
+    placement: &PlacementChoice,
+    data_weight: f64,
+    keep_outside_target: bool,
+    core: u16,
+) -> Fit {
+    let n = state.n;
+    let r = state.r;
+    let m = patch.texels.len();
+    let rotations = sample.rotated.len();
+    let theta = placement.rotation as f64 * std::f64::consts::TAU / rotations as f64;
+    let (s, c) = theta.sin_cos();
+    let cen = [
+        (sample.width as f64 - 1.0) / 2.0,
+        (sample.height as f64 - 1.0) / 2.0,
+    ];
+    // B at every patch vertex: unrotated sample coordinate and value
+    let mut coord = vec![[0f64; 2]; m];
+    let mut valid = vec![false; m];
+    let mut new_features = vec![0f32; m * n];
+    for i in 0..m {
+        let q = [
+            work.coords[i][0] - placement.dx - cen[0],
+            work.coords[i][1] - placement.dy - cen[1],
+        ];
+        let cc = [c * q[0] + s * q[1] + cen[0], -s * q[0] + c * q[1] + cen[1]];
+        coord[i] = cc;
+        valid[i] = sample.lookup(cc, &mut new_features[i * n..(i + 1) * n]);
+    }
+    // the Jacobian (sample offset per atlas +x / +y) for in-chart patches
+    let j = work.atlas_to_work.map(|a| {
+        [
+            c * a[0] + s * a[2],
+            -s * a[0] + c * a[2],
+            c * a[1] + s * a[3],
+            -s * a[1] + c * a[3],
+        ]
+    });
+    let jacobian = j
+        .map(|v| v.map(|x| x as f32))
+        .unwrap_or([c as f32, -s as f32, s as f32, c as f32]);
+
+    // nodes: one per patch vertex, plus seam nodes; Source = keep A, Sink = take B
+    let mut g = Graph::new(m, m * 3);
+    let mut take = vec![false; m];
+    let mut order: Vec<(u32, u32)> = patch
+        .texels
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| (t, i as u32))
+        .collect();
+    order.sort_unstable();
+    let find = |t: u32| {
+        order
+            .binary_search_by_key(&t, |e| e.0)
+            .ok()
+            .map(|k| order[k].1 as usize)
+    };
+    let max_depth = patch.depth.iter().copied().max().unwrap_or(0);
+    let mut new_mask = vec![0f32; if sample.mask.is_some() { m } else { 0 }];
+    for i in 0..new_mask.len() {
+        new_mask[i] = sample.mask_at(coord[i]);
+    }
+    for i in 0..m {
+        let t = patch.texels[i];
+        let synth = state.synthesized[t as usize];
+        // the data term of constrained synthesis (§IV): D_p(σ) = |m_σ(p) −
+        // m0(p)| on the t-links — keeping A costs D_p(A) (the sink edge is
+        // cut), taking B costs D_p(B)
+        if let (Some(m0), false, true) = (&state.target, new_mask.is_empty(), synth && valid[i]) {
+            let d_a = (state.mask[t as usize] - m0[t as usize]).abs() as f64;
+            let d_b = (new_mask[i] - m0[t as usize]).abs() as f64;
+            g.add_tweights(i as u32, data_weight * d_b, data_weight * d_a);
+        }
+        let outside = keep_outside_target && state.target.as_ref().is_some_and(|m0| m0[t as usize] <= 0.0);
+        if valid[i] && synth && patch.depth[i] < core {
+            // refinement: the core around the seed takes the new patch
+            g.add_tweights(i as u32, 0.0, INFINITE);
+        } else if !valid[i] || (synth && outside) {
+            // B cannot reach here, or region painting keeps everything
+            // outside F and its transition zone: keep A (or stay
+            // unsynthesized)
+            g.add_tweights(i as u32, INFINITE, 0.0);
+        } else if !synth {
+            g.add_tweights(i as u32, 0.0, INFINITE);
+        } else if patch.depth[i] == max_depth && max_depth > 0 {
+            g.add_tweights(i as u32, INFINITE, 0.0);
+        }
+    }
+    // the old values A at the patch's synthesized vertices
+    let mut old_values = vec![0f32; m * n];
+    for (i, &t) in patch.texels.iter().enumerate() {
+        if state.synthesized[t as usize] {
+            state.feature_into(sample, t, &mut old_values[i * n..(i + 1) * n]);
+        }
+    }
+    let a_at = |i: usize| &old_values[i * n..(i + 1) * n];
+    let b_at = |i: usize| &new_features[i * n..(i + 1) * n];
+    // continue old patch at s one step (dx, dy in atlas texels) into t
+    let old_continued = |s_t: u32, step: (f64, f64), out: &mut [f32]| -> bool {
+        let jc = state.jacobian[s_t as usize];
+        let cs = state.coord[s_t as usize];
+        let cc = [
+            cs[0] as f64 + jc[0] as f64 * step.0 + jc[2] as f64 * step.1,
+            cs[1] as f64 + jc[1] as f64 * step.0 + jc[3] as f64 * step.1,
+        ];
+        sample.lookup(cc, out)
+    };
+    let mut tmp_a = vec![0f32; n];
+    let mut tmp_b = vec![0f32; n];
+    let mut edges: Vec<(usize, usize, f64)> = Vec::new();
+    // the cost of the old seams inside the patch: what keeping every old
+    // value would cost (refinement compares the cut with it)
+    let mut baseline = 0.0;
+    for i in 0..m {
+        let t = patch.texels[i];
+        let (x, y) = (t as usize % r, t as usize / r);
+        let mut neighbours: Vec<(u32, Option<(f64, f64)>)> = Vec::with_capacity(4);
+        if x + 1 < r && state.chart[t as usize + 1] == state.chart[t as usize] {
+            neighbours.push((t + 1, Some((1.0, 0.0))));
+        }
+        if y + 1 < r && state.chart[t as usize + r] == state.chart[t as usize] {
+            neighbours.push((t + r as u32, Some((0.0, 1.0))));
+        }
+        surface.graph.for_each_neighbour(t, |nb, zipper| {
+            if zipper && nb > t {
+                neighbours.push((nb, None));
+            }
+        });
+        for (nb, step) in neighbours {
+            let Some(k) = find(nb) else { continue };
+            if !valid[i] || !valid[k] {
+                continue;
+            }
+            let (si, sk) = (state.synthesized[t as usize], state.synthesized[nb as usize]);
+            let d_s = if si { dist(a_at(i), b_at(i)) } else { 0.0 };
+            let d_t = if sk { dist(a_at(k), b_at(k)) } else { 0.0 };
+            let weight = match (si, sk) {
+                (true, true) => d_s + d_t,
+                (true, false) => 2.0 * d_s,
+                (false, true) => 2.0 * d_t,
+                (false, false) => 0.0,
+            };
+            let old_seam = si && sk && state.patch[t as usize] != state.patch[nb as usize];
+            match (old_seam, step) {
+                (true, Some(st)) => {
+                    // seam node (Kwatra et al. 2003): s–n = M(A_s, B), n–t = M(A_t, B), n–sink = M(A_s, A_t)
+                    let ok_a = old_continued(t, st, &mut tmp_a); // A_s at nb
+                    let ok_b = old_continued(nb, (-st.0, -st.1), &mut tmp_b); // A_t at t
+                    if ok_a && ok_b {
+                        let m_s = dist(a_at(i), b_at(i)) + dist(&tmp_a, b_at(k));
+                        let m_t = dist(&tmp_b, b_at(i)) + dist(a_at(k), b_at(k));
+                        let old = dist(a_at(i), &tmp_b) + dist(&tmp_a, a_at(k));
+                        baseline += old;
+                        let node = g.add_node();
+                        g.add_edge(i as u32, node, m_s, m_s);
+                        g.add_edge(node, k as u32, m_t, m_t);
+                        g.add_tweights(node, 0.0, old);
+                        edges.push((i, k, weight));
+                        continue;
+                    }
+                    g.add_edge(i as u32, k as u32, weight, weight);
+                    edges.push((i, k, weight));
+                }
+                _ => {
+                    g.add_edge(i as u32, k as u32, weight, weight);
+                    edges.push((i, k, weight));
+                }
+            }
+        }
+    }
+    let flow = g.maxflow();
+    if std::env::var_os("BTFQUILT_TRACE").is_some() && !state.synthesized[patch.texels[0] as usize] {
+        eprintln!(
+            "seed valid {} segment {:?} coord {:?} work {:?}",
+            valid[0],
+            g.segment(0),
+            coord[0],
+            work.coords[0]
+        );
+    }
+    let mut taken = 0;
+    let mut taken_new_synth = 0;
+    for i in 0..m {
+        take[i] = valid[i] && g.segment(i as u32) == Segment::Sink;
+        if take[i] {
+            taken += 1;
+            taken_new_synth += state.synthesized[patch.texels[i] as usize] as usize;
+        }
+    }
+    // the seam: edges whose ends took different sides, both synthesized after
+    let (mut seam_cost, mut seam_edges) = (0.0, 0usize);
+    for &(i, k, w) in &edges {
+        let ti = state.synthesized[patch.texels[i] as usize] || take[i];
+        let tk = state.synthesized[patch.texels[k] as usize] || take[k];
+        if take[i] != take[k] && ti && tk {
+            seam_cost += w;
+            seam_edges += 1;
+        }
+    }
+    Fit {
+        take,
+        coord,
+        new_mask,
+        rotation: placement.rotation,
+        jacobian,
+        seam_cost,
+        seam_edges,
+        taken,
+        taken_new_synth,
+        flow,
+        baseline,
+    }
+}
+
+/// Records the vertices that took the new patch.
+pub(super) fn apply(
+    state: &mut State,
+    sample: &Sample,
+    surface: &Surface,
+    patch: &WorkPatch,
+    fit: &Fit,
+    id: u32,
+    progress: &dyn Progress,
+) {
+    let mut newly = 0u64;
+    for (i, &t) in patch.texels.iter().enumerate() {
+        if !fit.take[i] {
+            continue;
+        }
+        let tu = t as usize;
+        state.coord[tu] = [fit.coord[i][0] as f32, fit.coord[i][1] as f32];
+        state.jacobian[tu] = fit.jacobian;
+        state.rotation[tu] = fit.rotation as u8;
+        state.patch[tu] = id;
+        state.source[tu] = state.active;
+        state.foreign[tu] = NO_FOREIGN;
+        if sample.mask.is_some() {
+            state.mask[tu] = fit.new_mask[i];
+        }
+        if !state.synthesized[tu] {
+            state.synthesized[tu] = true;
+            state.remaining -= 1;
+            newly += 1;
+            let b = state.count[tu] as usize;
+            state.buckets[b.min(15)].remove(&t);
+            surface.graph.for_each_neighbour(t, |nb, _| {
+                let nu = nb as usize;
+                if !state.synthesized[nu] {
+                    let old = (state.count[nu] as usize).min(15);
+                    state.buckets[old].remove(&nb);
+                    state.count[nu] = state.count[nu].saturating_add(1);
+                    state.buckets[(state.count[nu] as usize).min(15)].insert(nb);
+                }
+            });
+        }
+    }
+    // the Jacobian per taken texel from finite differences of the sample
+    // coordinates over atlas neighbours of the same patch and chart (exact
+    // for flattened patches, whose map to the sample varies per chart);
+    // the patch-wide estimate where a texel has no such neighbour
+    for (i, &t) in patch.texels.iter().enumerate() {
+        if fit.take[i] {
+            state.jacobian[t as usize] = local_jacobian(state, t, id).unwrap_or(fit.jacobian);
+        }
+    }
+    progress.advance(newly);
+}
+
+/// Sample offset per atlas +x and +y step at `t`, from the coordinates of
+/// its grid neighbours that belong to patch `id` in the same chart.
+pub(super) fn local_jacobian(state: &State, t: u32, id: u32) -> Option<[f32; 4]> {
+    let r = state.r;
+    let (x, y) = (t as usize % r, t as usize / r);
+    let same = |nx: isize, ny: isize| -> Option<[f32; 2]> {
+        if nx < 0 || ny < 0 || nx >= r as isize || ny >= r as isize {
+            return None;
+        }
+        let n = ny as usize * r + nx as usize;
+        (state.patch[n] == id && state.chart[n] == state.chart[t as usize]).then(|| state.coord[n])
+    };
+    let c = state.coord[t as usize];
+    let axis = |dx: isize, dy: isize| -> Option<[f32; 2]> {
+        let (x, y) = (x as isize, y as isize);
+        match (same(x + dx, y + dy), same(x - dx, y - dy)) {
+            (Some(a), Some(b)) => Some([(a[0] - b[0]) / 2.0, (a[1] - b[1]) / 2.0]),
+            (Some(a), None) => Some([a[0] - c[0], a[1] - c[1]]),
+            (None, Some(b)) => Some([c[0] - b[0], c[1] - b[1]]),
+            (None, None) => None,
+        }
+    };
+    let (ax, ay) = (axis(1, 0)?, axis(0, 1)?);
+    Some([ax[0], ax[1], ay[0], ay[1]])
+}

@@ -1,0 +1,753 @@
+//! Work images I(v) (section III-B, step 3): a chart's own sub-image, or the
+//! work patch flattened across charts (charts' LSCM layouts aligned over the
+//! zipper links and their gaps closed, else the rigid field-based unfolding)
+//! and resampled at one texel per pixel.
+
+#[allow(unused_imports)]
+use super::*;
+
+/// The work image of a patch and where each patch vertex sits in it.
+pub(super) struct WorkImage {
+    pub(super) width: usize,
+    pub(super) height: usize,
+    pub(super) features: Vec<f32>,
+    pub(super) known: Vec<f32>,
+    /// Work-image coordinates of each patch vertex (pixel indices, continuous).
+    pub(super) coords: Vec<[f64; 2]>,
+    /// Mean field direction in the work image (radians, y down).
+    pub(super) angle: f64,
+    /// Local linear map from atlas steps (+x, +y) to work-image offsets, for
+    /// in-chart work images (identity) — used for the Jacobian.
+    pub(super) atlas_to_work: Option<[f64; 4]>,
+    /// m0 per work pixel (empty when unconstrained).
+    pub(super) constraint: Vec<f32>,
+}
+
+impl WorkImage {
+    /// A `width`×`height` work image with nothing known yet: `n` feature
+    /// channels, and an m0 channel when the synthesis is constrained.
+    pub(super) fn blank(
+        width: usize,
+        height: usize,
+        state: &State,
+        coords: Vec<[f64; 2]>,
+        angle: f64,
+    ) -> WorkImage {
+        WorkImage {
+            width,
+            height,
+            features: vec![0f32; width * height * state.n],
+            known: vec![0f32; width * height],
+            coords,
+            angle,
+            atlas_to_work: None,
+            constraint: vec![0f32; if state.target.is_some() { width * height } else { 0 }],
+        }
+    }
+}
+
+pub(super) fn mean_angle(angles: impl Iterator<Item = f64>) -> f64 {
+    let (mut c, mut s) = (0.0, 0.0);
+    for a in angles {
+        c += a.cos();
+        s += a.sin();
+    }
+    s.atan2(c)
+}
+
+/// In-chart work image: the chart's sub-image around the patch.
+pub(super) fn chart_work_image(
+    surface: &Surface,
+    sample: &Sample,
+    state: &State,
+    patch: &WorkPatch,
+) -> WorkImage {
+    let r = surface.r;
+    let chart = state.chart[patch.texels[0] as usize];
+    let (x0, y0, w, h) = patch.atlas_box(r);
+    let n = state.n;
+    let coords = patch
+        .texels
+        .iter()
+        .map(|&t| [(t as usize % r - x0) as f64, (t as usize / r - y0) as f64])
+        .collect();
+    let angle = mean_angle(patch.texels.iter().map(|&t| surface.texel_angle(t)));
+    let mut work = WorkImage::blank(w, h, state, coords, angle);
+    work.atlas_to_work = Some([1.0, 0.0, 0.0, 1.0]);
+    for y in 0..h {
+        for x in 0..w {
+            let (t, p) = ((y0 + y) * r + x0 + x, y * w + x);
+            if state.chart[t] == chart && state.synthesized[t] {
+                work.known[p] = 1.0;
+                state.feature_into(sample, t as u32, &mut work.features[p * n..(p + 1) * n]);
+            }
+            if let Some(m0) = &state.target {
+                work.constraint[p] = m0[t];
+            }
+        }
+    }
+    work
+}
+
+/// The patch's triangles (local indices): grid blocks inside charts, then
+/// zipper triangles, all wound like the surface; and how many are grid ones.
+pub(super) fn patch_triangles(
+    surface: &Surface,
+    state: &State,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+    zipper_triangles: &[[u32; 3]],
+) -> (Vec<[u32; 3]>, Vec<[f32; 3]>, usize) {
+    let r = surface.r;
+    let local = |t: u32| bfs.contains(t);
+    // triangles: grid blocks inside charts, plus zipper triangles, all in P
+    let mut tris: Vec<[u32; 3]> = Vec::new();
+    for &t in &patch.texels {
+        let (x, y) = (t as usize % r, t as usize / r);
+        if x + 1 < r && y + 1 < r {
+            for tri in crate::gim::block_triangles(&state.chart, r, x, y) {
+                if let (Some(a), Some(b), Some(c)) = (local(tri[0]), local(tri[1]), local(tri[2])) {
+                    tris.push([a as u32, b as u32, c as u32]);
+                }
+            }
+        }
+    }
+    let grid_count = tris.len();
+    for z in zipper_triangles {
+        if let (Some(a), Some(b), Some(c)) = (local(z[0]), local(z[1]), local(z[2])) {
+            tris.push([a as u32, b as u32, c as u32]);
+        }
+    }
+    let positions: Vec<[f32; 3]> = patch
+        .texels
+        .iter()
+        .map(|&t| {
+            let p = &surface.position[t as usize * 3..t as usize * 3 + 3];
+            [p[0], p[1], p[2]]
+        })
+        .collect();
+    // wind every triangle like the surface (its 3D normal along the texels'
+    // normals): zipper triangles are stored unoriented, and the distortion
+    // check reads flips from the orientation
+    for tri in &mut tris {
+        let p = tri.map(|i| positions[i as usize]);
+        let n = crate::mesh::cross(crate::mesh::sub(p[1], p[0]), crate::mesh::sub(p[2], p[0]));
+        let mut avg = [0f32; 3];
+        for &i in tri.iter() {
+            let t = patch.texels[i as usize] as usize;
+            for k in 0..3 {
+                avg[k] += surface.normal[t * 3 + k];
+            }
+        }
+        if crate::mesh::dot(n, avg) < 0.0 {
+            tri.swap(1, 2);
+        }
+    }
+    (tris, positions, grid_count)
+}
+
+/// Weight of the prior that keeps a chart piece's alignment near the field-
+/// based unfolding (texels² per unit of similarity change): a link's
+/// residual counts as much as a change of the piece's rotation seen at
+/// this distance.
+pub(super) const ALIGN_PRIOR: f64 = 4.0;
+
+pub(super) type C64 = [f64; 2];
+
+pub(super) fn cmul(a: C64, b: C64) -> C64 {
+    [a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]]
+}
+
+pub(super) fn conj(a: C64) -> C64 {
+    [a[0], -a[1]]
+}
+
+/// Solves the small dense complex system `a x = b` (Gaussian elimination
+/// with partial pivoting); `None` if singular.
+pub(super) fn solve_complex(mut a: Vec<C64>, mut b: Vec<C64>) -> Option<Vec<C64>> {
+    let n = b.len();
+    let norm = |z: C64| z[0] * z[0] + z[1] * z[1];
+    for k in 0..n {
+        let p = (k..n).max_by(|&i, &j| norm(a[i * n + k]).total_cmp(&norm(a[j * n + k])))?;
+        if !(norm(a[p * n + k]) > 1e-300) {
+            return None;
+        }
+        if p != k {
+            for j in 0..n {
+                a.swap(p * n + j, k * n + j);
+            }
+            b.swap(p, k);
+        }
+        let d = norm(a[k * n + k]);
+        let inv = [a[k * n + k][0] / d, -a[k * n + k][1] / d];
+        for i in k + 1..n {
+            let f = cmul(a[i * n + k], inv);
+            if f == [0.0, 0.0] {
+                continue;
+            }
+            for j in k..n {
+                let v = cmul(f, a[k * n + j]);
+                a[i * n + j][0] -= v[0];
+                a[i * n + j][1] -= v[1];
+            }
+            let v = cmul(f, b[k]);
+            b[i][0] -= v[0];
+            b[i][1] -= v[1];
+        }
+    }
+    let mut x = vec![[0.0; 2]; n];
+    for k in (0..n).rev() {
+        let mut s = b[k];
+        for j in k + 1..n {
+            let v = cmul(a[k * n + j], x[j]);
+            s[0] -= v[0];
+            s[1] -= v[1];
+        }
+        let d = a[k * n + k];
+        let dn = d[0] * d[0] + d[1] * d[1];
+        x[k] = cmul(s, [d[0] / dn, -d[1] / dn]);
+    }
+    Some(x)
+}
+
+/// Cross-chart flattening by aligning chart pieces. Inside a chart the atlas
+/// already is a flattening of the surface with near-unit stretch (the paper
+/// uses the chart image directly there), so each chart's part of the work
+/// patch keeps its atlas layout up to a similarity w = γ_c u + δ_c applied
+/// to the field-based [`unfold`]; the similarities are the least-squares
+/// solution that closes the zipper links between the pieces (the links join
+/// texels ≈ 0.4 texel apart on the surface), with a weak prior towards the
+/// unfolding and the seed's chart fixed. Returns work coordinates per patch
+/// vertex.
+pub(super) fn aligned_unfolding(
+    surface: &Surface,
+    state: &State,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+) -> Vec<[f64; 2]> {
+    let (u, _) = unfold(surface, state, patch, bfs);
+    let mut charts: Vec<u32> = patch.texels.iter().map(|&t| state.chart[t as usize]).collect();
+    charts.sort_unstable();
+    charts.dedup();
+    let piece = |t: u32| {
+        charts
+            .binary_search(&state.chart[t as usize])
+            .expect("patch chart")
+    };
+    let seed = piece(patch.texels[0]);
+    // unknowns: (γ, δ) of every piece but the seed's
+    let unknown = |p: usize| if p < seed { p } else { p - 1 };
+    let n = 2 * (charts.len() - 1);
+    if n == 0 {
+        return u;
+    }
+    let mut a = vec![[0.0f64; 2]; n * n];
+    let mut b = vec![[0.0f64; 2]; n];
+    // adds the weighted row Σ coeff·x = c to the normal equations
+    let mut add_row = |coeffs: &[(usize, C64)], c: C64, w: f64| {
+        for &(i, ci) in coeffs {
+            let ci_h = conj(ci);
+            for &(j, cj) in coeffs {
+                let v = cmul(ci_h, cj);
+                a[i * n + j][0] += w * v[0];
+                a[i * n + j][1] += w * v[1];
+            }
+            let v = cmul(ci_h, c);
+            b[i][0] += w * v[0];
+            b[i][1] += w * v[1];
+        }
+    };
+    let mut row: Vec<(usize, C64)> = Vec::with_capacity(4);
+    for (i, &t) in patch.texels.iter().enumerate() {
+        let p = piece(t);
+        surface.graph.for_each_neighbour(t, |nb, zipper| {
+            if !zipper {
+                return;
+            }
+            let Some(j) = bfs.contains(nb) else { return };
+            let q = piece(nb);
+            if j <= i || q == p {
+                return;
+            }
+            // γ_p u_i + δ_p − γ_q u_j − δ_q = 0
+            row.clear();
+            let mut c = [0.0, 0.0];
+            for (piece_k, coord, sign) in [(p, u[i], 1.0), (q, u[j], -1.0)] {
+                if piece_k == seed {
+                    c[0] -= sign * coord[0];
+                    c[1] -= sign * coord[1];
+                } else {
+                    let k = unknown(piece_k);
+                    row.push((2 * k, [sign * coord[0], sign * coord[1]]));
+                    row.push((2 * k + 1, [sign, 0.0]));
+                }
+            }
+            add_row(&row, c, 1.0);
+        });
+    }
+    for p in (0..charts.len()).filter(|&p| p != seed) {
+        let k = unknown(p);
+        add_row(&[(2 * k, [1.0, 0.0])], [1.0, 0.0], ALIGN_PRIOR);
+        add_row(&[(2 * k + 1, [1.0, 0.0])], [0.0, 0.0], 1e-6);
+    }
+    let Some(x) = solve_complex(a, b) else { return u };
+    patch
+        .texels
+        .iter()
+        .zip(&u)
+        .map(|(&t, &ui)| {
+            let p = piece(t);
+            if p == seed {
+                ui
+            } else {
+                let k = unknown(p);
+                let w = cmul(x[2 * k], ui);
+                [w[0] + x[2 * k + 1][0], w[1] + x[2 * k + 1][1]]
+            }
+        })
+        .collect()
+}
+
+/// Root-mean-square distance in the work frame across the patch's zipper
+/// links (texels).
+pub(super) fn zipper_gap(surface: &Surface, patch: &WorkPatch, bfs: &Bfs, coords: &[[f64; 2]]) -> f64 {
+    let (mut gap, mut links) = (0.0, 0usize);
+    for (i, &t) in patch.texels.iter().enumerate() {
+        surface.graph.for_each_neighbour(t, |nb, zipper| {
+            if let (true, Some(j)) = (zipper, bfs.contains(nb)) {
+                gap += (coords[i][0] - coords[j][0]).powi(2) + (coords[i][1] - coords[j][1]).powi(2);
+                links += 1;
+            }
+        });
+    }
+    (gap / links.max(1) as f64).sqrt()
+}
+
+/// How much more a zipper link weighs than a grid edge when the gaps are
+/// closed.
+pub(super) const LINK_WEIGHT: f64 = 4.0;
+
+/// Closes the gaps an [`aligned_unfolding`] leaves across zipper links (the
+/// charts' own flattenings disagree along a seam on a curved surface) by
+/// the smoothest displacement field d: minimises Σ_grid |d_i − d_j|² +
+/// μ Σ_links |x_i + d_i − x_j − d_j|² (+ a tiny ε|d|²), a membrane that
+/// spreads the misfit over the patch like the distortion LSCM would
+/// distribute. Solved per coordinate by Jacobi-preconditioned conjugate
+/// gradients (at most `iterations`).
+pub(super) fn close_gaps(
+    surface: &Surface,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+    coords: &mut [[f64; 2]],
+    iterations: usize,
+) {
+    let m = patch.texels.len();
+    let mut start = Vec::with_capacity(m + 1);
+    let mut nbr: Vec<(u32, f64)> = Vec::with_capacity(m * 4);
+    let mut rhs = vec![[0.0f64; 2]; m];
+    let mut any_link = false;
+    start.push(0);
+    for (i, &t) in patch.texels.iter().enumerate() {
+        surface.graph.for_each_neighbour(t, |nb, zipper| {
+            if let Some(j) = bfs.contains(nb) {
+                let w = if zipper { LINK_WEIGHT } else { 1.0 };
+                nbr.push((j as u32, w));
+                if zipper {
+                    any_link = true;
+                    rhs[i][0] += w * (coords[j][0] - coords[i][0]);
+                    rhs[i][1] += w * (coords[j][1] - coords[i][1]);
+                }
+            }
+        });
+        start.push(nbr.len());
+    }
+    if !any_link {
+        return;
+    }
+    const EPS: f64 = 1e-4;
+    let diag: Vec<f64> = (0..m)
+        .map(|i| EPS + nbr[start[i]..start[i + 1]].iter().map(|e| e.1).sum::<f64>())
+        .collect();
+    let apply = |x: &[f64], out: &mut [f64]| {
+        for i in 0..m {
+            let mut v = diag[i] * x[i];
+            for &(j, w) in &nbr[start[i]..start[i + 1]] {
+                v -= w * x[j as usize];
+            }
+            out[i] = v;
+        }
+    };
+    for c in 0..2 {
+        let b: Vec<f64> = rhs.iter().map(|r| r[c]).collect();
+        let bnorm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if bnorm == 0.0 {
+            continue;
+        }
+        let mut x = vec![0.0f64; m];
+        let mut r = b.clone();
+        let mut z: Vec<f64> = r.iter().zip(&diag).map(|(r, d)| r / d).collect();
+        let mut p = z.clone();
+        let mut ap = vec![0.0f64; m];
+        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        for _ in 0..iterations {
+            apply(&p, &mut ap);
+            let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
+            if !(pap > 0.0) {
+                break;
+            }
+            let alpha = rz / pap;
+            for k in 0..m {
+                x[k] += alpha * p[k];
+                r[k] -= alpha * ap[k];
+            }
+            if r.iter().map(|v| v * v).sum::<f64>().sqrt() < 1e-3 * bnorm {
+                break;
+            }
+            for k in 0..m {
+                z[k] = r[k] / diag[k];
+            }
+            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for k in 0..m {
+                p[k] = z[k] + beta * p[k];
+            }
+        }
+        for k in 0..m {
+            coords[k][c] += x[k];
+        }
+    }
+}
+
+/// The patch flattened across charts (the paper flattens such patches with
+/// LSCM; here the charts' own LSCM layouts are aligned by
+/// [`aligned_unfolding`] and their seams closed by [`close_gaps`], which
+/// never fails on the thin zipper strips a global LSCM solve broke down
+/// on), scaled so grid edges average one pixel, and the mean field
+/// direction in that frame. `None` if a grid triangle's area changed by
+/// more than T_d (or flipped) against its atlas area — the charts are
+/// near-isometric, so that is the area distortion against the surface — or
+/// if gaps of more than a texel remain across the zippers (a patch around a
+/// cone point).
+pub(super) fn flatten(
+    surface: &Surface,
+    state: &State,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+    grid_triangles: &[[u32; 3]],
+    max_distortion: f64,
+) -> Option<(Vec<[f64; 2]>, f64)> {
+    let r = surface.r;
+    let local = |t: u32| bfs.contains(t);
+    let mut uv = aligned_unfolding(surface, state, patch, bfs);
+    close_gaps(surface, patch, bfs, &mut uv, 300);
+    let gap = zipper_gap(surface, patch, bfs, &uv);
+    // grid triangles have atlas area ½; those touching a chart border are
+    // left out (conservative coverage overlaps the charts there by up to a
+    // texel, which closing the gaps squeezes out)
+    let border = |i: u32| {
+        let t = patch.texels[i as usize];
+        let mut on = false;
+        surface.graph.for_each_neighbour(t, |_, zipper| on |= zipper);
+        on
+    };
+    let area = |p: [[f64; 2]; 3]| {
+        0.5 * ((p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]))
+    };
+    let atlas = |i: u32| {
+        let t = patch.texels[i as usize] as usize;
+        [(t % r) as f64, (t / r) as f64]
+    };
+    let mut ratios: Vec<f64> = grid_triangles
+        .iter()
+        .filter(|t| !t.iter().any(|&i| border(i)))
+        .map(|t| {
+            // against the triangle's atlas area (±½, signed like the atlas)
+            let a = area(t.map(|i| uv[i as usize])) / area(t.map(atlas));
+            if a > 0.0 {
+                a.max(1.0 / a)
+            } else {
+                f64::INFINITY
+            }
+        })
+        .collect();
+    // T_d on the 98th percentile: a few triangles squeezed or folded where
+    // a seam closes do not spoil a work image, a patch that cannot lie
+    // flat does
+    let distortion = if ratios.is_empty() {
+        1.0
+    } else {
+        let k = (ratios.len() * 98 / 100).min(ratios.len() - 1);
+        *ratios.select_nth_unstable_by(k, f64::total_cmp).1
+    };
+    if std::env::var_os("BTFQUILT_TRACE").is_some() {
+        eprintln!("flattening distortion {distortion} gap {gap}");
+    }
+    if !(gap <= 1.0 && distortion <= max_distortion) {
+        return None;
+    }
+    // scale so grid edges average one pixel; measure the frame's rotation
+    // against the atlas on grid edges
+    let (mut len, mut cnt, mut rc, mut rs) = (0.0, 0usize, 0.0, 0.0);
+    for (i, &t) in patch.texels.iter().enumerate() {
+        if (t as usize % r) + 1 < r && state.chart[t as usize + 1] == state.chart[t as usize] {
+            if let Some(j) = local(t + 1) {
+                let d = [uv[j][0] - uv[i][0], uv[j][1] - uv[i][1]];
+                len += (d[0] * d[0] + d[1] * d[1]).sqrt();
+                cnt += 1;
+                // the atlas +x direction maps to angle atan2(d): field angle
+                // in the work frame = atlas angle + this rotation
+                let a = d[1].atan2(d[0]);
+                let fa = surface.texel_angle(t) + a;
+                rc += fa.cos();
+                rs += fa.sin();
+            }
+        }
+    }
+    if cnt == 0 || len <= 0.0 {
+        return None;
+    }
+    let scale = cnt as f64 / len;
+    let (mut minu, mut minv) = (f64::INFINITY, f64::INFINITY);
+    for p in &uv {
+        minu = minu.min(p[0] * scale);
+        minv = minv.min(p[1] * scale);
+    }
+    let coords: Vec<[f64; 2]> = uv
+        .iter()
+        .map(|p| [p[0] * scale - minu, p[1] * scale - minv])
+        .collect();
+    Some((coords, rs.atan2(rc)))
+}
+
+/// Shifts work-image coordinates so they start at 0; the pixel size of the
+/// image that holds them.
+pub(super) fn shift_to_origin(coords: &mut [[f64; 2]]) -> (usize, usize) {
+    let minx = coords.iter().map(|c| c[0]).fold(f64::INFINITY, f64::min);
+    let miny = coords.iter().map(|c| c[1]).fold(f64::INFINITY, f64::min);
+    for c in coords.iter_mut() {
+        c[0] -= minx;
+        c[1] -= miny;
+    }
+    let w = coords.iter().map(|c| c[0]).fold(0.0, f64::max).ceil() as usize + 1;
+    let h = coords.iter().map(|c| c[1]).fold(0.0, f64::max).ceil() as usize + 1;
+    (w, h)
+}
+
+/// The work image of a flattened patch: coordinates shifted to start at 0,
+/// a pixel known where a triangle of three synthesized vertices covers it
+/// (features interpolated). `None` if the patch flattened implausibly large.
+pub(super) fn raster_work_image(
+    sample: &Sample,
+    state: &State,
+    patch: &WorkPatch,
+    tris: &[[u32; 3]],
+    mut coords: Vec<[f64; 2]>,
+    angle: f64,
+    r: usize,
+) -> Option<WorkImage> {
+    let (w, h) = shift_to_origin(&mut coords);
+    if w > 4 * r || h > 4 * r {
+        return None;
+    }
+    let n = state.n;
+    let mut work = WorkImage::blank(w, h, state, coords, angle);
+    let mut corner = vec![0f32; 3 * n];
+    for tri in tris {
+        let ids = [
+            patch.texels[tri[0] as usize],
+            patch.texels[tri[1] as usize],
+            patch.texels[tri[2] as usize],
+        ];
+        if !ids.iter().all(|&t| state.synthesized[t as usize]) {
+            continue;
+        }
+        for (k, &t) in ids.iter().enumerate() {
+            state.feature_into(sample, t, &mut corner[k * n..(k + 1) * n]);
+        }
+        let p = [
+            work.coords[tri[0] as usize],
+            work.coords[tri[1] as usize],
+            work.coords[tri[2] as usize],
+        ];
+        let d = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+        if d.abs() < 1e-12 {
+            continue;
+        }
+        let lo = |k: usize| {
+            p.iter()
+                .map(|q| q[k])
+                .fold(f64::INFINITY, f64::min)
+                .floor()
+                .max(0.0) as usize
+        };
+        let hi = |k: usize, m: usize| (p.iter().map(|q| q[k]).fold(0.0, f64::max).ceil() as usize).min(m - 1);
+        for y in lo(1)..=hi(1, h) {
+            for x in lo(0)..=hi(0, w) {
+                let q = [x as f64, y as f64];
+                let l1 =
+                    ((q[0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (q[1] - p[0][1])) / d;
+                let l2 =
+                    ((p[1][0] - p[0][0]) * (q[1] - p[0][1]) - (q[0] - p[0][0]) * (p[1][1] - p[0][1])) / d;
+                let l0 = 1.0 - l1 - l2;
+                if l0 < -1e-9 || l1 < -1e-9 || l2 < -1e-9 {
+                    continue;
+                }
+                let i = y * w + x;
+                work.known[i] = 1.0;
+                if let Some(m0) = &state.target {
+                    work.constraint[i] = (l0 as f32) * m0[ids[0] as usize]
+                        + (l1 as f32) * m0[ids[1] as usize]
+                        + (l2 as f32) * m0[ids[2] as usize];
+                }
+                for c in 0..n {
+                    work.features[i * n + c] = (l0 as f32) * corner[c]
+                        + (l1 as f32) * corner[n + c]
+                        + (l2 as f32) * corner[2 * n + c];
+                }
+            }
+        }
+    }
+    Some(work)
+}
+
+/// Cross-chart work image: the patch flattened by [`flatten`] and resampled.
+/// `None` if it cannot be flattened within the distortion bound.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn flattened_work_image(
+    surface: &Surface,
+    sample: &Sample,
+    state: &State,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+    zipper_triangles: &[[u32; 3]],
+    max_distortion: f64,
+) -> Option<(WorkImage, Vec<[f64; 2]>)> {
+    let (tris, _, grid_count) = patch_triangles(surface, state, patch, bfs, zipper_triangles);
+    let (coords, angle) = flatten(surface, state, patch, bfs, &tris[..grid_count], max_distortion)?;
+    let work = raster_work_image(sample, state, patch, &tris, coords.clone(), angle, surface.r)?;
+    Some((work, coords))
+}
+
+/// A seed's flattening, reused when its patch shrinks: a smaller BFS
+/// ball from the same seed is part of the larger one.
+pub(super) struct Flattening {
+    /// (texel, coordinate), sorted by texel.
+    pub(super) coords: Vec<(u32, [f64; 2])>,
+    pub(super) angle: f64,
+}
+
+impl Flattening {
+    /// The work image of a smaller patch from the cached coordinates.
+    pub(super) fn work_image(
+        &self,
+        surface: &Surface,
+        sample: &Sample,
+        state: &State,
+        patch: &WorkPatch,
+        bfs: &Bfs,
+        zipper_triangles: &[[u32; 3]],
+    ) -> Option<WorkImage> {
+        let coords: Vec<[f64; 2]> = patch
+            .texels
+            .iter()
+            .map(|t| {
+                self.coords
+                    .binary_search_by_key(t, |e| e.0)
+                    .ok()
+                    .map(|k| self.coords[k].1)
+            })
+            .collect::<Option<_>>()?;
+        let (tris, _, _) = patch_triangles(surface, state, patch, bfs, zipper_triangles);
+        raster_work_image(sample, state, patch, &tris, coords, self.angle, surface.r)
+    }
+}
+
+/// Cross-chart work image without flattening: each chart's part of the patch keeps
+/// its atlas layout (no resampling inside a chart) and is turned rigidly so
+/// that the vector field agrees across the zipper it was entered through.
+/// Used when the patch's triangulation cannot be flattened within T_d.
+pub(super) fn unfolded_work_image(
+    surface: &Surface,
+    sample: &Sample,
+    state: &State,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+) -> WorkImage {
+    let (mut coords, angle) = unfold(surface, state, patch, bfs);
+    let (w, h) = shift_to_origin(&mut coords);
+    let n = state.n;
+    let mut work = WorkImage::blank(w, h, state, coords, angle);
+    for (i, &t) in patch.texels.iter().enumerate() {
+        if state.synthesized[t as usize] {
+            let c = work.coords[i];
+            let (x, y) = (c[0].round() as usize, c[1].round() as usize);
+            let p = (y.min(h - 1)) * w + x.min(w - 1);
+            if work.known[p] == 0.0 {
+                work.known[p] = 1.0;
+                state.feature_into(sample, t, &mut work.features[p * n..(p + 1) * n]);
+                if let Some(m0) = &state.target {
+                    work.constraint[p] = m0[t as usize];
+                }
+            }
+        }
+    }
+    work
+}
+
+/// The rigid unfolding of a patch: each chart's part keeps its atlas layout,
+/// turned so the vector field agrees across the zipper it was entered
+/// through. Work coordinates per patch vertex and the mean field angle.
+pub(super) fn unfold(surface: &Surface, state: &State, patch: &WorkPatch, bfs: &Bfs) -> (Vec<[f64; 2]>, f64) {
+    let r = surface.r;
+    let m = patch.texels.len();
+    let atlas = |t: u32| [(t as usize % r) as f64, (t as usize / r) as f64];
+    // per chart: (rotation φ, work origin, atlas origin)
+    let mut frames: std::collections::BTreeMap<u32, (f64, [f64; 2], [f64; 2])> = Default::default();
+    let v = patch.texels[0];
+    frames.insert(state.chart[v as usize], (0.0, [0.0, 0.0], atlas(v)));
+    let mut coords = vec![[0f64; 2]; m];
+    for i in 0..m {
+        let t = patch.texels[i];
+        let c = state.chart[t as usize];
+        if !frames.contains_key(&c) {
+            // entered through a zipper from an earlier texel of a known chart
+            let mut entry = None;
+            surface.graph.for_each_neighbour(t, |nb, zipper| {
+                if entry.is_none() && zipper {
+                    if let Some(k) = bfs.contains(nb) {
+                        if k < i && frames.contains_key(&state.chart[nb as usize]) {
+                            entry = Some((nb, k));
+                        }
+                    }
+                }
+            });
+            let (phi, origin) = match entry {
+                Some((p, k)) => {
+                    let pf = frames[&state.chart[p as usize]].0;
+                    (pf + surface.texel_angle(p) - surface.texel_angle(t), coords[k])
+                }
+                None => (0.0, [0.0, 0.0]),
+            };
+            frames.insert(c, (phi, origin, atlas(t)));
+        }
+        let (phi, wo, ao) = frames[&c];
+        let (s, co) = phi.sin_cos();
+        let a = atlas(t);
+        let d = [a[0] - ao[0], a[1] - ao[1]];
+        coords[i] = [wo[0] + co * d[0] - s * d[1], wo[1] + s * d[0] + co * d[1]];
+    }
+    let angle = mean_angle(
+        patch
+            .texels
+            .iter()
+            .map(|&t| surface.texel_angle(t) + frames[&state.chart[t as usize]].0),
+    );
+    (coords, angle)
+}
+
+/// Rotation index (5° steps for 72 copies) closest to an angle.
+pub(super) fn rotation_index(angle: f64, rotations: usize) -> usize {
+    let step = std::f64::consts::TAU / rotations as f64;
+    ((angle.rem_euclid(std::f64::consts::TAU) / step).round() as usize) % rotations
+}

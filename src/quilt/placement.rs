@@ -1,0 +1,252 @@
+//! Placement (section III-B, step 4): the candidate translations and
+//! rotations from FFT matching, and the seeded choice among near-minimal ones.
+
+#[allow(unused_imports)]
+use super::*;
+
+/// Placements tried by a refinement are at least this many pixels apart.
+pub(super) const REFINE_SPACING: i32 = 4;
+
+/// The matches of the work image against the sample at the work image's
+/// rotation whose placement puts the seed and 95 % of the work image on
+/// the sample.
+pub(super) fn covering_candidates(
+    sample: &mut Sample,
+    matcher: &mut Matcher,
+    work: &WorkImage,
+    cfg: &TileConfig,
+    reference: f64,
+) -> Result<(usize, Vec<matching::Placement>)> {
+    let weight = (cfg.constraint_weight * reference).powi(2);
+    let (rotation, candidates) = match_candidates(sample, matcher, work, weight)?;
+    let step = (work.coords.len() / 400).max(1);
+    let probe: Vec<[f64; 2]> = work.coords.iter().step_by(step).copied().collect();
+    let covering = candidates
+        .into_iter()
+        .filter(|p| {
+            let (dx, dy) = (p.dx as f64, p.dy as f64);
+            if !inside_sample(sample, to_sample(sample, rotation, dx, dy, work.coords[0])) {
+                return false;
+            }
+            let ok = probe
+                .iter()
+                .filter(|w| inside_sample(sample, to_sample(sample, rotation, dx, dy, **w)))
+                .count();
+            ok as f64 >= 0.95 * probe.len() as f64
+        })
+        .collect();
+    Ok((rotation, covering))
+}
+
+/// Up to `count` placements of finite cost, cheapest first, each at least
+/// `spacing` pixels (Chebyshev) from those already picked; ties in cost keep
+/// the order given, so the pick is deterministic.
+pub(super) fn distinct_best(
+    placements: &[matching::Placement],
+    count: usize,
+    spacing: i32,
+) -> Vec<matching::Placement> {
+    let mut order: Vec<&matching::Placement> = placements.iter().filter(|p| p.cost.is_finite()).collect();
+    order.sort_by(|a, b| a.cost.total_cmp(&b.cost));
+    let mut picks: Vec<matching::Placement> = Vec::with_capacity(count);
+    for p in order {
+        if picks.len() == count {
+            break;
+        }
+        if picks
+            .iter()
+            .all(|q| (q.dx - p.dx).abs().max((q.dy - p.dy).abs()) >= spacing)
+        {
+            picks.push(*p);
+        }
+    }
+    picks
+}
+
+/// A placement of the rotated sample over the work image.
+pub(super) struct PlacementChoice {
+    pub(super) rotation: usize,
+    pub(super) dx: f64,
+    pub(super) dy: f64,
+}
+
+/// Maps a work-image coordinate through a placement to unrotated sample
+/// coordinates (the inverse of the rotated copy's construction).
+pub(super) fn to_sample(sample: &Sample, rotation: usize, dx: f64, dy: f64, w: [f64; 2]) -> [f64; 2] {
+    let theta = rotation as f64 * std::f64::consts::TAU / sample.rotated.len() as f64;
+    let (s, c) = theta.sin_cos();
+    let cen = [
+        (sample.width as f64 - 1.0) / 2.0,
+        (sample.height as f64 - 1.0) / 2.0,
+    ];
+    let q = [w[0] - dx - cen[0], w[1] - dy - cen[1]];
+    [c * q[0] + s * q[1] + cen[0], -s * q[0] + c * q[1] + cen[1]]
+}
+
+pub(super) fn inside_sample(sample: &Sample, c: [f64; 2]) -> bool {
+    sample.tileable
+        || (c[0] >= 0.0
+            && c[1] >= 0.0
+            && c[0] <= sample.width as f64 - 1.0
+            && c[1] <= sample.height as f64 - 1.0)
+}
+
+/// Places the sample over the work image (Kwatra et al.: the new patch must
+/// cover the work patch): among the best matches, those that put the seed
+/// and at least 95 % of the patch's vertices on the sample; a seeded choice
+/// among the near-minimal ones; the sample centred on the seed if none does.
+pub(super) fn place_covering(
+    sample: &mut Sample,
+    matcher: &mut Matcher,
+    work: &WorkImage,
+    cfg: &TileConfig,
+    reference: f64,
+    counter: u64,
+) -> Result<PlacementChoice> {
+    let (rotation, covering) = covering_candidates(sample, matcher, work, cfg, reference)?;
+    Ok(choose_placement(sample, work, cfg, counter, rotation, &covering))
+}
+
+/// A seeded choice among the near-minimal `covering` matches
+/// ([`matching::choose`]), or, when there is none, a seeded spot on the
+/// sample (one that best agrees with the constraint when the work image has
+/// one).
+pub(super) fn choose_placement(
+    sample: &Sample,
+    work: &WorkImage,
+    cfg: &TileConfig,
+    counter: u64,
+    rotation: usize,
+    covering: &[matching::Placement],
+) -> PlacementChoice {
+    let step = (work.coords.len() / 400).max(1);
+    if let Some(p) = matching::choose(covering, cfg.tolerance, cfg.seed, counter) {
+        return PlacementChoice {
+            rotation,
+            dx: p.dx as f64,
+            dy: p.dy as f64,
+        };
+    }
+    // nothing known yet, or no match covers the patch: a seeded spot that
+    // covers the seed's neighbourhood (the sample centre ± a margin)
+    let (sw, sh) = (sample.width as f64, sample.height as f64);
+    let theta = rotation as f64 * std::f64::consts::TAU / sample.rotated.len() as f64;
+    let (s, c) = theta.sin_cos();
+    let mid = [(sw - 1.0) / 2.0, (sh - 1.0) / 2.0];
+    // the seed at unrotated sample point `cen`: solve for the translation
+    let place = |cen: [f64; 2]| {
+        let d = [cen[0] - mid[0], cen[1] - mid[1]];
+        // q = R(θ) d (inverse of the rotation in `to_sample`)
+        let q = [c * d[0] - s * d[1], s * d[0] + c * d[1]];
+        PlacementChoice {
+            rotation,
+            dx: (work.coords[0][0] - mid[0] - q[0]).round(),
+            dy: (work.coords[0][1] - mid[1] - q[1]).round(),
+        }
+    };
+    let h = crate::rng::mix64(cfg.seed ^ crate::rng::mix64(counter + 1));
+    let jitter = |bits: u64, span: f64| ((bits & 0xffff) as f64 / 65535.0 - 0.5) * span;
+    if !work.constraint.is_empty() && sample.mask.is_some() {
+        // constrained: among seeded spots anywhere on the sample, the one
+        // whose foreground best agrees with m0 over the patch (outside the
+        // sample counts as a full mismatch), the first of equals
+        let probe: Vec<usize> = (0..work.coords.len()).step_by(step).collect();
+        let mut best = (f64::INFINITY, place([mid[0], mid[1]]));
+        for k in 0..64u64 {
+            let b = crate::rng::mix64(h ^ crate::rng::mix64(k + 1));
+            let choice = place([mid[0] + jitter(b, 0.9 * sw), mid[1] + jitter(b >> 16, 0.9 * sh)]);
+            let cost: f64 = probe
+                .iter()
+                .map(|&i| {
+                    let w = work.coords[i];
+                    let m0 = work.constraint[(w[1].round() as usize).min(work.height - 1) * work.width
+                        + (w[0].round() as usize).min(work.width - 1)];
+                    let cs = to_sample(sample, rotation, choice.dx, choice.dy, w);
+                    if inside_sample(sample, cs) {
+                        (sample.mask_at(cs) - m0).abs() as f64
+                    } else {
+                        1.0
+                    }
+                })
+                .sum();
+            if cost < best.0 {
+                best = (cost, choice);
+            }
+        }
+        return best.1;
+    }
+    let margin = 0.25;
+    place([
+        (sw - 1.0) / 2.0 + jitter(h, margin * sw),
+        (sh - 1.0) / 2.0 + jitter(h >> 16, margin * sh),
+    ])
+}
+
+/// The rotation for the work image's field direction and the best matches
+/// of that rotated copy (up to 64, cheapest first); jointly on features and
+/// on the constraint (m0 against the rotated foreground mask, weighted by
+/// `constraint_weight`) when the work image carries one (§IV).
+pub(super) fn match_candidates(
+    sample: &mut Sample,
+    matcher: &mut Matcher,
+    work: &WorkImage,
+    constraint_weight: f64,
+) -> Result<(usize, Vec<matching::Placement>)> {
+    let rotations = sample.rotated.len();
+    let rot = rotation_index(work.angle, rotations);
+    let (sw, sh, n) = (sample.width, sample.height, sample.n);
+    let known_count: f64 = work.known.iter().map(|&k| k as f64).sum();
+    if known_count == 0.0 {
+        return Ok((rot, Vec::new()));
+    }
+    let constrained = !work.constraint.is_empty() && sample.mask.is_some();
+    if constrained {
+        sample.rotation_mask(rot);
+    }
+    sample.rotation(rot)?;
+    let (maps, valid) = sample.rotated[rot].as_ref().expect("just loaded");
+    let mask = if constrained {
+        sample.rotated_mask[rot].as_deref()
+    } else {
+        None
+    };
+    let work_in = matching::Work {
+        image: Image {
+            width: work.width,
+            height: work.height,
+            channels: n,
+            data: &work.features,
+        },
+        known: &work.known,
+        constraint: mask.map(|_| Image {
+            width: work.width,
+            height: work.height,
+            channels: 1,
+            data: &work.constraint,
+        }),
+    };
+    let sample_in = matching::Sample {
+        image: Image {
+            width: sw,
+            height: sh,
+            channels: n,
+            data: maps,
+        },
+        valid,
+        constraint: mask.map(|m| Image {
+            width: sw,
+            height: sh,
+            channels: 1,
+            data: m,
+        }),
+        key: rot as u64 | (constrained as u64) << 32,
+    };
+    let mc = MatchConfig {
+        min_overlap: (0.5 * known_count).max(1.0),
+        candidates: 64,
+        tolerance: f64::INFINITY,
+        constraint_weight,
+        ..MatchConfig::default()
+    };
+    Ok((rot, matcher.match_patch(&work_in, &sample_in, &mc)?))
+}

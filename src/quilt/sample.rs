@@ -1,0 +1,204 @@
+//! The sample on the surface: its geometry maps and rotated copies, read
+//! through the `.svd` (section III-A), and the factorization of a colour image
+//! on the fly.
+
+#[allow(unused_imports)]
+use super::*;
+
+/// The sample: unrotated geometry maps, and rotated copies on demand.
+pub(super) struct Sample {
+    pub(super) svd: SvdArtifact,
+    pub(super) width: usize,
+    pub(super) height: usize,
+    pub(super) n: usize,
+    pub(super) maps: Vec<f32>,
+    pub(super) tileable: bool,
+    /// Rotated copies as f32 (maps, validity), loaded lazily and dropped
+    /// least recently used first beyond `rotated_budget` bytes.
+    pub(super) rotated: Vec<Option<(Vec<f32>, Vec<f32>)>>,
+    /// When each rotated copy was last asked for.
+    pub(super) rotated_used: Vec<u64>,
+    pub(super) rotated_clock: u64,
+    pub(super) rotated_budget: usize,
+    /// The foreground mask m_P (`[y][x]`, 0..1), if painting or keeping the
+    /// foreground out.
+    pub(super) mask: Option<Vec<f32>>,
+    /// Rotated copies of the mask, made lazily like the maps'.
+    pub(super) rotated_mask: Vec<Option<Vec<f32>>>,
+}
+
+impl Sample {
+    /// Reads the unrotated geometry maps; rotated copies and the mask come
+    /// later, on demand.
+    pub(super) fn from_svd(svd: SvdArtifact) -> Result<Sample> {
+        let tileable = svd.tileable();
+        let rotations = if svd.rotations > 0 {
+            svd.rotations
+        } else {
+            factorize::DEFAULT_ROTATIONS
+        };
+        Ok(Sample {
+            width: svd.width,
+            height: svd.height,
+            n: svd.terms,
+            maps: svd.geometry_maps()?,
+            tileable,
+            rotated: vec![None; rotations],
+            rotated_used: vec![0; rotations],
+            rotated_clock: 0,
+            rotated_budget: usize::MAX,
+            mask: None,
+            rotated_mask: vec![None; rotations],
+            svd,
+        })
+    }
+
+    pub(super) fn rotation(&mut self, r: usize) -> Result<&(Vec<f32>, Vec<f32>)> {
+        self.rotated_clock += 1;
+        self.rotated_used[r] = self.rotated_clock;
+        if self.rotated[r].is_none() {
+            // room first: drop the least recently used copies (never the
+            // one asked for; at least one copy always stays)
+            let copy_bytes = self.width * self.height * (self.n + 1) * 4;
+            let mut held = self.rotated.iter().flatten().count() * copy_bytes;
+            while held + copy_bytes > self.rotated_budget && held > 0 {
+                let oldest = (0..self.rotated.len())
+                    .filter(|&k| self.rotated[k].is_some())
+                    .min_by_key(|&k| self.rotated_used[k])
+                    .expect("held > 0");
+                self.rotated[oldest] = None;
+                held -= copy_bytes;
+            }
+            let (maps, valid) = self.svd.rotated(r)?;
+            let mut m = vec![0f32; maps.len()];
+            half::slice::HalfFloatSliceExt::convert_to_f32_slice(&maps[..], &mut m);
+            self.rotated[r] = Some((m, valid.iter().map(|&v| v as f32).collect()));
+        }
+        Ok(self.rotated[r].as_ref().expect("just loaded"))
+    }
+
+    /// Rotated copy `r` of the foreground mask (turned like the maps).
+    pub(super) fn rotation_mask(&mut self, r: usize) -> Option<&[f32]> {
+        let mask = self.mask.as_ref()?;
+        if self.rotated_mask[r].is_none() {
+            let degrees = r as f64 * 360.0 / self.rotated.len() as f64;
+            let (m, _) = factorize::rotate_maps(mask, self.width, self.height, 1, degrees, self.tileable);
+            self.rotated_mask[r] = Some(m);
+        }
+        self.rotated_mask[r].as_deref()
+    }
+
+    /// Bilinear foreground mask at unrotated sample coordinates (0 where
+    /// there is no mask or outside the sample).
+    pub(super) fn mask_at(&self, c: [f64; 2]) -> f32 {
+        let Some(mask) = &self.mask else { return 0.0 };
+        crate::imageio::mask_bilinear(mask, self.width, self.height, c, self.tileable)
+    }
+
+    /// Bilinear geometry-map vector at unrotated sample coordinates (pixel
+    /// indices); `None` outside the sample (unless tileable).
+    pub(super) fn lookup(&self, c: [f64; 2], out: &mut [f32]) -> bool {
+        let (w, h) = (self.width as f64, self.height as f64);
+        let (mut x, mut y) = (c[0], c[1]);
+        if self.tileable {
+            x = x.rem_euclid(w);
+            y = y.rem_euclid(h);
+        } else if !(x >= 0.0 && y >= 0.0 && x <= w - 1.0 && y <= h - 1.0) {
+            return false;
+        }
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let wrap = |v: usize, n: usize| if self.tileable { v % n } else { v.min(n - 1) };
+        let (x0, y0) = (wrap(x0, self.width), wrap(y0, self.height));
+        let (x1, y1) = (wrap(x0 + 1, self.width), wrap(y0 + 1, self.height));
+        let n = self.n;
+        let at = |x: usize, y: usize| (y * self.width + x) * n;
+        let (a, b, cc, d) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+        for i in 0..n {
+            let top = self.maps[a + i] + (self.maps[b + i] - self.maps[a + i]) * fx;
+            let bottom = self.maps[cc + i] + (self.maps[d + i] - self.maps[cc + i]) * fx;
+            out[i] = top + (bottom - top) * fy;
+        }
+        true
+    }
+
+    /// Mean ‖g(x) − g(x + 1)‖ over horizontal and vertical neighbours: the
+    /// sample's own seam scale, the unit of T_c.
+    pub(super) fn neighbour_difference(&self) -> f64 {
+        let (w, h, n) = (self.width, self.height, self.n);
+        let (mut s, mut c) = (0f64, 0usize);
+        for y in 0..h {
+            for x in 0..w {
+                let a = (y * w + x) * n;
+                for (dx, dy) in [(1, 0), (0, 1)] {
+                    if x + dx < w && y + dy < h {
+                        let b = ((y + dy) * w + x + dx) * n;
+                        s += dist(&self.maps[a..a + n], &self.maps[b..b + n]);
+                        c += 1;
+                    }
+                }
+            }
+        }
+        (s / c.max(1) as f64).max(1e-12)
+    }
+}
+
+/// Whether two paths name the same file (textually equal when either is
+/// missing).
+pub(crate) fn same_file(a: &Path, b: &Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => a == b,
+    }
+}
+
+pub(super) fn dot_f32(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// C = P_aᵀ P_k (`n_a × n_k`, row-major) for appearance functions stored
+/// `[pair][rgb][i]` over the same direction pairs: it takes sample k's
+/// geometry-map vectors into sample a's basis.
+pub(super) fn basis_projection(pa: &[f32], na: usize, pk: &[f32], nk: usize) -> Vec<f32> {
+    let rows = pa.len() / na.max(1);
+    let mut c = vec![0f64; na * nk];
+    for row in 0..rows {
+        let (ra, rk) = (&pa[row * na..(row + 1) * na], &pk[row * nk..(row + 1) * nk]);
+        for (a, &x) in ra.iter().enumerate() {
+            for (k, &y) in rk.iter().enumerate() {
+                c[a * nk + k] += x as f64 * y as f64;
+            }
+        }
+    }
+    c.into_iter().map(|v| v as f32).collect()
+}
+
+pub(super) fn dist(a: &[f32], b: &[f32]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// The sample's `.svd`: the file itself, or a colour image factorized into a
+/// temporary directory (kept alive by the returned guard), with the rotated
+/// copies only if `matching` needs them (they are most of the cost).
+pub(crate) fn sample_svd(
+    sample_path: &Path,
+    matching: bool,
+    progress: &dyn Progress,
+) -> Result<(PathBuf, Option<tempfile::TempDir>)> {
+    if factorize::is_image_path(sample_path) {
+        let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+        let p = dir.path().join("sample.svd");
+        let cfg = FactorizeConfig {
+            rotations: if matching { factorize::DEFAULT_ROTATIONS } else { 0 },
+            ..FactorizeConfig::default()
+        };
+        factorize::factorize(sample_path, &p, &cfg, progress)?;
+        Ok((p, Some(dir)))
+    } else {
+        Ok((sample_path.to_path_buf(), None))
+    }
+}

@@ -1,0 +1,716 @@
+//! The quilting loop's working set and its steps (section III-B, Fig. 4):
+//! picking the next work patch, matching, fitting, seam refinement, and the
+//! state painting starts from.
+
+#[allow(unused_imports)]
+use super::*;
+
+/// The quilting loop's working set: the surface, the sample, the synthesis
+/// state and the reusable buffers. [`tile`] runs it from an empty surface;
+/// painting (`crate::paint`) from a decorated one with a constraint.
+pub(crate) struct Synthesis {
+    pub(super) cfg: TileConfig,
+    pub(super) sample_path: PathBuf,
+    /// Every sample the surface draws from ([`Quilt::samples`]); the active
+    /// one is `sample_paths[state.active]`.
+    pub(super) sample_paths: Vec<PathBuf>,
+    /// The preview colours of the other samples a loaded surface draws
+    /// from (by index; `None` for the active one and unused ones).
+    pub(super) other_previews: Vec<Option<crate::imageio::RgbImage>>,
+    pub(super) surface: Surface,
+    pub(super) zipper_triangles: Vec<[u32; 3]>,
+    pub(super) sample: Sample,
+    pub(super) state: State,
+    pub(super) bfs: Bfs,
+    pub(super) matcher: Matcher,
+    /// The sample's mean neighbour difference, the unit of T_c.
+    pub(super) reference: f64,
+    pub(crate) report: TileReport,
+    /// Painting (§IV): one min-cut per fitting, no T_c shrinking, and a
+    /// fitting may keep every old value.
+    pub(crate) painting: bool,
+    pub(super) seam_sum: f64,
+    pub(super) seam_cnt: usize,
+}
+
+impl Synthesis {
+    /// Opens the geometry image and the sample's `.svd`, with an empty state.
+    /// Without `matching` (verbatim copy) the rotated copies are not needed:
+    /// rotations are then quantized to the default 72 steps.
+    pub(crate) fn open(
+        gim: &Gim,
+        sample_path: &Path,
+        svd_path: &Path,
+        cfg: &TileConfig,
+        matching: bool,
+    ) -> Result<Self> {
+        // --memory is shared by the three caches of the loop: decoded tiles
+        // of the .svd, the rotated copies as f32, and the sample spectra of
+        // the matcher (a quarter each; the per-texel state comes on top)
+        let quarter = (cfg.memory.0 / 4).max(1 << 20);
+        let svd = SvdArtifact::open(svd_path, crate::container::MemoryBudget(quarter))?;
+        if matching && svd.rotations == 0 {
+            return Err(Error::input(
+                sample_path,
+                "has no rotated copies (factorize with --rotations 72)",
+            ));
+        }
+        let mut sample = Sample::from_svd(svd)?;
+        sample.rotated_budget = quarter as usize;
+        let n = sample.n;
+        let r = gim.resolution;
+        let mut position: Vec<f32> = gim.read("position")?;
+        let unit = {
+            let points: Vec<[f32; 3]> = position.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
+            crate::mesh::extreme_scale(&points) as f32
+        };
+        if unit != 1.0 {
+            position.iter_mut().for_each(|c| *c *= unit);
+        }
+        let surface = Surface {
+            r,
+            graph: gim.graph()?,
+            face: gim.read("face")?,
+            position,
+            unit,
+            normal: gim.read("normal")?,
+            face_angle: face_angles(gim)?,
+        };
+        let reference = sample.neighbour_difference();
+        let state = State::new(surface.graph.chart.clone(), n, r);
+        let total = state.remaining;
+        Ok(Synthesis {
+            cfg: cfg.clone(),
+            sample_path: sample_path.to_path_buf(),
+            sample_paths: vec![sample_path.to_path_buf()],
+            other_previews: Vec::new(),
+            zipper_triangles: gim.zipper_triangles()?,
+            sample,
+            state,
+            bfs: Bfs {
+                stamp: vec![0; r * r],
+                index: vec![0; r * r],
+                epoch: 0,
+            },
+            matcher: Matcher::with_cache_budget(quarter as usize),
+            reference,
+            report: TileReport {
+                texels: total,
+                ..TileReport::default()
+            },
+            surface,
+            painting: false,
+            seam_sum: 0.0,
+            seam_cnt: 0,
+        })
+    }
+
+    /// Loads the sample's foreground mask m_P (a PNG the sample's size; any
+    /// channel above one half counts as foreground, grey levels between).
+    /// Call it before [`Synthesis::load`], which looks m_σ up per texel.
+    pub(crate) fn set_mask(&mut self, path: &Path) -> Result<()> {
+        let (w, h) = (self.sample.width, self.sample.height);
+        let mask = crate::imageio::read_sized_mask(
+            path,
+            w,
+            h,
+            "the sample's foreground mask must be the sample's size",
+        )?;
+        if !mask.iter().any(|&m| m >= 0.5) {
+            return Err(Error::input(
+                path,
+                "marks no foreground (no pixel above one half)",
+            ));
+        }
+        self.sample.mask = Some(mask);
+        Ok(())
+    }
+
+    /// Sets the constraint function m0 per atlas texel.
+    pub(crate) fn set_target(&mut self, m0: Vec<f32>) {
+        self.state.target = Some(m0);
+    }
+
+    /// Resolution R of the atlas.
+    pub(crate) fn resolution(&self) -> usize {
+        self.surface.r
+    }
+
+    /// The dense mesh graph.
+    pub(crate) fn graph(&self) -> &crate::gim::DenseGraph {
+        &self.surface.graph
+    }
+
+    /// 3D position of a dense vertex, in the mesh's units.
+    pub(crate) fn position(&self, t: u32) -> [f32; 3] {
+        let p = &self.surface.position[t as usize * 3..t as usize * 3 + 3];
+        [p[0], p[1], p[2]].map(|c| c / self.surface.unit)
+    }
+
+    /// The constraint function m0 (empty when unconstrained).
+    pub(crate) fn target(&self) -> &[f32] {
+        self.state.target.as_deref().unwrap_or(&[])
+    }
+
+    /// The sample's width and foreground mask (empty without one).
+    pub(crate) fn sample_mask(&self) -> (usize, &[f32]) {
+        (self.sample.width, self.sample.mask.as_deref().unwrap_or(&[]))
+    }
+
+    /// Patch id per texel.
+    pub(crate) fn patch_ids(&self) -> &[u32] {
+        &self.state.patch
+    }
+
+    /// Starts from a decorated surface: its coordinates, rotations, patch
+    /// ids, Jacobians and sample indices. The features are looked up in each
+    /// texel's own sample; texels of another sample than the one opened
+    /// (painting with a new sample) are projected into its basis, g ↦ P_aᵀ
+    /// P_k g (both appearance bases orthonormal, so this is the closest
+    /// vector of the active rank-n space to the texel's value), and count as
+    /// background (m_σ = 0). The opened sample joins the surface's list if
+    /// it is new.
+    pub(crate) fn load(&mut self, quilt: &Quilt, progress: &dyn Progress) -> Result<()> {
+        let r = self.surface.r;
+        if quilt.resolution != r {
+            return Err(Error::input(
+                quilt.container().path(),
+                format!("is {}² but its geometry image is {r}²", quilt.resolution),
+            ));
+        }
+        let coords = quilt.coords()?;
+        let patches = quilt.patches()?;
+        let rotations = quilt.rotations()?;
+        let jacobians = quilt.jacobians()?;
+        let source = quilt.sample_index()?;
+        let mut paths = quilt.samples.clone();
+        let active = match paths.iter().position(|p| same_file(p, &self.sample_path)) {
+            Some(k) => k,
+            None if paths.len() < MAX_SAMPLES => {
+                paths.push(self.sample_path.clone());
+                paths.len() - 1
+            }
+            None => {
+                return Err(Error::input(
+                    quilt.container().path(),
+                    format!("already draws from {MAX_SAMPLES} samples, the most one surface can"),
+                ))
+            }
+        };
+        // the other samples in use, with their projections into the active basis
+        let mut others: Vec<Option<(Sample, Vec<f32>)>> = (0..paths.len()).map(|_| None).collect();
+        let mut previews = vec![None; paths.len()];
+        let mut used = vec![false; paths.len()];
+        for (t, &k) in source.iter().enumerate() {
+            used[k as usize] |= patches[t] != NO_PATCH;
+        }
+        let active_p = self.sample.svd.appearance()?;
+        for k in (0..paths.len()).filter(|&k| used[k] && k != active) {
+            let (svd_path, _tmp) = sample_svd(&paths[k], false, progress)?;
+            let svd = SvdArtifact::open(&svd_path, self.cfg.memory)?;
+            crate::bake::same_directions(&self.sample.svd, &svd)?;
+            let projection = basis_projection(&active_p, self.sample.n, &svd.appearance()?, svd.terms);
+            previews[k] = Some(svd.preview()?);
+            others[k] = Some((Sample::from_svd(svd)?, projection));
+        }
+        let n = self.state.n;
+        let mut scratch = Vec::new();
+        let st = &mut self.state;
+        st.active = active as u8;
+        for b in st.buckets.iter_mut() {
+            b.clear();
+        }
+        st.remaining = 0;
+        let mut next = 0u32;
+        for t in 0..r * r {
+            if st.chart[t] == EMPTY {
+                continue;
+            }
+            if patches[t] == NO_PATCH {
+                return Err(Error::input(
+                    quilt.container().path(),
+                    "is not fully decorated (texels without a patch)",
+                ));
+            }
+            st.synthesized[t] = true;
+            st.coord[t] = coords[t];
+            st.rotation[t] = rotations[t];
+            st.patch[t] = patches[t];
+            st.jacobian[t] = jacobians[t];
+            st.source[t] = source[t];
+            next = next.max(patches[t] + 1);
+            let c = [coords[t][0] as f64, coords[t][1] as f64];
+            match &others[source[t] as usize] {
+                None => {
+                    st.foreign[t] = NO_FOREIGN;
+                    st.mask[t] = self.sample.mask_at(c);
+                }
+                Some((other, projection)) => {
+                    scratch.clear();
+                    scratch.resize(other.n, 0f32);
+                    other.lookup(c, &mut scratch);
+                    st.foreign[t] = (st.foreign_features.len() / n) as u32;
+                    for a in 0..n {
+                        let v = dot_f32(&projection[a * other.n..(a + 1) * other.n], &scratch);
+                        st.foreign_features.push(v);
+                    }
+                    st.mask[t] = 0.0;
+                }
+            }
+        }
+        st.next_patch = next;
+        self.sample_paths = paths;
+        self.other_previews = previews;
+        Ok(())
+    }
+
+    /// Writes the state as a `.quilt` (see [`tile`]); `paint_log` for a
+    /// painted surface.
+    pub(crate) fn write(
+        &mut self,
+        out: &Path,
+        gim: &Gim,
+        gim_path: &Path,
+        paint_log: Option<&str>,
+        start: Instant,
+    ) -> Result<TileReport> {
+        self.finish_report(start);
+        let report = self.report.clone();
+        write_quilt(out, &self.cfg, gim, gim_path, self, paint_log, &report)?;
+        Ok(report)
+    }
+
+    /// The work-patch radius r_w: 32 per 512 texels of atlas (the paper's
+    /// figure), but at most a quarter of the sample's smaller side, so a
+    /// work image (about 2 r_w across) leaves room to place and turn the
+    /// sample: on Spot at 1024² with a 128² BTF, r_w 32 instead of 64 took
+    /// 17 s instead of 35–43 s with a seam ratio of 1.28 instead of 1.40;
+    /// with a 192² crop, 48 instead of 64 gave 0.91 instead of 0.97.
+    pub(crate) fn radius0(&self) -> usize {
+        let cfg = &self.cfg;
+        let by_atlas = 32 * self.surface.r / 512;
+        let by_sample = self.sample.width.min(self.sample.height) / 4;
+        cfg.patch_radius
+            .unwrap_or(by_atlas.min(by_sample))
+            .max(cfg.min_radius)
+    }
+
+    /// One step of the quilting loop (the paper's Fig. 4) at vertex `v`:
+    /// work patch P(v) of radius r_w, work image I(v), patch matching,
+    /// graphcut fitting, and the hierarchical search that shrinks r_w by 0.8
+    /// (down to the minimum) while the seam cost exceeds T_c. Returns the
+    /// vertices of the accepted work patch.
+    pub(crate) fn step(&mut self, v: u32, radius0: usize, progress: &dyn Progress) -> Result<WorkPatch> {
+        let cfg = self.cfg.clone();
+        let cfg = &cfg;
+        let mut radius = radius0;
+        let mut flattening: Option<Flattening> = None;
+        let painting = self.painting;
+        // the rejected fitting with the lowest mean seam cost: if no radius
+        // passes T_c, it is taken instead of the smallest patch (fewer,
+        // larger pieces than always ending at r_w = 4)
+        let mut best: Option<(f64, WorkPatch, Fit, bool)> = None;
+        loop {
+            let patch = self.bfs.patch(&self.surface.graph, v, radius);
+            let (work, unfolded) = self.work_image(&patch, &mut flattening);
+            let fit = self.match_and_fit(&patch, &work, painting, 0)?;
+            let mean = if fit.seam_edges > 0 {
+                fit.seam_cost / fit.seam_edges as f64
+            } else {
+                0.0
+            };
+            // (painting takes its one min-cut per fitting: its seams must
+            // cross the foreground's border where m0 demands it, which T_c
+            // would read as a bad fit)
+            let (mut patch, mut fit, mut unfolded) = (patch, fit, unfolded);
+            if !painting && mean > cfg.seam_threshold * self.reference && fit.taken_new_synth > 0 {
+                if radius > cfg.min_radius {
+                    if best.as_ref().is_none_or(|b| mean < b.0) {
+                        best = Some((mean, patch, fit, unfolded));
+                    }
+                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
+                    self.report.shrinks += 1;
+                    continue;
+                }
+                if let Some(b) = best.take().filter(|b| b.0 < mean) {
+                    if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                        progress.note(&format!("best of the radii: {:.3} instead of {mean:.3}", b.0));
+                    }
+                    (patch, fit, unfolded) = (b.1, b.2, b.3);
+                }
+            }
+            if fit.taken == 0 && !painting {
+                // nothing could be placed (sample too small for the work
+                // image): shrink, or give up on this vertex at the minimum
+                if radius > cfg.min_radius {
+                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
+                    self.report.shrinks += 1;
+                    continue;
+                }
+                let (sw, sh) = (self.sample.width, self.sample.height);
+                return Err(Error::input(
+                    &self.sample_path,
+                    format!("is too small ({sw}×{sh}) to cover a work patch of radius {radius}"),
+                ));
+            }
+            if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                progress.note(&format!(
+                    "patch {} v {v} radius {radius} texels {} taken {} remaining {} cross {}",
+                    self.report.patches,
+                    patch.texels.len(),
+                    fit.taken,
+                    self.state.remaining,
+                    patch.crosses_charts
+                ));
+            }
+            self.report.cross_chart_patches += patch.crosses_charts as usize;
+            self.report.unfolded_patches += unfolded as usize;
+            self.accept(&patch, &fit, progress);
+            return Ok(patch);
+        }
+    }
+
+    /// Seam refinement (Kwatra et al. 2003, §3.3, "patch placement on
+    /// seams"): once the surface is covered, the most visible seams —
+    /// edges of the dense graph (grid edges and zipper links) across patches whose step exceeds `step` × the sample's
+    /// neighbour difference, largest first — each get one more work patch
+    /// of radius `radius` centred on them, matched against the finished
+    /// surface, whose core (3 hops around the seam) must take the new
+    /// values; the graphcut with seam nodes then places the new seams, and
+    /// the fitting is kept only if its cut costs less than 0.9 × the old
+    /// seams it replaces. Returns how many were kept. Seams already inside
+    /// a refined patch are not visited again.
+    pub(crate) fn refine(&mut self, radius: usize, step: f64, progress: &dyn Progress) -> Result<usize> {
+        let r = self.surface.r;
+        let n = self.state.n;
+        let (mut fa, mut fb) = (vec![0f32; n], vec![0f32; n]);
+        let mut seeds: Vec<(f64, u32)> = Vec::new();
+        let mut across: Vec<u32> = Vec::with_capacity(8);
+        for t in 0..(r * r) as u32 {
+            let tu = t as usize;
+            if self.state.chart[tu] == EMPTY {
+                continue;
+            }
+            // seams inside charts and across zippers alike: a seam that runs
+            // along a chart border is as visible as any other
+            across.clear();
+            self.surface.graph.for_each_neighbour(t, |nb, _| {
+                if nb > t && self.state.patch[nb as usize] != self.state.patch[tu] {
+                    across.push(nb);
+                }
+            });
+            if across.is_empty() {
+                continue;
+            }
+            self.state.feature_into(&self.sample, t, &mut fa);
+            let mut worst = 0f64;
+            for &nb in &across {
+                self.state.feature_into(&self.sample, nb, &mut fb);
+                worst = worst.max(dist(&fa, &fb));
+            }
+            if worst > step * self.reference {
+                seeds.push((worst, t));
+            }
+        }
+        seeds.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        let mut visited = vec![false; r * r];
+        let mut kept = 0;
+        for &(_, v) in &seeds {
+            if visited[v as usize] {
+                continue;
+            }
+            let patch = self.bfs.patch(&self.surface.graph, v, radius);
+            let (work, _) = self.work_image(&patch, &mut None);
+            let fit = self.best_of_placements(&patch, &work, self.cfg.refine_placements, 3)?;
+            let rim = patch.depth.iter().copied().max().unwrap_or(0);
+            for (&t, &d) in patch.texels.iter().zip(&patch.depth) {
+                if d + 2 < rim {
+                    visited[t as usize] = true;
+                }
+            }
+            if fit.taken > 0 && fit.flow < 0.9 * fit.baseline {
+                self.accept(&patch, &fit, progress);
+                self.report.refined += 1;
+                kept += 1;
+            }
+        }
+        Ok(kept)
+    }
+
+    /// Patch matching of the work image against the sample, then the
+    /// graphcut fitting of the chosen placement ([`fit_patch`], which says
+    /// what `keep_outside_target` and `core` do), timed into the report.
+    pub(super) fn match_and_fit(
+        &mut self,
+        patch: &WorkPatch,
+        work: &WorkImage,
+        keep_outside_target: bool,
+        core: u16,
+    ) -> Result<Fit> {
+        let t = Instant::now();
+        let placement = place_covering(
+            &mut self.sample,
+            &mut self.matcher,
+            work,
+            &self.cfg,
+            self.reference,
+            self.report.patches as u64,
+        )?;
+        self.report.matching_seconds += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let fit = self.fit_placement(patch, work, &placement, keep_outside_target, core);
+        self.report.graphcut_seconds += t.elapsed().as_secs_f64();
+        Ok(fit)
+    }
+
+    /// The graphcut fitting of one placement ([`fit_patch`]).
+    pub(super) fn fit_placement(
+        &self,
+        patch: &WorkPatch,
+        work: &WorkImage,
+        placement: &PlacementChoice,
+        keep_outside_target: bool,
+        core: u16,
+    ) -> Fit {
+        fit_patch(
+            &self.sample,
+            &self.state,
+            &self.surface,
+            patch,
+            work,
+            placement,
+            self.cfg.constraint_weight * self.reference,
+            keep_outside_target,
+            core,
+        )
+    }
+
+    /// Seam refinement's fitting: the graphcut of each of the `count` best
+    /// covering placements ([`distinct_best`]), the one with the cheapest cut
+    /// kept. A refinement has to beat the seams already there, and the
+    /// cheapest match is not always the cheapest cut.
+    pub(super) fn best_of_placements(
+        &mut self,
+        patch: &WorkPatch,
+        work: &WorkImage,
+        count: usize,
+        core: u16,
+    ) -> Result<Fit> {
+        let t = Instant::now();
+        let (rotation, covering) = covering_candidates(
+            &mut self.sample,
+            &mut self.matcher,
+            work,
+            &self.cfg,
+            self.reference,
+        )?;
+        let mut picks: Vec<PlacementChoice> = distinct_best(&covering, count, REFINE_SPACING)
+            .into_iter()
+            .map(|p| PlacementChoice {
+                rotation,
+                dx: p.dx as f64,
+                dy: p.dy as f64,
+            })
+            .collect();
+        if picks.is_empty() {
+            // no match covers the patch: the seeded spot the quilting step
+            // would take
+            let counter = self.report.patches as u64;
+            picks.push(choose_placement(
+                &self.sample,
+                work,
+                &self.cfg,
+                counter,
+                rotation,
+                &covering,
+            ));
+        }
+        self.report.matching_seconds += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let mut best: Option<Fit> = None;
+        for placement in picks {
+            let fit = self.fit_placement(patch, work, &placement, false, core);
+            if best.as_ref().is_none_or(|b| fit.flow < b.flow) {
+                best = Some(fit);
+            }
+        }
+        self.report.graphcut_seconds += t.elapsed().as_secs_f64();
+        Ok(best.expect("picks is not empty"))
+    }
+
+    /// Records an accepted fitting under the next patch id.
+    pub(super) fn accept(&mut self, patch: &WorkPatch, fit: &Fit, progress: &dyn Progress) {
+        let id = self.state.next_patch;
+        self.state.next_patch += 1;
+        apply(
+            &mut self.state,
+            &self.sample,
+            &self.surface,
+            patch,
+            fit,
+            id,
+            progress,
+        );
+        self.seam_sum += fit.seam_cost;
+        self.seam_cnt += fit.seam_edges;
+        self.report.patches += 1;
+    }
+
+    /// The work image I(v) of a work patch: the chart image inside a chart;
+    /// across charts the flattening (reused from `flattening` when the same
+    /// seed's patch shrinks), or the rigid unfolding where that fails — and
+    /// whether it is that unfolding.
+    pub(super) fn work_image(
+        &self,
+        patch: &WorkPatch,
+        flattening: &mut Option<Flattening>,
+    ) -> (WorkImage, bool) {
+        let (surface, state, bfs, zt) = (&self.surface, &self.state, &self.bfs, &self.zipper_triangles);
+        if !patch.crosses_charts {
+            return (chart_work_image(surface, &self.sample, state, patch), false);
+        }
+        if let Some(work) = flattening
+            .as_ref()
+            .and_then(|f| f.work_image(surface, &self.sample, state, patch, bfs, zt))
+        {
+            return (work, false);
+        }
+        if let Some((work, coords)) = flattened_work_image(
+            surface,
+            &self.sample,
+            state,
+            patch,
+            bfs,
+            zt,
+            self.cfg.max_distortion,
+        ) {
+            let mut c: Vec<(u32, [f64; 2])> = patch.texels.iter().copied().zip(coords).collect();
+            c.sort_unstable_by_key(|e| e.0);
+            *flattening = Some(Flattening {
+                coords: c,
+                angle: work.angle,
+            });
+            return (work, false);
+        }
+        (
+            unfolded_work_image(surface, &self.sample, state, patch, bfs),
+            true,
+        )
+    }
+
+    /// Verbatim copy (§IV): the sample's foreground, its point `centre`
+    /// (unrotated sample pixels) put on dense vertex `v`, turned by `angle`
+    /// (radians) from the field direction, over a work patch of `radius`.
+    /// With `preview`, only writes the direct projection (no graphcut: the
+    /// foreground pasted over the old colours in the patch's atlas box) and
+    /// returns; otherwise merges it with a graphcut seam: foreground texels
+    /// are forced to the copy, the rest chooses by the smoothness term.
+    pub(crate) fn verbatim(
+        &mut self,
+        v: u32,
+        radius: usize,
+        angle: f64,
+        centre: [f64; 2],
+        preview: Option<&Path>,
+        progress: &dyn Progress,
+    ) -> Result<usize> {
+        let t0 = Instant::now();
+        let trace = |what: &str| crate::progress::trace(progress, t0, &format!("verbatim {what}"));
+        let patch = self.bfs.patch(&self.surface.graph, v, radius);
+        trace("work patch");
+        let mut flattening = None;
+        let (work, _) = self.work_image(&patch, &mut flattening);
+        trace("work image");
+        let rotations = self.sample.rotated.len();
+        let rotation = rotation_index(work.angle + angle, rotations);
+        let theta = rotation as f64 * std::f64::consts::TAU / rotations as f64;
+        let (s, c) = theta.sin_cos();
+        let mid = [
+            (self.sample.width as f64 - 1.0) / 2.0,
+            (self.sample.height as f64 - 1.0) / 2.0,
+        ];
+        let d = [centre[0] - mid[0], centre[1] - mid[1]];
+        let q = [c * d[0] - s * d[1], s * d[0] + c * d[1]];
+        let placement = PlacementChoice {
+            rotation,
+            dx: work.coords[0][0] - mid[0] - q[0],
+            dy: work.coords[0][1] - mid[1] - q[1],
+        };
+        let placed: Vec<[f64; 2]> = work
+            .coords
+            .iter()
+            .map(|&w| to_sample(&self.sample, rotation, placement.dx, placement.dy, w))
+            .collect();
+        let fg: Vec<f32> = placed.iter().map(|&c| self.sample.mask_at(c)).collect();
+        trace("placed");
+        if let Some(out) = preview {
+            let colours = self.sample.svd.preview()?;
+            let r = self.surface.r;
+            let (x0, y0, w, h) = patch.atlas_box(r);
+            let mut data = vec![0f32; w * h * 3];
+            for y in 0..h {
+                for x in 0..w {
+                    let t = (y0 + y) * r + x0 + x;
+                    if self.state.synthesized[t] {
+                        let c = self.state.coord[t];
+                        let from = self.other_previews.get(self.state.source[t] as usize);
+                        let col = crate::bake::bilinear(
+                            from.and_then(Option::as_ref).unwrap_or(&colours),
+                            c[0],
+                            c[1],
+                        );
+                        data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
+                    }
+                }
+            }
+            for (i, &t) in patch.texels.iter().enumerate() {
+                if fg[i] >= 0.5 {
+                    let (x, y) = (t as usize % r - x0, t as usize / r - y0);
+                    let col = crate::bake::bilinear(&colours, placed[i][0] as f32, placed[i][1] as f32);
+                    data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
+                }
+            }
+            let img = crate::imageio::RgbImage {
+                width: w,
+                height: h,
+                data,
+            };
+            trace("projected");
+            crate::imageio::write_png(out, &img, crate::imageio::PngDepth::Eight)?;
+            trace("written");
+            return Ok(fg.iter().filter(|&&m| m >= 0.5).count());
+        }
+        // m0 = the placed foreground on the patch, 0 elsewhere
+        let mut m0 = vec![0f32; self.state.chart.len()];
+        for (i, &t) in patch.texels.iter().enumerate() {
+            m0[t as usize] = fg[i];
+        }
+        self.state.target = Some(m0);
+        let t = Instant::now();
+        let fit = fit_patch(
+            &self.sample,
+            &self.state,
+            &self.surface,
+            &patch,
+            &work,
+            &placement,
+            INFINITE.sqrt(),
+            false,
+            0,
+        );
+        self.report.graphcut_seconds += t.elapsed().as_secs_f64();
+        self.accept(&patch, &fit, progress);
+        Ok(fit.taken)
+    }
+
+    /// Mean seam cost per seam edge in units of the sample's neighbour
+    /// difference.
+    pub(super) fn finish_report(&mut self, start: Instant) {
+        self.report.mean_seam_cost = if self.seam_cnt > 0 {
+            self.seam_sum / self.seam_cnt as f64 / self.reference
+        } else {
+            0.0
+        };
+        self.report.seconds = start.elapsed().as_secs_f64();
+    }
+}
