@@ -69,52 +69,10 @@ pub fn open_samples(quilt: &Quilt, first: Option<&Path>, budget: MemoryBudget) -
     let mut out = vec![open_sample(quilt, first, budget)?];
     for (k, path) in quilt.samples.iter().enumerate().skip(1) {
         let s = open_one(quilt, k, path, budget)?;
-        same_directions(&out[0].svd, &s.svd)?;
+        crate::factorize::same_directions(&out[0].svd, &s.svd)?;
         out.push(s);
     }
     Ok(out)
-}
-
-/// Errors unless `b` was measured over the same view and light directions
-/// as `a` (painting and rendering mix their values per texel).
-pub fn same_directions(a: &SvdArtifact, b: &SvdArtifact) -> Result<()> {
-    let same = |x: &[crate::btf::Angles], y: &[crate::btf::Angles]| {
-        x.len() == y.len() && x.iter().zip(y).all(|(p, q)| crate::btf::same_direction(*p, *q))
-    };
-    if same(&a.views, &b.views) && same(&a.lights, &b.lights) {
-        Ok(())
-    } else {
-        Err(Error::input(
-            b.container().path(),
-            format!(
-                "has {}×{} view/light directions, not the {}×{} of {}: samples on one surface must share \
-                 their direction set (colour images with colour images)",
-                b.views.len(),
-                b.lights.len(),
-                a.views.len(),
-                a.lights.len(),
-                a.container().path().display()
-            ),
-        ))
-    }
-}
-
-/// Bilinear lookup in an RGB image at pixel coordinates (clamped).
-pub fn bilinear(img: &RgbImage, x: f32, y: f32) -> [f32; 3] {
-    let (w, h) = (img.width, img.height);
-    let x = x.clamp(0.0, (w - 1) as f32);
-    let y = y.clamp(0.0, (h - 1) as f32);
-    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-    let px = |x: usize, y: usize| &img.data[(y * w + x) * 3..(y * w + x) * 3 + 3];
-    let mut out = [0f32; 3];
-    for c in 0..3 {
-        let top = px(x0, y0)[c] + (px(x1, y0)[c] - px(x0, y0)[c]) * fx;
-        let bottom = px(x0, y1)[c] + (px(x1, y1)[c] - px(x0, y1)[c]) * fx;
-        out[c] = top + (bottom - top) * fy;
-    }
-    out
 }
 
 /// The atlas-space preview colour of a quilt, `(image, covered mask)`:
@@ -137,7 +95,7 @@ pub fn atlas_colour(quilt: &Quilt, previews: &[RgbImage]) -> Result<(RgbImage, V
     let covered: Vec<bool> = patches.iter().map(|&p| p != NO_PATCH).collect();
     for t in 0..r * r {
         if covered[t] {
-            let c = bilinear(&previews[index[t] as usize], coords[t][0], coords[t][1]);
+            let c = imageio::bilinear(&previews[index[t] as usize], coords[t][0], coords[t][1]);
             data[t * 3..t * 3 + 3].copy_from_slice(&c);
         }
     }

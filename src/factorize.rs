@@ -968,3 +968,27 @@ pub fn psnr(reference: &RgbImage, test: &RgbImage) -> f64 {
         10.0 * (peak * peak / mse).log10()
     }
 }
+
+/// Errors unless `b` was measured over the same view and light directions
+/// as `a` (painting and rendering mix their values per texel).
+pub fn same_directions(a: &SvdArtifact, b: &SvdArtifact) -> Result<()> {
+    let same = |x: &[crate::btf::Angles], y: &[crate::btf::Angles]| {
+        x.len() == y.len() && x.iter().zip(y).all(|(p, q)| crate::btf::same_direction(*p, *q))
+    };
+    if same(&a.views, &b.views) && same(&a.lights, &b.lights) {
+        Ok(())
+    } else {
+        Err(Error::input(
+            b.container().path(),
+            format!(
+                "has {}×{} view/light directions, not the {}×{} of {}: samples on one surface must share \
+                 their direction set (colour images with colour images)",
+                b.views.len(),
+                b.lights.len(),
+                a.views.len(),
+                a.lights.len(),
+                a.container().path().display()
+            ),
+        ))
+    }
+}

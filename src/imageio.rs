@@ -317,6 +317,24 @@ pub fn read_sized_mask(path: &Path, width: usize, height: usize, must_be: &str) 
 ///
 /// PNG/JPEG/TIFF are decoded from sRGB with the exact transfer function
 /// (a float TIFF is taken as already linear); EXR is read as is. Alpha is
+/// Bilinear lookup in an RGB image at pixel coordinates (clamped).
+pub fn bilinear(img: &RgbImage, x: f32, y: f32) -> [f32; 3] {
+    let (w, h) = (img.width, img.height);
+    let x = x.clamp(0.0, (w - 1) as f32);
+    let y = y.clamp(0.0, (h - 1) as f32);
+    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let px = |x: usize, y: usize| &img.data[(y * w + x) * 3..(y * w + x) * 3 + 3];
+    let mut out = [0f32; 3];
+    for c in 0..3 {
+        let top = px(x0, y0)[c] + (px(x1, y0)[c] - px(x0, y0)[c]) * fx;
+        let bottom = px(x0, y1)[c] + (px(x1, y1)[c] - px(x0, y1)[c]) * fx;
+        out[c] = top + (bottom - top) * fy;
+    }
+    out
+}
+
 /// A foreground mask value at sample coordinates `c` (pixel indices, `[y][x]`
 /// storage), bilinear between pixel centres. A tileable sample wraps round
 /// its borders; any other reads 0 outside `[0, width − 1] × [0, height − 1]`.

@@ -49,9 +49,10 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use crate::bake::{atlas_colour, bilinear, dilate, open_samples};
+use crate::bake::{atlas_colour, dilate, open_samples};
 use crate::btf::Angles;
 use crate::container::MemoryBudget;
+use crate::imageio::bilinear;
 use crate::imageio::{self, PngDepth, RgbImage};
 use crate::mesh::{cross, dot, normalize, sub, Mesh};
 use crate::quilt::{Quilt, NO_PATCH};

@@ -208,7 +208,7 @@ impl Synthesis {
         for k in (0..paths.len()).filter(|&k| used[k] && k != active) {
             let (svd_path, _tmp) = sample_svd(&paths[k], false, progress)?;
             let svd = SvdArtifact::open(&svd_path, self.cfg.memory)?;
-            crate::bake::same_directions(&self.sample.svd, &svd)?;
+            crate::factorize::same_directions(&self.sample.svd, &svd)?;
             let projection = basis_projection(&active_p, self.sample.n, &svd.appearance()?, svd.terms);
             previews[k] = Some(svd.preview()?);
             others[k] = Some((Sample::from_svd(svd)?, projection));
@@ -654,7 +654,7 @@ impl Synthesis {
                     if self.state.synthesized[t] {
                         let c = self.state.coord[t];
                         let from = self.other_previews.get(self.state.source[t] as usize);
-                        let col = crate::bake::bilinear(
+                        let col = crate::imageio::bilinear(
                             from.and_then(Option::as_ref).unwrap_or(&colours),
                             c[0],
                             c[1],
@@ -666,7 +666,7 @@ impl Synthesis {
             for (i, &t) in patch.texels.iter().enumerate() {
                 if fg[i] >= 0.5 {
                     let (x, y) = (t as usize % r - x0, t as usize / r - y0);
-                    let col = crate::bake::bilinear(&colours, placed[i][0] as f32, placed[i][1] as f32);
+                    let col = crate::imageio::bilinear(&colours, placed[i][0] as f32, placed[i][1] as f32);
                     data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
                 }
             }
