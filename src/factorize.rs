@@ -412,8 +412,9 @@ pub fn factorize(
         .iter()
         .map(|a| a.raw_bytes())
         .sum::<u64>();
-    let cache = if raw <= cfg.memory.bytes() / 2 {
-        MemoryBudget(cfg.memory.bytes() / 2)
+    let [half, _] = cfg.memory.split([1, 1]);
+    let cache = if raw <= half.bytes() {
+        half
     } else {
         MemoryBudget(0)
     };

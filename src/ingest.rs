@@ -99,7 +99,8 @@ pub fn ingest(input: &Path, out: &Path, cfg: &IngestConfig, progress: &dyn Progr
     layout.tile = cfg.tile.max(1);
     // a band's images (f32 while decoding) must fit in a quarter of the budget
     let per_image = (width * height * 3 * 4) as u64;
-    let fit = (cfg.memory.bytes() / 4 / per_image.max(1)).max(1) as usize;
+    let [band, ..] = cfg.memory.split([1, 1, 1, 1]);
+    let fit = (band.bytes() / per_image.max(1)).max(1) as usize;
     layout.band = layout.band.min(fit);
 
     let mut writer = BtfWriter::create(out, layout.clone())?;
@@ -230,7 +231,8 @@ pub fn export_all(
     let stage = crate::staging::StagedDir::new(dir, Some("manifest.csv"))?;
     let l = btf.layout();
     let per_image = (l.width * l.height * 3 * 4) as u64;
-    let group = ((memory.bytes() / 4 / per_image.max(1)) as usize).clamp(1, l.band);
+    let [images, ..] = memory.split([1, 1, 1, 1]);
+    let group = ((images.bytes() / per_image.max(1)) as usize).clamp(1, l.band);
     progress.begin("export", l.pairs() as u64);
     let mut listed = Vec::with_capacity(l.pairs());
     let mut p0 = 0;

@@ -47,6 +47,15 @@ impl MemoryBudget {
     pub fn bytes(self) -> u64 {
         self.0
     }
+
+    /// The budget split into shares in proportion to `weights` (each share
+    /// `bytes × weight / Σ weights`, rounded down): how a stage divides
+    /// `--memory` among its caches and buffers, e.g. `split([1, 1, 1, 1])`
+    /// for quarters.
+    pub fn split<const N: usize>(self, weights: [u64; N]) -> [MemoryBudget; N] {
+        let total: u128 = weights.iter().map(|&w| w as u128).sum::<u128>().max(1);
+        weights.map(|w| MemoryBudget((self.0 as u128 * w as u128 / total) as u64))
+    }
 }
 
 type Key = (u32, u64);
@@ -142,6 +151,21 @@ mod tests {
         assert!(MemoryBudget::parse("lots").is_err());
         assert!(MemoryBudget::parse("5 parsecs").is_err());
         assert!(MemoryBudget::parse("-1G").is_err());
+    }
+
+    #[test]
+    fn split_shares_in_proportion_and_never_exceeds_the_whole() {
+        let b = MemoryBudget(1000);
+        assert_eq!(b.split([1, 1, 1, 1]), [MemoryBudget(250); 4]);
+        assert_eq!(b.split([1, 2]), [MemoryBudget(333), MemoryBudget(666)]);
+        let big = MemoryBudget(u64::MAX);
+        let [a, c] = big.split([1, 1]);
+        assert_eq!(a.0, u64::MAX / 2);
+        assert!(a.0 as u128 + c.0 as u128 <= u64::MAX as u128);
+        for bytes in [0u64, 1, 7, 1 << 30, 12345678901] {
+            let [q, ..] = MemoryBudget(bytes).split([1, 1, 1, 1]);
+            assert_eq!(q.0, bytes / 4, "a quarter of {bytes}");
+        }
     }
 
     #[test]

@@ -134,7 +134,8 @@ pub fn generate_btf(cfg: &GenerateConfig, out: &Path, progress: &dyn Progress) -
 
     // views rendered at once: bounded by a quarter of the budget (f32 values)
     let per_view = (block * block * nl * 3 * 4) as u64;
-    let group = ((cfg.memory.bytes() / 4 / per_view.max(1)) as usize).clamp(1, 16);
+    let [rendered, ..] = cfg.memory.split([1, 1, 1, 1]);
+    let group = ((rendered.bytes() / per_view.max(1)) as usize).clamp(1, 16);
 
     let nbx = cfg.width.div_ceil(block);
     let nby = cfg.height.div_ceil(block);

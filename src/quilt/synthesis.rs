@@ -47,7 +47,8 @@ impl Synthesis {
         // --memory is shared by the three caches of the loop: decoded tiles
         // of the .svd, the rotated copies as f32, and the sample spectra of
         // the matcher (a quarter each; the per-texel state comes on top)
-        let quarter = (cfg.memory.0 / 4).max(1 << 20);
+        let [tiles, ..] = cfg.memory.split([1, 1, 1, 1]);
+        let quarter = tiles.bytes().max(1 << 20);
         let svd = SvdArtifact::open(svd_path, crate::container::MemoryBudget(quarter))?;
         if matching && svd.rotations == 0 {
             return Err(Error::input(
