@@ -43,7 +43,6 @@
 //! parallel steps are element- or row-wise independent, so results do not
 //! depend on the thread count.
 
-use std::collections::HashMap;
 use std::sync::Arc;
 
 use half::slice::HalfFloatSliceExt;
@@ -51,6 +50,7 @@ use rayon::prelude::*;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
+use crate::container::{BoundedCache, MemoryBudget};
 use crate::factorize::SvdArtifact;
 use crate::{Error, Result};
 
@@ -595,7 +595,6 @@ struct SampleSpectra {
     pairs: Vec<C64>,
     fv: Vec<C64>,
     max_valid: f64,
-    last_used: u64,
 }
 
 impl SampleSpectra {
@@ -615,9 +614,7 @@ pub struct Matcher {
     acc: Vec<C64>,
     out: Vec<C64>,
     energy: Vec<f64>,
-    cache: HashMap<CacheKey, SampleSpectra>,
-    cache_budget: usize,
-    tick: u64,
+    cache: BoundedCache<CacheKey, SampleSpectra>,
     computed: u64,
     reused: u64,
 }
@@ -645,9 +642,7 @@ impl Matcher {
             acc: Vec::new(),
             out: Vec::new(),
             energy: Vec::new(),
-            cache: HashMap::new(),
-            cache_budget: bytes,
-            tick: 0,
+            cache: BoundedCache::new(MemoryBudget(bytes as u64)),
             computed: 0,
             reused: 0,
         }
@@ -665,7 +660,7 @@ impl Matcher {
 
     /// Bytes held by the spectrum cache.
     pub fn cache_bytes(&self) -> usize {
-        self.cache.values().map(SampleSpectra::bytes).sum()
+        self.cache.bytes() as usize
     }
 
     /// Drops every cached sample spectrum.
@@ -703,15 +698,14 @@ impl Matcher {
         ] {
             buf.resize(len, ZERO);
         }
-        self.tick += 1;
-        if let Some(e) = self.cache.get_mut(&lay.key) {
-            e.last_used = self.tick;
+        if self.cache.get(&lay.key).is_some() {
             self.reused += 1;
         } else {
             let e = self.sample_spectra(&plans, sample, &lay);
-            self.insert(lay.key, e);
+            let bytes = e.bytes() as u64;
+            self.cache.insert(lay.key, e, bytes);
         }
-        let entry = &self.cache[&lay.key];
+        let entry = self.cache.peek(&lay.key).expect("just cached");
 
         // work side: Σ_j Z_j conj(Y_j), keeping the pair that holds M
         let w = if work.constraint.is_some() {
@@ -831,21 +825,7 @@ impl Matcher {
         let vl = v_lane(lay.n);
         unpack_lane(nx, ny, &pairs[vl / 2 * nn..(vl / 2 + 1) * nn], vl % 2, &mut fv);
         let max_valid = sample.valid.iter().fold(0.0f64, |a, &v| a.max(v as f64));
-        SampleSpectra {
-            pairs,
-            fv,
-            max_valid,
-            last_used: self.tick,
-        }
-    }
-
-    fn insert(&mut self, key: CacheKey, entry: SampleSpectra) {
-        let mut total = self.cache_bytes() + entry.bytes();
-        while total > self.cache_budget && !self.cache.is_empty() {
-            let oldest = *self.cache.iter().min_by_key(|(_, e)| e.last_used).unwrap().0;
-            total -= self.cache.remove(&oldest).unwrap().bytes();
-        }
-        self.cache.insert(key, entry);
+        SampleSpectra { pairs, fv, max_valid }
     }
 }
 

@@ -2,6 +2,7 @@
 //! chunks evicted first.
 
 use std::collections::{BTreeMap, HashMap};
+use std::hash::Hash;
 use std::sync::{Arc, Mutex};
 
 use super::ChunkData;
@@ -58,31 +59,111 @@ impl MemoryBudget {
     }
 }
 
-type Key = (u32, u64);
-
-struct Inner {
-    map: HashMap<Key, (Arc<ChunkData>, u64)>,
-    by_age: BTreeMap<u64, Key>,
+/// A map bounded by a byte budget, least recently used entries evicted
+/// first: the one cache type behind every cache (decoded chunks, the rotated
+/// copies of a sample, the matcher's sample spectra). The newest entry is
+/// always kept, even when it alone exceeds the budget.
+pub struct BoundedCache<K, V> {
+    budget: u64,
+    map: HashMap<K, (V, u64, u64)>,
+    by_age: BTreeMap<u64, K>,
     bytes: u64,
     tick: u64,
 }
 
+impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
+    /// An empty cache of at most `budget` bytes.
+    pub fn new(budget: MemoryBudget) -> Self {
+        BoundedCache {
+            budget: budget.0,
+            map: HashMap::new(),
+            by_age: BTreeMap::new(),
+            bytes: 0,
+            tick: 0,
+        }
+    }
+
+    /// The budget in bytes.
+    pub fn budget(&self) -> u64 {
+        self.budget
+    }
+
+    /// Bytes held (as given to [`insert`](Self::insert)).
+    pub fn bytes(&self) -> u64 {
+        self.bytes
+    }
+
+    /// Number of entries.
+    pub fn len(&self) -> usize {
+        self.map.len()
+    }
+
+    /// Whether it holds nothing.
+    pub fn is_empty(&self) -> bool {
+        self.map.is_empty()
+    }
+
+    /// Whether `key` is cached (does not count as a use).
+    pub fn contains(&self, key: &K) -> bool {
+        self.map.contains_key(key)
+    }
+
+    /// The entry for `key` without counting it as a use.
+    pub fn peek(&self, key: &K) -> Option<&V> {
+        self.map.get(key).map(|(v, _, _)| v)
+    }
+
+    /// The entry for `key`, now the most recently used.
+    pub fn get(&mut self, key: &K) -> Option<&V> {
+        self.tick += 1;
+        let tick = self.tick;
+        let (v, _, age) = self.map.get_mut(key)?;
+        self.by_age.remove(age);
+        *age = tick;
+        self.by_age.insert(tick, key.clone());
+        Some(v)
+    }
+
+    /// Inserts (or replaces) `key` holding `bytes`, first evicting the least
+    /// recently used entries until it fits (or nothing else is left).
+    pub fn insert(&mut self, key: K, value: V, bytes: u64) {
+        if let Some((_, old, age)) = self.map.remove(&key) {
+            self.by_age.remove(&age);
+            self.bytes -= old;
+        }
+        while self.bytes + bytes > self.budget {
+            let Some((_, oldest)) = self.by_age.pop_first() else {
+                break;
+            };
+            if let Some((_, b, _)) = self.map.remove(&oldest) {
+                self.bytes -= b;
+            }
+        }
+        self.tick += 1;
+        self.by_age.insert(self.tick, key.clone());
+        self.map.insert(key, (value, bytes, self.tick));
+        self.bytes += bytes;
+    }
+
+    /// Drops every entry.
+    pub fn clear(&mut self) {
+        self.map.clear();
+        self.by_age.clear();
+        self.bytes = 0;
+    }
+}
+
+type Key = (u32, u64);
+
 /// Decoded chunks shared between threads; never holds more than the budget.
 pub(crate) struct ChunkCache {
-    budget: u64,
-    inner: Mutex<Inner>,
+    inner: Mutex<BoundedCache<Key, Arc<ChunkData>>>,
 }
 
 impl ChunkCache {
     pub(crate) fn new(budget: MemoryBudget) -> Self {
         ChunkCache {
-            budget: budget.0,
-            inner: Mutex::new(Inner {
-                map: HashMap::new(),
-                by_age: BTreeMap::new(),
-                bytes: 0,
-                tick: 0,
-            }),
+            inner: Mutex::new(BoundedCache::new(budget)),
         }
     }
 
@@ -92,48 +173,23 @@ impl ChunkCache {
         key: Key,
         load: impl FnOnce() -> Result<ChunkData>,
     ) -> Result<Arc<ChunkData>> {
-        {
-            let mut g = self.inner.lock().unwrap_or_else(|p| p.into_inner());
-            let inner = &mut *g;
-            inner.tick += 1;
-            let tick = inner.tick;
-            if let Some((data, age)) = inner.map.get_mut(&key) {
-                inner.by_age.remove(age);
-                *age = tick;
-                inner.by_age.insert(tick, key);
-                return Ok(data.clone());
-            }
+        if let Some(data) = self.inner.lock().unwrap_or_else(|p| p.into_inner()).get(&key) {
+            return Ok(data.clone());
         }
         let data = Arc::new(load()?);
         let size = data.byte_len() as u64;
-        if size * 4 > self.budget {
-            // Too large to be worth caching under this budget.
+        let mut cache = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        // too large to be worth caching under this budget
+        if size * 4 > cache.budget() || cache.contains(&key) {
             return Ok(data);
         }
-        let mut g = self.inner.lock().unwrap_or_else(|p| p.into_inner());
-        let inner = &mut *g;
-        if inner.map.contains_key(&key) {
-            return Ok(data);
-        }
-        while inner.bytes + size > self.budget {
-            let Some((_, old)) = inner.by_age.pop_first() else {
-                break;
-            };
-            if let Some((d, _)) = inner.map.remove(&old) {
-                inner.bytes -= d.byte_len() as u64;
-            }
-        }
-        inner.tick += 1;
-        let tick = inner.tick;
-        inner.by_age.insert(tick, key);
-        inner.map.insert(key, (data.clone(), tick));
-        inner.bytes += size;
+        cache.insert(key, data.clone(), size);
         Ok(data)
     }
 
     #[cfg(test)]
     pub(crate) fn held_bytes(&self) -> u64 {
-        self.inner.lock().unwrap().bytes
+        self.inner.lock().unwrap().bytes()
     }
 }
 
@@ -166,6 +222,25 @@ mod tests {
             let [q, ..] = MemoryBudget(bytes).split([1, 1, 1, 1]);
             assert_eq!(q.0, bytes / 4, "a quarter of {bytes}");
         }
+    }
+
+    #[test]
+    fn bounded_cache_evicts_least_recently_used_and_keeps_the_newest() {
+        let mut c: BoundedCache<u32, &str> = BoundedCache::new(MemoryBudget(30));
+        c.insert(1, "a", 10);
+        c.insert(2, "b", 10);
+        c.insert(3, "c", 10);
+        assert_eq!(c.get(&1), Some(&"a")); // 1 is now the most recent
+        c.insert(4, "d", 10); // evicts 2, the least recently used
+        assert!(!c.contains(&2) && c.contains(&1) && c.contains(&3) && c.contains(&4));
+        assert_eq!(c.bytes(), 30);
+        c.insert(5, "e", 100); // larger than the budget: kept alone
+        assert_eq!((c.len(), c.bytes()), (1, 100));
+        assert_eq!(c.peek(&5), Some(&"e"));
+        c.insert(5, "f", 5); // replacing updates the bytes held
+        assert_eq!((c.len(), c.bytes()), (1, 5));
+        c.clear();
+        assert!(c.is_empty() && c.bytes() == 0);
     }
 
     #[test]

@@ -30,7 +30,7 @@ use std::sync::Arc;
 use bincode::{Decode, Encode};
 
 use cache::ChunkCache;
-pub use cache::MemoryBudget;
+pub use cache::{BoundedCache, MemoryBudget};
 pub use codec::{ChunkData, DType, Element, EncodedChunk};
 use mmap::ByteSource;
 

@@ -43,7 +43,7 @@ pub(super) fn write_quilt(
     w.set_param("sample_width", Param::Int(sample.width as i64));
     w.set_param("sample_height", Param::Int(sample.height as i64));
     w.set_param("terms", Param::Int(sample.n as i64));
-    w.set_param("rotations", Param::Int(sample.rotated.len() as i64));
+    w.set_param("rotations", Param::Int(sample.rotations as i64));
     w.set_param("patches", Param::Int(state.next_patch as i64));
     w.set_param("mean_seam_cost", Param::Float(report.mean_seam_cost));
     let coord: Vec<f32> = state.coord.iter().flatten().copied().collect();

@@ -47,7 +47,7 @@ pub(super) fn fit_patch(
     let n = state.n;
     let r = state.r;
     let m = patch.texels.len();
-    let rotations = sample.rotated.len();
+    let rotations = sample.rotations;
     let theta = placement.rotation as f64 * std::f64::consts::TAU / rotations as f64;
     let (s, c) = theta.sin_cos();
     let cen = [

@@ -28,7 +28,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::container::{ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
+use crate::container::{ArraySpec, BoundedCache, Container, ContainerWriter, DType, MemoryBudget, Param};
 use crate::factorize::{self, FactorizeConfig, SvdArtifact};
 use crate::gim::{Gim, EMPTY, TILE};
 use crate::matching::{self, Image, MatchConfig, Matcher};

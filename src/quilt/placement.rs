@@ -73,7 +73,7 @@ pub(super) struct PlacementChoice {
 /// Maps a work-image coordinate through a placement to unrotated sample
 /// coordinates (the inverse of the rotated copy's construction).
 pub(super) fn to_sample(sample: &Sample, rotation: usize, dx: f64, dy: f64, w: [f64; 2]) -> [f64; 2] {
-    let theta = rotation as f64 * std::f64::consts::TAU / sample.rotated.len() as f64;
+    let theta = rotation as f64 * std::f64::consts::TAU / sample.rotations as f64;
     let (s, c) = theta.sin_cos();
     let cen = [
         (sample.width as f64 - 1.0) / 2.0,
@@ -130,7 +130,7 @@ pub(super) fn choose_placement(
     // nothing known yet, or no match covers the patch: a seeded spot that
     // covers the seed's neighbourhood (the sample centre ± a margin)
     let (sw, sh) = (sample.width as f64, sample.height as f64);
-    let theta = rotation as f64 * std::f64::consts::TAU / sample.rotated.len() as f64;
+    let theta = rotation as f64 * std::f64::consts::TAU / sample.rotations as f64;
     let (s, c) = theta.sin_cos();
     let mid = [(sw - 1.0) / 2.0, (sh - 1.0) / 2.0];
     // the seed at unrotated sample point `cen`: solve for the translation
@@ -192,7 +192,7 @@ pub(super) fn match_candidates(
     work: &WorkImage,
     constraint_weight: f64,
 ) -> Result<(usize, Vec<matching::Placement>)> {
-    let rotations = sample.rotated.len();
+    let rotations = sample.rotations;
     let rot = rotation_index(work.angle, rotations);
     let (sw, sh, n) = (sample.width, sample.height, sample.n);
     let known_count: f64 = work.known.iter().map(|&k| k as f64).sum();
@@ -204,7 +204,7 @@ pub(super) fn match_candidates(
         sample.rotation_mask(rot);
     }
     sample.rotation(rot)?;
-    let (maps, valid) = sample.rotated[rot].as_ref().expect("just loaded");
+    let (maps, valid) = sample.rotated.peek(&rot).expect("just loaded");
     let mask = if constrained {
         sample.rotated_mask[rot].as_deref()
     } else {

@@ -13,13 +13,11 @@ pub(super) struct Sample {
     pub(super) n: usize,
     pub(super) maps: Vec<f32>,
     pub(super) tileable: bool,
-    /// Rotated copies as f32 (maps, validity), loaded lazily and dropped
-    /// least recently used first beyond `rotated_budget` bytes.
-    pub(super) rotated: Vec<Option<(Vec<f32>, Vec<f32>)>>,
-    /// When each rotated copy was last asked for.
-    pub(super) rotated_used: Vec<u64>,
-    pub(super) rotated_clock: u64,
-    pub(super) rotated_budget: usize,
+    /// How many rotated copies there are (5° steps for 72).
+    pub(super) rotations: usize,
+    /// Rotated copies as f32 (maps, validity), loaded lazily into a cache
+    /// bounded by the budget given in [`Sample::from_svd`].
+    pub(super) rotated: BoundedCache<usize, (Vec<f32>, Vec<f32>)>,
     /// The foreground mask m_P (`[y][x]`, 0..1), if painting or keeping the
     /// foreground out.
     pub(super) mask: Option<Vec<f32>>,
@@ -30,7 +28,7 @@ pub(super) struct Sample {
 impl Sample {
     /// Reads the unrotated geometry maps; rotated copies and the mask come
     /// later, on demand.
-    pub(super) fn from_svd(svd: SvdArtifact) -> Result<Sample> {
+    pub(super) fn from_svd(svd: SvdArtifact, rotated_budget: MemoryBudget) -> Result<Sample> {
         let tileable = svd.tileable();
         let rotations = if svd.rotations > 0 {
             svd.rotations
@@ -43,45 +41,32 @@ impl Sample {
             n: svd.terms,
             maps: svd.geometry_maps()?,
             tileable,
-            rotated: vec![None; rotations],
-            rotated_used: vec![0; rotations],
-            rotated_clock: 0,
-            rotated_budget: usize::MAX,
+            rotations,
+            rotated: BoundedCache::new(rotated_budget),
             mask: None,
             rotated_mask: vec![None; rotations],
             svd,
         })
     }
 
+    /// Rotated copy `r` (maps, validity), loaded on first use.
     pub(super) fn rotation(&mut self, r: usize) -> Result<&(Vec<f32>, Vec<f32>)> {
-        self.rotated_clock += 1;
-        self.rotated_used[r] = self.rotated_clock;
-        if self.rotated[r].is_none() {
-            // room first: drop the least recently used copies (never the
-            // one asked for; at least one copy always stays)
-            let copy_bytes = self.width * self.height * (self.n + 1) * 4;
-            let mut held = self.rotated.iter().flatten().count() * copy_bytes;
-            while held + copy_bytes > self.rotated_budget && held > 0 {
-                let oldest = (0..self.rotated.len())
-                    .filter(|&k| self.rotated[k].is_some())
-                    .min_by_key(|&k| self.rotated_used[k])
-                    .expect("held > 0");
-                self.rotated[oldest] = None;
-                held -= copy_bytes;
-            }
+        if !self.rotated.contains(&r) {
             let (maps, valid) = self.svd.rotated(r)?;
             let mut m = vec![0f32; maps.len()];
             half::slice::HalfFloatSliceExt::convert_to_f32_slice(&maps[..], &mut m);
-            self.rotated[r] = Some((m, valid.iter().map(|&v| v as f32).collect()));
+            let bytes = ((m.len() + valid.len()) * 4) as u64;
+            self.rotated
+                .insert(r, (m, valid.iter().map(|&v| v as f32).collect()), bytes);
         }
-        Ok(self.rotated[r].as_ref().expect("just loaded"))
+        Ok(self.rotated.get(&r).expect("just loaded"))
     }
 
     /// Rotated copy `r` of the foreground mask (turned like the maps).
     pub(super) fn rotation_mask(&mut self, r: usize) -> Option<&[f32]> {
         let mask = self.mask.as_ref()?;
         if self.rotated_mask[r].is_none() {
-            let degrees = r as f64 * 360.0 / self.rotated.len() as f64;
+            let degrees = r as f64 * 360.0 / self.rotations as f64;
             let (m, _) = factorize::rotate_maps(mask, self.width, self.height, 1, degrees, self.tileable);
             self.rotated_mask[r] = Some(m);
         }

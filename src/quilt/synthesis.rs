@@ -48,16 +48,15 @@ impl Synthesis {
         // of the .svd, the rotated copies as f32, and the sample spectra of
         // the matcher (a quarter each; the per-texel state comes on top)
         let [tiles, ..] = cfg.memory.split([1, 1, 1, 1]);
-        let quarter = tiles.bytes().max(1 << 20);
-        let svd = SvdArtifact::open(svd_path, crate::container::MemoryBudget(quarter))?;
+        let quarter = MemoryBudget(tiles.bytes().max(1 << 20));
+        let svd = SvdArtifact::open(svd_path, quarter)?;
         if matching && svd.rotations == 0 {
             return Err(Error::input(
                 sample_path,
                 "has no rotated copies (factorize with --rotations 72)",
             ));
         }
-        let mut sample = Sample::from_svd(svd)?;
-        sample.rotated_budget = quarter as usize;
+        let sample = Sample::from_svd(svd, quarter)?;
         let n = sample.n;
         let r = gim.resolution;
         let mut position: Vec<f32> = gim.read("position")?;
@@ -93,7 +92,7 @@ impl Synthesis {
                 index: vec![0; r * r],
                 epoch: 0,
             },
-            matcher: Matcher::with_cache_budget(quarter as usize),
+            matcher: Matcher::with_cache_budget(quarter.bytes() as usize),
             reference,
             report: TileReport {
                 texels: total,
@@ -212,7 +211,8 @@ impl Synthesis {
             crate::factorize::same_directions(&self.sample.svd, &svd)?;
             let projection = basis_projection(&active_p, self.sample.n, &svd.appearance()?, svd.terms);
             previews[k] = Some(svd.preview()?);
-            others[k] = Some((Sample::from_svd(svd)?, projection));
+            // only their unrotated maps are read: no rotated copy is cached
+            others[k] = Some((Sample::from_svd(svd, MemoryBudget(0))?, projection));
         }
         let n = self.state.n;
         let mut scratch = Vec::new();
@@ -622,7 +622,7 @@ impl Synthesis {
         let mut flattening = None;
         let (work, _) = self.work_image(&patch, &mut flattening);
         trace("work image");
-        let rotations = self.sample.rotated.len();
+        let rotations = self.sample.rotations;
         let rotation = rotation_index(work.angle + angle, rotations);
         let theta = rotation as f64 * std::f64::consts::TAU / rotations as f64;
         let (s, c) = theta.sin_cos();
