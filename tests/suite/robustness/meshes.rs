@@ -4,7 +4,7 @@
 //! flags refused naming the flag. See `main.rs`.
 
 use crate::common::{self, s};
-use crate::{fuzz_cases, mutate, refuses, run_bounded, Rng};
+use crate::robustness::{fuzz_cases, mutate, refuses, run_bounded, Rng};
 use btfquilt::container::MemoryBudget;
 use btfquilt::gim::{Gim, EMPTY};
 use std::path::{Path, PathBuf};
