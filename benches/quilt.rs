@@ -4,7 +4,7 @@
 //! `tile/square400_from_brick192`: one whole `quilt::tile` run from the
 //! sample's `.svd` (factorized once in setup: 3 terms, 72 rotated copies),
 //! writing the `.quilt`. The geometry image and the `.svd` are built in
-//! setup through the library, as `tests/quilt.rs` does. Ten flat samples
+//! setup through the library, as `tests/suite/quilt.rs` does. Ten flat samples
 //! of one run each: about 15 s.
 
 use std::time::Duration;

@@ -19,8 +19,7 @@ use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 use btfquilt::render::{self, Camera, Light, RenderConfig, BACKGROUND};
 
-mod common;
-use common::{btfquilt, fails_clearly, listing, s};
+use crate::common::{self, btfquilt, fails_clearly, listing, s};
 
 const ATLAS: usize = 64;
 

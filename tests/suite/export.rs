@@ -9,8 +9,7 @@ use btfquilt::gim::Gim;
 use btfquilt::quilt::{Quilt, NO_PATCH};
 use serde_json::Value as Json;
 
-mod common;
-use common::{btfquilt, channel, fails_clearly, listing, ok, read_exr, s};
+use crate::common::{btfquilt, channel, fails_clearly, listing, ok, read_exr, s};
 
 fn spot() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj")

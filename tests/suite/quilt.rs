@@ -9,8 +9,7 @@ use btfquilt::imageio;
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 
-mod common;
-use common::{brick_crop, square_obj};
+use crate::common::{brick_crop, square_obj};
 
 fn atlas(mesh: &Path, out: &Path, r: usize) {
     let cfg = AtlasConfig {

@@ -4,9 +4,6 @@
 //! no hang, nothing left at `-o`. Plus seeded mutation loops over small valid
 //! artifacts (`BTFQUILT_FUZZ_CASES` raises their count).
 
-#[path = "../common/mod.rs"]
-mod common;
-
 mod containers;
 mod images;
 mod json;

@@ -23,8 +23,7 @@ use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 use btfquilt::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
 
-mod common;
-use common::{btfquilt, channel, fails_clearly, ok, read_exr, s, write_mask_png};
+use crate::common::{self, btfquilt, channel, fails_clearly, ok, read_exr, s, write_mask_png};
 
 const ATLAS: usize = 64;
 /// Rendered image edge (pixels).

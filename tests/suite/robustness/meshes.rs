@@ -1,10 +1,10 @@
 //! Meshes and points: damaged or extreme meshes through `atlas` (refused
 //! naming the file, or made into a valid atlas in the user's units), user
 //! points far from or off the surface through `paint`, and non-finite float
-//! flags refused naming the flag. See `main.rs`.
+//! flags refused naming the flag. See `mod.rs`.
 
 use crate::common::{self, s};
-use crate::{fuzz_cases, mutate, refuses, run_bounded, Rng};
+use crate::robustness::{fuzz_cases, mutate, refuses, run_bounded, Rng};
 use btfquilt::container::MemoryBudget;
 use btfquilt::gim::{Gim, EMPTY};
 use std::path::{Path, PathBuf};

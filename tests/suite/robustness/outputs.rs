@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use crate::common::{brick_crop, listing, ok, s, square_obj, write_rgb_png};
-use crate::{refuses, run_bounded};
+use crate::robustness::{refuses, run_bounded};
 
 /// A small decorated square: `(dir, mesh, gim, sample, quilt)`.
 fn decorated(dir: &Path) -> (PathBuf, PathBuf, PathBuf, PathBuf) {

@@ -11,8 +11,7 @@ use btfquilt::paint::{self, PaintConfig, Verbatim};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig};
 
-mod common;
-use common::{write_mask_png, write_rgb_png};
+use crate::common::{self, write_mask_png, write_rgb_png};
 
 const R: usize = 128;
 

@@ -3,8 +3,7 @@
 use std::path::Path;
 use std::process::Command;
 
-mod common;
-use common::{btfquilt, fails_clearly, s};
+use crate::common::{btfquilt, fails_clearly, s};
 
 #[test]
 fn generate_info_export_round() {

@@ -9,7 +9,7 @@ use btfquilt::container::{
 };
 
 use crate::common::{self, s};
-use crate::{fuzz_cases, mutate, refuses, run_bounded, Rng};
+use crate::robustness::{fuzz_cases, mutate, refuses, run_bounded, Rng};
 
 /// `atlas square.obj --resolution 64` → `dir/sq.gim`.
 fn gim(dir: &Path) -> PathBuf {

@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::common;
-use crate::{fuzz_cases, mutate, refuses, Rng};
+use crate::robustness::{fuzz_cases, mutate, refuses, Rng};
 
 /// A valid strokes file.
 const STROKES: &str =
@@ -236,7 +236,7 @@ fn mutation_loop(label: &str, valid: &str, seed: u64, file: &Path, out: &Path, a
     let (mut read, mut refused) = (0, 0);
     for case in 0..cases {
         std::fs::write(file, mutate(valid.as_bytes(), &mut rng)).unwrap();
-        if crate::read_or_refused(&format!("{label} case {case}"), args, file, out) {
+        if crate::robustness::read_or_refused(&format!("{label} case {case}"), args, file, out) {
             read += 1;
         } else {
             refused += 1;

@@ -274,12 +274,62 @@ fn plain_reads_match_mapped_reads() {
     let mapped = Container::open(&path, MemoryBudget::default()).unwrap();
     let id = mapped.array("smooth").unwrap();
     let a: Vec<f32> = mapped.read_array(id).unwrap();
-    // SAFETY of the test: environment changes are process-wide; this is the
-    // only test in this binary that reads BTFQUILT_NO_MMAP.
-    std::env::set_var("BTFQUILT_NO_MMAP", "1");
-    let plain = Container::open(&path, MemoryBudget::default()).unwrap();
-    std::env::remove_var("BTFQUILT_NO_MMAP");
-    assert!(mapped.is_mapped() && !plain.is_mapped());
-    let b: Vec<f32> = plain.read_array(plain.array("smooth").unwrap()).unwrap();
+    // The environment is process-wide and the tests run as threads of one
+    // process, so the plain read happens in a child process of this test
+    // binary with BTFQUILT_NO_MMAP=1 (`plain_read_child`), which writes
+    // whether it mapped the file and the values it read.
+    let report = dir.path().join("plain.report");
+    let child = std::process::Command::new(std::env::current_exe().unwrap())
+        .args([
+            "container::plain_read_child",
+            "--exact",
+            "--ignored",
+            "--test-threads=1",
+        ])
+        .env("BTFQUILT_NO_MMAP", "1")
+        .env(PLAIN_READ_FILE, &path)
+        .env(PLAIN_READ_REPORT, &report)
+        .output()
+        .unwrap();
+    assert!(
+        child.status.success(),
+        "child test failed: {}{}",
+        String::from_utf8_lossy(&child.stdout),
+        String::from_utf8_lossy(&child.stderr)
+    );
+    let bytes = std::fs::read(&report).unwrap();
+    let plain_is_mapped = bytes[0] != 0;
+    assert!(mapped.is_mapped() && !plain_is_mapped);
+    let b: Vec<f32> = bytes[1..]
+        .chunks_exact(4)
+        .map(|q| f32::from_le_bytes(q.try_into().unwrap()))
+        .collect();
     assert_eq!(a, b);
+}
+
+/// The container `plain_read_child` opens, and where it writes its report.
+const PLAIN_READ_FILE: &str = "BTFQUILT_TEST_PLAIN_READ_FILE";
+const PLAIN_READ_REPORT: &str = "BTFQUILT_TEST_PLAIN_READ_REPORT";
+
+/// The plain-read half of `plain_reads_match_mapped_reads`, run by it in a
+/// child process: opens the container named by `PLAIN_READ_FILE` and writes
+/// to `PLAIN_READ_REPORT` one byte (1 if it was mapped) and the values of
+/// its "smooth" array (f32, little-endian). Without those variables (a plain
+/// `cargo test -- --ignored`) it does nothing.
+#[test]
+#[ignore = "a child process of plain_reads_match_mapped_reads"]
+fn plain_read_child() {
+    let (Some(path), Some(report)) = (
+        std::env::var_os(PLAIN_READ_FILE),
+        std::env::var_os(PLAIN_READ_REPORT),
+    ) else {
+        return;
+    };
+    let plain = Container::open(Path::new(&path), MemoryBudget::default()).unwrap();
+    let b: Vec<f32> = plain.read_array(plain.array("smooth").unwrap()).unwrap();
+    let mut bytes = vec![u8::from(plain.is_mapped())];
+    for v in b {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    std::fs::write(report, bytes).unwrap();
 }

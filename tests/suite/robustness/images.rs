@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::common;
-use crate::{fuzz_cases, mutate, refuses, Rng};
+use crate::robustness::{fuzz_cases, mutate, refuses, Rng};
 
 /// CRC-32 (IEEE, reflected) as PNG chunks use it.
 fn crc32(bytes: &[u8]) -> u32 {
@@ -348,7 +348,7 @@ fn mutated_pngs_are_read_or_refused_cleanly() {
         }
         std::fs::write(&img, bytes).unwrap();
         let args = ["factorize", &common::s(&img), "-o", &common::s(&out)];
-        if crate::read_or_refused(&format!("PNG case {case}"), &args, &img, &out) {
+        if crate::robustness::read_or_refused(&format!("PNG case {case}"), &args, &img, &out) {
             read += 1;
         } else {
             refused += 1;
