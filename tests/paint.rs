@@ -109,6 +109,7 @@ fn region_array(q: &Path) -> Vec<f32> {
 fn paint_cfg(s: &Scene) -> PaintConfig {
     PaintConfig {
         sample_mask: Some(s.mask.clone()),
+        transition: 0,
         tile: TileConfig {
             patch_radius: Some(12),
             ..TileConfig::default()
