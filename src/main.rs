@@ -882,7 +882,10 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let (memory, _) = res.apply()?;
             let report = evaluate::evaluate(&file, gim.as_deref(), sample.as_deref(), memory)?;
-            say!("{}", report);
+            say!(
+                "{}",
+                serde_json::to_string_pretty(&report).context("writing the figures as JSON")?
+            );
         }
         Command::Render {
             file,
