@@ -490,7 +490,8 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         format!("{} ({:.1} MB)", glb.display(), glb_bytes as f64 / 1e6),
     );
     let t = Instant::now();
-    let figures = evaluate::evaluate(&btf_quilt, None, None, memory)?;
+    let figures = serde_json::to_string_pretty(&evaluate::evaluate(&btf_quilt, None, None, memory)?)
+        .map_err(|e| crate::Error::Config(format!("writing the figures as JSON: {e}")))?;
     st.add(
         "evaluate",
         t.elapsed().as_secs_f64(),

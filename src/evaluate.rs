@@ -1,4 +1,5 @@
-//! `evaluate`: quality figures of a decorated surface, as JSON.
+//! `evaluate`: quality figures of a decorated surface, as an
+//! [`EvaluateReport`] (which `btfquilt evaluate` prints as JSON).
 //!
 //! - seams: colour differences across grid edges where the patch changes,
 //!   against those inside patches;
@@ -8,6 +9,8 @@
 //!   5×5 window of the sample (turned by the window's rotation).
 
 use std::path::Path;
+
+use serde::Serialize;
 
 use crate::bake::{atlas_colour, open_samples, OpenSample};
 use crate::container::MemoryBudget;
@@ -24,13 +27,81 @@ fn diff(img: &RgbImage, a: usize, b: usize) -> f64 {
         .sqrt()
 }
 
-/// Computes the figures and returns them as a JSON object.
+/// The quality figures of a decorated surface. Serialized (serde), its
+/// field names and nesting are those of `btfquilt evaluate`'s JSON.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EvaluateReport {
+    /// Covered atlas texels.
+    pub texels: usize,
+    /// Distinct patches in the synthesis.
+    pub patches: usize,
+    /// The painting measures, for a painted surface only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub painting: Option<PaintingFigures>,
+    pub seam: SeamFigures,
+    pub zipper: ZipperFigures,
+    pub coherence: CoherenceFigures,
+}
+
+/// Colour differences across grid edges inside charts where the patch
+/// changes (seam edges), against those inside patches.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SeamFigures {
+    /// Seam edges.
+    pub edges: usize,
+    /// Seam edges / all grid edges inside charts.
+    pub fraction_of_edges: f64,
+    /// Mean RGB distance across seam edges.
+    pub mean_colour_difference: f64,
+    pub median: f64,
+    pub p95: f64,
+    pub max: f64,
+    /// Mean RGB distance across edges inside patches.
+    pub inside_patches_mean: f64,
+    /// `mean_colour_difference / inside_patches_mean`.
+    pub ratio_to_inside: f64,
+}
+
+/// Colour differences across zipper links (chart seams) against grid edges
+/// inside charts.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ZipperFigures {
+    /// Covered zipper links.
+    pub links: usize,
+    pub mean_colour_difference: f64,
+    pub inside_charts_mean: f64,
+    /// `mean_colour_difference / inside_charts_mean` (≈ 1: chart seams are invisible).
+    pub ratio: f64,
+}
+
+/// How closely 5×5 output windows resemble the sample.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CoherenceFigures {
+    /// Windows measured.
+    pub windows: usize,
+    pub mean_rgb_distance_to_nearest_sample_window: f64,
+}
+
+/// The painting measures of a painted surface (§IV).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PaintingFigures {
+    /// Texels of F (m0 = 1).
+    pub region_texels: usize,
+    /// Fraction of F covered by foreground texels.
+    pub region_covered_by_foreground: f64,
+    /// Texels of the painted sample with m_σ ≥ ½.
+    pub foreground_texels: usize,
+    /// Fraction of the foreground texels outside F and its transition zone (m0 = 0).
+    pub foreground_outside_region_and_transition: f64,
+}
+
+/// Computes the figures.
 pub fn evaluate(
     quilt_path: &Path,
     gim_path: Option<&Path>,
     sample: Option<&Path>,
     budget: MemoryBudget,
-) -> Result<String> {
+) -> Result<EvaluateReport> {
     let quilt = Quilt::open(quilt_path, budget)?;
     let gim = quilt.open_gim(gim_path, budget)?;
     let samples = open_samples(&quilt, sample, budget)?;
@@ -89,24 +160,31 @@ pub fn evaluate(
         p.len()
     };
     let painting = painting_measures(&quilt, &chart, &samples)?;
-    Ok(format!(
-        "{{\n  \"texels\": {},\n  \"patches\": {patch_count},{painting}\n  \"seam\": {{\"edges\": {}, \"fraction_of_edges\": {:.5}, \"mean_colour_difference\": {:.6}, \"median\": {:.6}, \"p95\": {:.6}, \"max\": {:.6}, \"inside_patches_mean\": {:.6}, \"ratio_to_inside\": {:.4}}},\n  \"zipper\": {{\"links\": {}, \"mean_colour_difference\": {:.6}, \"inside_charts_mean\": {:.6}, \"ratio\": {:.4}}},\n  \"coherence\": {{\"windows\": {}, \"mean_rgb_distance_to_nearest_sample_window\": {:.6}}}\n}}",
-        covered.iter().filter(|&&c| c).count(),
-        seam.len(),
-        seams_fraction,
-        mean(&seam),
-        pct(0.5),
-        pct(0.95),
-        pct(1.0),
-        mean(&inner),
-        mean(&seam) / mean(&inner).max(1e-12),
-        zip.len(),
-        mean(&zip),
-        mean(&all_inside),
-        zipper_ratio,
-        coherence.1,
-        coherence.0
-    ))
+    Ok(EvaluateReport {
+        texels: covered.iter().filter(|&&c| c).count(),
+        patches: patch_count,
+        painting,
+        seam: SeamFigures {
+            edges: seam.len(),
+            fraction_of_edges: seams_fraction,
+            mean_colour_difference: mean(&seam),
+            median: pct(0.5),
+            p95: pct(0.95),
+            max: pct(1.0),
+            inside_patches_mean: mean(&inner),
+            ratio_to_inside: mean(&seam) / mean(&inner).max(1e-12),
+        },
+        zipper: ZipperFigures {
+            links: zip.len(),
+            mean_colour_difference: mean(&zip),
+            inside_charts_mean: mean(&all_inside),
+            ratio: zipper_ratio,
+        },
+        coherence: CoherenceFigures {
+            windows: coherence.1,
+            mean_rgb_distance_to_nearest_sample_window: coherence.0,
+        },
+    })
 }
 
 /// Mean distance from 5×5 output windows (at seeded places inside one chart,
@@ -180,15 +258,19 @@ fn coherence(
     Ok((total / count.max(1) as f64, count))
 }
 
-/// The painting measures of a painted surface (§IV), as a JSON member line
-/// (empty for a surface that was not painted): the fraction of F (m0 = 1)
+/// The painting measures of a painted surface (§IV) (`None` for a surface
+/// that was not painted): the fraction of F (m0 = 1)
 /// covered by foreground texels (texels of the painted sample with m_σ ≥ ½),
 /// and the fraction of foreground texels outside F and its transition zone
 /// (m0 = 0).
-fn painting_measures(quilt: &Quilt, chart: &[u32], samples: &[OpenSample]) -> Result<String> {
+fn painting_measures(
+    quilt: &Quilt,
+    chart: &[u32],
+    samples: &[OpenSample],
+) -> Result<Option<PaintingFigures>> {
     let c = quilt.container();
     let (Ok(region), Some(mask_path)) = (c.array("region"), &quilt.sample_mask) else {
-        return Ok(String::new());
+        return Ok(None);
     };
     quilt.verify("sample_mask", mask_path)?;
     let m0: Vec<f32> = c.read_array(region)?;
@@ -219,9 +301,10 @@ fn painting_measures(quilt: &Quilt, chart: &[u32], samples: &[OpenSample]) -> Re
             fg_outside += (m0[t] <= 0.0) as usize;
         }
     }
-    Ok(format!(
-        "\n  \"painting\": {{\"region_texels\": {f}, \"region_covered_by_foreground\": {:.4}, \"foreground_texels\": {fg}, \"foreground_outside_region_and_transition\": {:.4}}},",
-        f_covered as f64 / f.max(1) as f64,
-        fg_outside as f64 / fg.max(1) as f64
-    ))
+    Ok(Some(PaintingFigures {
+        region_texels: f,
+        region_covered_by_foreground: f_covered as f64 / f.max(1) as f64,
+        foreground_texels: fg,
+        foreground_outside_region_and_transition: fg_outside as f64 / fg.max(1) as f64,
+    }))
 }

@@ -34,22 +34,22 @@ use crate::show::{show, ShowWhat};
 use crate::{Error, Result};
 
 /// A mesh file format for `export --format`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum MeshFormat {
     /// `mesh.obj` + `mesh.mtl` + the texture as PNG.
+    #[default]
     Obj,
     /// `mesh.glb`: binary glTF 2.0 with the texture embedded.
+    #[value(alias = "glb")]
     Gltf,
 }
 
 impl FromStr for MeshFormat {
     type Err = Error;
+    /// The names clap accepts: `obj`, `gltf` (or `glb`).
     fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "obj" => Ok(MeshFormat::Obj),
-            "gltf" | "glb" => Ok(MeshFormat::Gltf),
-            _ => Err(Error::Config(format!("--format '{s}': expected obj or gltf"))),
-        }
+        <Self as clap::ValueEnum>::from_str(s, false)
+            .map_err(|_| Error::Config(format!("--format '{s}': expected obj or gltf")))
     }
 }
 

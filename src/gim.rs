@@ -76,6 +76,36 @@ impl Default for AtlasConfig {
     }
 }
 
+impl AtlasConfig {
+    /// Checks the numbers a user gives, naming the command-line flag and the
+    /// value: the atlas edge, the weld tolerance and the chart-splitting
+    /// thresholds ([`build_gim`] refuses the same values).
+    pub fn validate(&self) -> Result<()> {
+        let r = self.resolution;
+        if !(16..=MAX_RESOLUTION).contains(&r) {
+            return Err(Error::Config(format!(
+                "--resolution {r}: must be between 16 and {MAX_RESOLUTION}"
+            )));
+        }
+        let w = self.load.weld_tolerance;
+        if !(w.is_finite() && (0.0..=0.5).contains(&w)) {
+            return Err(Error::Config(format!(
+                "--weld {w}: must be a finite number in 0..=0.5 (a fraction of the median edge length; \
+                 0 welds exact duplicates only)"
+            )));
+        }
+        let at_least_one = |flag: &str, v: f32| {
+            if v.is_finite() && v >= 1.0 {
+                Ok(())
+            } else {
+                Err(Error::Config(format!("{flag} {v}: must be a finite number ≥ 1")))
+            }
+        };
+        at_least_one("--max-stretch", self.charts.max_stretch)?;
+        at_least_one("--max-area-distortion", self.charts.max_area_distortion)
+    }
+}
+
 /// What [`build_gim`] made.
 #[derive(Clone, Debug)]
 pub struct AtlasReport {

@@ -175,12 +175,13 @@ fn tile_band_values(layout: &BtfLayout, images: &[RgbImage], tx: usize, ty: usiz
     out
 }
 
-/// Output format of exported images.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Output format of exported images (`export-btf --format`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum ImageFormat {
-    /// 8-bit sRGB PNG (lossy).
+    /// 16-bit sRGB PNG (lossy).
     Png,
     /// OpenEXR with half channels: exact for the stored f16 values.
+    #[default]
     Exr,
 }
 
@@ -193,13 +194,10 @@ impl ImageFormat {
         }
     }
 
-    /// `png` or `exr`.
+    /// `png` or `exr` (case-insensitive; the names clap accepts).
     pub fn parse(s: &str) -> Result<ImageFormat> {
-        match s.to_ascii_lowercase().as_str() {
-            "png" => Ok(ImageFormat::Png),
-            "exr" => Ok(ImageFormat::Exr),
-            _ => Err(Error::Config(format!("image format '{s}': expected png or exr"))),
-        }
+        <Self as clap::ValueEnum>::from_str(s, true)
+            .map_err(|_| Error::Config(format!("image format '{s}': expected png or exr")))
     }
 }
 

@@ -9,13 +9,17 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use btfquilt::btf::{self, Angles, Btf};
 use btfquilt::container::{Container, MemoryBudget};
+use btfquilt::export::MeshFormat;
 use btfquilt::factorize::{self, FactorizeConfig, SvdArtifact};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::ingest::{self, ImageFormat, IngestConfig};
 use btfquilt::mesh::io::LoadOptions;
+use btfquilt::paint::PaintConfig;
 use btfquilt::progress::Progress;
 use btfquilt::quilt::{self, TileConfig};
+use btfquilt::render::{Camera, Light, RenderConfig};
+use btfquilt::show::ShowWhat;
 use btfquilt::{bake, evaluate, export, render, show};
 
 /// Prints a line to stdout; a closed pipe (`btfquilt evaluate … | head`) is
@@ -38,6 +42,36 @@ struct Cli {
     command: Command,
 }
 
+/// Quilting options shared by `tile` and `paint` (defaults from [`TileConfig`]).
+#[derive(Args, Clone)]
+struct Quilting {
+    /// Work-patch radius r_w in texels (default 32 per 512 of atlas, at most a quarter of the sample).
+    #[arg(long)]
+    patch_radius: Option<usize>,
+    /// T_c: accept a patch if its mean seam cost ≤ this × the sample's neighbour difference.
+    #[arg(long, default_value_t = TileConfig::default().seam_threshold)]
+    seam_threshold: f64,
+    /// Weight of the constraint (data term per texel, in sample neighbour differences).
+    #[arg(long, default_value_t = TileConfig::default().constraint_weight)]
+    constraint_weight: f64,
+    #[arg(long, default_value_t = TileConfig::default().seed)]
+    seed: u64,
+}
+
+impl Quilting {
+    /// These options over [`TileConfig::default`].
+    fn tile_config(&self, memory: MemoryBudget) -> TileConfig {
+        TileConfig {
+            patch_radius: self.patch_radius,
+            seam_threshold: self.seam_threshold,
+            constraint_weight: self.constraint_weight,
+            seed: self.seed,
+            memory,
+            ..TileConfig::default()
+        }
+    }
+}
+
 /// Options shared by the stages that process data.
 #[derive(Args, Clone)]
 struct Resources {
@@ -45,8 +79,8 @@ struct Resources {
     #[arg(long, global = true)]
     threads: Option<usize>,
     /// Memory budget for decoded tiles, e.g. 512MiB or 2GiB.
-    #[arg(long, global = true, default_value = "1GiB")]
-    memory: String,
+    #[arg(long, global = true, value_parser = parse_memory, default_value_t = Memory(MemoryBudget::default()))]
+    memory: Memory,
     /// Hide progress bars.
     #[arg(long, short, global = true)]
     quiet: bool,
@@ -60,25 +94,27 @@ enum Command {
         /// Also decode every chunk and check its checksum.
         #[arg(long)]
         verify: bool,
+        #[command(flatten)]
+        res: Resources,
     },
     /// Generate a synthetic BTF (procedural mesostructure, ray-marched).
     GenerateBtf {
-        /// bricks, weave, cracked or pebbles.
-        #[arg(long, default_value = "bricks")]
-        family: String,
-        /// none, cracks, stains or scratches (its mask is written beside the output as *.mask.png).
-        #[arg(long, default_value = "none")]
-        imperfection: String,
+        /// The material family.
+        #[arg(long, value_enum, ignore_case = true, default_value_t = GenerateConfig::default().family)]
+        family: Family,
+        /// The imperfection layer (its mask is written beside the output as *.mask.png).
+        #[arg(long, value_enum, ignore_case = true, default_value_t = GenerateConfig::default().imperfection)]
+        imperfection: Imperfection,
         /// Texels per side (width = height).
-        #[arg(long, default_value_t = 128)]
+        #[arg(long, default_value_t = GenerateConfig::default().width)]
         size: usize,
         /// View directions as PHIxTHETA.
-        #[arg(long, default_value = "12x8")]
-        views: String,
+        #[arg(long, value_parser = parse_grid, default_value_t = Grid(GenerateConfig::default().views))]
+        views: Grid,
         /// Light directions as PHIxTHETA.
-        #[arg(long, default_value = "12x8")]
-        lights: String,
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, value_parser = parse_grid, default_value_t = Grid(GenerateConfig::default().lights))]
+        lights: Grid,
+        #[arg(long, default_value_t = GenerateConfig::default().seed)]
         seed: u64,
         #[arg(short, long)]
         output: PathBuf,
@@ -98,20 +134,20 @@ enum Command {
     ExportBtf {
         file: PathBuf,
         /// View direction θ,φ in degrees.
-        #[arg(long, allow_hyphen_values = true)]
-        view: Option<String>,
+        #[arg(long, allow_hyphen_values = true, value_parser = parse_angles)]
+        view: Option<Angles>,
         /// Light direction θ,φ in degrees.
-        #[arg(long, allow_hyphen_values = true)]
-        light: Option<String>,
+        #[arg(long, allow_hyphen_values = true, value_parser = parse_angles)]
+        light: Option<Angles>,
         /// Output image (.png or .exr).
         #[arg(short, long)]
         output: Option<PathBuf>,
         /// Write every image into this folder, named the way `ingest` reads.
         #[arg(long)]
         all: Option<PathBuf>,
-        /// Format for --all: exr (exact f16) or png (16-bit sRGB).
-        #[arg(long, default_value = "exr")]
-        format: String,
+        /// Format for --all.
+        #[arg(long, value_enum, ignore_case = true, default_value_t = ImageFormat::default())]
+        format: ImageFormat,
         #[command(flatten)]
         res: Resources,
     },
@@ -123,18 +159,18 @@ enum Command {
         #[arg(long)]
         terms: Option<usize>,
         /// Oversampling p of the randomized SVD.
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = FactorizeConfig::default().oversampling)]
         oversampling: usize,
         /// Power iterations q of the randomized SVD.
-        #[arg(long, default_value_t = 2)]
+        #[arg(long, default_value_t = FactorizeConfig::default().power_iterations)]
         power_iterations: usize,
         /// Rotated copies of the geometry maps (5° steps for 72).
-        #[arg(long, default_value_t = 72)]
+        #[arg(long, default_value_t = FactorizeConfig::default().rotations)]
         rotations: usize,
         /// The sample wraps around: rotated copies sample it toroidally.
         #[arg(long)]
         tileable: bool,
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = FactorizeConfig::default().seed)]
         seed: u64,
         #[arg(short, long)]
         output: PathBuf,
@@ -145,11 +181,11 @@ enum Command {
     Reconstruct {
         file: PathBuf,
         /// View direction θ,φ in degrees.
-        #[arg(long, allow_hyphen_values = true)]
-        view: String,
+        #[arg(long, allow_hyphen_values = true, value_parser = parse_angles)]
+        view: Angles,
         /// Light direction θ,φ in degrees.
-        #[arg(long, allow_hyphen_values = true)]
-        light: String,
+        #[arg(long, allow_hyphen_values = true, value_parser = parse_angles)]
+        light: Angles,
         /// The original BTF (default: the source recorded in the .svd, if unchanged).
         #[arg(long)]
         original: Option<PathBuf>,
@@ -163,25 +199,25 @@ enum Command {
         /// A triangle mesh (.obj or .ply).
         mesh: PathBuf,
         /// Atlas edge in texels.
-        #[arg(long, default_value_t = 1024)]
+        #[arg(long, default_value_t = AtlasConfig::default().resolution)]
         resolution: usize,
         /// Minimum empty texels between charts.
-        #[arg(long, default_value_t = 2)]
+        #[arg(long, default_value_t = AtlasConfig::default().gutter)]
         gutter: usize,
         /// Vector-field keys: JSON [{"face": 12, "dir": [1, 0, 0]}, …].
         #[arg(long)]
         field: Option<PathBuf>,
         /// Weld vertices closer than this fraction of the median edge length (0..=0.5; 0: exact duplicates only).
-        #[arg(long, default_value_t = 1e-6)]
+        #[arg(long, default_value_t = AtlasConfig::default().load.weld_tolerance)]
         weld: f32,
         /// Split a chart whose L2 texture stretch exceeds this (≥ 1; lower: more
         /// charts, more even texel density).
-        #[arg(long)]
-        max_stretch: Option<f32>,
+        #[arg(long, default_value_t = AtlasConfig::default().charts.max_stretch)]
+        max_stretch: f32,
         /// Split a chart when over 5 % of its area has a texel density off the
-        /// chart's mean by more than this factor (≥ 1; default 1.5).
-        #[arg(long)]
-        max_area_distortion: Option<f32>,
+        /// chart's mean by more than this factor (≥ 1).
+        #[arg(long, default_value_t = AtlasConfig::default().charts.max_area_distortion)]
+        max_area_distortion: f32,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -190,17 +226,19 @@ enum Command {
     /// Debug picture of a geometry image: charts, normals or field.
     Show {
         file: PathBuf,
-        #[arg(long, default_value = "charts")]
-        what: String,
+        #[arg(long, value_enum, default_value_t = ShowWhat::default())]
+        what: ShowWhat,
         #[arg(short, long)]
         output: PathBuf,
+        #[command(flatten)]
+        res: Resources,
     },
     /// Export for other tools: a .gim or a .quilt as a textured mesh (OBJ or glTF), and a .quilt's surface BTF.
     Export {
         file: PathBuf,
-        /// Mesh format for -o: obj (mesh.obj + mesh.mtl + PNG) or gltf (mesh.glb, texture embedded). Default obj.
-        #[arg(long)]
-        format: Option<String>,
+        /// Mesh format for -o [default: obj].
+        #[arg(long, value_enum)]
+        format: Option<MeshFormat>,
         /// Output folder for the mesh.
         #[arg(short, long)]
         output: Option<PathBuf>,
@@ -221,26 +259,20 @@ enum Command {
         /// A colour image or a factorization (.svd).
         #[arg(long)]
         sample: PathBuf,
-        /// Work-patch radius r_w in texels (default 32 per 512 of atlas, at most a quarter of the sample).
-        #[arg(long)]
-        patch_radius: Option<usize>,
-        /// T_c: accept a patch if its mean seam cost ≤ this × the sample's neighbour difference.
-        #[arg(long, default_value_t = 3.0)]
-        seam_threshold: f64,
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        #[command(flatten)]
+        quilting: Quilting,
         /// The sample's foreground mask (PNG, the sample's size): keep the
         /// foreground (cracks, stains…) out of the tiling.
         #[arg(long)]
         sample_mask: Option<PathBuf>,
         /// Seam refinement once covered: seams stepping more than this × the
         /// sample's neighbour difference get another work patch; 0 turns it off.
-        #[arg(long, default_value_t = 2.0)]
+        #[arg(long, default_value_t = TileConfig::default().refine.unwrap_or(0.0))]
         refine: f64,
         /// Seam refinement fits this many distinct good placements per seam and
         /// keeps the cheapest cut (1: only the best match; more: lower seams,
         /// longer runs).
-        #[arg(long, default_value_t = quilt::REFINE_PLACEMENTS)]
+        #[arg(long, default_value_t = TileConfig::default().refine_placements)]
         refine_placements: usize,
         #[arg(short, long)]
         output: PathBuf,
@@ -263,28 +295,22 @@ enum Command {
         #[arg(long)]
         region: Option<PathBuf>,
         /// Width of the transition zone outside F, in texels.
-        #[arg(long, default_value_t = 8)]
+        #[arg(long, default_value_t = PaintConfig::default().transition)]
         transition: usize,
         /// Copy the foreground verbatim at --at (instead of a region).
         #[arg(long)]
         verbatim: bool,
         /// Verbatim: the surface point x,y,z.
-        #[arg(long, allow_hyphen_values = true)]
-        at: Option<String>,
+        #[arg(long, allow_hyphen_values = true, value_parser = parse_point)]
+        at: Option<[f32; 3]>,
         /// Verbatim: the turn of the sample against the field, in degrees.
         #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
         angle: f64,
         /// Verbatim: write the direct projection (no graphcut) to this image.
         #[arg(long)]
         preview: Option<PathBuf>,
-        /// Work-patch radius r_w in texels (default 32 per 512 of atlas, at most a quarter of the sample).
-        #[arg(long)]
-        patch_radius: Option<usize>,
-        /// Weight of the constraint (data term per texel, in sample neighbour differences).
-        #[arg(long, default_value_t = 16.0)]
-        constraint_weight: f64,
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        #[command(flatten)]
+        quilting: Quilting,
         #[arg(short, long)]
         output: Option<PathBuf>,
         #[command(flatten)]
@@ -306,6 +332,8 @@ enum Command {
         sample: Option<PathBuf>,
         #[arg(short, long)]
         output: PathBuf,
+        #[command(flatten)]
+        res: Resources,
     },
     /// Print quality figures of a decorated surface as JSON.
     Evaluate {
@@ -314,32 +342,34 @@ enum Command {
         gim: Option<PathBuf>,
         #[arg(long)]
         sample: Option<PathBuf>,
+        #[command(flatten)]
+        res: Resources,
     },
     /// Render a decorated mesh to an image: BTF shading per view and light
     /// direction for BTF samples, preview colour × Lambert for colour samples.
     Render {
         file: PathBuf,
         /// eye,target,up,fov (10 numbers); default: a three-quarter view framing the mesh.
-        #[arg(long, allow_hyphen_values = true)]
-        camera: Option<String>,
+        #[arg(long, allow_hyphen_values = true, value_parser = parse_camera)]
+        camera: Option<Camera>,
         /// Directional light x,y,z[,intensity] (towards the light, world space); repeatable.
         /// Default when no light is given: 0.4,0.8,0.6.
-        #[arg(long, allow_hyphen_values = true)]
-        light: Vec<String>,
+        #[arg(long, allow_hyphen_values = true, value_parser = parse_directional)]
+        light: Vec<Light>,
         /// Point light x,y,z[,intensity] (world space; inverse-square falloff,
         /// intensity at the distance of the mesh's bounding-box centre); repeatable.
-        #[arg(long = "point-light", allow_hyphen_values = true)]
-        point_light: Vec<String>,
+        #[arg(long = "point-light", allow_hyphen_values = true, value_parser = parse_point_light)]
+        point_light: Vec<Light>,
         /// Write N frames OUTPUT-STEM_000 … with the first light (the first --light,
         /// else the first --point-light) circling the camera's view axis.
         #[arg(long = "orbit-light")]
         orbit_light: Option<usize>,
         /// Exposure in stops (values × 2^EXPOSURE).
-        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        #[arg(long, default_value_t = RenderConfig::default().exposure, allow_hyphen_values = true)]
         exposure: f32,
-        #[arg(long, default_value_t = 800)]
+        #[arg(long, default_value_t = RenderConfig::default().width)]
         width: usize,
-        #[arg(long, default_value_t = 600)]
+        #[arg(long, default_value_t = RenderConfig::default().height)]
         height: usize,
         /// Output image: .png (8-bit sRGB) or .exr (linear).
         #[arg(short, long)]
@@ -405,22 +435,92 @@ impl Progress for Bars {
     }
 }
 
-fn parse_angles(s: &str, what: &str) -> Result<Angles> {
-    let (t, p) = s
-        .split_once(',')
-        .with_context(|| format!("--{what} '{s}': expected θ,φ in degrees"))?;
-    let theta: f32 = t
-        .trim()
-        .parse()
-        .with_context(|| format!("--{what} '{s}': θ is not a number"))?;
-    let phi: f32 = p
-        .trim()
-        .parse()
-        .with_context(|| format!("--{what} '{s}': φ is not a number"))?;
+/// A library message without the `--flag 'value': ` it starts with: clap's
+/// error names the flag and the value already.
+fn bare(e: impl std::fmt::Display, flag: &str, s: &str) -> String {
+    let m = e.to_string();
+    match m.strip_prefix(&format!("{flag} '{s}': ")) {
+        Some(rest) => rest.to_string(),
+        None => m,
+    }
+}
+
+/// `--memory`: a size like 512MiB or 2GiB.
+#[derive(Clone, Copy)]
+struct Memory(MemoryBudget);
+
+impl std::fmt::Display for Memory {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let b = self.0 .0;
+        match [(30, "GiB"), (20, "MiB"), (10, "KiB")]
+            .into_iter()
+            .find(|&(shift, _)| b > 0 && b % (1u64 << shift) == 0)
+        {
+            Some((shift, unit)) => write!(f, "{}{unit}", b >> shift),
+            None => write!(f, "{b}"),
+        }
+    }
+}
+
+fn parse_memory(s: &str) -> std::result::Result<Memory, String> {
+    MemoryBudget::parse(s)
+        .map(Memory)
+        .map_err(|e| bare(e, "--memory", s))
+}
+
+/// `--views`/`--lights`: a direction grid PHIxTHETA.
+#[derive(Clone)]
+struct Grid(Vec<Angles>);
+
+impl std::fmt::Display for Grid {
+    /// The grid as PHIxTHETA: its numbers of distinct φ and θ.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let distinct = |key: fn(&Angles) -> f32| {
+            let mut v: Vec<u32> = self.0.iter().map(|a| key(a).to_bits()).collect();
+            v.sort_unstable();
+            v.dedup();
+            v.len()
+        };
+        write!(f, "{}x{}", distinct(|a| a.phi), distinct(|a| a.theta))
+    }
+}
+
+fn parse_grid(s: &str) -> std::result::Result<Grid, String> {
+    btf::parse_grid(s).map(Grid).map_err(|e| e.to_string())
+}
+
+/// `--view`/`--light` θ,φ in degrees.
+fn parse_angles(s: &str) -> std::result::Result<Angles, String> {
+    let (t, p) = s.split_once(',').ok_or("expected θ,φ in degrees")?;
+    let theta: f32 = t.trim().parse().map_err(|_| "θ is not a number")?;
+    let phi: f32 = p.trim().parse().map_err(|_| "φ is not a number")?;
     if !(theta.is_finite() && phi.is_finite()) {
-        bail!("--{what} '{s}': θ and φ must be finite numbers of degrees");
+        return Err("θ and φ must be finite numbers of degrees".into());
     }
     Ok(Angles { theta, phi })
+}
+
+/// `paint --at x,y,z`.
+fn parse_point(s: &str) -> std::result::Result<[f32; 3], String> {
+    s.split(',')
+        .map(|c| c.trim().parse::<f32>())
+        .collect::<std::result::Result<Vec<f32>, _>>()
+        .ok()
+        .filter(|v| v.len() == 3 && v.iter().all(|c| c.is_finite()))
+        .map(|v| [v[0], v[1], v[2]])
+        .ok_or_else(|| "expected x,y,z (three finite numbers)".to_string())
+}
+
+fn parse_camera(s: &str) -> std::result::Result<Camera, String> {
+    Camera::parse(s).map_err(|e| bare(e, "--camera", s))
+}
+
+fn parse_directional(s: &str) -> std::result::Result<Light, String> {
+    Light::parse_directional(s).map_err(|e| bare(e, "--light", s))
+}
+
+fn parse_point_light(s: &str) -> std::result::Result<Light, String> {
+    Light::parse_point(s).map_err(|e| bare(e, "--point-light", s))
 }
 
 /// The most worker threads `--threads` may ask for, per core: beyond a few
@@ -446,7 +546,7 @@ impl Resources {
                 .build_global()
                 .context("starting the thread pool")?;
         }
-        Ok((MemoryBudget::parse(&self.memory)?, Bars::new(self.quiet)))
+        Ok((self.memory.0, Bars::new(self.quiet)))
     }
 }
 
@@ -486,11 +586,12 @@ fn error_chain(e: &anyhow::Error) -> String {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Info { file, verify } => {
-            let c = Container::open(&file, MemoryBudget::default())?;
+        Command::Info { file, verify, res } => {
+            let (memory, _) = res.apply()?;
+            let c = Container::open(&file, memory)?;
             say!("{}", c.describe().trim_end());
             if c.metadata().kind == btf::KIND {
-                let b = Btf::open(&file, MemoryBudget::default())?;
+                let b = Btf::open(&file, memory)?;
                 let l = b.layout();
                 say!(
                     "btf:       {}×{} texels, {} views × {} lights = {} pairs, tile {}, band {}",
@@ -520,16 +621,12 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let (memory, bars) = res.apply()?;
             let cfg = GenerateConfig {
-                family: Family::parse(&family).with_context(|| {
-                    format!("--family '{family}': expected bricks, weave, cracked or pebbles")
-                })?,
-                imperfection: Imperfection::parse(&imperfection).with_context(|| {
-                    format!("--imperfection '{imperfection}': expected none, cracks, stains or scratches")
-                })?,
+                family,
+                imperfection,
                 width: size,
                 height: size,
-                views: btf::parse_grid(&views)?,
-                lights: btf::parse_grid(&lights)?,
+                views: views.0,
+                lights: lights.0,
                 seed,
                 memory,
                 ..GenerateConfig::default()
@@ -566,17 +663,13 @@ fn run(cli: Cli) -> Result<()> {
             let b = Btf::open(&file, memory)?;
             match (all, output) {
                 (Some(dir), None) => {
-                    let n = ingest::export_all(&b, &dir, ImageFormat::parse(&format)?, memory, &bars)?;
+                    let n = ingest::export_all(&b, &dir, format, memory, &bars)?;
                     say!("wrote {n} images and manifest.csv into {}", dir.display());
                 }
                 (None, Some(out)) => {
                     btfquilt::staging::check_output(&out, &[("the BTF", file.as_path())])?;
-                    let view =
-                        parse_angles(view.as_deref().context("--view θ,φ is required with -o")?, "view")?;
-                    let light = parse_angles(
-                        light.as_deref().context("--light θ,φ is required with -o")?,
-                        "light",
-                    )?;
+                    let view = view.context("--view θ,φ is required with -o")?;
+                    let light = light.context("--light θ,φ is required with -o")?;
                     let img = ingest::pair_image(&b, view, light)?;
                     btfquilt::imageio::write_rgb(&out, &img)?;
                     say!("wrote {}", out.display());
@@ -624,7 +717,7 @@ fn run(cli: Cli) -> Result<()> {
             }
             btfquilt::staging::check_output(&output, &inputs)?;
             let svd = SvdArtifact::open(&file, memory)?;
-            let pair = svd.find_pair(parse_angles(&view, "view")?, parse_angles(&light, "light")?)?;
+            let pair = svd.find_pair(view, light)?;
             let img = svd.reconstruct_pair(pair)?;
             btfquilt::imageio::write_rgb(&output, &img)?;
             say!("wrote {}", output.display());
@@ -652,19 +745,22 @@ fn run(cli: Cli) -> Result<()> {
                 load: LoadOptions { weld_tolerance: weld },
                 ..AtlasConfig::default()
             };
-            if let Some(s) = max_stretch {
-                cfg.charts.max_stretch = s;
-            }
-            if let Some(a) = max_area_distortion {
-                cfg.charts.max_area_distortion = a;
-            }
+            cfg.charts.max_stretch = max_stretch;
+            cfg.charts.max_area_distortion = max_area_distortion;
+            cfg.validate()?;
             let report = gim::build_gim(&mesh, &output, &cfg, &bars)?;
             say!("{}: {}", mesh.display(), report.repair);
             say!("wrote {}: {report}", output.display());
         }
-        Command::Show { file, what, output } => {
-            let g = Gim::open(&file, MemoryBudget::default())?;
-            show::show(&g, what.parse()?, &output)?;
+        Command::Show {
+            file,
+            what,
+            output,
+            res,
+        } => {
+            let (memory, _) = res.apply()?;
+            let g = Gim::open(&file, memory)?;
+            show::show(&g, what, &output)?;
             say!("wrote {}", output.display());
         }
         Command::Export {
@@ -679,7 +775,7 @@ fn run(cli: Cli) -> Result<()> {
             if output.is_none() && format.is_some() {
                 bail!("--format needs -o DIR (the folder for the mesh)");
             }
-            let format: export::MeshFormat = format.as_deref().unwrap_or("obj").parse()?;
+            let format = format.unwrap_or_default();
             let opts = export::ExportOptions {
                 mesh: output.map(|dir| (format, dir)),
                 btf,
@@ -693,9 +789,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Tile {
             gim,
             sample,
-            patch_radius,
-            seam_threshold,
-            seed,
+            quilting,
             sample_mask,
             refine,
             refine_placements,
@@ -704,14 +798,10 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let (memory, bars) = res.apply()?;
             let cfg = TileConfig {
-                patch_radius,
-                seam_threshold,
-                seed,
-                memory,
                 sample_mask,
                 refine: (refine != 0.0).then_some(refine),
                 refine_placements,
-                ..TileConfig::default()
+                ..quilting.tile_config(memory)
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;
             say!("wrote {}: {report}", output.display());
@@ -726,26 +816,14 @@ fn run(cli: Cli) -> Result<()> {
             at,
             angle,
             preview,
-            patch_radius,
-            constraint_weight,
-            seed,
+            quilting,
             output,
             res,
         } => {
             let (memory, bars) = res.apply()?;
             let verbatim = if verbatim {
                 let at = at.ok_or_else(|| anyhow::anyhow!("--verbatim needs --at x,y,z"))?;
-                let v: Vec<f32> = at
-                    .split(',')
-                    .map(|c| c.trim().parse::<f32>())
-                    .collect::<std::result::Result<_, _>>()
-                    .ok()
-                    .filter(|v: &Vec<f32>| v.len() == 3 && v.iter().all(|c| c.is_finite()))
-                    .ok_or_else(|| anyhow::anyhow!("--at '{at}': expected x,y,z (three finite numbers)"))?;
-                Some(btfquilt::paint::Verbatim {
-                    at: [v[0], v[1], v[2]],
-                    angle,
-                })
+                Some(btfquilt::paint::Verbatim { at, angle })
             } else {
                 if at.is_some() {
                     anyhow::bail!("--at is for --verbatim");
@@ -755,20 +833,14 @@ fn run(cli: Cli) -> Result<()> {
             if output.is_none() && preview.is_none() {
                 anyhow::bail!("give -o OUTPUT.quilt (or --preview IMAGE with --verbatim)");
             }
-            let cfg = btfquilt::paint::PaintConfig {
+            let cfg = PaintConfig {
                 sample,
                 sample_mask,
                 region,
                 transition,
                 verbatim,
                 preview: preview.clone(),
-                tile: TileConfig {
-                    patch_radius,
-                    constraint_weight,
-                    seed,
-                    memory,
-                    ..TileConfig::default()
-                },
+                tile: quilting.tile_config(memory),
             };
             if let Some(p) = &preview {
                 let t = std::time::Instant::now();
@@ -782,7 +854,7 @@ fn run(cli: Cli) -> Result<()> {
                 );
             }
             if let Some(out) = output {
-                let cfg = btfquilt::paint::PaintConfig { preview: None, ..cfg };
+                let cfg = PaintConfig { preview: None, ..cfg };
                 let report = btfquilt::paint::paint(&file, &out, &cfg, &bars)?;
                 say!("wrote {}: {report}", out.display());
             }
@@ -792,14 +864,27 @@ fn run(cli: Cli) -> Result<()> {
             let report = btfquilt::paint::replay(&file, &output, &bars)?;
             say!("wrote {}: {report}", output.display());
         }
-        Command::Bake { file, sample, output } => {
-            bake::bake(&file, sample.as_deref(), &output, MemoryBudget::default())?;
+        Command::Bake {
+            file,
+            sample,
+            output,
+            res,
+        } => {
+            let (memory, _) = res.apply()?;
+            bake::bake(&file, sample.as_deref(), &output, memory)?;
             say!("wrote {}", output.display());
         }
-        Command::Evaluate { file, gim, sample } => {
+        Command::Evaluate {
+            file,
+            gim,
+            sample,
+            res,
+        } => {
+            let (memory, _) = res.apply()?;
+            let report = evaluate::evaluate(&file, gim.as_deref(), sample.as_deref(), memory)?;
             say!(
                 "{}",
-                evaluate::evaluate(&file, gim.as_deref(), sample.as_deref(), MemoryBudget::default())?
+                serde_json::to_string_pretty(&report).context("writing the figures as JSON")?
             );
         }
         Command::Render {
@@ -815,18 +900,12 @@ fn run(cli: Cli) -> Result<()> {
             res,
         } => {
             let (memory, _bars) = res.apply()?;
-            let camera = camera.as_deref().map(render::Camera::parse).transpose()?;
-            let mut lights = light
-                .iter()
-                .map(|s| render::Light::parse_directional(s))
-                .collect::<Result<Vec<_>, _>>()?;
-            for s in &point_light {
-                lights.push(render::Light::parse_point(s)?);
-            }
+            let mut lights = light;
+            lights.extend(point_light);
             if lights.is_empty() {
-                lights.push(render::Light::default());
+                lights = RenderConfig::default().lights;
             }
-            let cfg = render::RenderConfig {
+            let cfg = RenderConfig {
                 camera,
                 lights,
                 width,

@@ -202,56 +202,56 @@ pub fn scan_folder(dir: &Path) -> Result<Vec<PairFile>> {
     Ok(files)
 }
 
-/// Splits one CSV line into trimmed fields; `"..."` quoting with `""` escapes.
-fn split_csv(line: &str) -> std::result::Result<Vec<String>, String> {
-    let mut fields = Vec::new();
-    let mut chars = line.chars().peekable();
-    loop {
-        while chars.next_if(|c| *c == ' ' || *c == '\t').is_some() {}
-        let mut field = String::new();
-        if chars.next_if_eq(&'"').is_some() {
-            loop {
-                match chars.next() {
-                    Some('"') if chars.next_if_eq(&'"').is_some() => field.push('"'),
-                    Some('"') => break,
-                    Some(c) => field.push(c),
-                    None => return Err("unterminated quoted field".into()),
-                }
+/// `line` without the spaces and tabs around its fields (outside quotes), so
+/// that a quote after such space still opens a quoted field for csv.
+fn tighten(line: &str) -> String {
+    let mut out = String::with_capacity(line.len());
+    let mut in_quotes = false;
+    for c in line.chars() {
+        match c {
+            '"' => in_quotes = !in_quotes,
+            ',' if !in_quotes => {
+                let kept = out.trim_end_matches([' ', '\t']).len();
+                out.truncate(kept);
             }
-            while chars.next_if(|c| *c == ' ' || *c == '\t').is_some() {}
-            match chars.next() {
-                None => {
-                    fields.push(field);
-                    return Ok(fields);
-                }
-                Some(',') => fields.push(field),
-                Some(c) => return Err(format!("unexpected '{c}' after a quoted field")),
-            }
-        } else {
-            loop {
-                match chars.next() {
-                    None => {
-                        fields.push(field.trim().to_string());
-                        return Ok(fields);
-                    }
-                    Some(',') => break,
-                    Some(c) => field.push(c),
-                }
-            }
-            fields.push(field.trim().to_string());
+            ' ' | '\t' if !in_quotes && (out.is_empty() || out.ends_with([',', '"'])) => continue,
+            _ => {}
         }
+        out.push(c);
+    }
+    let kept = out.trim_end_matches([' ', '\t']).len();
+    out.truncate(kept);
+    out
+}
+
+/// Splits one CSV line (csv crate) into fields, without the spaces and tabs
+/// around them; `"..."` quoting with `""` escapes.
+fn split_csv(line: &str) -> std::result::Result<Vec<String>, String> {
+    // csv reads an unterminated quote to the end of the line; refuse it
+    if line.matches('"').count() % 2 == 1 {
+        return Err("unterminated quoted field".into());
+    }
+    let line = tighten(line);
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .from_reader(line.as_bytes());
+    let mut record = csv::StringRecord::new();
+    match reader.read_record(&mut record) {
+        Ok(true) => Ok(record.iter().map(str::to_string).collect()),
+        Ok(false) => Ok(vec![String::new()]),
+        Err(e) => Err(e.to_string()),
     }
 }
 
-/// Quotes a manifest field when needed.
-fn quote_csv(field: &str) -> String {
-    let plain =
-        !field.is_empty() && !field.contains([',', '"']) && field.trim() == field && !field.starts_with('#');
-    if plain {
-        field.to_string()
-    } else {
-        format!("\"{}\"", field.replace('"', "\"\""))
-    }
+/// A manifest writer: fields quoted only when needed (a comma, a quote, a
+/// `#`, a line break).
+fn manifest_writer(out: Vec<u8>) -> csv::Writer<Vec<u8>> {
+    csv::WriterBuilder::new()
+        .quote_style(csv::QuoteStyle::Necessary)
+        .comment(Some(b'#'))
+        .terminator(csv::Terminator::Any(b'\n'))
+        .from_writer(out)
 }
 
 /// Parses one manifest angle field.
@@ -387,8 +387,9 @@ fn relative_to(file: &Path, base: &Path) -> PathBuf {
 /// Angles are written in the shortest form that reads back exactly.
 pub fn write_manifest(path: &Path, files: &[PairFile]) -> Result<()> {
     let base = path.parent().unwrap_or(Path::new(""));
-    let mut text = MANIFEST_HEADER.join(",");
-    text.push('\n');
+    let csv_error = |e: csv::Error| Error::input(path, format!("cannot write the manifest: {e}"));
+    let mut w = manifest_writer(Vec::new());
+    w.write_record(MANIFEST_HEADER).map_err(csv_error)?;
     for f in files {
         let rel = relative_to(&f.path, base);
         let name = rel.to_str().ok_or_else(|| {
@@ -403,18 +404,20 @@ pub fn write_manifest(path: &Path, files: &[PairFile]) -> Result<()> {
                 "file name contains a line break; cannot list it in a manifest",
             ));
         }
-        text.push_str(&format!(
-            "{},{},{},{},{}\n",
-            quote_csv(name),
-            f.view.theta,
-            f.view.phi,
-            f.light.theta,
-            f.light.phi
-        ));
+        if name.trim_matches([' ', '\t']) != name {
+            return Err(Error::input(
+                &f.path,
+                "file name starts or ends with a space; cannot list it in a manifest",
+            ));
+        }
+        let angles = [f.view.theta, f.view.phi, f.light.theta, f.light.phi].map(|v| v.to_string());
+        w.write_record(std::iter::once(name).chain(angles.iter().map(String::as_str)))
+            .map_err(csv_error)?;
     }
-    write_atomic(path, |w| {
-        w.write_all(text.as_bytes()).map_err(|e| Error::io(path, e))
-    })
+    let text = w
+        .into_inner()
+        .map_err(|e| Error::input(path, format!("cannot write the manifest: {e}")))?;
+    write_atomic(path, |w| w.write_all(&text).map_err(|e| Error::io(path, e)))
 }
 
 /// True if `a` and `b` are the same direction (within tolerance; φ wraps; the pole ignores φ).
@@ -670,6 +673,26 @@ mod tests {
                 light: ang(30.0, 40.0)
             }]
         );
+    }
+
+    #[test]
+    fn manifest_quoted_fields_with_space_around_them() {
+        assert_eq!(
+            split_csv(r#" "a, b" , "c""d" ,e f , "#).unwrap(),
+            vec!["a, b", "c\"d", "e f", ""]
+        );
+        assert_eq!(split_csv(r#""  x  ""#).unwrap(), vec!["  x  "]);
+        let dir = tempfile::tempdir().unwrap();
+        let m = dir.path().join("btf.csv");
+        let files = vec![pair("#1.png", ang(1.0, 2.0), ang(3.0, 4.0))]
+            .into_iter()
+            .map(|mut f| {
+                f.path = dir.path().join(&f.path);
+                f
+            })
+            .collect::<Vec<_>>();
+        write_manifest(&m, &files).unwrap();
+        assert_eq!(read_manifest(&m).unwrap(), files);
     }
 
     #[test]

@@ -42,7 +42,7 @@ pub struct Verbatim {
 }
 
 /// Options of [`paint`].
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct PaintConfig {
     /// The sample to paint with: the one the surface was tiled with, or any
     /// other with the same direction set (a colour image on a colour
@@ -63,6 +63,32 @@ pub struct PaintConfig {
     pub preview: Option<PathBuf>,
     /// Quilting options (seed, radius, T_c, constraint weight, memory).
     pub tile: TileConfig,
+}
+
+impl Default for PaintConfig {
+    fn default() -> Self {
+        PaintConfig {
+            sample: None,
+            sample_mask: None,
+            region: None,
+            transition: 8,
+            verbatim: None,
+            preview: None,
+            tile: TileConfig::default(),
+        }
+    }
+}
+
+impl PaintConfig {
+    /// Checks the numbers a user gives: the quilting options
+    /// ([`TileConfig::validate`]) and a verbatim copy's point and angle.
+    pub fn validate(&self) -> Result<()> {
+        self.tile.validate()?;
+        if let Some(v) = &self.verbatim {
+            check_verbatim(v)?;
+        }
+        Ok(())
+    }
 }
 
 /// What [`paint`] did.

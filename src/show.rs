@@ -8,25 +8,24 @@ use crate::gim::{atlas_direction, Gim, EMPTY};
 use crate::imageio::{self, srgb_to_linear, PngDepth, RgbImage};
 use crate::{Error, Result};
 
-/// What to draw.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// What to draw (`show --what`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum ShowWhat {
+    /// Each chart in its own colour.
+    #[default]
     Charts,
+    /// The normal map.
     Normals,
+    /// The vector field as short strokes.
     Field,
 }
 
 impl FromStr for ShowWhat {
     type Err = Error;
+    /// The names clap accepts: `charts`, `normals`, `field`.
     fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "charts" => Ok(ShowWhat::Charts),
-            "normals" => Ok(ShowWhat::Normals),
-            "field" => Ok(ShowWhat::Field),
-            _ => Err(Error::Config(format!(
-                "--what '{s}': expected charts, normals or field"
-            ))),
-        }
+        <Self as clap::ValueEnum>::from_str(s, false)
+            .map_err(|_| Error::Config(format!("--what '{s}': expected charts, normals or field")))
     }
 }
 

@@ -8,8 +8,8 @@
 
 use rayon::prelude::*;
 
-/// The material family of a synthetic sample.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The material family of a synthetic sample (`generate-btf --family`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Family {
     /// Running-bond brick wall with recessed mortar.
     Bricks,
@@ -35,15 +35,14 @@ impl Family {
         }
     }
 
-    /// Inverse of [`Family::name`] (case-insensitive).
+    /// Inverse of [`Family::name`] (case-insensitive; the names clap accepts).
     pub fn parse(s: &str) -> Option<Family> {
-        let s = s.trim();
-        Self::ALL.into_iter().find(|f| f.name().eq_ignore_ascii_case(s))
+        <Self as clap::ValueEnum>::from_str(s.trim(), true).ok()
     }
 }
 
-/// An imperfection layer painted over any family.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// An imperfection layer painted over any family (`generate-btf --imperfection`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Imperfection {
     /// No imperfection (mask all zero).
     None,
@@ -74,10 +73,9 @@ impl Imperfection {
         }
     }
 
-    /// Inverse of [`Imperfection::name`] (case-insensitive).
+    /// Inverse of [`Imperfection::name`] (case-insensitive; the names clap accepts).
     pub fn parse(s: &str) -> Option<Imperfection> {
-        let s = s.trim();
-        Self::ALL.into_iter().find(|f| f.name().eq_ignore_ascii_case(s))
+        <Self as clap::ValueEnum>::from_str(s.trim(), true).ok()
     }
 }
 

@@ -84,7 +84,7 @@ fn bad_inputs_exit_non_zero_with_the_file_named() {
     let out = dir.path().join("x.btf");
     fails_clearly(
         &btfquilt(&["generate-btf", "--family", "marble", "-o", s(&out)]),
-        &["--family 'marble'"],
+        &["--family", "'marble'", "bricks, weave, cracked, pebbles"],
     );
     fails_clearly(
         &btfquilt(&["generate-btf", "--views", "12by8", "-o", s(&out)]),
@@ -92,7 +92,7 @@ fn bad_inputs_exit_non_zero_with_the_file_named() {
     );
     fails_clearly(
         &btfquilt(&["generate-btf", "--memory", "lots", "-o", s(&out)]),
-        &["--memory 'lots'"],
+        &["--memory", "'lots'", "expected a size like 512MiB or 2GiB"],
     );
     assert!(!out.exists());
     fails_clearly(&btfquilt(&["ingest", s(&junk), "-o", s(&out)]), &["junk.quilt"]);

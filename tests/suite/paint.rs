@@ -78,24 +78,11 @@ fn scene() -> Scene {
 }
 
 fn painting_figures(q: &Path) -> (f64, f64) {
-    let json = btfquilt::evaluate::evaluate(q, None, None, MemoryBudget::default()).unwrap();
-    let field = |k: &str| -> f64 {
-        let at = json
-            .find(&format!("\"{k}\": "))
-            .unwrap_or_else(|| panic!("{k} in {json}"))
-            + k.len()
-            + 4;
-        json[at..]
-            .split([',', '}'])
-            .next()
-            .unwrap()
-            .trim()
-            .parse()
-            .unwrap()
-    };
+    let report = btfquilt::evaluate::evaluate(q, None, None, MemoryBudget::default()).unwrap();
+    let p = report.painting.expect("painting figures of a painted surface");
     (
-        field("region_covered_by_foreground"),
-        field("foreground_outside_region_and_transition"),
+        p.region_covered_by_foreground,
+        p.foreground_outside_region_and_transition,
     )
 }
 
@@ -108,6 +95,7 @@ fn region_array(q: &Path) -> Vec<f32> {
 fn paint_cfg(s: &Scene) -> PaintConfig {
     PaintConfig {
         sample_mask: Some(s.mask.clone()),
+        transition: 0,
         tile: TileConfig {
             patch_radius: Some(12),
             ..TileConfig::default()
