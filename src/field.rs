@@ -1,5 +1,5 @@
 //! The vector field: a unit tangent direction per face that orients the
-//! sample on the surface (DESIGN.md section 2, "Vector field").
+//! sample on the surface (docs/design.md section 5.4).
 //!
 //! User keys (a direction at a few faces) are interpolated over the surface
 //! with Gaussian radial basis functions centred at the key faces and
@@ -431,8 +431,8 @@ fn smoothest_field(
     Some(field)
 }
 
-/// Gaussian RBF interpolation of the key directions (DESIGN.md: "interpolated
-/// to all faces with radial basis functions").
+/// Gaussian RBF interpolation of the key directions (docs/design.md section
+/// 5.4: "interpolated by Gaussian radial basis functions").
 fn rbf_field(
     mesh: &Mesh,
     normals: &[[f32; 3]],
