@@ -267,7 +267,7 @@ fn connection(
 
 /// The connection Dirichlet energy Σ w |u_f − e^{iρ} u_g|² of a unit
 /// tangent field (the quadratic form whose smallest eigenvector, relative to
-/// the area mass, [`smoothest_field`] finds).
+/// the area mass, `smoothest_field` finds).
 pub fn field_energy(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> f64 {
     let normals: Vec<[f32; 3]> = (0..mesh.triangles.len()).map(|f| mesh.face_normal(f)).collect();
     let frames: Vec<_> = (0..normals.len())
