@@ -1,5 +1,5 @@
 //! The BTF artifact: RGB values f(x, v, l) for W×H texels and every pair of a
-//! view-direction list and a light-direction list (DESIGN.md sections 2-3).
+//! view-direction list and a light-direction list (docs/design.md sections 2-3).
 //!
 //! Arrays:
 //! - `view_dirs`, `light_dirs`: f32 `[n, 2]`, (θ, φ) in degrees;

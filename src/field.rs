@@ -1,5 +1,5 @@
 //! The vector field: a unit tangent direction per face that orients the
-//! sample on the surface (DESIGN.md section 2, "Vector field").
+//! sample on the surface (docs/design.md section 5.4).
 //!
 //! User keys (a direction at a few faces) are interpolated over the surface
 //! with Gaussian radial basis functions centred at the key faces and
@@ -267,7 +267,7 @@ fn connection(
 
 /// The connection Dirichlet energy Σ w |u_f − e^{iρ} u_g|² of a unit
 /// tangent field (the quadratic form whose smallest eigenvector, relative to
-/// the area mass, [`smoothest_field`] finds).
+/// the area mass, `smoothest_field` finds).
 pub fn field_energy(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> f64 {
     let normals: Vec<[f32; 3]> = (0..mesh.triangles.len()).map(|f| mesh.face_normal(f)).collect();
     let frames: Vec<_> = (0..normals.len())
@@ -431,8 +431,8 @@ fn smoothest_field(
     Some(field)
 }
 
-/// Gaussian RBF interpolation of the key directions (DESIGN.md: "interpolated
-/// to all faces with radial basis functions").
+/// Gaussian RBF interpolation of the key directions (docs/design.md section
+/// 5.4: "interpolated by Gaussian radial basis functions").
 fn rbf_field(
     mesh: &Mesh,
     normals: &[[f32; 3]],

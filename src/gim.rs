@@ -1,5 +1,5 @@
 //! `atlas`: from a mesh to the dense mesh M_d, a multi-chart geometry image
-//! (the paper's "GIM-based sampling", DESIGN.md section 2).
+//! (the paper's "GIM-based sampling", docs/design.md section 5).
 //!
 //! The mesh is cut into charts and parameterised (`atlas::charts`), packed at
 //! one texel density into R×R (`atlas::pack`), and rasterized tile by tile:

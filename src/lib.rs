@@ -1,9 +1,54 @@
 //! btfquilt: decorate triangle meshes with textures and bidirectional texture
-//! functions (BTFs), as a streaming pipeline over disk-backed tiles.
+//! functions (BTFs) by graphcut quilting and graphcut texture painting, after
+//! Zhou et al., *Decorating Surfaces with Bidirectional Texture Functions*
+//! (TVCG 2005), as a streaming pipeline over disk-backed tiles.
 //!
 //! Every stage is a function from typed artifacts on disk (see [`container`])
 //! plus a config struct and a [`progress::Progress`] sink to a new artifact on
-//! disk. The only `unsafe` code is the memory map in `container::mmap`.
+//! disk; the command-line tool calls the same functions. The only `unsafe`
+//! code is the memory map in `container::mmap`.
+//!
+//! | stage | function | writes |
+//! |---|---|---|
+//! | mesh → dense mesh (multi-chart geometry image) | [`gim::build_gim`] | `.gim` |
+//! | BTF or colour image → geometry maps | [`factorize::factorize`] | `.svd` |
+//! | graphcut quilting | [`quilt::tile`] | `.quilt` |
+//! | graphcut texture painting | [`paint::paint`], [`paint::replay`] | `.quilt` |
+//! | atlas texture | [`bake::bake`] | PNG / EXR |
+//! | picture | [`render::render`] | PNG / EXR |
+//! | OBJ, glTF, surface BTF | [`export::export`] | files in a folder |
+//!
+//! # Example
+//!
+//! Tile Spot with the brick wall and bake the atlas texture (the crate's
+//! `examples/01_tile_a_mesh.rs` runs the same):
+//!
+//! ```no_run
+//! use btfquilt::container::MemoryBudget;
+//! use btfquilt::gim::{self, AtlasConfig};
+//! use btfquilt::progress::Silent;
+//! use btfquilt::quilt::{self, TileConfig};
+//! use std::path::Path;
+//!
+//! fn main() -> btfquilt::Result<()> {
+//!     let atlas = AtlasConfig { resolution: 512, ..Default::default() };
+//!     gim::build_gim(Path::new("data/spot_5.8k.obj"), Path::new("spot.gim"), &atlas, &Silent)?;
+//!
+//!     let report = quilt::tile(
+//!         Path::new("spot.gim"),
+//!         Path::new("data/brick_wall.png"),
+//!         Path::new("spot.quilt"),
+//!         &TileConfig { seed: 1, ..Default::default() },
+//!         &Silent,
+//!     )?;
+//!     println!("{report}");
+//!
+//!     btfquilt::bake::bake(Path::new("spot.quilt"), None, Path::new("spot_atlas.png"), MemoryBudget::default())?;
+//!     Ok(())
+//! }
+//! ```
+//!
+//! The design, with the algorithms of each stage, is in `docs/design.md`.
 #![deny(unsafe_code)]
 
 pub mod atlas;

@@ -1,5 +1,5 @@
-//! `paint`: graphcut texture painting (the paper's section IV; DESIGN.md
-//! section 2): imperfections — cracks, dirt, scratches — from a sample's
+//! `paint`: graphcut texture painting (the paper's section IV; docs/design.md
+//! section 7): imperfections — cracks, dirt, scratches — from a sample's
 //! foreground S_f put into a region F the user marks on a decorated
 //! surface, merged seamlessly with the background.
 //!

@@ -1,5 +1,5 @@
 //! Chunk encoding: element bytes → byte-shuffle → zstd, with an xxh3 checksum
-//! of the decoded bytes (DESIGN.md section 3).
+//! of the decoded bytes (docs/design.md section 2).
 
 use bincode::{Decode, Encode};
 use half::f16;

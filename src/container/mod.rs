@@ -1,5 +1,5 @@
 //! The chunked tile container: the one place that knows bytes on disk
-//! (DESIGN.md section 3).
+//! (docs/design.md section 2).
 //!
 //! One file per artifact:
 //!
