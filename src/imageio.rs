@@ -574,7 +574,7 @@ fn encode_srgb(v: f32, max: f32) -> f32 {
     (s * max).round()
 }
 
-/// Write PNG: linear -> sRGB encode, clamp to [0,1], round to nearest, 8 or 16 bit RGB.
+/// Write PNG: linear -> sRGB encode, clamp to 0..1, round to nearest, 8 or 16 bit RGB.
 pub fn write_png(path: &Path, img: &RgbImage, depth: PngDepth) -> Result<()> {
     check_write(path, img.width, img.height, 3, img.data.len())?;
     let (w, h) = dims_u32(path, img.width, img.height)?;

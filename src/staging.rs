@@ -10,7 +10,7 @@
 //! is kept for the caller to report ([`take_removed_partials`]). Liveness is
 //! read from `/proc`: where it is absent, nothing is removed.
 //!
-//! [`check_outputs`] refuses an output that is one of the command's inputs (or
+//! [`check_output`] refuses an output that is one of the command's inputs (or
 //! a file an input depends on), after resolving links: writing it would
 //! destroy the input.
 

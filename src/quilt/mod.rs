@@ -92,7 +92,7 @@ pub struct TileConfig {
     /// foreground that replaces it (on a flat square with a brick sample,
     /// 2 filled 17 % of F, 4 filled 62 %, 8 filled 79 %, 16 at least 95 %).
     pub constraint_weight: f64,
-    /// Seam refinement after the surface is covered ([`Synthesis::refine`]):
+    /// Seam refinement after the surface is covered (the synthesis's `refine` step):
     /// seams whose step exceeds this × the sample's neighbour difference
     /// get one more work patch of radius r_w each; `None` turns it off. The
     /// default 2: on Spot at 1024² with the 192² brick crop it took the seam
