@@ -625,7 +625,7 @@ fn bad_inputs_fail_clearly_and_leave_nothing_behind() {
     ok(&["atlas", s(&spot()), "--resolution", "48", "-q", "-o", s(&gim)]);
     fails_clearly(
         &btfquilt(&["export", s(&gim), "--format", "fbx", "-o", s(&out)]),
-        &["--format 'fbx'", "obj or gltf"],
+        &["'fbx'", "--format", "obj, gltf"],
     );
     fails_clearly(&btfquilt(&["export", s(&gim), "--format", "gltf"]), &["-o"]);
     fails_clearly(&btfquilt(&["export", s(&gim)]), &["nothing to export"]);

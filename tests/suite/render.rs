@@ -579,15 +579,15 @@ fn bad_inputs_are_refused_cleanly() {
     let o = s(&out);
     fails_clearly(
         &btfquilt(&["render", q, "--light", "1,2", "-o", o]),
-        &["--light '1,2'"],
+        &["'1,2'", "--light"],
     );
     fails_clearly(
         &btfquilt(&["render", q, "--light", "0,0,0", "-o", o]),
-        &["--light '0,0,0'"],
+        &["'0,0,0'", "--light"],
     );
     fails_clearly(
         &btfquilt(&["render", q, "--light", "1,x,2", "-o", o]),
-        &["--light '1,x,2'"],
+        &["'1,x,2'", "--light"],
     );
     fails_clearly(
         &btfquilt(&["render", q, "--point-light", "1,2,nan", "-o", o]),
