@@ -6,7 +6,7 @@
 //! `warm/64x64_vs_192x192/n3`, `warm/64x64_vs_192x192/n40`,
 //! `warm/128x128_vs_256x256/n40`, `cold/64x64_vs_192x192/n40`.
 
-use btfquilt::matching::{Image, MatchConfig, Matcher, Sample, Work};
+use btfquilt::quilt::matching::{Image, MatchConfig, Matcher, Sample, Work};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 
 fn values(len: usize, seed: u64) -> Vec<f32> {

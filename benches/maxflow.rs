@@ -7,7 +7,7 @@
 //! `build_solve/*` times construction plus solve, as the synthesis loop does;
 //! `dinic_build_solve/*` is ac-library's Dinic on the same graph (×1e6, rounded) for scale.
 
-use btfquilt::maxflow::Graph;
+use btfquilt::quilt::maxflow::Graph;
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 
 struct Lcg(u64);

@@ -21,7 +21,7 @@ use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::gim::{self, AtlasConfig};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, TileConfig};
-use btfquilt::render::{self, RenderConfig, Scene};
+use btfquilt::output::render::{self, RenderConfig, Scene};
 use criterion::{criterion_group, criterion_main, Criterion};
 
 /// The cached Spot quilt, built on first use.

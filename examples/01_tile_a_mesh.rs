@@ -47,7 +47,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     // 3. Look the colours up and write the atlas texture (gutters dilated).
     let png = out.join("spot_atlas.png");
-    btfquilt::bake::bake(&quilt_path, None, &png, MemoryBudget::default())?;
+    btfquilt::output::bake::bake(&quilt_path, None, &png, MemoryBudget::default())?;
     println!("wrote {}", png.display());
     Ok(())
 }

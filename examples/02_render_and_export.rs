@@ -6,8 +6,8 @@
 //! ```
 
 use btfquilt::container::MemoryBudget;
-use btfquilt::export::{self, ExportOptions, MeshFormat};
-use btfquilt::render::{self, Light, RenderConfig};
+use btfquilt::output::export::{self, ExportOptions, MeshFormat};
+use btfquilt::output::render::{self, Light, RenderConfig};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out = std::env::temp_dir().join("btfquilt-example-01");

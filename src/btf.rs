@@ -17,7 +17,7 @@ use half::slice::HalfFloatSliceExt;
 use crate::container::{
     ArrayId, ArraySpec, Container, ContainerWriter, DType, EncodedChunk, MemoryBudget, Param,
 };
-pub use crate::naming::Angles;
+pub use crate::io::naming::Angles;
 use crate::{Error, Result};
 
 /// The artifact kind string of a BTF.

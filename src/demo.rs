@@ -26,18 +26,18 @@ use std::time::Instant;
 
 use crate::btf::{Angles, Btf};
 use crate::container::MemoryBudget;
-use crate::export::{self, ExportOptions, MeshFormat};
+use crate::output::export::{self, ExportOptions, MeshFormat};
 use crate::factorize::{self, FactorizeConfig, SvdArtifact};
 use crate::generate::{self, Family, GenerateConfig, Imperfection};
 use crate::gim::{self, AtlasConfig, Gim};
-use crate::imageio::{self, PngDepth, RgbImage};
+use crate::io::imageio::{self, PngDepth, RgbImage};
 use crate::ingest;
 use crate::mesh::{cross, dot, normalize, sub};
 use crate::paint::{self, PaintConfig};
 use crate::progress::Progress;
 use crate::quilt::{self, TileConfig};
-use crate::render::{self, Camera, Light, RenderConfig};
-use crate::{bake, evaluate, show};
+use crate::output::render::{self, Camera, Light, RenderConfig};
+use crate::{output::bake, output::evaluate, output::show};
 use crate::{Error, Result};
 
 /// Texels per side of the generated samples.

@@ -34,7 +34,7 @@ use rayon::prelude::*;
 
 use crate::btf::{Angles, Btf, BtfLayout, BtfWriter};
 use crate::container::{codec, ArrayId, ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
-use crate::imageio::{self, RgbImage};
+use crate::io::imageio::{self, RgbImage};
 use crate::progress::Progress;
 use crate::{Error, Result};
 
@@ -391,7 +391,7 @@ pub fn factorize(
     progress: &dyn Progress,
 ) -> Result<FactorizeReport> {
     let start = Instant::now();
-    crate::staging::check_output(out, &[("the input", input)])?;
+    crate::io::staging::check_output(out, &[("the input", input)])?;
     // dense QR/SVD run sequentially: products with A are parallel over
     // chunks already, and a fixed order keeps results thread-count independent
     faer::set_global_parallelism(Par::Seq);

@@ -409,7 +409,7 @@ pub fn build_gim(
     if let Some(keys) = &cfg.field_keys {
         inputs.push(("the vector-field keys", keys.as_path()));
     }
-    crate::staging::check_output(out, &inputs)?;
+    crate::io::staging::check_output(out, &inputs)?;
     let (mut mesh, repair) = io::load(mesh_path, &cfg.load)?;
     // A mesh of extreme size is worked on rescaled by a power of two (exact),
     // and its positions written back in the user's units.

@@ -14,8 +14,8 @@ use rayon::prelude::*;
 
 use crate::btf::{Angles, Btf, BtfLayout, BtfWriter};
 use crate::container::{codec, MemoryBudget, Param, DEFAULT_ZSTD_LEVEL};
-use crate::imageio::{self, RgbImage};
-use crate::naming::{self, PairFile};
+use crate::io::imageio::{self, RgbImage};
+use crate::io::naming::{self, PairFile};
 use crate::progress::Progress;
 use crate::{Error, Result};
 
@@ -77,7 +77,7 @@ pub fn ingest(input: &Path, out: &Path, cfg: &IngestConfig, progress: &dyn Progr
     let files = list_inputs(input)?;
     let mut inputs = vec![("the input", input)];
     inputs.extend(files.iter().map(|f| ("an input image", f.path.as_path())));
-    crate::staging::check_output(out, &inputs)?;
+    crate::io::staging::check_output(out, &inputs)?;
     let (views, lights, grid) = naming::organise_pairs(input, &files)?;
     // all images must share one size: check headers before streaming
     let (width, height) = imageio::image_size(&files[0].path)?;
@@ -224,9 +224,9 @@ pub fn export_all(
     memory: MemoryBudget,
     progress: &dyn Progress,
 ) -> Result<usize> {
-    crate::staging::check_output_dir(dir, &["manifest.csv"], &[("the BTF", btf.container().path())])?;
+    crate::io::staging::check_output_dir(dir, &["manifest.csv"], &[("the BTF", btf.container().path())])?;
     // the folder is built whole beside `dir` and renamed into place at the end
-    let stage = crate::staging::StagedDir::new(dir, Some("manifest.csv"))?;
+    let stage = crate::io::staging::StagedDir::new(dir, Some("manifest.csv"))?;
     let l = btf.layout();
     let per_image = (l.width * l.height * 3 * 4) as u64;
     let [images, ..] = memory.split([1, 1, 1, 1]);

@@ -14,9 +14,9 @@
 //! | BTF or colour image → geometry maps | [`factorize::factorize`] | `.svd` |
 //! | graphcut quilting | [`quilt::tile`] | `.quilt` |
 //! | graphcut texture painting | [`paint::paint`], [`paint::replay`] | `.quilt` |
-//! | atlas texture | [`bake::bake`] | PNG / EXR |
-//! | picture | [`render::render`] | PNG / EXR |
-//! | OBJ, glTF, surface BTF | [`export::export`] | files in a folder |
+//! | atlas texture | [`output::bake::bake`] | PNG / EXR |
+//! | picture | [`output::render::render`] | PNG / EXR |
+//! | OBJ, glTF, surface BTF | [`output::export::export`] | files in a folder |
 //!
 //! # Example
 //!
@@ -43,7 +43,7 @@
 //!     )?;
 //!     println!("{report}");
 //!
-//!     btfquilt::bake::bake(Path::new("spot.quilt"), None, Path::new("spot_atlas.png"), MemoryBudget::default())?;
+//!     btfquilt::output::bake::bake(Path::new("spot.quilt"), None, Path::new("spot_atlas.png"), MemoryBudget::default())?;
 //!     Ok(())
 //! }
 //! ```
@@ -52,29 +52,21 @@
 #![deny(unsafe_code)]
 
 pub mod atlas;
-pub mod bake;
 pub mod btf;
 pub mod container;
 pub mod demo;
 pub mod error;
-pub mod evaluate;
-pub mod export;
 pub mod factorize;
 pub mod field;
 pub mod generate;
 pub mod gim;
-pub mod imageio;
 pub mod ingest;
-pub mod matching;
-pub mod maxflow;
+pub mod io;
 pub mod mesh;
-pub mod naming;
+pub mod output;
 pub mod paint;
 pub mod progress;
 pub mod quilt;
-pub mod render;
 mod rng;
-pub mod show;
-pub mod staging;
 
 pub use error::{Error, Result};

@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use btfquilt::btf::{self, Angles, Btf};
 use btfquilt::container::{Container, MemoryBudget};
-use btfquilt::export::MeshFormat;
+use btfquilt::output::export::MeshFormat;
 use btfquilt::factorize::{self, FactorizeConfig, SvdArtifact};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::gim::{self, AtlasConfig, Gim};
@@ -18,9 +18,9 @@ use btfquilt::mesh::io::LoadOptions;
 use btfquilt::paint::PaintConfig;
 use btfquilt::progress::Progress;
 use btfquilt::quilt::{self, TileConfig};
-use btfquilt::render::{Camera, Light, RenderConfig};
-use btfquilt::show::ShowWhat;
-use btfquilt::{bake, evaluate, export, render, show};
+use btfquilt::output::render::{Camera, Light, RenderConfig};
+use btfquilt::output::show::ShowWhat;
+use btfquilt::{output::bake, output::evaluate, output::export, output::render, output::show};
 
 /// Prints a line to stdout; a closed pipe (`btfquilt evaluate … | head`) is
 /// not an error.
@@ -552,7 +552,7 @@ impl Resources {
 
 fn main() {
     let result = run(Cli::parse());
-    for r in btfquilt::staging::take_removed_partials() {
+    for r in btfquilt::io::staging::take_removed_partials() {
         eprintln!(
             "note: removed {} ({}), a partial output left by process {} that no longer runs",
             r.path.display(),
@@ -667,11 +667,11 @@ fn run(cli: Cli) -> Result<()> {
                     say!("wrote {n} images and manifest.csv into {}", dir.display());
                 }
                 (None, Some(out)) => {
-                    btfquilt::staging::check_output(&out, &[("the BTF", file.as_path())])?;
+                    btfquilt::io::staging::check_output(&out, &[("the BTF", file.as_path())])?;
                     let view = view.context("--view θ,φ is required with -o")?;
                     let light = light.context("--light θ,φ is required with -o")?;
                     let img = ingest::pair_image(&b, view, light)?;
-                    btfquilt::imageio::write_rgb(&out, &img)?;
+                    btfquilt::io::imageio::write_rgb(&out, &img)?;
                     say!("wrote {}", out.display());
                 }
                 _ => bail!("give either -o IMAGE (with --view and --light) or --all DIR"),
@@ -715,11 +715,11 @@ fn run(cli: Cli) -> Result<()> {
             if let Some(o) = &original {
                 inputs.push(("the original", o.as_path()));
             }
-            btfquilt::staging::check_output(&output, &inputs)?;
+            btfquilt::io::staging::check_output(&output, &inputs)?;
             let svd = SvdArtifact::open(&file, memory)?;
             let pair = svd.find_pair(view, light)?;
             let img = svd.reconstruct_pair(pair)?;
-            btfquilt::imageio::write_rgb(&output, &img)?;
+            btfquilt::io::imageio::write_rgb(&output, &img)?;
             say!("wrote {}", output.display());
             match svd.original_pair(pair, original.as_deref(), memory)? {
                 Some(orig) => say!("PSNR {:.2} dB against the original", factorize::psnr(&orig, &img)),

@@ -258,7 +258,7 @@ fn check_paint_output(base: &Quilt, cfg: &PaintConfig, out: &Path) -> Result<()>
     if let Some(p) = &cfg.region {
         inputs.push(("the target region", p.as_path()));
     }
-    crate::staging::check_output(out, &inputs)
+    crate::io::staging::check_output(out, &inputs)
 }
 
 /// Replays the paint log of `painted` onto its recorded base quilt, writing
@@ -517,7 +517,7 @@ impl PaintLog {
     /// the quilt `out` that will store it, so a painted surface and its
     /// inputs can move together and be replayed from any working directory.
     fn relative_to(&self, out: &Path) -> PaintLog {
-        let rel = |p: &Path| PathBuf::from(crate::staging::relative_to_folder_of(out, p));
+        let rel = |p: &Path| PathBuf::from(crate::io::staging::relative_to_folder_of(out, p));
         PaintLog {
             base: rel(&self.base),
             base_hash: self.base_hash,
@@ -537,7 +537,7 @@ impl PaintLog {
     /// The log read from the quilt `file`, its paths resolved against that
     /// quilt's folder.
     fn resolved_in(self, file: &Path) -> PaintLog {
-        let abs = |p: &Path| crate::staging::resolve_in_folder_of(file, p);
+        let abs = |p: &Path| crate::io::staging::resolve_in_folder_of(file, p);
         PaintLog {
             base: abs(&self.base),
             base_hash: self.base_hash,
@@ -812,8 +812,8 @@ fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec<bool>> {
     let r = syn.resolution();
     let chart = &syn.graph().chart;
     match ext.as_str() {
-        _ if crate::imageio::is_image_path(path) => {
-            let mask = crate::imageio::read_sized_mask(path, r, r, "a region mask must be the atlas size")?;
+        _ if crate::io::imageio::is_image_path(path) => {
+            let mask = crate::io::imageio::read_sized_mask(path, r, r, "a region mask must be the atlas size")?;
             Ok(mask
                 .iter()
                 .zip(chart)

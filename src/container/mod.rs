@@ -405,7 +405,7 @@ pub struct ContainerWriter {
 impl ContainerWriter {
     /// Starts an artifact of `kind` that will be renamed to `path`.
     pub fn create(path: &Path, kind: &str) -> Result<ContainerWriter> {
-        let tmp = crate::staging::staged_file(path)?;
+        let tmp = crate::io::staging::staged_file(path)?;
         let file = tmp.as_file().try_clone().map_err(|e| Error::io(path, e))?;
         let mut out = BufWriter::with_capacity(1 << 20, file);
         // A zeroed header (version 0) marks the file unfinished until `finish`.

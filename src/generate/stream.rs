@@ -19,7 +19,7 @@ use super::render::{direction, BlockRenderer};
 use crate::btf::{Angles, BtfLayout, BtfWriter};
 use crate::container::{codec, human_bytes, MemoryBudget, Param, DEFAULT_ZSTD_LEVEL};
 use crate::progress::Progress;
-use crate::{imageio, Error, Result};
+use crate::{io::imageio, Error, Result};
 
 /// Options of [`generate_btf`].
 #[derive(Clone, Debug)]

@@ -3,7 +3,7 @@
 
 use super::repair::{self, RepairReport};
 use super::Mesh;
-use crate::imageio::write_atomic;
+use crate::io::imageio::write_atomic;
 use crate::{Error, Result};
 use ply_rs_bw::parser::{Parser, Reader};
 use ply_rs_bw::ply::{ElementDef, Property, PropertyAccess, PropertyAccessResult, PropertyType};

@@ -79,7 +79,7 @@ pub(super) fn record_dependency(w: &mut ContainerWriter, out: &Path, role: &str,
     w.add_input(role, hash);
     w.set_param(
         role,
-        Param::Text(crate::staging::relative_to_folder_of(out, path)),
+        Param::Text(crate::io::staging::relative_to_folder_of(out, path)),
     );
     w.set_param(&format!("{role}_bytes"), Param::Int(bytes as i64));
     Ok(())
@@ -172,7 +172,7 @@ impl Quilt {
                     format!("metadata parameter '{role}' is missing"),
                 ));
             };
-            let resolved = crate::staging::resolve_in_folder_of(path, Path::new(s));
+            let resolved = crate::io::staging::resolve_in_folder_of(path, Path::new(s));
             let bytes = match m.param(&format!("{role}_bytes")) {
                 Some(Param::Int(b)) if *b >= 0 => *b as u64,
                 _ => {
@@ -315,7 +315,7 @@ impl Quilt {
     pub fn check_output(&self, out: &Path) -> Result<()> {
         let files = self.input_files();
         let inputs: Vec<(&str, &Path)> = files.iter().map(|(r, p)| (r.as_str(), p.as_path())).collect();
-        crate::staging::check_output(out, &inputs)
+        crate::io::staging::check_output(out, &inputs)
     }
 
     /// Every file the quilt depends on, with its role for messages: what an

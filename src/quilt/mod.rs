@@ -31,14 +31,16 @@ use std::time::Instant;
 use crate::container::{ArraySpec, BoundedCache, Container, ContainerWriter, DType, MemoryBudget, Param};
 use crate::factorize::{self, FactorizeConfig, SvdArtifact};
 use crate::gim::{Gim, EMPTY, TILE};
-use crate::matching::{self, Image, MatchConfig, Matcher};
-use crate::maxflow::{Graph, Segment};
+use matching::{Image, MatchConfig, Matcher};
+use maxflow::{Graph, Segment};
 use crate::progress::Progress;
 use crate::{Error, Result};
 
 mod artifact;
 mod fit;
 mod flatten;
+pub mod matching;
+pub mod maxflow;
 mod placement;
 mod sample;
 mod state;
@@ -217,7 +219,7 @@ pub fn tile(
     if let Some(mask) = &cfg.sample_mask {
         inputs.push(("the sample's foreground mask", mask.as_path()));
     }
-    crate::staging::check_output(out, &inputs)?;
+    crate::io::staging::check_output(out, &inputs)?;
     let gim = Gim::open(gim_path, cfg.memory)?;
     let (svd_path, _tmp) = sample_svd(sample_path, true, progress)?;
     let mut syn = Synthesis::open(&gim, sample_path, &svd_path, cfg, true)?;

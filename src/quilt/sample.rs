@@ -77,7 +77,7 @@ impl Sample {
     /// there is no mask or outside the sample).
     pub(super) fn mask_at(&self, c: [f64; 2]) -> f32 {
         let Some(mask) = &self.mask else { return 0.0 };
-        crate::imageio::mask_bilinear(mask, self.width, self.height, c, self.tileable)
+        crate::io::imageio::mask_bilinear(mask, self.width, self.height, c, self.tileable)
     }
 
     /// Bilinear geometry-map vector at unrotated sample coordinates (pixel

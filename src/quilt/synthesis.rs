@@ -16,7 +16,7 @@ pub(crate) struct Synthesis {
     pub(super) sample_paths: Vec<PathBuf>,
     /// The preview colours of the other samples a loaded surface draws
     /// from (by index; `None` for the active one and unused ones).
-    pub(super) other_previews: Vec<Option<crate::imageio::RgbImage>>,
+    pub(super) other_previews: Vec<Option<crate::io::imageio::RgbImage>>,
     pub(super) surface: Surface,
     pub(super) zipper_triangles: Vec<[u32; 3]>,
     pub(super) sample: Sample,
@@ -110,7 +110,7 @@ impl Synthesis {
     /// Call it before [`Synthesis::load`], which looks m_σ up per texel.
     pub(crate) fn set_mask(&mut self, path: &Path) -> Result<()> {
         let (w, h) = (self.sample.width, self.sample.height);
-        let mask = crate::imageio::read_sized_mask(
+        let mask = crate::io::imageio::read_sized_mask(
             path,
             w,
             h,
@@ -655,7 +655,7 @@ impl Synthesis {
                     if self.state.synthesized[t] {
                         let c = self.state.coord[t];
                         let from = self.other_previews.get(self.state.source[t] as usize);
-                        let col = crate::imageio::bilinear(
+                        let col = crate::io::imageio::bilinear(
                             from.and_then(Option::as_ref).unwrap_or(&colours),
                             c[0],
                             c[1],
@@ -667,17 +667,17 @@ impl Synthesis {
             for (i, &t) in patch.texels.iter().enumerate() {
                 if fg[i] >= 0.5 {
                     let (x, y) = (t as usize % r - x0, t as usize / r - y0);
-                    let col = crate::imageio::bilinear(&colours, placed[i][0] as f32, placed[i][1] as f32);
+                    let col = crate::io::imageio::bilinear(&colours, placed[i][0] as f32, placed[i][1] as f32);
                     data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
                 }
             }
-            let img = crate::imageio::RgbImage {
+            let img = crate::io::imageio::RgbImage {
                 width: w,
                 height: h,
                 data,
             };
             trace("projected");
-            crate::imageio::write_png(out, &img, crate::imageio::PngDepth::Eight)?;
+            crate::io::imageio::write_png(out, &img, crate::io::imageio::PngDepth::Eight)?;
             trace("written");
             return Ok(fg.iter().filter(|&&m| m >= 0.5).count());
         }

@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use btfquilt::imageio::{self, PngDepth, RgbImage};
+use btfquilt::io::imageio::{self, PngDepth, RgbImage};
 
 /// Quads per side of the flat square.
 pub const SQUARE_QUADS: usize = 8;

@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 use btfquilt::btf::{self, Angles, Btf};
 use btfquilt::container::MemoryBudget;
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
-use btfquilt::imageio::{self, RgbImage};
+use btfquilt::io::imageio::{self, RgbImage};
 use btfquilt::ingest::{self, ImageFormat, IngestConfig};
-use btfquilt::naming;
+use btfquilt::io::naming;
 use btfquilt::progress::Silent;
 
 fn small_config(family: Family, size: usize) -> GenerateConfig {

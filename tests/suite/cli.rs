@@ -56,7 +56,7 @@ fn generate_info_export_round() {
         s(&png),
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert_eq!(btfquilt::imageio::image_size(&png).unwrap(), (24, 24));
+    assert_eq!(btfquilt::io::imageio::image_size(&png).unwrap(), (24, 24));
     let out = btfquilt(&[
         "export-btf",
         s(&btf),
@@ -247,7 +247,7 @@ fn atlas_show_and_export_a_mesh() {
         let png = dir.path().join(format!("{what}.png"));
         let out = btfquilt(&["show", s(&gim), "--what", what, "-o", s(&png)]);
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        assert_eq!(btfquilt::imageio::image_size(&png).unwrap(), (256, 256));
+        assert_eq!(btfquilt::io::imageio::image_size(&png).unwrap(), (256, 256));
     }
     let export = dir.path().join("export");
     assert!(
@@ -336,7 +336,7 @@ fn tile_bake_evaluate_render_export_a_square() {
         .status
         .success());
     assert_eq!(
-        btfquilt::imageio::image_size(&export.join("atlas.png")).unwrap(),
+        btfquilt::io::imageio::image_size(&export.join("atlas.png")).unwrap(),
         (96, 96)
     );
     let (models, _) = tobj::load_obj(export.join("mesh.obj"), &tobj::LoadOptions::default()).unwrap();

@@ -349,7 +349,7 @@ fn gltf_of_a_decorated_mesh_is_a_valid_glb_with_the_baked_atlas() {
     );
     // the embedded image is the baked atlas, byte for byte
     let png = dir.path().join("atlas.png");
-    btfquilt::bake::bake(&quilt, None, &png, MemoryBudget::default()).unwrap();
+    btfquilt::output::bake::bake(&quilt, None, &png, MemoryBudget::default()).unwrap();
     assert_eq!(glb.image, std::fs::read(&png).unwrap());
     let decoded = image::load_from_memory(&glb.image).unwrap();
     assert_eq!((decoded.width(), decoded.height()), (96, 96));
@@ -382,7 +382,7 @@ fn gltf_of_a_geometry_image_embeds_the_chart_map() {
     assert_same_mesh(&glb, &gim);
     read_with_gltf_crate(&bytes);
     let charts = dir.path().join("charts.png");
-    btfquilt::show::show(&gim, btfquilt::show::ShowWhat::Charts, &charts).unwrap();
+    btfquilt::output::show::show(&gim, btfquilt::output::show::ShowWhat::Charts, &charts).unwrap();
     assert_eq!(glb.image, std::fs::read(&charts).unwrap());
     // uvs in the atlas, v down like the gim (no flip, unlike OBJ)
     assert!(glb.uvs.iter().flatten().all(|&c| (0.0..=1.0).contains(&c)));
@@ -707,7 +707,7 @@ fn square_mesh() -> btfquilt::mesh::Mesh {
 
 #[test]
 fn vertices_split_only_at_uv_seams_and_names_are_padded() {
-    use btfquilt::export::{split_by_uv, term_names, MeshFormat};
+    use btfquilt::output::export::{split_by_uv, term_names, MeshFormat};
     assert_eq!(term_names("g", 3), ["g00", "g01", "g02"]);
     assert_eq!(term_names("r", 101)[100], "r100");
     assert_eq!(term_names("r", 101)[7], "r007");
@@ -749,12 +749,12 @@ fn vertices_split_only_at_uv_seams_and_names_are_padded() {
 fn glb_of_a_tiny_mesh_is_laid_out_and_validates() {
     let dir = tempfile::tempdir().unwrap();
     let png = dir.path().join("t.png");
-    let img = btfquilt::imageio::RgbImage {
+    let img = btfquilt::io::imageio::RgbImage {
         width: 3,
         height: 2,
         data: (0..18).map(|i| i as f32 / 18.0).collect(),
     };
-    btfquilt::imageio::write_png(&png, &img, btfquilt::imageio::PngDepth::Eight).unwrap();
+    btfquilt::io::imageio::write_png(&png, &img, btfquilt::io::imageio::PngDepth::Eight).unwrap();
     let png = std::fs::read(&png).unwrap();
     let mesh = square_mesh();
     let uv = [
@@ -765,13 +765,13 @@ fn glb_of_a_tiny_mesh_is_laid_out_and_validates() {
         [1.0, 0.0],
         [0.0, 0.0],
     ];
-    let split = btfquilt::export::split_by_uv(&mesh, &uv).unwrap();
-    let bytes = btfquilt::export::glb_bytes(&split, &png).unwrap();
+    let split = btfquilt::output::export::split_by_uv(&mesh, &uv).unwrap();
+    let bytes = btfquilt::output::export::glb_bytes(&split, &png).unwrap();
     let glb = parse_glb(&bytes);
     assert_eq!(glb.image, png);
     assert_eq!(glb.indices, [0, 1, 2, 0, 2, 3]);
     assert_eq!(glb.uvs, [[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]]);
     let (p, _, uvs, idx) = read_with_gltf_crate(&bytes);
     assert_eq!((p, uvs, idx), (glb.positions, glb.uvs, glb.indices));
-    assert!(btfquilt::export::glb_bytes(&split, b"GIF89a").is_err());
+    assert!(btfquilt::output::export::glb_bytes(&split, b"GIF89a").is_err());
 }

@@ -7,7 +7,7 @@ use btfquilt::btf::{self, Angles, Btf, BtfLayout, BtfWriter};
 use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::{self, FactorizeConfig, SvdArtifact};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
-use btfquilt::imageio::{self, RgbImage};
+use btfquilt::io::imageio::{self, RgbImage};
 use btfquilt::progress::Silent;
 use faer::Mat;
 use half::f16;

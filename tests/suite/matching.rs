@@ -2,7 +2,7 @@
 //! the constraint term, the spectrum cache and the seeded choice.
 
 use btfquilt::factorize::rotate_maps;
-use btfquilt::matching::{
+use btfquilt::quilt::matching::{
     brute_force_cost, brute_force_map, choose, valid_to_f32, CostMap, Image, MatchConfig, Matcher, Placement,
     Sample, Span, Work,
 };

@@ -1,8 +1,8 @@
-//! Boykov–Kolmogorov max-flow (`btfquilt::maxflow`) against a brute-force
+//! Boykov–Kolmogorov max-flow (`btfquilt::quilt::maxflow`) against a brute-force
 //! oracle on tiny graphs and against `ac_library`'s Dinic on larger ones.
 
 use ac_library::MfGraph;
-use btfquilt::maxflow::{Graph, Segment};
+use btfquilt::quilt::maxflow::{Graph, Segment};
 use proptest::prelude::*;
 
 /// A graph description that can be fed to both solvers and used to evaluate cuts.

@@ -18,10 +18,10 @@ use btfquilt::container::{ArraySpec, Container, ContainerWriter, DType, MemoryBu
 use btfquilt::factorize::{self, FactorizeConfig, SvdArtifact};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::gim::{self, AtlasConfig, Gim};
-use btfquilt::imageio::{self, PngDepth, RgbImage};
+use btfquilt::io::imageio::{self, PngDepth, RgbImage};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
-use btfquilt::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
+use btfquilt::output::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
 
 use crate::common::{self, btfquilt, channel, fails_clearly, ok, read_exr, s, write_mask_png};
 

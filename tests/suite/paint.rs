@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use btfquilt::container::MemoryBudget;
 use btfquilt::gim::{self, AtlasConfig, Gim, EMPTY};
-use btfquilt::imageio;
+use btfquilt::io::imageio;
 use btfquilt::paint::{self, PaintConfig, Verbatim};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig};
@@ -78,7 +78,7 @@ fn scene() -> Scene {
 }
 
 fn painting_figures(q: &Path) -> (f64, f64) {
-    let report = btfquilt::evaluate::evaluate(q, None, None, MemoryBudget::default()).unwrap();
+    let report = btfquilt::output::evaluate::evaluate(q, None, None, MemoryBudget::default()).unwrap();
     let p = report.painting.expect("painting figures of a painted surface");
     (
         p.region_covered_by_foreground,
@@ -537,7 +537,7 @@ fn painting_with_another_sample_adds_it_to_the_surface() {
     // the baked colours: blue in F, the base's bricks outside the zone
     let bake = |q: &Path, png: &str| {
         let p = s.dir.join(png);
-        btfquilt::bake::bake(q, None, &p, MemoryBudget::default()).unwrap();
+        btfquilt::output::bake::bake(q, None, &p, MemoryBudget::default()).unwrap();
         imageio::read_rgb(&p).unwrap()
     };
     let (before, after) = (bake(&s.base, "before.png"), bake(&out, "after.png"));

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use btfquilt::container::MemoryBudget;
 use btfquilt::gim::{self, AtlasConfig, Gim, EMPTY};
-use btfquilt::imageio;
+use btfquilt::io::imageio;
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 
@@ -61,7 +61,7 @@ fn flat_square_is_covered_seamlessly_and_deterministically() {
         }
     }
     // seams: colour steps across patch boundaries are like those inside patches
-    let report = btfquilt::evaluate::evaluate(&outs[0], None, None, MemoryBudget::default()).unwrap();
+    let report = btfquilt::output::evaluate::evaluate(&outs[0], None, None, MemoryBudget::default()).unwrap();
     let ratio = report.seam.ratio_to_inside;
     eprintln!("{report:?}");
     assert!(ratio < 1.3, "seams stand out: ratio {ratio}");
@@ -111,7 +111,7 @@ fn spot_is_covered_and_baked_and_rendered() {
     let rr = quilt::tile(&g, &sample, &refined, &cfg_refine, &Silent).unwrap();
     assert!(rr.refined > 0, "{rr}");
     let total_step = |q: &Path| {
-        let seam = btfquilt::evaluate::evaluate(q, None, None, MemoryBudget::default())
+        let seam = btfquilt::output::evaluate::evaluate(q, None, None, MemoryBudget::default())
             .unwrap()
             .seam;
         seam.edges as f64 * seam.mean_colour_difference
@@ -192,23 +192,23 @@ fn spot_is_covered_and_baked_and_rendered() {
     );
     // no visible chart seams: colour differences across zipper links are no
     // larger than across grid edges inside charts
-    let report = btfquilt::evaluate::evaluate(&out, None, None, MemoryBudget::default()).unwrap();
+    let report = btfquilt::output::evaluate::evaluate(&out, None, None, MemoryBudget::default()).unwrap();
     let ratio = report.zipper.ratio;
     assert!(ratio < 1.0, "zipper ratio {ratio}: chart seams show\n{report:?}");
     let png = dir.path().join("atlas.png");
-    btfquilt::bake::bake(&out, None, &png, MemoryBudget::default()).unwrap();
+    btfquilt::output::bake::bake(&out, None, &png, MemoryBudget::default()).unwrap();
     assert_eq!(imageio::image_size(&png).unwrap(), (192, 192));
     // the gutter is filled: no pixel of the baked atlas is black
     let baked = imageio::read_rgb(&png).unwrap();
     assert!(baked.data.chunks_exact(3).all(|p| p.iter().sum::<f32>() > 0.0));
     let view = dir.path().join("view.png");
-    let cfg = btfquilt::render::RenderConfig {
-        lights: vec![btfquilt::render::Light::directional([0.0, 1.0, 1.0])],
+    let cfg = btfquilt::output::render::RenderConfig {
+        lights: vec![btfquilt::output::render::Light::directional([0.0, 1.0, 1.0])],
         width: 160,
         height: 120,
         ..Default::default()
     };
-    btfquilt::render::render(&out, &cfg, &view, MemoryBudget::default()).unwrap();
+    btfquilt::output::render::render(&out, &cfg, &view, MemoryBudget::default()).unwrap();
     let img = imageio::read_rgb(&view).unwrap();
     let lit = img.data.chunks_exact(3).filter(|p| p[0] > 0.05).count();
     assert!(lit > 160 * 120 / 20, "the mesh is not in view: {lit} lit pixels");

@@ -14,10 +14,10 @@ use btfquilt::generate::{
     self, BlockRenderer, Family, GenerateConfig, Imperfection, MaterialParams, Mesostructure,
 };
 use btfquilt::gim::{self, AtlasConfig, Gim};
-use btfquilt::imageio::{self, RgbImage};
+use btfquilt::io::imageio::{self, RgbImage};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
-use btfquilt::render::{self, Camera, Light, RenderConfig, BACKGROUND};
+use btfquilt::output::render::{self, Camera, Light, RenderConfig, BACKGROUND};
 
 use crate::common::{self, btfquilt, fails_clearly, listing, s};
 

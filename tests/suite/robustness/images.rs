@@ -109,12 +109,12 @@ fn zero_png(w: u32, h: u32) -> Vec<u8> {
 /// `side`×`side` pixels.
 fn huge_exr(dir: &Path, side: i32) -> PathBuf {
     let p = dir.join("huge.exr");
-    let img = btfquilt::imageio::RgbImage {
+    let img = btfquilt::io::imageio::RgbImage {
         width: 4,
         height: 4,
         data: vec![0.5; 48],
     };
-    btfquilt::imageio::write_exr(&p, &img, true).unwrap();
+    btfquilt::io::imageio::write_exr(&p, &img, true).unwrap();
     let mut bytes = std::fs::read(&p).unwrap();
     let key = b"dataWindow\0box2i\0";
     let at = bytes

@@ -119,7 +119,7 @@ fn mesh_extreme_scales_give_an_atlas_in_the_users_units() {
         "-o",
         s(&unit_png),
     ]);
-    let unit_render = btfquilt::imageio::read_rgb(&unit_png).unwrap();
+    let unit_render = btfquilt::io::imageio::read_rgb(&unit_png).unwrap();
     let unit = Gim::open(&unit, MemoryBudget::default()).unwrap().mesh().unwrap();
     for scale in [1e30, 1e-30] {
         let obj = write(dir.path(), "scaled.obj", &squares_obj(&[(0.0, scale)]));
@@ -179,7 +179,7 @@ fn mesh_extreme_scales_give_an_atlas_in_the_users_units() {
             "-o",
             s(&png),
         ]);
-        let img = btfquilt::imageio::read_rgb(&png).unwrap();
+        let img = btfquilt::io::imageio::read_rgb(&png).unwrap();
         // the same silhouette as the unit square's, shaded (the tiling
         // itself may differ in the last bits of its f32 frames)
         let bg = |d: &[f32], k: usize| d[3 * k..3 * k + 3] == d[0..3];

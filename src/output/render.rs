@@ -36,7 +36,7 @@
 //!   it is not applied again.
 //!
 //! A surface may draw from several samples (one direction set, checked by
-//! [`crate::bake::open_samples`]); each texel looks up its own: the colour
+//! [`crate::output::open_samples`]); each texel looks up its own: the colour
 //! path reads each texel's sample's preview, and the BTF path blends the
 //! geometry vectors of the four texels per sample (a g vector is only
 //! meaningful in its own sample's basis) and sums, over the samples present,
@@ -49,11 +49,12 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use crate::bake::{atlas_colour, dilate, open_samples};
+use crate::io::imageio::dilate;
+use crate::output::{atlas_colour, open_samples};
 use crate::btf::Angles;
 use crate::container::MemoryBudget;
-use crate::imageio::bilinear;
-use crate::imageio::{self, PngDepth, RgbImage};
+use crate::io::imageio::bilinear;
+use crate::io::imageio::{self, PngDepth, RgbImage};
 use crate::mesh::{cross, dot, normalize, sub, Mesh};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};

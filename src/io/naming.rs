@@ -4,7 +4,7 @@
 use std::io::Write;
 use std::path::{Component, Path, PathBuf};
 
-use crate::imageio::{write_atomic, IMAGE_EXTENSIONS};
+use crate::io::imageio::{write_atomic, IMAGE_EXTENSIONS};
 use crate::{Error, Result};
 
 /// A direction: polar angle θ and azimuth φ, in degrees.

@@ -698,7 +698,7 @@ where
     if path.file_name().is_none() {
         return Err(Error::input(path, "not a file path"));
     }
-    let mut tmp = crate::staging::staged_file(path)?;
+    let mut tmp = crate::io::staging::staged_file(path)?;
     {
         let mut out = BufWriter::new(tmp.as_file_mut());
         write(&mut out)?;
@@ -728,6 +728,76 @@ pub fn linear_to_srgb(v: f32) -> f32 {
         1.055 * v.powf(1.0 / 2.4) - 0.055
     };
     s as f32
+}
+
+/// Fills empty texels from their filled neighbours, ring by ring, so
+/// mipmapping never blends in the background; what is still empty after
+/// `passes` rings gets the mean colour.
+pub fn dilate(img: &mut RgbImage, covered: &[bool], passes: usize) {
+    let (w, h) = (img.width, img.height);
+    let mut filled = covered.to_vec();
+    for _ in 0..passes {
+        let mut next = filled.clone();
+        let mut any = false;
+        for y in 0..h {
+            for x in 0..w {
+                let t = y * w + x;
+                if filled[t] {
+                    continue;
+                }
+                let (mut s, mut c) = ([0f32; 3], 0);
+                for (dx, dy) in [
+                    (-1i32, 0i32),
+                    (1, 0),
+                    (0, -1),
+                    (0, 1),
+                    (-1, -1),
+                    (1, -1),
+                    (-1, 1),
+                    (1, 1),
+                ] {
+                    let (nx, ny) = (x as i32 + dx, y as i32 + dy);
+                    if nx < 0 || ny < 0 || nx >= w as i32 || ny >= h as i32 {
+                        continue;
+                    }
+                    let n = ny as usize * w + nx as usize;
+                    if filled[n] {
+                        for k in 0..3 {
+                            s[k] += img.data[n * 3 + k];
+                        }
+                        c += 1;
+                    }
+                }
+                if c > 0 {
+                    for k in 0..3 {
+                        img.data[t * 3 + k] = s[k] / c as f32;
+                    }
+                    next[t] = true;
+                    any = true;
+                }
+            }
+        }
+        filled = next;
+        if !any {
+            break;
+        }
+    }
+    let (mut mean, mut n) = ([0f64; 3], 0usize);
+    for t in 0..w * h {
+        if covered[t] {
+            for k in 0..3 {
+                mean[k] += img.data[t * 3 + k] as f64;
+            }
+            n += 1;
+        }
+    }
+    for t in 0..w * h {
+        if !filled[t] {
+            for k in 0..3 {
+                img.data[t * 3 + k] = (mean[k] / n.max(1) as f64) as f32;
+            }
+        }
+    }
 }
 
 #[cfg(test)]

@@ -22,15 +22,15 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
-use crate::bake;
+use crate::output::bake;
 use crate::container::{Container, MemoryBudget};
 use crate::factorize::SvdArtifact;
 use crate::gim::Gim;
-use crate::imageio;
+use crate::io::imageio;
 use crate::mesh::io::write_obj;
 use crate::mesh::Mesh;
 use crate::quilt::{Quilt, NO_PATCH};
-use crate::show::{show, ShowWhat};
+use crate::output::show::{show, ShowWhat};
 use crate::{Error, Result};
 
 /// A mesh file format for `export --format`.
@@ -117,7 +117,7 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
             }
             Some((
                 dir,
-                bake::open_samples(quilt, opts.sample.as_deref(), opts.budget)?,
+                super::open_samples(quilt, opts.sample.as_deref(), opts.budget)?,
             ))
         }
         _ => None,
@@ -151,7 +151,7 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
     let inputs: Vec<(&str, &Path)> = inputs.iter().map(|(r, p)| (r.as_str(), p.as_path())).collect();
     for stage in &stages {
         for name in &stage.publish {
-            crate::staging::check_output(&stage.dir.join(name), &inputs)?;
+            crate::io::staging::check_output(&stage.dir.join(name), &inputs)?;
         }
     }
     let mut written = Vec::new();
@@ -267,7 +267,7 @@ impl Stage {
     fn new(dir: &Path) -> Result<Stage> {
         let created = !dir.exists();
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-        let tmp = crate::staging::staging_dir_in(dir, "export");
+        let tmp = crate::io::staging::staging_dir_in(dir, "export");
         let tmp = match tmp {
             Ok(t) => t,
             Err(e) => {
@@ -584,7 +584,7 @@ pub fn sample_file(stem: &str, k: usize, ext: &str) -> String {
 
 /// Writes the surface BTF of a decorated mesh into the stage: `svds` and
 /// `paths` are its samples in [`Quilt::samples`] order (sharing one direction
-/// set, as [`bake::open_samples`] checks).
+/// set, as [`open_samples`](super::open_samples) checks).
 fn stage_surface_btf(
     quilt_path: &Path,
     quilt: &Quilt,

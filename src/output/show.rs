@@ -5,7 +5,7 @@ use std::path::Path;
 use std::str::FromStr;
 
 use crate::gim::{atlas_direction, Gim, EMPTY};
-use crate::imageio::{self, srgb_to_linear, PngDepth, RgbImage};
+use crate::io::imageio::{self, srgb_to_linear, PngDepth, RgbImage};
 use crate::{Error, Result};
 
 /// What to draw (`show --what`).
@@ -48,7 +48,7 @@ pub fn chart_colour(c: u32) -> [f32; 3] {
 
 /// Draws `what` for the whole atlas into a PNG at `out`.
 pub fn show(gim: &Gim, what: ShowWhat, out: &Path) -> Result<()> {
-    crate::staging::check_output(out, &[("the geometry image", gim.container().path())])?;
+    crate::io::staging::check_output(out, &[("the geometry image", gim.container().path())])?;
     let r = gim.resolution;
     let chart: Vec<u32> = gim.read("chart")?;
     let normal: Vec<f32> = gim.read("normal")?;

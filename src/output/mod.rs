@@ -1,19 +1,26 @@
-//! `bake`: the decorated surface's preview colour in atlas space (the sample's
-//! preview, front-parallel view under head-on light, looked up at each
-//! texel's sample coordinate), with the empty gutter filled by dilation so no
-//! dark lines appear at chart borders when the texture is mipmapped.
+//! What a finished quilt is turned into: the atlas texture ([`bake`]), a
+//! picture of the decorated mesh ([`render`]), files for other tools
+//! ([`export`]), quality figures ([`evaluate`]) and a look inside any
+//! artifact ([`show`]). Each reads `.quilt`/`.gim`/`.svd` artifacts and
+//! writes new files; none writes an artifact another stage reads.
+
+pub mod bake;
+pub mod evaluate;
+pub mod export;
+pub mod render;
+pub mod show;
 
 use std::path::{Path, PathBuf};
 
 use crate::container::MemoryBudget;
 use crate::factorize::SvdArtifact;
-use crate::imageio::{self, PngDepth, RgbImage};
+use crate::io::imageio::{self, RgbImage};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
 
 /// Whether two paths name the same file, or are equal as text.
 fn same_file_or_equal(a: &Path, b: &Path) -> bool {
-    a == b || crate::staging::same_file(a, b)
+    a == b || crate::io::staging::same_file(a, b)
 }
 
 /// A sample opened for reading: its `.svd`, and the temporary directory
@@ -109,93 +116,3 @@ pub fn atlas_colour(quilt: &Quilt, previews: &[RgbImage]) -> Result<(RgbImage, V
     ))
 }
 
-/// Fills empty texels from their filled neighbours, ring by ring, so
-/// mipmapping never blends in the background; what is still empty after
-/// `passes` rings gets the mean colour.
-pub fn dilate(img: &mut RgbImage, covered: &[bool], passes: usize) {
-    let (w, h) = (img.width, img.height);
-    let mut filled = covered.to_vec();
-    for _ in 0..passes {
-        let mut next = filled.clone();
-        let mut any = false;
-        for y in 0..h {
-            for x in 0..w {
-                let t = y * w + x;
-                if filled[t] {
-                    continue;
-                }
-                let (mut s, mut c) = ([0f32; 3], 0);
-                for (dx, dy) in [
-                    (-1i32, 0i32),
-                    (1, 0),
-                    (0, -1),
-                    (0, 1),
-                    (-1, -1),
-                    (1, -1),
-                    (-1, 1),
-                    (1, 1),
-                ] {
-                    let (nx, ny) = (x as i32 + dx, y as i32 + dy);
-                    if nx < 0 || ny < 0 || nx >= w as i32 || ny >= h as i32 {
-                        continue;
-                    }
-                    let n = ny as usize * w + nx as usize;
-                    if filled[n] {
-                        for k in 0..3 {
-                            s[k] += img.data[n * 3 + k];
-                        }
-                        c += 1;
-                    }
-                }
-                if c > 0 {
-                    for k in 0..3 {
-                        img.data[t * 3 + k] = s[k] / c as f32;
-                    }
-                    next[t] = true;
-                    any = true;
-                }
-            }
-        }
-        filled = next;
-        if !any {
-            break;
-        }
-    }
-    let (mut mean, mut n) = ([0f64; 3], 0usize);
-    for t in 0..w * h {
-        if covered[t] {
-            for k in 0..3 {
-                mean[k] += img.data[t * 3 + k] as f64;
-            }
-            n += 1;
-        }
-    }
-    for t in 0..w * h {
-        if !filled[t] {
-            for k in 0..3 {
-                img.data[t * 3 + k] = (mean[k] / n.max(1) as f64) as f32;
-            }
-        }
-    }
-}
-
-/// Bakes the quilt's preview colour to `out` (PNG or EXR), gutter dilated.
-pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: MemoryBudget) -> Result<()> {
-    let quilt = Quilt::open(quilt_path, budget)?;
-    quilt.check_output(out)?;
-    if let Some(s) = sample {
-        crate::staging::check_output(out, &[("the sample", s)])?;
-    }
-    let samples = open_samples(&quilt, sample, budget)?;
-    let previews = samples
-        .iter()
-        .map(|s| s.svd.preview())
-        .collect::<Result<Vec<_>>>()?;
-    let (mut img, covered) = atlas_colour(&quilt, &previews)?;
-    dilate(&mut img, &covered, 16);
-    if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
-        imageio::write_png(out, &img, PngDepth::Eight)
-    } else {
-        imageio::write_rgb(out, &img)
-    }
-}

@@ -12,11 +12,11 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use crate::bake::{atlas_colour, open_samples, OpenSample};
+use crate::output::{atlas_colour, open_samples, OpenSample};
 use crate::container::MemoryBudget;
 use crate::factorize::rotate_maps;
 use crate::gim::EMPTY;
-use crate::imageio::RgbImage;
+use crate::io::imageio::RgbImage;
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
 
@@ -274,8 +274,8 @@ fn painting_measures(
     };
     quilt.verify("sample_mask", mask_path)?;
     let m0: Vec<f32> = c.read_array(region)?;
-    let (mw, mh) = crate::imageio::image_size(mask_path)?;
-    let mask = crate::imageio::read_sized_mask(mask_path, mw, mh, "")?;
+    let (mw, mh) = crate::io::imageio::image_size(mask_path)?;
+    let mask = crate::io::imageio::read_sized_mask(mask_path, mw, mh, "")?;
     let coords = quilt.coords()?;
     let (index, painted) = (quilt.sample_index()?, quilt.mask_sample());
     // a generated BTF may be tileable; the synthesis then wraps its mask
@@ -284,7 +284,7 @@ fn painting_measures(
         if index[t] as usize != painted {
             return 0.0;
         }
-        crate::imageio::mask_bilinear(&mask, mw, mh, coords[t].map(f64::from), tileable)
+        crate::io::imageio::mask_bilinear(&mask, mw, mh, coords[t].map(f64::from), tileable)
     };
     let (mut f, mut f_covered, mut fg, mut fg_outside) = (0usize, 0usize, 0usize, 0usize);
     for t in 0..m0.len() {
