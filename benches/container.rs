@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use btfquilt::btf::{Btf, BtfWriter};
+use btfquilt::artifact::btf::{Btf, BtfWriter};
 use btfquilt::container::{codec, MemoryBudget};
 use btfquilt::generate::{self, Family, GenerateConfig};
 use btfquilt::progress::Silent;
@@ -70,7 +70,7 @@ fn benches(c: &mut Criterion) {
         height: 128,
         seed: 1,
     });
-    let lights: Vec<[f32; 3]> = btfquilt::btf::default_grid()
+    let lights: Vec<[f32; 3]> = btfquilt::artifact::btf::default_grid()
         .iter()
         .map(|a| generate::direction(a.theta, a.phi))
         .collect();

@@ -6,7 +6,7 @@
 //! `container_plain_read`: decoding every chunk once, for comparison;
 //! `rotations72`: the 72 rotated copies of 40 geometry maps.
 
-use btfquilt::btf::Btf;
+use btfquilt::artifact::btf::Btf;
 use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig};

@@ -24,10 +24,11 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::btf::{Angles, Btf};
+use crate::artifact::btf::{Angles, Btf};
 use crate::container::MemoryBudget;
 use crate::output::export::{self, ExportOptions, MeshFormat};
-use crate::factorize::{self, FactorizeConfig, SvdArtifact};
+use crate::artifact::svd::SvdArtifact;
+use crate::factorize::{self, FactorizeConfig};
 use crate::generate::{self, Family, GenerateConfig, Imperfection};
 use crate::gim::{self, AtlasConfig, Gim};
 use crate::io::imageio::{self, PngDepth, RgbImage};

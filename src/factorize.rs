@@ -32,7 +32,7 @@ use half::f16;
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
-use crate::btf::{Angles, Btf, BtfLayout, BtfWriter};
+use crate::artifact::btf::{Angles, Btf, BtfLayout, BtfWriter};
 use crate::container::{codec, ArrayId, ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
 use crate::io::imageio::{self, RgbImage};
 use crate::progress::Progress;
@@ -80,6 +80,37 @@ impl Default for FactorizeConfig {
             tileable: false,
             level: crate::container::DEFAULT_ZSTD_LEVEL,
         }
+    }
+}
+
+impl FactorizeConfig {
+    /// Most rotated copies: a decorated surface stores a texel's rotation
+    /// index in a byte.
+    pub const MAX_ROTATIONS: usize = 256;
+    /// Most power iterations (each is two more passes over the BTF; Halko et
+    /// al. find q = 1–2 enough for slowly decaying spectra).
+    pub const MAX_POWER_ITERATIONS: usize = 32;
+
+    /// Checks the numbers a user gives, naming the command-line flag.
+    pub fn validate(&self) -> Result<()> {
+        if self.terms == Some(0) {
+            return Err(Error::Config("--terms 0: must be at least 1".into()));
+        }
+        if self.rotations > Self::MAX_ROTATIONS {
+            return Err(Error::Config(format!(
+                "--rotations {}: at most {} (a surface stores a rotation index in a byte)",
+                self.rotations,
+                Self::MAX_ROTATIONS
+            )));
+        }
+        if self.power_iterations > Self::MAX_POWER_ITERATIONS {
+            return Err(Error::Config(format!(
+                "--power-iterations {}: at most {} (each is two passes over the BTF)",
+                self.power_iterations,
+                Self::MAX_POWER_ITERATIONS
+            )));
+        }
+        crate::container::check_level(self.level)
     }
 }
 
@@ -391,6 +422,7 @@ pub fn factorize(
     progress: &dyn Progress,
 ) -> Result<FactorizeReport> {
     let start = Instant::now();
+    cfg.validate()?;
     crate::io::staging::check_output(out, &[("the input", input)])?;
     // dense QR/SVD run sequentially: products with A are parallel over
     // chunks already, and a fixed order keeps results thread-count independent
@@ -753,206 +785,6 @@ fn write_rotations(
     Ok(())
 }
 
-/// A factorization opened for reading.
-pub struct SvdArtifact {
-    container: Container,
-    pub width: usize,
-    pub height: usize,
-    pub terms: usize,
-    pub views: Vec<Angles>,
-    pub lights: Vec<Angles>,
-    pub rotations: usize,
-}
-
-impl SvdArtifact {
-    /// Whether the sample was factorized `--tileable` (its lookups wrap
-    /// round its borders).
-    pub fn tileable(&self) -> bool {
-        matches!(self.container().metadata().param("tileable"), Some(Param::Int(1)))
-    }
-
-    /// Opens a `.svd`, checking its kind and arrays.
-    pub fn open(path: &Path, budget: MemoryBudget) -> Result<SvdArtifact> {
-        let container = Container::open_kind(path, KIND, budget)?;
-        let int = |name: &str| match container.metadata().param(name) {
-            Some(Param::Int(v)) if *v >= 0 => Ok(*v as usize),
-            _ => Err(Error::input(
-                path,
-                format!("metadata parameter '{name}' is missing"),
-            )),
-        };
-        let (width, height, terms, rotations) =
-            (int("width")?, int("height")?, int("terms")?, int("rotations")?);
-        let dirs = |name: &str| -> Result<Vec<Angles>> {
-            let id = container.array(name)?;
-            let spec = container.spec(id);
-            if spec.dtype != DType::F32 || spec.shape.len() != 2 || spec.shape[1] != 2 {
-                return Err(Error::input(path, format!("array '{name}' must be f32 [n, 2]")));
-            }
-            let v: Vec<f32> = container.read_array(id)?;
-            Ok(v.chunks_exact(2)
-                .map(|a| Angles {
-                    theta: a[0],
-                    phi: a[1],
-                })
-                .collect())
-        };
-        let (views, lights) = (dirs("view_dirs")?, dirs("light_dirs")?);
-        let g = container.spec(container.array("geometry_maps")?);
-        let p = container.spec(container.array("appearance")?);
-        if g.shape != [height as u64, width as u64, terms as u64]
-            || p.shape != [(views.len() * lights.len()) as u64, 3, terms as u64]
-        {
-            return Err(Error::input(
-                path,
-                "geometry_maps/appearance shapes disagree with the metadata",
-            ));
-        }
-        let (h, w, n, r) = (height as u64, width as u64, terms as u64, rotations as u64);
-        let why = format!("parameters width {width}, height {height}, terms {terms}, rotations {rotations}");
-        container.array_shaped("singular_values", DType::F32, &[n], &why)?;
-        container.array_shaped("preview", DType::F32, &[h, w, 3], &why)?;
-        if rotations > 0 {
-            container.array_shaped("rotated_maps", DType::F16, &[r, h, w, n], &why)?;
-            container.array_shaped("rotated_valid", DType::U8, &[r, h, w], &why)?;
-        }
-        Ok(SvdArtifact {
-            container,
-            width,
-            height,
-            terms,
-            views,
-            lights,
-            rotations,
-        })
-    }
-
-    /// The container underneath.
-    pub fn container(&self) -> &Container {
-        &self.container
-    }
-
-    /// Geometry maps g_i(x) = σ_i u_i(x): `[y][x][i]`.
-    pub fn geometry_maps(&self) -> Result<Vec<f32>> {
-        self.container.read_array(self.container.array("geometry_maps")?)
-    }
-
-    /// Appearance functions p_i: `[pair][rgb][i]`.
-    pub fn appearance(&self) -> Result<Vec<f32>> {
-        self.container.read_array(self.container.array("appearance")?)
-    }
-
-    /// Singular values σ_i.
-    pub fn singular_values(&self) -> Result<Vec<f32>> {
-        self.container
-            .read_array(self.container.array("singular_values")?)
-    }
-
-    /// The preview colour (front-parallel view, head-on light): `[y][x][rgb]`.
-    pub fn preview(&self) -> Result<RgbImage> {
-        Ok(RgbImage {
-            width: self.width,
-            height: self.height,
-            data: self.container.read_array(self.container.array("preview")?)?,
-        })
-    }
-
-    /// Rotated copy `r` (r·360°/R): maps `[y][x][i]` and validity `[y][x]`.
-    pub fn rotated(&self, r: usize) -> Result<(Vec<f16>, Vec<u8>)> {
-        if r >= self.rotations {
-            return Err(Error::Config(format!("rotation {r} of {}", self.rotations)));
-        }
-        let (h, w, n) = (self.height as u64, self.width as u64, self.terms as u64);
-        let maps = self.container.read_region(
-            self.container.array("rotated_maps")?,
-            &[r as u64, 0, 0, 0],
-            &[1, h, w, n],
-        )?;
-        let valid = self.container.read_region(
-            self.container.array("rotated_valid")?,
-            &[r as u64, 0, 0],
-            &[1, h, w],
-        )?;
-        Ok((maps, valid))
-    }
-
-    /// Index of a (view, light) pair.
-    pub fn find_pair(&self, view: Angles, light: Angles) -> Result<usize> {
-        let find = |d: &[Angles], a: Angles, what: &str| {
-            d.iter()
-                .position(|x| crate::btf::same_direction(*x, a))
-                .ok_or_else(|| {
-                    Error::input(
-                        self.container.path(),
-                        format!("has no {what} direction θ {} φ {}", a.theta, a.phi),
-                    )
-                })
-        };
-        Ok(find(&self.views, view, "view")? * self.lights.len() + find(&self.lights, light, "light")?)
-    }
-
-    /// Reconstructs one direction pair: Σ_i g_i(x) p_i(pair, c).
-    pub fn reconstruct_pair(&self, pair: usize) -> Result<RgbImage> {
-        let g = self.geometry_maps()?;
-        let n = self.terms as u64;
-        let p: Vec<f32> = self.container.read_region(
-            self.container.array("appearance")?,
-            &[pair as u64, 0, 0],
-            &[1, 3, n],
-        )?;
-        let (n, p) = (self.terms, &p);
-        let data = g
-            .chunks_exact(n)
-            .flat_map(|gx| {
-                (0..3).map(move |c| {
-                    gx.iter()
-                        .zip(&p[c * n..(c + 1) * n])
-                        .map(|(a, b)| a * b)
-                        .sum::<f32>()
-                })
-            })
-            .collect();
-        Ok(RgbImage {
-            width: self.width,
-            height: self.height,
-            data,
-        })
-    }
-
-    /// The original image of a pair, from the source the `.svd` was made of
-    /// (or `original` if given); `None` if the source is gone or changed.
-    pub fn original_pair(
-        &self,
-        pair: usize,
-        original: Option<&Path>,
-        budget: MemoryBudget,
-    ) -> Result<Option<RgbImage>> {
-        let meta = self.container.metadata();
-        let recorded = meta.inputs.first().map(|i| i.hash);
-        let source = match (original, meta.param("source")) {
-            (Some(p), _) => p.to_path_buf(),
-            (None, Some(Param::Text(s))) => PathBuf::from(s),
-            _ => return Ok(None),
-        };
-        if !source.exists() {
-            return Ok(None);
-        }
-        if is_image_path(&source) {
-            return imageio::read_rgb_within(&source, budget.bytes()).map(Some);
-        }
-        let btf = Btf::open(&source, budget)?;
-        if original.is_none() && Some(btf.container().content_hash()) != recorded {
-            return Ok(None);
-        }
-        let l = btf.layout();
-        Ok(Some(RgbImage {
-            width: l.width,
-            height: l.height,
-            data: btf.read_pair_images(pair..pair + 1)?,
-        }))
-    }
-}
-
 /// PSNR in dB of `test` against `reference`, peak = the reference's maximum.
 pub fn psnr(reference: &RgbImage, test: &RgbImage) -> f64 {
     let peak = reference.data.iter().fold(0f32, |a, &b| a.max(b)) as f64;
@@ -967,29 +799,5 @@ pub fn psnr(reference: &RgbImage, test: &RgbImage) -> f64 {
         f64::INFINITY
     } else {
         10.0 * (peak * peak / mse).log10()
-    }
-}
-
-/// Errors unless `b` was measured over the same view and light directions
-/// as `a` (painting and rendering mix their values per texel).
-pub fn same_directions(a: &SvdArtifact, b: &SvdArtifact) -> Result<()> {
-    let same = |x: &[crate::btf::Angles], y: &[crate::btf::Angles]| {
-        x.len() == y.len() && x.iter().zip(y).all(|(p, q)| crate::btf::same_direction(*p, *q))
-    };
-    if same(&a.views, &b.views) && same(&a.lights, &b.lights) {
-        Ok(())
-    } else {
-        Err(Error::input(
-            b.container().path(),
-            format!(
-                "has {}×{} view/light directions, not the {}×{} of {}: samples on one surface must share \
-                 their direction set (colour images with colour images)",
-                b.views.len(),
-                b.lights.len(),
-                a.views.len(),
-                a.lights.len(),
-                a.container().path().display()
-            ),
-        ))
     }
 }

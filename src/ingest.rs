@@ -12,7 +12,7 @@ use half::f16;
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
-use crate::btf::{Angles, Btf, BtfLayout, BtfWriter};
+use crate::artifact::btf::{Angles, Btf, BtfLayout, BtfWriter};
 use crate::container::{codec, MemoryBudget, Param, DEFAULT_ZSTD_LEVEL};
 use crate::io::imageio::{self, RgbImage};
 use crate::io::naming::{self, PairFile};
@@ -34,7 +34,7 @@ impl Default for IngestConfig {
     fn default() -> Self {
         IngestConfig {
             memory: MemoryBudget::default(),
-            tile: crate::btf::DEFAULT_TILE,
+            tile: crate::artifact::btf::DEFAULT_TILE,
             level: DEFAULT_ZSTD_LEVEL,
         }
     }

@@ -51,8 +51,9 @@
 //! The design, with the algorithms of each stage, is in `docs/design.md`.
 #![deny(unsafe_code)]
 
+pub mod artifact;
 pub mod atlas;
-pub mod btf;
+
 pub mod container;
 pub mod demo;
 pub mod error;

@@ -7,10 +7,11 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use btfquilt::btf::{self, Angles, Btf};
+use btfquilt::artifact::btf::{self, Angles, Btf};
 use btfquilt::container::{Container, MemoryBudget};
 use btfquilt::output::export::MeshFormat;
-use btfquilt::factorize::{self, FactorizeConfig, SvdArtifact};
+use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::ingest::{self, ImageFormat, IngestConfig};

@@ -208,7 +208,10 @@ fn open_synthesis(
     progress: &dyn Progress,
 ) -> Result<(Synthesis, Gim, Option<tempfile::TempDir>)> {
     let start = Instant::now();
-    let cfg = stroke.tile_config();
+    let cfg = TileConfig {
+        sample_mask: Some(stroke.sample_mask.clone()),
+        ..stroke.tile.clone()
+    };
     let gim = base.open_gim(None, cfg.memory)?;
     let matching = stroke.verbatim.is_none();
     let (svd_path, tmp) = sample_svd(&stroke.sample, matching, progress)?;
@@ -292,7 +295,7 @@ pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<Pai
         } else {
             dir.path().join(format!("step{k}.quilt"))
         };
-        let q = Quilt::open(&current, stroke.tile_config().memory)?;
+        let q = Quilt::open(&current, stroke.tile.memory)?;
         report = apply_stroke(&q, stroke, &target, &done, progress)?;
         done.strokes.push(stroke.clone());
         current = target;
@@ -308,10 +311,10 @@ struct Stroke {
     region: Option<PathBuf>,
     verbatim: Option<Verbatim>,
     transition: usize,
-    seed: u64,
-    patch_radius: Option<usize>,
-    seam_threshold: f64,
-    constraint_weight: f64,
+    /// The quilting options: the paint log records the seed, the patch
+    /// radius, T_c and the constraint weight; the rest are
+    /// [`TileConfig::default`]'s, so a replay quilts exactly the same.
+    tile: TileConfig,
 }
 
 impl Stroke {
@@ -355,26 +358,33 @@ impl Stroke {
             check_verbatim(v)?;
         }
         cfg.tile.validate()?;
+        let t = &cfg.tile;
         Ok(Stroke {
+            tile: Stroke::tiling(t.seed, t.patch_radius, t.seam_threshold, t.constraint_weight, t.memory),
             sample,
             sample_mask,
             region: cfg.region.clone(),
             verbatim: cfg.verbatim,
             transition: cfg.transition,
-            seed: cfg.tile.seed,
-            patch_radius: cfg.tile.patch_radius,
-            seam_threshold: cfg.tile.seam_threshold,
-            constraint_weight: cfg.tile.constraint_weight,
         })
     }
 
-    fn tile_config(&self) -> TileConfig {
+    /// The quilting options of a stroke: the recorded ones over
+    /// [`TileConfig::default`] (the memory budget does not change the
+    /// result; the foreground mask is the stroke's `sample_mask`).
+    fn tiling(
+        seed: u64,
+        patch_radius: Option<usize>,
+        seam_threshold: f64,
+        constraint_weight: f64,
+        memory: crate::container::MemoryBudget,
+    ) -> TileConfig {
         TileConfig {
-            seed: self.seed,
-            patch_radius: self.patch_radius,
-            seam_threshold: self.seam_threshold,
-            constraint_weight: self.constraint_weight,
-            sample_mask: Some(self.sample_mask.clone()),
+            seed,
+            patch_radius,
+            seam_threshold,
+            constraint_weight,
+            memory,
             ..TileConfig::default()
         }
     }
@@ -391,29 +401,33 @@ impl Stroke {
                 angle: v.angle,
             }),
             transition: self.transition,
-            seed: self.seed,
-            patch_radius: self.patch_radius,
-            seam_threshold: self.seam_threshold,
-            constraint_weight: self.constraint_weight,
+            seed: self.tile.seed,
+            patch_radius: self.tile.patch_radius,
+            seam_threshold: self.tile.seam_threshold,
+            constraint_weight: self.tile.constraint_weight,
         }
     }
 
     /// `base_sample`: the sample of logs written before strokes recorded
     /// theirs (the tiling's, the only one they could use).
     fn from_record(r: StrokeRecord, base_sample: &Path) -> Stroke {
+        let sample_mask = PathBuf::from(r.sample_mask);
         Stroke {
+            tile: Stroke::tiling(
+                r.seed,
+                r.patch_radius,
+                r.seam_threshold,
+                r.constraint_weight,
+                crate::container::MemoryBudget::default(),
+            ),
             sample: r.sample.map_or_else(|| base_sample.to_path_buf(), PathBuf::from),
-            sample_mask: PathBuf::from(r.sample_mask),
+            sample_mask,
             region: r.region.map(PathBuf::from),
             verbatim: r.verbatim.map(|v| Verbatim {
                 at: v.at,
                 angle: v.angle,
             }),
             transition: r.transition,
-            seed: r.seed,
-            patch_radius: r.patch_radius,
-            seam_threshold: r.seam_threshold,
-            constraint_weight: r.constraint_weight,
         }
     }
 }
@@ -911,10 +925,7 @@ mod log_json_tests {
             region: region.map(PathBuf::from),
             verbatim,
             transition: 8,
-            seed: u64::MAX,
-            patch_radius: Some(5),
-            seam_threshold: 3.0,
-            constraint_weight: 0.1,
+            tile: Stroke::tiling(u64::MAX, Some(5), 3.0, 0.1, crate::container::MemoryBudget::default()),
         };
         let log = PaintLog {
             base: PathBuf::from("q.quilt"),

@@ -43,6 +43,22 @@ pub const FORMAT_VERSION: u32 = 1;
 const HEADER_LEN: usize = 64;
 /// Default zstd level: 1-3 is the sweet spot for shuffled f16 data.
 pub const DEFAULT_ZSTD_LEVEL: i32 = 3;
+
+/// The zstd levels a container is written with.
+pub const ZSTD_LEVELS: std::ops::RangeInclusive<i32> = 1..=19;
+
+/// Errors unless `level` is one of [`ZSTD_LEVELS`].
+pub fn check_level(level: i32) -> Result<()> {
+    if ZSTD_LEVELS.contains(&level) {
+        Ok(())
+    } else {
+        Err(Error::Config(format!(
+            "zstd level {level}: must be {}..={}",
+            ZSTD_LEVELS.start(),
+            ZSTD_LEVELS.end()
+        )))
+    }
+}
 /// Most dimensions an array may have (the writers use up to 4).
 pub const MAX_DIMS: usize = 8;
 /// Largest decoded chunk, in bytes, that a reader will allocate. The writers'
@@ -436,7 +452,7 @@ impl ContainerWriter {
 
     /// Sets the zstd level (1-19).
     pub fn set_level(&mut self, level: i32) {
-        self.level = level.clamp(1, 19);
+        self.level = level.clamp(*ZSTD_LEVELS.start(), *ZSTD_LEVELS.end());
     }
 
     /// Records the seed.

@@ -16,7 +16,7 @@ use rayon::prelude::*;
 
 use super::material::{Family, Imperfection, MaterialParams, Mesostructure};
 use super::render::{direction, BlockRenderer};
-use crate::btf::{Angles, BtfLayout, BtfWriter};
+use crate::artifact::btf::{Angles, BtfLayout, BtfWriter};
 use crate::container::{codec, human_bytes, MemoryBudget, Param, DEFAULT_ZSTD_LEVEL};
 use crate::progress::Progress;
 use crate::{io::imageio, Error, Result};
@@ -46,13 +46,41 @@ impl Default for GenerateConfig {
             imperfection: Imperfection::None,
             width: 128,
             height: 128,
-            views: crate::btf::default_grid(),
-            lights: crate::btf::default_grid(),
+            views: crate::artifact::btf::default_grid(),
+            lights: crate::artifact::btf::default_grid(),
             seed: 1,
             memory: MemoryBudget::default(),
             level: DEFAULT_ZSTD_LEVEL,
             block: 64,
         }
+    }
+}
+
+impl GenerateConfig {
+    /// Largest side of a generated BTF in texels.
+    pub const MAX_SIZE: usize = 1 << 16;
+
+    /// Checks the numbers a user gives, naming what is wrong.
+    pub fn validate(&self) -> Result<()> {
+        if self.width == 0 || self.height == 0 || self.width > Self::MAX_SIZE || self.height > Self::MAX_SIZE {
+            return Err(Error::Config(format!(
+                "BTF size {}×{} must be 1..={} texels per side",
+                self.width,
+                self.height,
+                Self::MAX_SIZE
+            )));
+        }
+        if self.views.is_empty() || self.lights.is_empty() {
+            return Err(Error::Config(format!(
+                "{} view and {} light directions: give at least one of each",
+                self.views.len(),
+                self.lights.len()
+            )));
+        }
+        if self.block == 0 {
+            return Err(Error::Config("render block of 0 texels: must be at least 1".into()));
+        }
+        crate::container::check_level(self.level)
     }
 }
 
@@ -99,12 +127,7 @@ pub fn mask_path(out: &Path) -> std::path::PathBuf {
 /// Generates a synthetic BTF into `out` (and its imperfection mask beside it).
 pub fn generate_btf(cfg: &GenerateConfig, out: &Path, progress: &dyn Progress) -> Result<GenerateReport> {
     let start = Instant::now();
-    if cfg.width == 0 || cfg.height == 0 || cfg.width > 1 << 16 || cfg.height > 1 << 16 {
-        return Err(Error::Config(format!(
-            "BTF size {}×{} must be 1..=65536 texels per side",
-            cfg.width, cfg.height
-        )));
-    }
+    cfg.validate()?;
     let mut layout = BtfLayout::new(cfg.width, cfg.height, cfg.views.clone(), cfg.lights.clone());
     layout.band = cfg.lights.len(); // one view per band: a chunk is one view's lights
     let block = (cfg.block.max(layout.tile) / layout.tile) * layout.tile;

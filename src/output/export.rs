@@ -24,7 +24,7 @@ use std::str::FromStr;
 
 use crate::output::bake;
 use crate::container::{Container, MemoryBudget};
-use crate::factorize::SvdArtifact;
+use crate::artifact::svd::SvdArtifact;
 use crate::gim::Gim;
 use crate::io::imageio;
 use crate::mesh::io::write_obj;
@@ -724,8 +724,8 @@ fn stage_surface_btf(
 fn stage_factors(
     svd: &SvdArtifact,
     k: usize,
-    views: &[crate::btf::Angles],
-    lights: &[crate::btf::Angles],
+    views: &[crate::artifact::btf::Angles],
+    lights: &[crate::artifact::btf::Angles],
     stage: &mut Stage,
 ) -> Result<()> {
     let (w, h, n) = (svd.width, svd.height, svd.terms);

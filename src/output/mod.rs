@@ -13,7 +13,7 @@ pub mod show;
 use std::path::{Path, PathBuf};
 
 use crate::container::MemoryBudget;
-use crate::factorize::SvdArtifact;
+use crate::artifact::svd::SvdArtifact;
 use crate::io::imageio::{self, RgbImage};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
@@ -76,7 +76,7 @@ pub fn open_samples(quilt: &Quilt, first: Option<&Path>, budget: MemoryBudget) -
     let mut out = vec![open_sample(quilt, first, budget)?];
     for (k, path) in quilt.samples.iter().enumerate().skip(1) {
         let s = open_one(quilt, k, path, budget)?;
-        crate::factorize::same_directions(&out[0].svd, &s.svd)?;
+        crate::artifact::svd::same_directions(&out[0].svd, &s.svd)?;
         out.push(s);
     }
     Ok(out)

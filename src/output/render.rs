@@ -51,7 +51,7 @@ use rayon::prelude::*;
 
 use crate::io::imageio::dilate;
 use crate::output::{atlas_colour, open_samples};
-use crate::btf::Angles;
+use crate::artifact::btf::Angles;
 use crate::container::MemoryBudget;
 use crate::io::imageio::bilinear;
 use crate::io::imageio::{self, PngDepth, RgbImage};
@@ -1286,7 +1286,7 @@ mod tests {
 
     #[test]
     fn direction_weights_turn_continuously_and_hit_measured_directions() {
-        let dirs = Directions::new(&crate::btf::default_grid());
+        let dirs = Directions::new(&crate::artifact::btf::default_grid());
         // continuous: the largest change between neighbouring points of a
         // sweep shrinks with the step (with plain inverse-angle weights over
         // the three nearest it stays at 0.64 whatever the step: the weight

@@ -51,7 +51,7 @@ use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
 use crate::container::{BoundedCache, MemoryBudget};
-use crate::factorize::SvdArtifact;
+use crate::artifact::svd::SvdArtifact;
 use crate::{Error, Result};
 
 type C64 = Complex<f64>;

@@ -28,15 +28,15 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::container::{ArraySpec, BoundedCache, Container, ContainerWriter, DType, MemoryBudget, Param};
-use crate::factorize::{self, FactorizeConfig, SvdArtifact};
+use crate::container::{ArraySpec, BoundedCache, ContainerWriter, DType, MemoryBudget, Param};
+use crate::artifact::svd::SvdArtifact;
+use crate::factorize::{self, FactorizeConfig};
 use crate::gim::{Gim, EMPTY, TILE};
 use matching::{Image, MatchConfig, Matcher};
 use maxflow::{Graph, Segment};
 use crate::progress::Progress;
 use crate::{Error, Result};
 
-mod artifact;
 mod fit;
 mod flatten;
 pub mod matching;
@@ -45,8 +45,9 @@ mod placement;
 mod sample;
 mod state;
 mod synthesis;
+mod write;
 
-pub use artifact::*;
+pub use crate::artifact::quilt::{Dependency, Quilt, KIND, MAX_SAMPLES, NO_PATCH, SEAM_X, SEAM_Y, SEAM_ZIPPER};
 #[allow(unused_imports)]
 use fit::*;
 #[allow(unused_imports)]
@@ -56,14 +57,12 @@ use placement::*;
 pub(crate) use sample::*;
 pub(crate) use state::*;
 pub(crate) use synthesis::*;
+#[allow(unused_imports)]
+use write::*;
 
-/// The artifact kind of a decorated surface.
-pub const KIND: &str = "quilt";
-/// Patch id of an unsynthesized texel.
-pub const NO_PATCH: u32 = u32::MAX;
 
 /// Options of [`tile`].
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct TileConfig {
     /// Work-patch radius r_w in BFS hops; `None` = 32 per 512 texels of
     /// atlas, at most a quarter of the sample's smaller side.
@@ -161,7 +160,7 @@ impl TileConfig {
         if self.refine_placements == 0 {
             return Err(Error::Config("--refine-placements must be at least 1".into()));
         }
-        Ok(())
+        crate::container::check_level(self.level)
     }
 }
 

@@ -208,7 +208,7 @@ impl Synthesis {
         for k in (0..paths.len()).filter(|&k| used[k] && k != active) {
             let (svd_path, _tmp) = sample_svd(&paths[k], false, progress)?;
             let svd = SvdArtifact::open(&svd_path, self.cfg.memory)?;
-            crate::factorize::same_directions(&self.sample.svd, &svd)?;
+            crate::artifact::svd::same_directions(&self.sample.svd, &svd)?;
             let projection = basis_projection(&active_p, self.sample.n, &svd.appearance()?, svd.terms);
             previews[k] = Some(svd.preview()?);
             // only their unrotated maps are read: no rotated copy is cached

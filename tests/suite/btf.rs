@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use btfquilt::btf::{self, Angles, Btf};
+use btfquilt::artifact::btf::{self, Angles, Btf};
 use btfquilt::container::MemoryBudget;
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::io::imageio::{self, RgbImage};

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use btfquilt::container::MemoryBudget;
-use btfquilt::factorize::SvdArtifact;
+use btfquilt::artifact::svd::SvdArtifact;
 use btfquilt::gim::Gim;
 use btfquilt::quilt::{Quilt, NO_PATCH};
 use serde_json::Value as Json;

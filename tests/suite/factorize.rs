@@ -3,9 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
-use btfquilt::btf::{self, Angles, Btf, BtfLayout, BtfWriter};
+use btfquilt::artifact::btf::{self, Angles, Btf, BtfLayout, BtfWriter};
 use btfquilt::container::MemoryBudget;
-use btfquilt::factorize::{self, FactorizeConfig, SvdArtifact};
+use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::io::imageio::{self, RgbImage};
 use btfquilt::progress::Silent;

@@ -13,9 +13,10 @@
 
 use std::path::{Path, PathBuf};
 
-use btfquilt::btf;
+use btfquilt::artifact::btf;
 use btfquilt::container::{ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
-use btfquilt::factorize::{self, FactorizeConfig, SvdArtifact};
+use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::io::imageio::{self, PngDepth, RgbImage};

@@ -7,9 +7,10 @@
 
 use std::path::PathBuf;
 
-use btfquilt::btf::{self, Angles};
+use btfquilt::artifact::btf::{self, Angles};
 use btfquilt::container::MemoryBudget;
-use btfquilt::factorize::{self, FactorizeConfig, SvdArtifact};
+use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{
     self, BlockRenderer, Family, GenerateConfig, Imperfection, MaterialParams, Mesostructure,
 };

@@ -1,89 +1,20 @@
-//! The `.quilt` artifact: writing it (with its recorded dependencies) and
-//! reading it back.
+//! The `.quilt` artifact: a decorated surface (section III). Per atlas texel
+//! of its geometry image: the sample coordinate, the rotation, the patch id,
+//! the seam flags, the Jacobian of the texture mapping and, for a painted
+//! surface, which sample the texel draws from; plus the files it depends on
+//! (relative paths, lengths and content hashes) and, once painted, the
+//! paint log. The writer is the quilting stage ([`crate::quilt::tile`]).
 
-#[allow(unused_imports)]
-use super::*;
+use std::path::{Path, PathBuf};
 
-/// Writes the synthesis state as a `.quilt`; `paint_log` (a JSON array of
-/// strokes) when the surface was painted.
-pub(super) fn write_quilt(
-    out: &Path,
-    cfg: &TileConfig,
-    gim: &Gim,
-    gim_path: &Path,
-    syn: &Synthesis,
-    paint_log: Option<&str>,
-    report: &TileReport,
-) -> Result<()> {
-    let (sample, state) = (&syn.sample, &syn.state);
-    let r = gim.resolution as u64;
-    let t = TILE as u64;
-    let mut w = ContainerWriter::create(out, KIND)?;
-    w.set_level(cfg.level);
-    w.set_seed(cfg.seed);
-    record_dependency(&mut w, out, "gim", gim_path)?;
-    let paths = &syn.sample_paths;
-    record_dependency(&mut w, out, "sample", &paths[0])?;
-    if paths.len() > 1 {
-        w.set_param("sample_count", Param::Int(paths.len() as i64));
-        for (k, p) in paths.iter().enumerate().skip(1) {
-            record_dependency(&mut w, out, &format!("sample_{k}"), p)?;
-        }
-    }
-    if let Some(mask) = &cfg.sample_mask {
-        record_dependency(&mut w, out, "sample_mask", mask)?;
-        if state.active > 0 {
-            w.set_param("mask_sample", Param::Int(state.active as i64));
-        }
-    }
-    if let Some(log) = paint_log {
-        w.set_param("paint_log", Param::Text(log.to_string()));
-    }
-    w.set_param("resolution", Param::Int(r as i64));
-    w.set_param("sample_width", Param::Int(sample.width as i64));
-    w.set_param("sample_height", Param::Int(sample.height as i64));
-    w.set_param("terms", Param::Int(sample.n as i64));
-    w.set_param("rotations", Param::Int(sample.rotations as i64));
-    w.set_param("patches", Param::Int(state.next_patch as i64));
-    w.set_param("mean_seam_cost", Param::Float(report.mean_seam_cost));
-    let coord: Vec<f32> = state.coord.iter().flatten().copied().collect();
-    let id = w.add_array(ArraySpec::new("coord", DType::F32, &[r, r, 2], &[t, t, 2])?)?;
-    w.write_array(id, &coord)?;
-    let jacobian: Vec<f32> = state.jacobian.iter().flatten().copied().collect();
-    let id = w.add_array(ArraySpec::new("jacobian", DType::F32, &[r, r, 4], &[t, t, 4])?)?;
-    w.write_array(id, &jacobian)?;
-    let id = w.add_array(ArraySpec::new("rotation", DType::U8, &[r, r], &[t, t])?)?;
-    w.write_array(id, &state.rotation)?;
-    let id = w.add_array(ArraySpec::new("patch", DType::U32, &[r, r], &[t, t])?)?;
-    w.write_array(id, &state.patch)?;
-    if paths.len() > 1 {
-        let id = w.add_array(ArraySpec::new("sample", DType::U8, &[r, r], &[t, t])?)?;
-        w.write_array(id, &state.source)?;
-    }
-    let seams = seam_flags(&state.patch, &state.chart, gim.resolution, &gim.zipper_links()?);
-    let id = w.add_array(ArraySpec::new("seam", DType::U8, &[r, r], &[t, t])?)?;
-    w.write_array(id, &seams)?;
-    if let (Some(m0), Some(_)) = (&state.target, paint_log) {
-        let id = w.add_array(ArraySpec::new("region", DType::F32, &[r, r], &[t, t])?)?;
-        w.write_array(id, m0)?;
-    }
-    w.finish()
-}
+use crate::container::{Container, DType, MemoryBudget, Param};
+use crate::gim::Gim;
+use crate::{Error, Result};
 
-/// Records a file the quilt at `out` depends on under `role` (a parameter of
-/// that name): its path relative to the quilt's folder (so the quilt and its
-/// inputs can move together, and be read from any working directory), its
-/// length (`ROLE_bytes`) and its content hash (an input of that name).
-pub(super) fn record_dependency(w: &mut ContainerWriter, out: &Path, role: &str, path: &Path) -> Result<()> {
-    let (bytes, hash) = crate::container::file_identity(path)?;
-    w.add_input(role, hash);
-    w.set_param(
-        role,
-        Param::Text(crate::io::staging::relative_to_folder_of(out, path)),
-    );
-    w.set_param(&format!("{role}_bytes"), Param::Int(bytes as i64));
-    Ok(())
-}
+/// The artifact kind of a decorated surface.
+pub const KIND: &str = "quilt";
+/// Patch id of an unsynthesized texel.
+pub const NO_PATCH: u32 = u32::MAX;
 
 /// One file a decorated surface depends on, as its quilt records it.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -100,7 +31,7 @@ pub struct Dependency {
 
 impl Dependency {
     /// What the role means, for messages.
-    pub(super) fn what(&self) -> String {
+    pub(crate) fn what(&self) -> String {
         match self.role.as_str() {
             "gim" => "the geometry image".into(),
             "sample" => "the sample".into(),
@@ -118,35 +49,9 @@ pub const SEAM_Y: u8 = 2;
 /// A seam across one of the texel's zipper links (to another chart).
 pub const SEAM_ZIPPER: u8 = 4;
 
-/// Per texel: which of its mesh edges the patches meet across (the seams
-/// the graphcut left), as [`SEAM_X`] | [`SEAM_Y`] | [`SEAM_ZIPPER`].
-pub(super) fn seam_flags(patch: &[u32], chart: &[u32], r: usize, zipper_links: &[[u32; 2]]) -> Vec<u8> {
-    let mut flags = vec![0u8; r * r];
-    let seam = |a: usize, b: usize| chart[a] == chart[b] && chart[a] != EMPTY && patch[a] != patch[b];
-    for y in 0..r {
-        for x in 0..r {
-            let t = y * r + x;
-            if x + 1 < r && seam(t, t + 1) {
-                flags[t] |= SEAM_X;
-            }
-            if y + 1 < r && seam(t, t + r) {
-                flags[t] |= SEAM_Y;
-            }
-        }
-    }
-    for &[a, b] in zipper_links {
-        let (a, b) = (a as usize, b as usize);
-        if patch[a] != patch[b] {
-            flags[a] |= SEAM_ZIPPER;
-            flags[b] |= SEAM_ZIPPER;
-        }
-    }
-    flags
-}
-
 /// A decorated surface opened for reading.
 pub struct Quilt {
-    pub(super) container: Container,
+    container: Container,
     pub resolution: usize,
     pub gim: PathBuf,
     /// Every sample its texels draw from: the one it was tiled with first,
