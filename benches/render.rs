@@ -19,9 +19,9 @@ use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::gim::{self, AtlasConfig};
+use btfquilt::output::render::{self, RenderConfig, Scene};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, TileConfig};
-use btfquilt::output::render::{self, RenderConfig, Scene};
 use criterion::{criterion_group, criterion_main, Criterion};
 
 /// The cached Spot quilt, built on first use.

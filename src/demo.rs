@@ -25,19 +25,19 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::artifact::btf::{Angles, Btf};
-use crate::container::MemoryBudget;
-use crate::output::export::{self, ExportOptions, MeshFormat};
 use crate::artifact::svd::SvdArtifact;
+use crate::container::MemoryBudget;
 use crate::factorize::{self, FactorizeConfig};
 use crate::generate::{self, Family, GenerateConfig, Imperfection};
 use crate::gim::{self, AtlasConfig, Gim};
-use crate::io::imageio::{self, PngDepth, RgbImage};
 use crate::ingest;
+use crate::io::imageio::{self, PngDepth, RgbImage};
 use crate::mesh::{cross, dot, normalize, sub};
+use crate::output::export::{self, ExportOptions, MeshFormat};
+use crate::output::render::{self, Camera, Light, RenderConfig};
 use crate::paint::{self, PaintConfig};
 use crate::progress::Progress;
 use crate::quilt::{self, TileConfig};
-use crate::output::render::{self, Camera, Light, RenderConfig};
 use crate::{output::bake, output::evaluate, output::show};
 use crate::{Error, Result};
 

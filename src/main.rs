@@ -8,19 +8,19 @@ use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use btfquilt::artifact::btf::{self, Angles, Btf};
-use btfquilt::container::{Container, MemoryBudget};
-use btfquilt::output::export::MeshFormat;
 use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::container::{Container, MemoryBudget};
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::ingest::{self, ImageFormat, IngestConfig};
 use btfquilt::mesh::io::LoadOptions;
+use btfquilt::output::export::MeshFormat;
+use btfquilt::output::render::{Camera, Light, RenderConfig};
+use btfquilt::output::show::ShowWhat;
 use btfquilt::paint::PaintConfig;
 use btfquilt::progress::Progress;
 use btfquilt::quilt::{self, TileConfig};
-use btfquilt::output::render::{Camera, Light, RenderConfig};
-use btfquilt::output::show::ShowWhat;
 use btfquilt::{output::bake, output::evaluate, output::export, output::render, output::show};
 
 /// Prints a line to stdout; a closed pipe (`btfquilt evaluate … | head`) is

@@ -360,7 +360,13 @@ impl Stroke {
         cfg.tile.validate()?;
         let t = &cfg.tile;
         Ok(Stroke {
-            tile: Stroke::tiling(t.seed, t.patch_radius, t.seam_threshold, t.constraint_weight, t.memory),
+            tile: Stroke::tiling(
+                t.seed,
+                t.patch_radius,
+                t.seam_threshold,
+                t.constraint_weight,
+                t.memory,
+            ),
             sample,
             sample_mask,
             region: cfg.region.clone(),
@@ -827,7 +833,8 @@ fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec<bool>> {
     let chart = &syn.graph().chart;
     match ext.as_str() {
         _ if crate::io::imageio::is_image_path(path) => {
-            let mask = crate::io::imageio::read_sized_mask(path, r, r, "a region mask must be the atlas size")?;
+            let mask =
+                crate::io::imageio::read_sized_mask(path, r, r, "a region mask must be the atlas size")?;
             Ok(mask
                 .iter()
                 .zip(chart)
@@ -925,7 +932,13 @@ mod log_json_tests {
             region: region.map(PathBuf::from),
             verbatim,
             transition: 8,
-            tile: Stroke::tiling(u64::MAX, Some(5), 3.0, 0.1, crate::container::MemoryBudget::default()),
+            tile: Stroke::tiling(
+                u64::MAX,
+                Some(5),
+                3.0,
+                0.1,
+                crate::container::MemoryBudget::default(),
+            ),
         };
         let log = PaintLog {
             base: PathBuf::from("q.quilt"),

@@ -218,7 +218,10 @@ impl SvdArtifact {
 /// as `a` (painting and rendering mix their values per texel).
 pub fn same_directions(a: &SvdArtifact, b: &SvdArtifact) -> Result<()> {
     let same = |x: &[crate::artifact::btf::Angles], y: &[crate::artifact::btf::Angles]| {
-        x.len() == y.len() && x.iter().zip(y).all(|(p, q)| crate::artifact::btf::same_direction(*p, *q))
+        x.len() == y.len()
+            && x.iter()
+                .zip(y)
+                .all(|(p, q)| crate::artifact::btf::same_direction(*p, *q))
     };
     if same(&a.views, &b.views) && same(&a.lights, &b.lights) {
         Ok(())

@@ -62,7 +62,8 @@ impl GenerateConfig {
 
     /// Checks the numbers a user gives, naming what is wrong.
     pub fn validate(&self) -> Result<()> {
-        if self.width == 0 || self.height == 0 || self.width > Self::MAX_SIZE || self.height > Self::MAX_SIZE {
+        if self.width == 0 || self.height == 0 || self.width > Self::MAX_SIZE || self.height > Self::MAX_SIZE
+        {
             return Err(Error::Config(format!(
                 "BTF size {}×{} must be 1..={} texels per side",
                 self.width,
@@ -78,7 +79,9 @@ impl GenerateConfig {
             )));
         }
         if self.block == 0 {
-            return Err(Error::Config("render block of 0 texels: must be at least 1".into()));
+            return Err(Error::Config(
+                "render block of 0 texels: must be at least 1".into(),
+            ));
         }
         crate::container::check_level(self.level)
     }

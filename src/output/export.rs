@@ -22,15 +22,15 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
-use crate::output::bake;
-use crate::container::{Container, MemoryBudget};
 use crate::artifact::svd::SvdArtifact;
+use crate::container::{Container, MemoryBudget};
 use crate::gim::Gim;
 use crate::io::imageio;
 use crate::mesh::io::write_obj;
 use crate::mesh::Mesh;
-use crate::quilt::{Quilt, NO_PATCH};
+use crate::output::bake;
 use crate::output::show::{show, ShowWhat};
+use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
 
 /// A mesh file format for `export --format`.

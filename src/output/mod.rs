@@ -12,8 +12,8 @@ pub mod show;
 
 use std::path::{Path, PathBuf};
 
-use crate::container::MemoryBudget;
 use crate::artifact::svd::SvdArtifact;
+use crate::container::MemoryBudget;
 use crate::io::imageio::{self, RgbImage};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
@@ -115,4 +115,3 @@ pub fn atlas_colour(quilt: &Quilt, previews: &[RgbImage]) -> Result<(RgbImage, V
         covered,
     ))
 }
-

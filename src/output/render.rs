@@ -49,13 +49,13 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use crate::io::imageio::dilate;
-use crate::output::{atlas_colour, open_samples};
 use crate::artifact::btf::Angles;
 use crate::container::MemoryBudget;
 use crate::io::imageio::bilinear;
+use crate::io::imageio::dilate;
 use crate::io::imageio::{self, PngDepth, RgbImage};
 use crate::mesh::{cross, dot, normalize, sub, Mesh};
+use crate::output::{atlas_colour, open_samples};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
 

@@ -50,8 +50,8 @@ use rayon::prelude::*;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
-use crate::container::{BoundedCache, MemoryBudget};
 use crate::artifact::svd::SvdArtifact;
+use crate::container::{BoundedCache, MemoryBudget};
 use crate::{Error, Result};
 
 type C64 = Complex<f64>;

@@ -28,14 +28,14 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::container::{ArraySpec, BoundedCache, ContainerWriter, DType, MemoryBudget, Param};
 use crate::artifact::svd::SvdArtifact;
+use crate::container::{ArraySpec, BoundedCache, ContainerWriter, DType, MemoryBudget, Param};
 use crate::factorize::{self, FactorizeConfig};
 use crate::gim::{Gim, EMPTY, TILE};
-use matching::{Image, MatchConfig, Matcher};
-use maxflow::{Graph, Segment};
 use crate::progress::Progress;
 use crate::{Error, Result};
+use matching::{Image, MatchConfig, Matcher};
+use maxflow::{Graph, Segment};
 
 mod fit;
 mod flatten;
@@ -47,7 +47,9 @@ mod state;
 mod synthesis;
 mod write;
 
-pub use crate::artifact::quilt::{Dependency, Quilt, KIND, MAX_SAMPLES, NO_PATCH, SEAM_X, SEAM_Y, SEAM_ZIPPER};
+pub use crate::artifact::quilt::{
+    Dependency, Quilt, KIND, MAX_SAMPLES, NO_PATCH, SEAM_X, SEAM_Y, SEAM_ZIPPER,
+};
 #[allow(unused_imports)]
 use fit::*;
 #[allow(unused_imports)]
@@ -59,7 +61,6 @@ pub(crate) use state::*;
 pub(crate) use synthesis::*;
 #[allow(unused_imports)]
 use write::*;
-
 
 /// Options of [`tile`].
 #[derive(Clone, Debug, PartialEq)]

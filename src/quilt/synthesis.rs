@@ -667,7 +667,8 @@ impl Synthesis {
             for (i, &t) in patch.texels.iter().enumerate() {
                 if fg[i] >= 0.5 {
                     let (x, y) = (t as usize % r - x0, t as usize / r - y0);
-                    let col = crate::io::imageio::bilinear(&colours, placed[i][0] as f32, placed[i][1] as f32);
+                    let col =
+                        crate::io::imageio::bilinear(&colours, placed[i][0] as f32, placed[i][1] as f32);
                     data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
                 }
             }

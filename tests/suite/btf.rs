@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use btfquilt::artifact::btf::{self, Angles, Btf};
 use btfquilt::container::MemoryBudget;
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
-use btfquilt::io::imageio::{self, RgbImage};
 use btfquilt::ingest::{self, ImageFormat, IngestConfig};
+use btfquilt::io::imageio::{self, RgbImage};
 use btfquilt::io::naming;
 use btfquilt::progress::Silent;
 

@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use btfquilt::artifact::btf::{self, Angles, Btf, BtfLayout, BtfWriter};
-use btfquilt::container::MemoryBudget;
 use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::io::imageio::{self, RgbImage};

@@ -14,15 +14,15 @@
 use std::path::{Path, PathBuf};
 
 use btfquilt::artifact::btf;
-use btfquilt::container::{ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
 use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::container::{ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::io::imageio::{self, PngDepth, RgbImage};
+use btfquilt::output::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
-use btfquilt::output::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
 
 use crate::common::{self, btfquilt, channel, fails_clearly, ok, read_exr, s, write_mask_png};
 

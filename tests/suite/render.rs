@@ -8,17 +8,17 @@
 use std::path::PathBuf;
 
 use btfquilt::artifact::btf::{self, Angles};
-use btfquilt::container::MemoryBudget;
 use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{
     self, BlockRenderer, Family, GenerateConfig, Imperfection, MaterialParams, Mesostructure,
 };
 use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::io::imageio::{self, RgbImage};
+use btfquilt::output::render::{self, Camera, Light, RenderConfig, BACKGROUND};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
-use btfquilt::output::render::{self, Camera, Light, RenderConfig, BACKGROUND};
 
 use crate::common::{self, btfquilt, fails_clearly, listing, s};
 

@@ -504,3 +504,46 @@ fn mesh_mutations_load_or_are_refused() {
     }
     eprintln!("mesh mutations: {ran} cases");
 }
+
+#[test]
+fn factorize_and_generate_counts_are_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let sample = common::brick_crop(d, 32, None);
+    let svd = d.join("x.svd");
+    for (flag, value, needle) in [
+        ("--terms", "0", "at least 1"),
+        ("--rotations", "257", "at most 256"),
+        ("--power-iterations", "33", "at most 32"),
+    ] {
+        refuses(
+            &["factorize", s(&sample), flag, value, "-o", s(&svd)],
+            &[flag, value, needle],
+            Some(&svd),
+        );
+    }
+    let btf = d.join("x.btf");
+    refuses(
+        &["generate-btf", "--size", "0", "-o", s(&btf)],
+        &["0×0", "texels per side"],
+        Some(&btf),
+    );
+    refuses(
+        &["generate-btf", "--size", "70000", "-o", s(&btf)],
+        &["70000×70000", "65536"],
+        Some(&btf),
+    );
+    // what the command line cannot express, the library still refuses
+    let none = btfquilt::generate::GenerateConfig {
+        views: Vec::new(),
+        ..Default::default()
+    };
+    let e = none.validate().unwrap_err().to_string();
+    assert!(e.contains("0 view"), "{e}");
+    let level = btfquilt::quilt::TileConfig {
+        level: 0,
+        ..Default::default()
+    };
+    let e = level.validate().unwrap_err().to_string();
+    assert!(e.contains("zstd level 0"), "{e}");
+}
