@@ -24,6 +24,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use glam::Vec3;
+
 use crate::artifact::btf::{Angles, Btf};
 use crate::artifact::svd::SvdArtifact;
 use crate::container::MemoryBudget;
@@ -32,7 +34,7 @@ use crate::generate::{self, Family, GenerateConfig, Imperfection};
 use crate::gim::{self, AtlasConfig, Gim};
 use crate::ingest;
 use crate::io::imageio::{self, PngDepth, RgbImage};
-use crate::mesh::{cross, dot, normalize, sub};
+use crate::mesh::unit_or;
 use crate::output::export::{self, ExportOptions, MeshFormat};
 use crate::output::render::{self, Camera, Light, RenderConfig};
 use crate::paint::{self, PaintConfig};
@@ -162,13 +164,13 @@ fn demo_view(camera: Camera, angle: f32, azimuth: f32) -> RenderConfig {
 /// axis (target → eye), turned by `azimuth` degrees about it (0° towards the
 /// image's right, 90° towards its top).
 pub fn light_from_camera(camera: &Camera, angle: f32, azimuth: f32) -> [f32; 3] {
-    let v = camera.axis();
-    let up = normalize(camera.up);
-    let up = normalize(sub(up, v.map(|x| x * dot(up, v))));
-    let right = cross(up, v);
+    let v = Vec3::from(camera.axis());
+    let up = unit_or(camera.up.into(), Vec3::ZERO);
+    let up = unit_or(up - v * up.dot(v), Vec3::ZERO);
+    let right = up.cross(v);
     let (sa, ca) = angle.to_radians().sin_cos();
     let (sz, cz) = azimuth.to_radians().sin_cos();
-    std::array::from_fn(|k| ca * v[k] + sa * (cz * right[k] + sz * up[k]))
+    (ca * v + sa * (cz * right + sz * up)).to_array()
 }
 
 /// File name of a path, for links in the page.
@@ -710,8 +712,13 @@ mod tests {
     fn lights_from_camera_keep_their_angle_to_the_view_axis() {
         for (_, _, angle, azimuth) in BTF_LIGHTS {
             let l = light_from_camera(&SPOT_CAMERA, angle, azimuth);
-            assert!((dot(l, l) - 1.0).abs() < 1e-5);
-            let a = dot(l, SPOT_CAMERA.axis()).clamp(-1.0, 1.0).acos().to_degrees();
+            let l = Vec3::from(l);
+            assert!((l.length_squared() - 1.0).abs() < 1e-5);
+            let a = l
+                .dot(SPOT_CAMERA.axis().into())
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees();
             assert!((a - angle).abs() < 0.01, "{a} vs {angle}");
         }
         // azimuth 90° is towards the image top: positive world y for this camera

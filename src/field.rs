@@ -13,7 +13,9 @@
 
 use std::path::Path;
 
-use crate::mesh::{cross, dot, normalize, sub, Mesh, Topology, NO_FACE};
+use glam::{DVec3, Vec3};
+
+use crate::mesh::{unit_or, Mesh, Topology, NO_FACE};
 use crate::{Error, Result};
 
 /// A user direction at one face.
@@ -50,7 +52,7 @@ pub fn read_keys(path: &Path, face_count: usize) -> Result<Vec<FieldKey>> {
         }
         let d = item.dir;
         let dir = [d[0] as f32, d[1] as f32, d[2] as f32];
-        if !dir.iter().all(|v| v.is_finite()) || dot(dir, dir) == 0.0 {
+        if !dir.iter().all(|v| v.is_finite()) || Vec3::from(dir).length_squared() == 0.0 {
             return Err(bad("\"dir\" must be a finite, non-zero vector"));
         }
         keys.push(FieldKey {
@@ -61,42 +63,31 @@ pub fn read_keys(path: &Path, face_count: usize) -> Result<Vec<FieldKey>> {
     Ok(keys)
 }
 
-fn face_center(mesh: &Mesh, f: usize) -> [f32; 3] {
-    let [a, b, c] = mesh.corners(f);
-    [
-        (a[0] + b[0] + c[0]) / 3.0,
-        (a[1] + b[1] + c[1]) / 3.0,
-        (a[2] + b[2] + c[2]) / 3.0,
-    ]
+fn face_center(mesh: &Mesh, f: usize) -> Vec3 {
+    let [a, b, c] = mesh.corners(f).map(Vec3::from);
+    (a + b + c) / 3.0
 }
 
 /// Projects `v` into the plane with unit normal `n`.
-fn project(v: [f32; 3], n: [f32; 3]) -> [f32; 3] {
-    let d = dot(v, n);
-    [v[0] - d * n[0], v[1] - d * n[1], v[2] - d * n[2]]
+fn project(v: Vec3, n: Vec3) -> Vec3 {
+    v - v.dot(n) * n
 }
 
 /// The two leading principal axes of the area-weighted face centres (a
 /// world axis and the direction across it when the two are about equal).
-fn principal_axes(mesh: &Mesh) -> ([f32; 3], [f32; 3]) {
-    let (mut mean, mut total) = ([0f64; 3], 0f64);
+fn principal_axes(mesh: &Mesh) -> (Vec3, Vec3) {
+    let (mut mean, mut total) = (DVec3::ZERO, 0f64);
     for f in 0..mesh.triangles.len() {
         let (c, a) = (face_center(mesh, f), mesh.face_area(f) as f64);
-        for k in 0..3 {
-            mean[k] += a * c[k] as f64;
-        }
+        mean += a * c.as_dvec3();
         total += a;
     }
     let total = total.max(1e-30);
-    mean.iter_mut().for_each(|m| *m /= total);
+    mean /= total;
     let mut cov = [[0f64; 3]; 3];
     for f in 0..mesh.triangles.len() {
         let (c, a) = (face_center(mesh, f), mesh.face_area(f) as f64);
-        let d = [
-            c[0] as f64 - mean[0],
-            c[1] as f64 - mean[1],
-            c[2] as f64 - mean[2],
-        ];
+        let d = c.as_dvec3() - mean;
         for i in 0..3 {
             for j in 0..3 {
                 cov[i][j] += a * d[i] * d[j];
@@ -129,20 +120,18 @@ fn principal_axes(mesh: &Mesh) -> ([f32; 3], [f32; 3]) {
             .map(|i| (0..3).map(|j| v[i] * cov[i][j] * v[j]).sum::<f64>())
             .sum()
     };
-    let f = |v: [f64; 3]| normalize([v[0] as f32, v[1] as f32, v[2] as f32]);
+    let f = |v: DVec3| unit_or(v.as_vec3(), Vec3::ZERO);
     let (la, lb) = (rayleigh(a), rayleigh(b));
+    let (a, b) = (DVec3::from(a), DVec3::from(b));
     if lb > ISOTROPIC * la {
         // no clear long axis (a square, a disk, a sphere): the world axis that
         // lies most in the leading plane, x before y before z on ties, so a
         // flat square in the xy plane is tiled along x like a 2D synthesis
-        let in_plane = |e: [f64; 3]| {
-            let (pa, pb) = (
-                e[0] * a[0] + e[1] * a[1] + e[2] * a[2],
-                e[0] * b[0] + e[1] * b[1] + e[2] * b[2],
-            );
+        let in_plane = |e: DVec3| {
+            let (pa, pb) = (e.dot(a), e.dot(b));
             pa * pa + pb * pb
         };
-        let axes = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let axes = [DVec3::X, DVec3::Y, DVec3::Z];
         let mut best = axes[0];
         for &e in &axes[1..] {
             if in_plane(e) > in_plane(best) + 1e-3 {
@@ -151,7 +140,7 @@ fn principal_axes(mesh: &Mesh) -> ([f32; 3], [f32; 3]) {
         }
         let d: f64 = (0..3).map(|k| best[k] * a[k]).sum();
         let e: f64 = (0..3).map(|k| best[k] * b[k]).sum();
-        let other = [-e * a[0] + d * b[0], -e * a[1] + d * b[1], -e * a[2] + d * b[2]];
+        let other = -e * a + d * b;
         return (f(best), f(other));
     }
     (f(a), f(b))
@@ -169,19 +158,17 @@ pub fn face_field(mesh: &Mesh, topology: &Topology, keys: &[FieldKey]) -> Vec<[f
     let normals: Vec<[f32; 3]> = (0..nf).map(|f| mesh.face_normal(f)).collect();
     let (a1, a2) = principal_axes(mesh);
     let default_dir = |f: usize| {
-        let n = normals[f];
+        let n = Vec3::from(normals[f]);
         let t = project(a1, n);
         // near the axis' poles, lean on the second axis so the field stays defined
-        let w = (dot(t, t).sqrt() / 0.3).min(1.0);
+        let w = (t.length() / 0.3).min(1.0);
         let t2 = project(a2, n);
-        normalize([
-            w * t[0] + (1.0 - w) * t2[0],
-            w * t[1] + (1.0 - w) * t2[1],
-            w * t[2] + (1.0 - w) * t2[2],
-        ])
+        unit_or(w * t + (1.0 - w) * t2, Vec3::ZERO).to_array()
     };
     let mut field: Vec<[f32; 3]> = if keys.is_empty() {
-        let prior: Vec<[f32; 3]> = (0..nf).map(|f| project(a1, normals[f])).collect();
+        let prior: Vec<[f32; 3]> = (0..nf)
+            .map(|f| project(a1, normals[f].into()).to_array())
+            .collect();
         match smoothest_field(mesh, topology, &normals, &prior) {
             Some(u) => u,
             None => (0..nf).map(default_dir).collect(),
@@ -191,14 +178,10 @@ pub fn face_field(mesh: &Mesh, topology: &Topology, keys: &[FieldKey]) -> Vec<[f
     };
     // a face whose direction vanished (degenerate normal) gets any tangent
     for (f, v) in field.iter_mut().enumerate() {
-        if !(dot(*v, *v) > 0.5) {
-            let n = normals[f];
-            let other = if n[0].abs() < 0.9 {
-                [1.0, 0.0, 0.0]
-            } else {
-                [0.0, 1.0, 0.0]
-            };
-            *v = normalize(cross(n, other));
+        if !(Vec3::from(*v).length_squared() > 0.5) {
+            let n = Vec3::from(normals[f]);
+            let other = if n.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
+            *v = unit_or(n.cross(other), Vec3::ZERO).to_array();
         }
     }
     field
@@ -214,22 +197,21 @@ const SMOOTHEST_SHIFT: f64 = 1e-3;
 const INVERSE_ITERATIONS: usize = 40;
 
 /// Each face's tangent frame: the unit first edge and the normal × it.
-fn face_frame(mesh: &Mesh, f: usize, n: [f32; 3]) -> ([f64; 3], [f64; 3]) {
-    let [a, b, _] = mesh.corners(f);
-    let e1 = normalize(sub(b, a));
-    let e2 = cross(n, e1);
-    let w = |v: [f32; 3]| [v[0] as f64, v[1] as f64, v[2] as f64];
-    (w(e1), w(e2))
+fn face_frame(mesh: &Mesh, f: usize, n: Vec3) -> (DVec3, DVec3) {
+    let [a, b, _] = mesh.corners(f).map(Vec3::from);
+    let e1 = unit_or(b - a, Vec3::ZERO);
+    let e2 = n.cross(e1);
+    (e1.as_dvec3(), e2.as_dvec3())
 }
 
 /// The coordinates of 3D vector `d` in frame `(e1, e2)`.
-fn frame_coords(d: [f32; 3], (e1, e2): ([f64; 3], [f64; 3])) -> (f64, f64) {
-    let along = |e: [f64; 3]| d[0] as f64 * e[0] + d[1] as f64 * e[1] + d[2] as f64 * e[2];
-    (along(e1), along(e2))
+fn frame_coords(d: Vec3, (e1, e2): (DVec3, DVec3)) -> (f64, f64) {
+    let d = d.as_dvec3();
+    (d.dot(e1), d.dot(e2))
 }
 
 /// The angle of 3D vector `d` in frame `(e1, e2)`.
-fn frame_angle(d: [f32; 3], frame: ([f64; 3], [f64; 3])) -> f64 {
+fn frame_angle(d: Vec3, frame: (DVec3, DVec3)) -> f64 {
     let (x, y) = frame_coords(d, frame);
     y.atan2(x)
 }
@@ -237,11 +219,7 @@ fn frame_angle(d: [f32; 3], frame: ([f64; 3], [f64; 3])) -> f64 {
 /// The discrete connection of a face pair: for each interior edge (f, g)
 /// with f < g, the dual weight |e| / |c_f − c_g| and the transport angle ρ
 /// that carries g's frame angles into f's (u_f ≈ e^{iρ} u_g).
-fn connection(
-    mesh: &Mesh,
-    topology: &Topology,
-    frames: &[([f64; 3], [f64; 3])],
-) -> Vec<(u32, u32, f64, f64)> {
+fn connection(mesh: &Mesh, topology: &Topology, frames: &[(DVec3, DVec3)]) -> Vec<(u32, u32, f64, f64)> {
     let mut edges = Vec::new();
     for (f, adj) in topology.face_adjacency.iter().enumerate() {
         for (i, &g) in adj.iter().enumerate() {
@@ -249,12 +227,10 @@ fn connection(
                 continue;
             }
             let t = mesh.triangles[f];
-            let d = sub(
-                mesh.positions[t[(i + 1) % 3] as usize],
-                mesh.positions[t[i] as usize],
-            );
-            let h = sub(face_center(mesh, f), face_center(mesh, g as usize));
-            let (l, h) = (dot(d, d).sqrt() as f64, dot(h, h).sqrt() as f64);
+            let d = Vec3::from(mesh.positions[t[(i + 1) % 3] as usize])
+                - Vec3::from(mesh.positions[t[i] as usize]);
+            let h = face_center(mesh, f) - face_center(mesh, g as usize);
+            let (l, h) = (d.length() as f64, h.length() as f64);
             if !(l > 0.0 && h > 0.0) {
                 continue;
             }
@@ -271,14 +247,14 @@ fn connection(
 pub fn field_energy(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> f64 {
     let normals: Vec<[f32; 3]> = (0..mesh.triangles.len()).map(|f| mesh.face_normal(f)).collect();
     let frames: Vec<_> = (0..normals.len())
-        .map(|f| face_frame(mesh, f, normals[f]))
+        .map(|f| face_frame(mesh, f, normals[f].into()))
         .collect();
     connection(mesh, topology, &frames)
         .into_iter()
         .map(|(f, g, w, rho)| {
             let (f, g) = (f as usize, g as usize);
-            let a = frame_angle(field[f], frames[f]);
-            let b = frame_angle(field[g], frames[g]) + rho;
+            let a = frame_angle(field[f].into(), frames[f]);
+            let b = frame_angle(field[g].into(), frames[g]) + rho;
             w * ((a.cos() - b.cos()).powi(2) + (a.sin() - b.sin()).powi(2))
         })
         .sum()
@@ -305,10 +281,10 @@ fn smoothest_field(
     if nf == 0 {
         return Some(Vec::new());
     }
-    let frames: Vec<_> = (0..nf).map(|f| face_frame(mesh, f, normals[f])).collect();
+    let frames: Vec<_> = (0..nf).map(|f| face_frame(mesh, f, normals[f].into())).collect();
     let diag = (mesh.bbox_diagonal() as f64).max(1e-30);
     let mass: Vec<f64> = (0..nf).map(|f| mesh.face_area(f) as f64).collect();
-    let in_frame = |f: usize, v: [f32; 3]| frame_coords(v, frames[f]);
+    let in_frame = |f: usize, v: [f32; 3]| frame_coords(v.into(), frames[f]);
     let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(nf * 12);
     let shift = SMOOTHEST_SHIFT / (diag * diag);
     // a degenerate (zero-area) face cut off from its neighbours would leave a
@@ -416,15 +392,11 @@ fn smoothest_field(
             let (c, s) = align[component(f)];
             let (ux, uy) = (u[2 * f], u[2 * f + 1]);
             let (x, y) = (c * ux - s * uy, s * ux + c * uy);
-            let v = [
-                (x * e1[0] + y * e2[0]) as f32,
-                (x * e1[1] + y * e2[1]) as f32,
-                (x * e1[2] + y * e2[2]) as f32,
-            ];
-            if dot(v, v) > 1e-20 && v.iter().all(|c| c.is_finite()) {
-                normalize(v)
+            let v = (x * e1 + y * e2).as_vec3();
+            if v.length_squared() > 1e-20 && v.is_finite() {
+                unit_or(v, Vec3::ZERO).to_array()
             } else {
-                normalize(prior[f])
+                unit_or(prior[f].into(), Vec3::ZERO).to_array()
             }
         })
         .collect();
@@ -439,16 +411,16 @@ fn rbf_field(
     keys: &[FieldKey],
     default_dir: &dyn Fn(usize) -> [f32; 3],
 ) -> Vec<[f32; 3]> {
-    let centers: Vec<[f32; 3]> = keys.iter().map(|k| face_center(mesh, k.face as usize)).collect();
-    let dirs: Vec<[f32; 3]> = keys
+    let centers: Vec<Vec3> = keys.iter().map(|k| face_center(mesh, k.face as usize)).collect();
+    let dirs: Vec<Vec3> = keys
         .iter()
-        .map(|k| normalize(project(normalize(k.dir), normals[k.face as usize])))
+        .map(|k| {
+            let dir = unit_or(k.dir.into(), Vec3::ZERO);
+            unit_or(project(dir, normals[k.face as usize].into()), Vec3::ZERO)
+        })
         .collect();
     let k = keys.len();
-    let dist = |a: [f32; 3], b: [f32; 3]| {
-        let d = sub(a, b);
-        dot(d, d).sqrt() as f64
-    };
+    let dist = |a: Vec3, b: Vec3| a.distance(b) as f64;
     // kernel width: the mean spacing between keys (half the bounding-box
     // diagonal for a single key), so the interpolant turns smoothly between them
     let diag = mesh.bbox_diagonal() as f64;
@@ -471,7 +443,7 @@ fn rbf_field(
         .map(|i| {
             let mut row: Vec<f64> = (0..k).map(|j| phi(dist(centers[i], centers[j]))).collect();
             row[i] += 1e-6;
-            row.extend(dirs[i].iter().map(|&v| v as f64));
+            row.extend(dirs[i].as_dvec3().to_array());
             row
         })
         .collect();
@@ -495,27 +467,27 @@ fn rbf_field(
             }
         }
     }
-    let w: Vec<[f64; 3]> = (0..k)
+    let w: Vec<DVec3> = (0..k)
         .map(|i| {
             let p = a[i][i];
             if p.abs() < 1e-300 {
-                [0.0; 3]
+                DVec3::ZERO
             } else {
-                [a[i][k] / p, a[i][k + 1] / p, a[i][k + 2] / p]
+                DVec3::new(a[i][k], a[i][k + 1], a[i][k + 2]) / p
             }
         })
         .collect();
     (0..mesh.triangles.len())
         .map(|f| {
             let c = face_center(mesh, f);
-            let mut v = [0f64; 3];
+            let mut v = DVec3::ZERO;
             for i in 0..k {
                 let s = phi(dist(c, centers[i]));
-                (0..3).for_each(|d| v[d] += s * w[i][d]);
+                v += s * w[i];
             }
-            let t = project([v[0] as f32, v[1] as f32, v[2] as f32], normals[f]);
-            if dot(t, t) > 1e-12 {
-                normalize(t)
+            let t = project(v.as_vec3(), normals[f].into());
+            if t.length_squared() > 1e-12 {
+                unit_or(t, Vec3::ZERO).to_array()
             } else {
                 default_dir(f)
             }
@@ -560,16 +532,16 @@ mod tests {
             },
         ];
         let f = face_field(&m, &topo, &keys);
-        assert!(dot(f[0], [1.0, 0.0, 0.0]) > 0.99, "{:?}", f[0]);
-        assert!(dot(f[199], [0.0, 1.0, 0.0]) > 0.99, "{:?}", f[199]);
+        assert!(Vec3::from(f[0]).dot(Vec3::X) > 0.99, "{:?}", f[0]);
+        assert!(Vec3::from(f[199]).dot(Vec3::Y) > 0.99, "{:?}", f[199]);
         for v in &f {
-            assert!((dot(*v, *v) - 1.0).abs() < 1e-4 && v[2].abs() < 1e-5);
+            assert!((Vec3::from(*v).length_squared() - 1.0).abs() < 1e-4 && v[2].abs() < 1e-5);
         }
         // in between, the direction turns smoothly: neighbours differ little
         for (g, adj) in topo.face_adjacency.iter().enumerate() {
             for &h in adj {
                 if h != NO_FACE {
-                    assert!(dot(f[g], f[h as usize]) > 0.8);
+                    assert!(Vec3::from(f[g]).dot(f[h as usize].into()) > 0.8);
                 }
             }
         }
@@ -622,15 +594,16 @@ mod tests {
         let topo = m.topology();
         let smooth = face_field(&m, &topo, &[]);
         let (a1, _) = principal_axes(&m);
-        assert!(a1[0].abs() > 0.99, "{a1:?}");
+        assert!(a1.x.abs() > 0.99, "{a1:?}");
         let axis: Vec<[f32; 3]> = (0..m.triangles.len())
-            .map(|f| normalize(project(a1, m.face_normal(f))))
+            .map(|f| unit_or(project(a1, m.face_normal(f).into()), Vec3::ZERO).to_array())
             .collect();
         // the field around the ring: no singularities, the obvious smooth field
         let ring: Vec<[f32; 3]> = (0..m.triangles.len())
             .map(|f| {
                 let c = face_center(&m, f);
-                normalize(project([-c[1], c[0], 0.0], m.face_normal(f)))
+                let ring = Vec3::new(-c.y, c.x, 0.0);
+                unit_or(project(ring, m.face_normal(f).into()), Vec3::ZERO).to_array()
             })
             .collect();
         let energy = |field: &[[f32; 3]]| field_energy(&m, &topo, field);
@@ -640,8 +613,8 @@ mod tests {
             "smoothest {e_smooth}, axis {e_axis}, ring {e_ring}"
         );
         for (f, v) in smooth.iter().enumerate() {
-            let n = m.face_normal(f);
-            assert!((dot(*v, *v) - 1.0).abs() < 1e-4 && dot(*v, n).abs() < 1e-4);
+            let (v, n) = (Vec3::from(*v), Vec3::from(m.face_normal(f)));
+            assert!((v.length_squared() - 1.0).abs() < 1e-4 && v.dot(n).abs() < 1e-4);
         }
     }
 

@@ -20,6 +20,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::atlas::charts::{build_charts, Chart, ChartConfig};
@@ -30,7 +31,7 @@ use crate::container::{
 use crate::field::{self, FieldKey};
 use crate::mesh::io::{self, LoadOptions};
 use crate::mesh::repair::RepairReport;
-use crate::mesh::{cross, dot, normalize, sub, Mesh, NO_FACE};
+use crate::mesh::{unit_or, Mesh, NO_FACE};
 use crate::progress::Progress;
 use crate::{Error, Result};
 
@@ -291,32 +292,25 @@ impl FaceRaster<'_> {
     /// The attributes of a covered texel: position, normal, tangent.
     fn attributes(&self, c: &Cover) -> ([f32; 3], [f32; 3], [f32; 3]) {
         let t = self.mesh.triangles[c.face as usize];
-        let mut pos = [0f64; 3];
-        let mut nrm = [0f32; 3];
+        let mut pos = DVec3::ZERO;
+        let mut nrm = Vec3::ZERO;
         for k in 0..3 {
-            let p = self.mesh.positions[t[k] as usize];
-            let n = self.vertex_normals[t[k] as usize];
-            for d in 0..3 {
-                pos[d] += c.bary[k] * p[d] as f64;
-                nrm[d] += c.bary[k] as f32 * n[d];
-            }
+            let p = Vec3::from(self.mesh.positions[t[k] as usize]);
+            let n = Vec3::from(self.vertex_normals[t[k] as usize]);
+            pos += c.bary[k] * p.as_dvec3();
+            nrm += c.bary[k] as f32 * n;
         }
-        let mut n = normalize(nrm);
-        if dot(n, n) < 0.5 {
-            n = self.mesh.face_normal(c.face as usize);
+        let mut n = unit_or(nrm, Vec3::ZERO);
+        if n.length_squared() < 0.5 {
+            n = self.mesh.face_normal(c.face as usize).into();
         }
-        let f = self.field[c.face as usize];
-        let fd = dot(f, n);
-        let mut t = normalize([f[0] - fd * n[0], f[1] - fd * n[1], f[2] - fd * n[2]]);
-        if dot(t, t) < 0.5 {
-            let other = if n[0].abs() < 0.9 {
-                [1.0, 0.0, 0.0]
-            } else {
-                [0.0, 1.0, 0.0]
-            };
-            t = normalize(cross(n, other));
+        let f = Vec3::from(self.field[c.face as usize]);
+        let mut t = unit_or(f - f.dot(n) * n, Vec3::ZERO);
+        if t.length_squared() < 0.5 {
+            let other = if n.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
+            t = unit_or(n.cross(other), Vec3::ZERO);
         }
-        ([pos[0] as f32, pos[1] as f32, pos[2] as f32], n, t)
+        (pos.as_vec3().to_array(), n.to_array(), t.to_array())
     }
 }
 
@@ -781,8 +775,8 @@ fn zipper_links(mesh: &Mesh, boundary: &[BoundaryTexel], texel: f64, r: usize) -
                                     continue;
                                 }
                             }
-                            let d = sub(a.position, b.position);
-                            let d = (dot(d, d) as f64).sqrt();
+                            let d = Vec3::from(a.position) - Vec3::from(b.position);
+                            let d = (d.length_squared() as f64).sqrt();
                             if d > MAX_LINK * texel || ring.binary_search(&b.face).is_err() {
                                 continue;
                             }
@@ -1186,9 +1180,8 @@ impl DenseGraph {
 /// parameterisation, `v ≈ (∂P/∂u) d_u + (∂P/∂v) d_v`. `None` for a face that
 /// is degenerate in 3D or in the atlas.
 pub fn atlas_direction(mesh: &Mesh, corner_uv: &[[f32; 2]], f: usize, v: [f64; 3]) -> Option<[f64; 2]> {
-    let [p0, p1, p2] = mesh.corners(f);
-    let e1: [f64; 3] = std::array::from_fn(|k| (p1[k] - p0[k]) as f64);
-    let e2: [f64; 3] = std::array::from_fn(|k| (p2[k] - p0[k]) as f64);
+    let [p0, p1, p2] = mesh.corners(f).map(Vec3::from);
+    let (e1, e2) = ((p1 - p0).as_dvec3(), (p2 - p0).as_dvec3());
     let (u0, u1, u2) = (corner_uv[f * 3], corner_uv[f * 3 + 1], corner_uv[f * 3 + 2]);
     let a = [(u1[0] - u0[0]) as f64, (u1[1] - u0[1]) as f64];
     let b = [(u2[0] - u0[0]) as f64, (u2[1] - u0[1]) as f64];
@@ -1198,11 +1191,10 @@ pub fn atlas_direction(mesh: &Mesh, corner_uv: &[[f32; 2]], f: usize, v: [f64; 3
     }
     // ∂P/∂u, ∂P/∂v from the inverse of [a b]
     let (i00, i01, i10, i11) = (b[1] / det, -b[0] / det, -a[1] / det, a[0] / det);
-    let du: [f64; 3] = std::array::from_fn(|k| e1[k] * i00 + e2[k] * i10);
-    let dv: [f64; 3] = std::array::from_fn(|k| e1[k] * i01 + e2[k] * i11);
-    let d3 = |x: &[f64; 3], y: &[f64; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
-    let (g00, g01, g11) = (d3(&du, &du), d3(&du, &dv), d3(&dv, &dv));
-    let (h0, h1) = (d3(&du, &v), d3(&dv, &v));
+    let (du, dv) = (e1 * i00 + e2 * i10, e1 * i01 + e2 * i11);
+    let v = DVec3::from(v);
+    let (g00, g01, g11) = (du.dot(du), du.dot(dv), dv.dot(dv));
+    let (h0, h1) = (du.dot(v), dv.dot(v));
     let gd = g00 * g11 - g01 * g01;
     if gd.abs() < 1e-300 {
         return None;

@@ -15,8 +15,9 @@
 //! component's area).
 
 use super::lscm::{local_frame, lscm, stretch};
-use crate::mesh::{Mesh, Topology, NO_FACE};
+use crate::mesh::{dunit_or, to_dvec3, Mesh, Topology, NO_FACE};
 use crate::{Error, Result};
+use glam::DVec3;
 use rayon::prelude::*;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -86,34 +87,13 @@ struct Ctx<'a> {
     adj: &'a [[u32; 3]],
     component: &'a [u32],
     component_area: Vec<f64>,
-    normal: Vec<[f64; 3]>,
+    normal: Vec<DVec3>,
     area: Vec<f64>,
     /// Dual edge length across edge i: centroid → edge midpoint → centroid.
     weight: Vec<[f64; 3]>,
     cos_max: f64,
     max_stretch: f64,
     max_area_distortion: f64,
-}
-
-fn p64(p: [f32; 3]) -> [f64; 3] {
-    [p[0] as f64, p[1] as f64, p[2] as f64]
-}
-
-fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn normalized(a: [f64; 3]) -> [f64; 3] {
-    let l = dot(a, a).sqrt();
-    if l > 0.0 {
-        [a[0] / l, a[1] / l, a[2] / l]
-    } else {
-        [0.0; 3]
-    }
 }
 
 /// Heap key for a non-negative finite f64 (bit order = numeric order).
@@ -128,21 +108,11 @@ impl<'a> Ctx<'a> {
         let mut area = Vec::with_capacity(nf);
         let mut centroid = Vec::with_capacity(nf);
         for f in 0..nf {
-            let c = mesh.corners(f).map(p64);
-            let e1 = [c[1][0] - c[0][0], c[1][1] - c[0][1], c[1][2] - c[0][2]];
-            let e2 = [c[2][0] - c[0][0], c[2][1] - c[0][1], c[2][2] - c[0][2]];
-            let n = [
-                e1[1] * e2[2] - e1[2] * e2[1],
-                e1[2] * e2[0] - e1[0] * e2[2],
-                e1[0] * e2[1] - e1[1] * e2[0],
-            ];
-            area.push(0.5 * dot(n, n).sqrt());
-            normal.push(normalized(n));
-            centroid.push([
-                (c[0][0] + c[1][0] + c[2][0]) / 3.0,
-                (c[0][1] + c[1][1] + c[2][1]) / 3.0,
-                (c[0][2] + c[1][2] + c[2][2]) / 3.0,
-            ]);
+            let c = mesh.corners(f).map(to_dvec3);
+            let n = (c[1] - c[0]).cross(c[2] - c[0]);
+            area.push(0.5 * n.length());
+            normal.push(dunit_or(n, DVec3::ZERO));
+            centroid.push((c[0] + c[1] + c[2]) / 3.0);
         }
         let mut weight = vec![[0.0; 3]; nf];
         for f in 0..nf {
@@ -152,10 +122,10 @@ impl<'a> Ctx<'a> {
                 if g == NO_FACE {
                     continue;
                 }
-                let a = p64(mesh.positions[t[i] as usize]);
-                let b = p64(mesh.positions[t[(i + 1) % 3] as usize]);
-                let m = [(a[0] + b[0]) * 0.5, (a[1] + b[1]) * 0.5, (a[2] + b[2]) * 0.5];
-                weight[f][i] = dist(centroid[f], m) + dist(m, centroid[g as usize]);
+                let a = to_dvec3(mesh.positions[t[i] as usize]);
+                let b = to_dvec3(mesh.positions[t[(i + 1) % 3] as usize]);
+                let m = (a + b) * 0.5;
+                weight[f][i] = centroid[f].distance(m) + m.distance(centroid[g as usize]);
             }
         }
         let mut component_area = vec![0.0; topology.components];
@@ -228,8 +198,8 @@ impl Patch {
     /// of the limit; faces nobody can take stay [`NONE`].
     fn grow(&self, ctx: &Ctx, seeds: &[u32], cone: Option<f64>) -> Vec<u32> {
         let mut label = vec![NONE; self.len()];
-        let mut sum = vec![[0.0f64; 3]; seeds.len()];
-        let mut mean = vec![[0.0f64; 3]; seeds.len()];
+        let mut sum = vec![DVec3::ZERO; seeds.len()];
+        let mut mean = vec![DVec3::ZERO; seeds.len()];
         let mut heap = BinaryHeap::new();
         for (r, &s) in seeds.iter().enumerate() {
             heap.push(Reverse((0u64, s, r as u32, 0u64)));
@@ -243,16 +213,14 @@ impl Patch {
             let ru = r as usize;
             if let Some(c) = cone {
                 // faces without a normal (zero area) fit anywhere
-                if sum[ru] != [0.0; 3] && n != [0.0; 3] && dot(n, mean[ru]) < c {
+                if sum[ru] != DVec3::ZERO && n != DVec3::ZERO && n.dot(mean[ru]) < c {
                     continue;
                 }
             }
             label[f as usize] = r;
             let a = ctx.area[g].max(1e-300);
-            for k in 0..3 {
-                sum[ru][k] += a * n[k];
-            }
-            mean[ru] = normalized(sum[ru]);
+            sum[ru] += a * n;
+            mean[ru] = dunit_or(sum[ru], DVec3::ZERO);
             let d = f64::from_bits(d);
             for i in 0..3 {
                 let h = self.adj[f as usize][i];
@@ -261,7 +229,7 @@ impl Patch {
                 }
                 let dh = d + self.weight(ctx, f, i);
                 let nh = ctx.normal[self.faces[h as usize] as usize];
-                let prio = dh * (1.0 + NORMAL_PENALTY * (1.0 - dot(nh, mean[ru])));
+                let prio = dh * (1.0 + NORMAL_PENALTY * (1.0 - nh.dot(mean[ru])));
                 heap.push(Reverse((key(prio), h, r, dh.to_bits())));
             }
         }
@@ -510,7 +478,7 @@ fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
     let uv = if faces.len() == 1 {
         // local vertices are sorted by global id; triangle corners may not be
         let mut uv = vec![[0.0; 2]; 3];
-        let (q, _) = local_frame(triangles[0].map(|v| p64(positions[v as usize])));
+        let (q, _) = local_frame(triangles[0].map(|v| to_dvec3(positions[v as usize])));
         for (k, &v) in triangles[0].iter().enumerate() {
             uv[v as usize] = q[k];
         }
@@ -561,7 +529,7 @@ fn normalize_uv(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]])
     let mut a3 = 0.0;
     let mut auv = 0.0;
     for t in triangles {
-        let (_, a) = local_frame(t.map(|v| p64(positions[v as usize])));
+        let (_, a) = local_frame(t.map(|v| to_dvec3(positions[v as usize])));
         a3 += a;
         let (p, q, r) = (uv[t[0] as usize], uv[t[1] as usize], uv[t[2] as usize]);
         auv += 0.5 * ((q[0] - p[0]) * (r[1] - p[1]) - (r[0] - p[0]) * (q[1] - p[1])).abs();
@@ -595,17 +563,15 @@ fn normalize_uv(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]])
 /// Whether all faces lie within the normal cone around their area-weighted
 /// mean normal.
 fn within_cone(ctx: &Ctx, faces: &[u32]) -> bool {
-    let mut sum = [0.0; 3];
+    let mut sum = DVec3::ZERO;
     for &f in faces {
         let (n, a) = (ctx.normal[f as usize], ctx.area[f as usize]);
-        for k in 0..3 {
-            sum[k] += a * n[k];
-        }
+        sum += a * n;
     }
-    let mean = normalized(sum);
+    let mean = dunit_or(sum, DVec3::ZERO);
     faces.iter().all(|&f| {
         let n = ctx.normal[f as usize];
-        n == [0.0; 3] || dot(n, mean) >= ctx.cos_max
+        n == DVec3::ZERO || n.dot(mean) >= ctx.cos_max
     })
 }
 

@@ -9,60 +9,37 @@ use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymmetricOrdering};
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Conj, MatMut, Par, Side};
+use glam::DVec3;
+
+use crate::mesh::to_dvec3;
 
 /// Above this many boundary vertices the farthest pair is found by repeated
 /// double sweeps instead of all pairs.
 const EXACT_PAIR_LIMIT: usize = 3000;
 
-fn p64(p: [f32; 3]) -> [f64; 3] {
-    [p[0] as f64, p[1] as f64, p[2] as f64]
-}
-
-fn sub3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
-    let d = sub3(a, b);
-    dot3(d, d)
-}
-
 /// The triangle in its own orthonormal frame (first corner at the origin,
 /// first edge along +x, counter-clockwise), and its area.
-pub(crate) fn local_frame(p: [[f64; 3]; 3]) -> ([[f64; 2]; 3], f64) {
-    let e1 = sub3(p[1], p[0]);
-    let e2 = sub3(p[2], p[0]);
-    let l1 = dot3(e1, e1).sqrt();
-    let n = cross3(e1, e2);
-    let twice_area = dot3(n, n).sqrt();
+pub(crate) fn local_frame(p: [DVec3; 3]) -> ([[f64; 2]; 3], f64) {
+    let e1 = p[1] - p[0];
+    let e2 = p[2] - p[0];
+    let l1 = e1.length();
+    let n = e1.cross(e2);
+    let twice_area = n.length();
     if l1 == 0.0 || twice_area == 0.0 {
         return ([[0.0; 2]; 3], 0.0);
     }
-    let x = [e1[0] / l1, e1[1] / l1, e1[2] / l1];
-    let nn = [n[0] / twice_area, n[1] / twice_area, n[2] / twice_area];
-    let y = cross3(nn, x);
-    (
-        [[0.0, 0.0], [l1, 0.0], [dot3(e2, x), dot3(e2, y)]],
-        0.5 * twice_area,
-    )
+    let x = e1 / l1;
+    let y = (n / twice_area).cross(x);
+    ([[0.0, 0.0], [l1, 0.0], [e2.dot(x), e2.dot(y)]], 0.5 * twice_area)
 }
 
 /// Whether a triangle is too thin to carry a conformality constraint
 /// (area below 1e-12 of its longest edge squared).
-fn degenerate(p: [[f64; 3]; 3], area: f64) -> bool {
-    let l = dist2(p[0], p[1]).max(dist2(p[1], p[2])).max(dist2(p[2], p[0]));
+fn degenerate(p: [DVec3; 3], area: f64) -> bool {
+    let l = p[0]
+        .distance_squared(p[1])
+        .max(p[1].distance_squared(p[2]))
+        .max(p[2].distance_squared(p[0]));
     !positive(area - 1e-12 * l)
 }
 
@@ -139,7 +116,7 @@ pub fn lscm(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<Vec<[f64; 
     }
 
     // Local frames; connectivity through the shared edges of usable triangles.
-    let pos: Vec<[f64; 3]> = positions.iter().map(|&p| p64(p)).collect();
+    let pos: Vec<DVec3> = positions.iter().map(|&p| to_dvec3(p)).collect();
     let mut frames = Vec::with_capacity(triangles.len());
     let mut used = vec![false; nv];
     let mut parent: Vec<u32> = (0..nv as u32).collect();
@@ -179,7 +156,7 @@ pub fn lscm(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<Vec<[f64; 
 
     // Pins: the pair of boundary vertices farthest apart in 3D.
     let (pa, pb) = farthest_pair(&pos, &boundary);
-    let d = dist2(pos[pa as usize], pos[pb as usize]).sqrt();
+    let d = pos[pa as usize].distance(pos[pb as usize]);
     if !positive(d) {
         return Err(Error::Config("lscm: boundary has zero extent".into()));
     }
@@ -320,12 +297,12 @@ impl SpdFactor {
 /// The pair of `candidates` farthest apart (exact for up to
 /// [`EXACT_PAIR_LIMIT`] candidates, else by double sweeps). Ties keep the
 /// first pair found, so the result is deterministic.
-fn farthest_pair(pos: &[[f64; 3]], candidates: &[u32]) -> (u32, u32) {
+fn farthest_pair(pos: &[DVec3], candidates: &[u32]) -> (u32, u32) {
     let mut best = (candidates[0], candidates[0], -1.0f64);
     if candidates.len() <= EXACT_PAIR_LIMIT {
         for (i, &a) in candidates.iter().enumerate() {
             for &b in &candidates[i + 1..] {
-                let d = dist2(pos[a as usize], pos[b as usize]);
+                let d = pos[a as usize].distance_squared(pos[b as usize]);
                 if d > best.2 {
                     best = (a, b, d);
                 }
@@ -335,7 +312,7 @@ fn farthest_pair(pos: &[[f64; 3]], candidates: &[u32]) -> (u32, u32) {
         let farthest = |from: u32| {
             let mut f = (from, -1.0f64);
             for &c in candidates {
-                let d = dist2(pos[from as usize], pos[c as usize]);
+                let d = pos[from as usize].distance_squared(pos[c as usize]);
                 if d > f.1 {
                     f = (c, d);
                 }
@@ -361,13 +338,8 @@ fn uv_area(uv: &[[f64; 2]], t: [u32; 3]) -> f64 {
 }
 
 fn area3(positions: &[[f32; 3]], t: [u32; 3]) -> f64 {
-    let p = [
-        p64(positions[t[0] as usize]),
-        p64(positions[t[1] as usize]),
-        p64(positions[t[2] as usize]),
-    ];
-    let n = cross3(sub3(p[1], p[0]), sub3(p[2], p[0]));
-    0.5 * dot3(n, n).sqrt()
+    let p = t.map(|v| to_dvec3(positions[v as usize]));
+    0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length()
 }
 
 /// Per-triangle signed area in uv (positive = same orientation as in 3D given
@@ -407,25 +379,13 @@ pub fn stretch(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) 
         if auv < 0.0 {
             linf = f64::INFINITY;
         }
-        let p = [
-            p64(positions[t[0] as usize]),
-            p64(positions[t[1] as usize]),
-            p64(positions[t[2] as usize]),
-        ];
+        let p = t.map(|v| to_dvec3(positions[v as usize]));
         let q = [uv[t[0] as usize], uv[t[1] as usize], uv[t[2] as usize]];
-        let mut ss = [0.0; 3];
-        let mut st = [0.0; 3];
-        for k in 0..3 {
-            ss[k] = (p[0][k] * (q[1][1] - q[2][1])
-                + p[1][k] * (q[2][1] - q[0][1])
-                + p[2][k] * (q[0][1] - q[1][1]))
-                / (2.0 * auv);
-            st[k] = (p[0][k] * (q[2][0] - q[1][0])
-                + p[1][k] * (q[0][0] - q[2][0])
-                + p[2][k] * (q[1][0] - q[0][0]))
-                / (2.0 * auv);
-        }
-        let (a, b, c) = (dot3(ss, ss), dot3(ss, st), dot3(st, st));
+        let ss = (p[0] * (q[1][1] - q[2][1]) + p[1] * (q[2][1] - q[0][1]) + p[2] * (q[0][1] - q[1][1]))
+            / (2.0 * auv);
+        let st = (p[0] * (q[2][0] - q[1][0]) + p[1] * (q[0][0] - q[2][0]) + p[2] * (q[1][0] - q[0][0]))
+            / (2.0 * auv);
+        let (a, b, c) = (ss.dot(ss), ss.dot(st), st.dot(st));
         l2_num += a3 * 0.5 * (a + c);
         let big = (0.5 * ((a + c) + ((a - c) * (a - c) + 4.0 * b * b).sqrt())).sqrt();
         linf = linf.max(big);

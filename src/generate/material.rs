@@ -6,6 +6,7 @@
 //! All fields are periodic over `width × height`; feature sizes are given in
 //! texels, so a larger sample shows more elements of the same size.
 
+use glam::Vec3;
 use rayon::prelude::*;
 
 /// The material family of a synthetic sample (`generate-btf --family`).
@@ -155,7 +156,7 @@ impl Mesostructure {
             m.max_height = m.max_height.max(hh);
             m.min_height = m.min_height.min(hh);
             m.height_field.push(hh);
-            m.albedo.push(t.a.map(|c| c.clamp(0.0, 1.0)));
+            m.albedo.push(t.a.to_array().map(|c| c.clamp(0.0, 1.0)));
             m.specular.push(t.ks.clamp(0.0, 1.0));
             m.roughness.push(t.r.clamp(0.05, 1.0));
             m.mask.push(t.m.clamp(0.0, 1.0));
@@ -194,19 +195,11 @@ pub(crate) fn lerp(a: f32, b: f32, t: f32) -> f32 {
     a + (b - a) * t
 }
 
+/// [`lerp`] of each component, `a + (b − a) t` (glam's `Vec3::lerp`
+/// computes `a (1 − t) + b t`, which rounds differently).
 #[inline]
-fn lerp3(a: [f32; 3], b: [f32; 3], t: f32) -> [f32; 3] {
-    [lerp(a[0], b[0], t), lerp(a[1], b[1], t), lerp(a[2], b[2], t)]
-}
-
-#[inline]
-fn scale3(a: [f32; 3], s: f32) -> [f32; 3] {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-
-#[inline]
-fn mul3(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] * b[0], a[1] * b[1], a[2] * b[2]]
+fn lerp3(a: Vec3, b: Vec3, t: f32) -> Vec3 {
+    a + (b - a) * t
 }
 
 #[inline]
@@ -394,7 +387,7 @@ impl Cells {
 #[derive(Clone, Copy, Default)]
 struct Texel {
     h: f32,
-    a: [f32; 3],
+    a: Vec3,
     ks: f32,
     r: f32,
     m: f32,
@@ -625,8 +618,8 @@ impl Gen {
             - 0.3 * pits;
         let mortar_h = 0.35 + 0.35 * d.fbm(x, y, 3.0, 3, s ^ 4);
 
-        let base = BRICK_TONES[self.tone % BRICK_TONES.len()];
-        let other = BRICK_TONES[(hb >> 3) as usize % BRICK_TONES.len()];
+        let base = Vec3::from(BRICK_TONES[self.tone % BRICK_TONES.len()]);
+        let other = Vec3::from(BRICK_TONES[(hb >> 3) as usize % BRICK_TONES.len()]);
         let mut brick = lerp3(base, other, 0.6 * unit(hash2(s, col, row + 2000)));
         let bright = 0.75 + 0.45 * unit(hash2(s, col, row + 3000));
         let burnt = if unit(hash2(s, col, row + 4000)) < 0.1 {
@@ -634,11 +627,8 @@ impl Gen {
         } else {
             1.0
         };
-        brick = scale3(
-            brick,
-            bright * burnt * (0.8 + 0.4 * d.fbm(x, y, 4.0, 3, s ^ 5)) * (1.0 - 0.35 * pits),
-        );
-        let mortar = scale3([0.50, 0.48, 0.44], 0.7 + 0.5 * d.fbm(x, y, 3.0, 2, s ^ 6));
+        brick *= bright * burnt * (0.8 + 0.4 * d.fbm(x, y, 4.0, 3, s ^ 5)) * (1.0 - 0.35 * pits);
+        let mortar = Vec3::new(0.50, 0.48, 0.44) * (0.7 + 0.5 * d.fbm(x, y, 3.0, 2, s ^ 6));
         Texel {
             h: lerp(mortar_h, brick_h, t),
             a: lerp3(mortar, brick, t),
@@ -675,13 +665,13 @@ impl Gen {
         let streak_f = d.fbm2(x, y, 10.0, 1.0, 2, s ^ 2);
         let hw = 1.2 + zw + 0.9 * pw.powf(0.7) + 0.08 * ply_w * pw + 0.1 * (streak_w - 0.5);
         let hf = 1.2 + zf + 0.9 * pf.powf(0.7) + 0.08 * ply_f * pf + 0.1 * (streak_f - 0.5);
-        let pair = YARN_PAIRS[(self.tone / 7) % YARN_PAIRS.len()];
+        let pair = YARN_PAIRS[(self.tone / 7) % YARN_PAIRS.len()].map(Vec3::from);
         let fuzz = 0.9 + 0.2 * d.fbm(x, y, 3.0, 2, s ^ 3);
-        let yarn = |col: [f32; 3], id: i64, ply: f32, streak: f32, p: f32, salt: u64| {
+        let yarn = |col: Vec3, id: i64, ply: f32, streak: f32, p: f32, salt: u64| {
             let var = 0.9 + 0.2 * unit(hash2(s ^ salt, id, 0));
             let shade = var * fuzz * (0.88 + 0.12 * ply) * (0.75 + 0.5 * streak);
             // Slightly darker towards the yarn flanks (fibre occlusion).
-            scale3(col, shade * (0.7 + 0.3 * p))
+            col * (shade * (0.7 + 0.3 * p))
         };
         let floor_h = 0.15 + 0.1 * d.fbm(x, y, 2.0, 2, s ^ 4);
         let warp_vis = pw > 0.0 && (hw >= hf || pf <= 0.0);
@@ -698,7 +688,7 @@ impl Gen {
                 0.35,
             )
         } else {
-            (floor_h, scale3(lerp3(pair[0], pair[1], 0.5), 0.3), 0.8)
+            (floor_h, lerp3(pair[0], pair[1], 0.5) * 0.3, 0.8)
         };
         let on_yarn = r < 0.5;
         Texel {
@@ -725,12 +715,12 @@ impl Gen {
         let tilt = 0.03 * ((wx - c.site[0]) * tilt_dir.cos() + (wy - c.site[1]) * tilt_dir.sin());
         let paint_h = 2.1 + 0.15 * d.fbm(x, y, 6.0, 3, s ^ 4) + curl + tilt;
         let sub_h = 0.3 + 0.25 * d.fbm(x, y, 3.0, 3, s ^ 5);
-        let paint = PAINTS[(self.tone / 3) % PAINTS.len()];
+        let paint = Vec3::from(PAINTS[(self.tone / 3) % PAINTS.len()]);
         let grime = d.fbm(x, y, 12.0, 4, s ^ 6);
         let flake_var = 0.9 + 0.2 * unit(c.id >> 5);
         let edge_dirt = 1.0 - 0.3 * (-(e.max(0.0)) / 1.5).exp();
-        let paint_c = scale3(paint, flake_var * (0.75 + 0.45 * grime) * edge_dirt);
-        let sub_c = scale3([0.12, 0.08, 0.05], 0.8 + 0.4 * d.fbm(x, y, 2.0, 2, s ^ 7));
+        let paint_c = paint * (flake_var * (0.75 + 0.45 * grime) * edge_dirt);
+        let sub_c = Vec3::new(0.12, 0.08, 0.05) * (0.8 + 0.4 * d.fbm(x, y, 2.0, 2, s ^ 7));
         Texel {
             h: lerp(sub_h, paint_h, t),
             a: lerp3(sub_c, paint_c, t),
@@ -759,14 +749,14 @@ impl Gen {
         let floor_h = 0.1 + 0.2 * d.fbm(x, y, 3.0, 2, s ^ 4);
         let grain = d.fbm(x, y, 3.0, 3, s ^ 5);
         let h = floor_h + t * (ph * dome + 0.12 * (grain - 0.5));
-        let base = STONES[(c.id >> 7) as usize % STONES.len()];
-        let other = STONES[(c.id >> 17) as usize % STONES.len()];
+        let base = Vec3::from(STONES[(c.id >> 7) as usize % STONES.len()]);
+        let other = Vec3::from(STONES[(c.id >> 17) as usize % STONES.len()]);
         let mut col = lerp3(base, other, 0.4 * unit_lo(c.id));
         let vein_n = d.fbm(x, y, 10.0, 3, s ^ (c.id & 0xffff));
         let vein = smoothstep(0.025, 0.0, (vein_n - 0.5).abs()) * if c.id & 3 == 0 { 1.0 } else { 0.0 };
-        col = scale3(col, (0.8 + 0.4 * grain) * (0.8 + 0.4 * unit(c.id >> 24)));
-        col = lerp3(col, [0.8, 0.78, 0.74], 0.6 * vein);
-        let gap_c = scale3([0.06, 0.05, 0.045], 0.8 + 0.4 * grain);
+        col *= (0.8 + 0.4 * grain) * (0.8 + 0.4 * unit(c.id >> 24));
+        col = lerp3(col, Vec3::new(0.8, 0.78, 0.74), 0.6 * vein);
+        let gap_c = Vec3::new(0.06, 0.05, 0.045) * (0.8 + 0.4 * grain);
         Texel {
             h,
             a: lerp3(gap_c, col, t),
@@ -841,7 +831,7 @@ impl Gen {
         }
         t.m = m;
         t.h -= 1.3 * m;
-        t.a = scale3(t.a, 1.0 - 0.75 * m);
+        t.a *= 1.0 - 0.75 * m;
         t.r = lerp(t.r, 0.95, m);
         t.ks *= 1.0 - 0.7 * m;
     }
@@ -863,9 +853,9 @@ impl Gen {
         // Darker "coffee ring" at the stain border.
         let ring = smoothstep(thr + 0.04, thr, v) * m;
         let tints: [[f32; 3]; 3] = [[0.55, 0.42, 0.25], [0.45, 0.45, 0.40], [0.60, 0.50, 0.30]];
-        let tint = tints[(mix64(s) % 3) as usize];
+        let tint = Vec3::from(tints[(mix64(s) % 3) as usize]);
         let inner = 0.8 + 0.3 * d.fbm(x, y, 6.0, 3, s ^ 4);
-        let stained = scale3(mul3(t.a, tint), inner * (1.0 - 0.35 * ring));
+        let stained = t.a * tint * (inner * (1.0 - 0.35 * ring));
         t.a = lerp3(t.a, stained, m);
         t.r = lerp(t.r, t.r * 0.7, m);
         t.ks = lerp(t.ks, (t.ks + 0.2).min(1.0), m);
@@ -898,14 +888,9 @@ impl Gen {
         if best > 0.0 {
             t.h -= 0.35 * best;
             let target = if bright {
-                let a = t.a;
-                [
-                    (a[0] * 1.5 + 0.12).min(1.0),
-                    (a[1] * 1.5 + 0.12).min(1.0),
-                    (a[2] * 1.5 + 0.12).min(1.0),
-                ]
+                (t.a * 1.5 + 0.12).map(|c| c.min(1.0))
             } else {
-                scale3(t.a, 0.5)
+                t.a * 0.5
             };
             t.a = lerp3(t.a, target, best);
             t.r = lerp(t.r, 0.12, best);

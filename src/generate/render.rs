@@ -10,9 +10,11 @@
 //! Every quantity depends only on global (wrapped) texel coordinates, so a texel
 //! renders bit-identically in any block of any size.
 
+use glam::Vec3;
 use rayon::prelude::*;
 
 use super::material::{lerp, wrap_pair, Mesostructure};
+use crate::mesh::unit_or;
 
 /// Unit vector from polar angle `theta` (from the surface normal +z) and azimuth
 /// `phi`, both in degrees: `(sinθcosφ, sinθsinφ, cosθ)`.
@@ -36,24 +38,10 @@ const MAX_THETA_DEG: f32 = 80.0;
 /// Smallest `cot θ` of a view ray (θ ≈ 89.4°), bounding the march length.
 const MIN_COT: f32 = 0.01;
 
-#[inline]
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-#[inline]
-fn normalize(a: [f32; 3]) -> [f32; 3] {
-    let l = dot(a, a).sqrt();
-    if l > 0.0 {
-        [a[0] / l, a[1] / l, a[2] / l]
-    } else {
-        [0.0, 0.0, 1.0]
-    }
-}
-
 /// Light-dependent constants for shadow casting.
 struct Light {
-    l: [f32; 3],
+    /// Unit direction towards the light.
+    l: Vec3,
     /// Horizontal unit direction towards the light.
     dir: [f32; 2],
     /// cot θ of the light.
@@ -104,9 +92,10 @@ impl<'a> BlockRenderer<'a> {
         let lights: Vec<Light> = lights
             .iter()
             .map(|&l| {
-                let l = normalize(l);
-                let lxy = (l[0] * l[0] + l[1] * l[1]).sqrt();
-                if lxy < 1e-4 || l[2] <= 0.0 {
+                // a zero direction counts as the vertical light
+                let l = unit_or(l.into(), Vec3::Z);
+                let lxy = (l.x * l.x + l.y * l.y).sqrt();
+                if lxy < 1e-4 || l.z <= 0.0 {
                     return Light {
                         l,
                         dir: [0.0, 0.0],
@@ -115,11 +104,11 @@ impl<'a> BlockRenderer<'a> {
                         casts: false,
                     };
                 }
-                let cot = l[2] / lxy;
+                let cot = l.z / lxy;
                 let smax = range / cot;
                 Light {
                     l,
-                    dir: [l[0] / lxy, l[1] / lxy],
+                    dir: [l.x / lxy, l.y / lxy],
                     cot,
                     smax,
                     casts: smax >= STEP,
@@ -189,14 +178,14 @@ impl<'a> BlockRenderer<'a> {
     }
 
     /// First intersection of the view ray of texel `(x, y)` with the height field.
-    fn trace(&self, x: f32, y: f32, v: [f32; 3]) -> [f32; 3] {
+    fn trace(&self, x: f32, y: f32, v: Vec3) -> [f32; 3] {
         let m = self.meso;
-        let vxy = (v[0] * v[0] + v[1] * v[1]).sqrt();
+        let vxy = (v.x * v.x + v.y * v.y).sqrt();
         if vxy < 1e-6 {
             return [x, y, m.height_at(x, y)];
         }
-        let (dx, dy) = (-v[0] / vxy, -v[1] / vxy);
-        let cot = (v[2] / vxy).max(MIN_COT);
+        let (dx, dy) = (-v.x / vxy, -v.y / vxy);
+        let cot = (v.z / vxy).max(MIN_COT);
         let tan = 1.0 / cot;
         let t_top = (m.max_height - self.z_ref) * tan;
         let s_end = (m.max_height - m.min_height) * tan;
@@ -249,15 +238,16 @@ impl<'a> BlockRenderer<'a> {
         if nl == 0 {
             return;
         }
-        let v = normalize(view);
+        // a zero view (and a zero half vector) counts as the vertical one
+        let v = unit_or(view.into(), Vec3::Z);
         let m = self.meso;
         // Half vectors and Fresnel are texel-independent for distant view/light.
-        let half: Vec<([f32; 3], f32)> = self
+        let half: Vec<(Vec3, f32)> = self
             .lights
             .iter()
             .map(|lt| {
-                let hv = normalize([v[0] + lt.l[0], v[1] + lt.l[1], v[2] + lt.l[2]]);
-                let c = (1.0 - dot(v, hv).max(0.0)).clamp(0.0, 1.0);
+                let hv = unit_or(v + lt.l, Vec3::Z);
+                let c = (1.0 - v.dot(hv).max(0.0)).clamp(0.0, 1.0);
                 let c2 = c * c;
                 (hv, F0 + (1.0 - F0) * c2 * c2 * c)
             })
@@ -281,18 +271,18 @@ impl<'a> BlockRenderer<'a> {
                 let bil = |f: &dyn Fn(usize) -> f32| {
                     lerp(lerp(f(idx[0]), f(idx[1]), fx), lerp(f(idx[2]), f(idx[3]), fx), fy)
                 };
-                let albedo = [
+                let albedo = Vec3::new(
                     bil(&|i| m.albedo[i][0]),
                     bil(&|i| m.albedo[i][1]),
                     bil(&|i| m.albedo[i][2]),
-                ];
+                );
                 let ks = bil(&|i| m.specular[i]);
                 let alpha = bil(&|i| m.roughness[i]);
                 let a2 = alpha * alpha;
                 let hx = 0.5 * (m.height_at(q[0] + 1.0, q[1]) - m.height_at(q[0] - 1.0, q[1]));
                 let hy = 0.5 * (m.height_at(q[0], q[1] + 1.0) - m.height_at(q[0], q[1] - 1.0));
-                let n = normalize([-hx, -hy, 1.0]);
-                let nv = dot(n, v).max(0.0);
+                let n = unit_or(Vec3::new(-hx, -hy, 1.0), Vec3::Z);
+                let nv = n.dot(v).max(0.0);
                 let lam_v = 1.0 / (nv + (a2 + (1.0 - a2) * nv * nv).sqrt());
 
                 // Shadow map corners around q (fallback outside the map).
@@ -318,15 +308,15 @@ impl<'a> BlockRenderer<'a> {
 
                 let base = (ty * self.w + tx) * nl * 3;
                 let dst = &mut out[base..base + nl * 3];
-                let amb = [albedo[0] * AMBIENT, albedo[1] * AMBIENT, albedo[2] * AMBIENT];
+                let amb = albedo * AMBIENT;
                 for (k, (px, (lt, &(hv, fres)))) in dst
                     .chunks_exact_mut(3)
                     .zip(self.lights.iter().zip(half.iter()))
                     .enumerate()
                 {
-                    let ndl = dot(n, lt.l);
+                    let ndl = n.dot(lt.l);
                     if ndl <= 0.0 {
-                        px.copy_from_slice(&amb);
+                        px.copy_from_slice(&amb.to_array());
                         continue;
                     }
                     let zs = lerp(
@@ -336,19 +326,17 @@ impl<'a> BlockRenderer<'a> {
                     );
                     let vis = ((q[2] - zs) / SHADOW_SOFT + 1.0).clamp(0.0, 1.0);
                     if vis <= 0.0 {
-                        px.copy_from_slice(&amb);
+                        px.copy_from_slice(&amb.to_array());
                         continue;
                     }
-                    let nh = dot(n, hv).max(0.0);
+                    let nh = n.dot(hv).max(0.0);
                     let d = nh * nh * (a2 - 1.0) + 1.0;
                     let lam_l = 1.0 / (ndl + (a2 + (1.0 - a2) * ndl * ndl).sqrt());
                     // π·D·F·G/(4 n·v n·l)·n·l with separable Smith-GGX G.
                     let spec = ks * a2 / (d * d) * fres * lam_v * lam_l * ndl;
                     let diff = vis * ndl;
                     let sv = vis * spec;
-                    px[0] = amb[0] + albedo[0] * diff + sv;
-                    px[1] = amb[1] + albedo[1] * diff + sv;
-                    px[2] = amb[2] + albedo[2] * diff + sv;
+                    px.copy_from_slice(&(amb + albedo * diff + sv).to_array());
                 }
             }
         }
@@ -407,7 +395,7 @@ mod tests {
         let d = direction(90.0, 90.0);
         assert!(d[0].abs() < 1e-6 && (d[1] - 1.0).abs() < 1e-6 && d[2].abs() < 1e-6);
         let d = direction(37.0, 211.0);
-        assert!((dot(d, d) - 1.0).abs() < 1e-6);
+        assert!((Vec3::from(d).length_squared() - 1.0).abs() < 1e-6);
     }
 
     #[test]
@@ -568,13 +556,13 @@ mod tests {
             min_height: 1.0,
         };
         let r = BlockRenderer::new(&m, 0, 0, n, n, &[]);
-        let q = r.trace(5.0, 7.0, direction(60.0, 30.0));
+        let q = r.trace(5.0, 7.0, direction(60.0, 30.0).into());
         assert!((q[0] - 5.0).abs() < 1e-4 && (q[1] - 7.0).abs() < 1e-4 && (q[2] - 1.0).abs() < 1e-4);
         // A ray grazing a step hits its face, not the floor behind it.
         let meso = meso(Family::Pebbles, Imperfection::None, 64, 1);
         let r = BlockRenderer::new(&meso, 0, 0, 8, 8, &[]);
         for (x, y) in [(3.0, 4.0), (30.0, 12.0), (50.0, 60.0)] {
-            let q = r.trace(x, y, direction(70.0, 45.0));
+            let q = r.trace(x, y, direction(70.0, 45.0).into());
             assert!((q[2] - meso.height_at(q[0], q[1])).abs() < 0.02, "{q:?}");
         }
     }

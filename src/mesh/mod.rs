@@ -8,6 +8,8 @@
 pub mod io;
 pub mod repair;
 
+use glam::{DVec3, Vec3};
+
 /// Index of a face.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct FaceId(pub u32);
@@ -72,32 +74,32 @@ pub fn extreme_scale(positions: &[[f32; 3]]) -> f64 {
     2f64.powi(-diag.log2().round() as i32)
 }
 
-pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-pub(crate) fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-pub(crate) fn length(a: [f32; 3]) -> f32 {
-    dot(a, a).sqrt()
-}
-
-pub(crate) fn normalize(a: [f32; 3]) -> [f32; 3] {
-    let l = length(a);
+/// `v / |v|`, each component divided by the length, or `fallback` when the
+/// length is not positive (a zero vector, or NaN). glam's `normalize*`
+/// multiply by the reciprocal length instead, which can round differently in
+/// the last bit; every unit vector of the pipeline is made here so that its
+/// bits stay those it always had.
+pub(crate) fn unit_or(v: Vec3, fallback: Vec3) -> Vec3 {
+    let l = v.length();
     if l > 0.0 {
-        [a[0] / l, a[1] / l, a[2] / l]
+        v / l
     } else {
-        [0.0, 0.0, 0.0]
+        fallback
+    }
+}
+
+/// A stored f32 point in f64 (each component converted exactly).
+pub(crate) fn to_dvec3(p: [f32; 3]) -> DVec3 {
+    Vec3::from(p).as_dvec3()
+}
+
+/// [`unit_or`] in f64.
+pub(crate) fn dunit_or(v: DVec3, fallback: DVec3) -> DVec3 {
+    let l = v.length();
+    if l > 0.0 {
+        v / l
+    } else {
+        fallback
     }
 }
 
@@ -114,33 +116,30 @@ impl Mesh {
 
     /// Unnormalised face normal (twice the area in length).
     pub fn face_cross(&self, f: usize) -> [f32; 3] {
-        let [a, b, c] = self.corners(f);
-        cross(sub(b, a), sub(c, a))
+        let [a, b, c] = self.corners(f).map(Vec3::from);
+        (b - a).cross(c - a).to_array()
     }
 
     /// Face area.
     pub fn face_area(&self, f: usize) -> f32 {
-        0.5 * length(self.face_cross(f))
+        0.5 * Vec3::from(self.face_cross(f)).length()
     }
 
     /// Unit face normal (zero for a degenerate face).
     pub fn face_normal(&self, f: usize) -> [f32; 3] {
-        normalize(self.face_cross(f))
+        unit_or(self.face_cross(f).into(), Vec3::ZERO).to_array()
     }
 
     /// Area-weighted unit vertex normals.
     pub fn vertex_normals(&self) -> Vec<[f32; 3]> {
-        let mut n = vec![[0f32; 3]; self.positions.len()];
+        let mut n = vec![Vec3::ZERO; self.positions.len()];
         for f in 0..self.triangles.len() {
-            let c = self.face_cross(f);
+            let c = Vec3::from(self.face_cross(f));
             for &v in &self.triangles[f] {
-                let a = &mut n[v as usize];
-                a[0] += c[0];
-                a[1] += c[1];
-                a[2] += c[2];
+                n[v as usize] += c;
             }
         }
-        n.into_iter().map(normalize).collect()
+        n.into_iter().map(|v| unit_or(v, Vec3::ZERO).to_array()).collect()
     }
 
     /// Length of the bounding-box diagonal.
@@ -156,7 +155,7 @@ impl Mesh {
         if self.positions.is_empty() {
             0.0
         } else {
-            length(sub(hi, lo))
+            (Vec3::from(hi) - Vec3::from(lo)).length()
         }
     }
 

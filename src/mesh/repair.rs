@@ -5,7 +5,8 @@
 //! faces around every vertex form a single fan, so [`Mesh::topology`] is well
 //! defined. The result depends only on the input, never on hash order.
 
-use super::{Mesh, NO_FACE};
+use super::{dunit_or, to_dvec3, Mesh, NO_FACE};
+use glam::DVec3;
 use std::collections::HashMap;
 use std::fmt;
 
@@ -191,7 +192,7 @@ fn median_edge_length(mesh: &Mesh) -> f64 {
 }
 
 fn dist2(a: [f32; 3], b: [f32; 3]) -> f64 {
-    (0..3).map(|k| (a[k] as f64 - b[k] as f64).powi(2)).sum()
+    to_dvec3(a).distance_squared(to_dvec3(b))
 }
 
 /// Welds vertices closer than `tolerance` times `edge` (the median edge
@@ -289,13 +290,9 @@ fn drop_degenerate(mesh: &mut Mesh) -> usize {
         if !(is_finite(a) && is_finite(b) && is_finite(c)) {
             return false;
         }
-        let e1 = [0, 1, 2].map(|k| b[k] as f64 - a[k] as f64);
-        let e2 = [0, 1, 2].map(|k| c[k] as f64 - a[k] as f64);
-        let cx = e1[1] * e2[2] - e1[2] * e2[1];
-        let cy = e1[2] * e2[0] - e1[0] * e2[2];
-        let cz = e1[0] * e2[1] - e1[1] * e2[0];
+        let (e1, e2) = (to_dvec3(b) - to_dvec3(a), to_dvec3(c) - to_dvec3(a));
         let longest2 = dist2(a, b).max(dist2(b, c)).max(dist2(c, a));
-        0.5 * (cx * cx + cy * cy + cz * cz).sqrt() > 1e-12 * longest2
+        0.5 * e1.cross(e2).length() > 1e-12 * longest2
     };
     let before = mesh.triangles.len();
     let kept: Vec<[u32; 3]> = mesh.triangles.iter().copied().filter(|t| usable(t)).collect();
@@ -414,40 +411,27 @@ fn runs_forward(triangles: &[[u32; 3]], side: EdgeSide) -> bool {
 /// lowest face first.
 fn pair_faces(mesh: &Mesh, run: &[EdgeSide], boundary: &[u8]) -> Vec<Vec<usize>> {
     let tris = &mesh.triangles;
-    let p = |v: u32| mesh.positions[v as usize].map(|c| c as f64);
+    let p = |v: u32| to_dvec3(mesh.positions[v as usize]);
     let (lo, hi) = (p(run[0].0), p(run[0].1));
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let axis = sub(hi, lo);
-    let len2 = dot(axis, axis);
+    let axis = hi - lo;
+    let len2 = axis.length_squared();
     // Radial direction of each face's third corner, perpendicular to the edge.
-    let radial: Vec<[f64; 3]> = run
+    let radial: Vec<DVec3> = run
         .iter()
         .map(|s| {
             let t = tris[s.2 as usize];
             let c = t[(s.3 as usize + 2) % 3];
-            let r = sub(p(c), lo);
-            let along = if len2 > 0.0 { dot(r, axis) / len2 } else { 0.0 };
-            [
-                r[0] - along * axis[0],
-                r[1] - along * axis[1],
-                r[2] - along * axis[2],
-            ]
+            let r = p(c) - lo;
+            let along = if len2 > 0.0 { r.dot(axis) / len2 } else { 0.0 };
+            r - along * axis
         })
         .collect();
     let u = radial[0];
-    let v = cross(axis, u);
+    let v = axis.cross(u);
     let angle: Vec<f64> = radial
         .iter()
         .map(|r| {
-            let a = dot(*r, v).atan2(dot(*r, u));
+            let a = r.dot(v).atan2(r.dot(u));
             if a.is_finite() {
                 a
             } else {
@@ -462,21 +446,13 @@ fn pair_faces(mesh: &Mesh, run: &[EdgeSide], boundary: &[u8]) -> Vec<Vec<usize>>
     let mut groups = Vec::new();
     // Pass 1: neighbours in angle order, best first.
     let m = order.len();
-    let unit = |r: [f64; 3]| {
-        let l = dot(r, r).sqrt();
-        if l > 0.0 {
-            r.map(|c| c / l)
-        } else {
-            [0.0; 3]
-        }
-    };
     let mut candidates = Vec::new();
     for k in 0..m {
         let (a, b) = (order[k], order[(k + 1) % m]);
         if forward[a] != forward[b] {
             let dangling = boundary[run[a].2 as usize] + boundary[run[b].2 as usize];
             let inward = forward[a] || !forward[b];
-            let bend = dot(unit(radial[a]), unit(radial[b]));
+            let bend = dunit_or(radial[a], DVec3::ZERO).dot(dunit_or(radial[b], DVec3::ZERO));
             candidates.push((dangling, inward, bend, a.min(b), a.max(b)));
         }
     }

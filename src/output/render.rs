@@ -47,14 +47,13 @@
 
 use std::path::{Path, PathBuf};
 
+use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::artifact::btf::Angles;
 use crate::container::MemoryBudget;
-use crate::io::imageio::bilinear;
-use crate::io::imageio::dilate;
-use crate::io::imageio::{self, PngDepth, RgbImage};
-use crate::mesh::{cross, dot, normalize, sub, Mesh};
+use crate::io::imageio::{self, bilinear, dilate, PngDepth, RgbImage};
+use crate::mesh::{unit_or, Mesh};
 use crate::output::{atlas_colour, open_samples};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
@@ -129,8 +128,8 @@ impl Camera {
             ));
         }
         let cam = self;
-        let f = normalize(sub(cam.target, cam.eye));
-        if dot(f, f) < 0.5 || crate::mesh::length(cross(f, normalize(cam.up))) < 1e-4 {
+        let f = unit_or(Vec3::from(cam.target) - Vec3::from(cam.eye), Vec3::ZERO);
+        if f.length_squared() < 0.5 || f.cross(unit_or(cam.up.into(), Vec3::ZERO)).length() < 1e-4 {
             return Err("the eye must differ from the target and up must not be along the view".into());
         }
         Ok(())
@@ -139,10 +138,10 @@ impl Camera {
     /// A three-quarter view framing the given positions.
     pub fn framing(positions: &[[f32; 3]]) -> Camera {
         let (c, radius) = bounds(positions);
-        let d = normalize([0.8, 0.45, 1.0]);
+        let d = unit_or(Vec3::new(0.8, 0.45, 1.0), Vec3::ZERO);
         let dist = radius / (20f32.to_radians()).tan();
         Camera {
-            eye: [c[0] + d[0] * dist, c[1] + d[1] * dist, c[2] + d[2] * dist],
+            eye: (Vec3::from(c) + d * dist).to_array(),
             target: c,
             up: [0.0, 1.0, 0.0],
             fov: 42.0,
@@ -151,7 +150,7 @@ impl Camera {
 
     /// The unit axis from the target towards the eye.
     pub fn axis(&self) -> [f32; 3] {
-        normalize(sub(self.eye, self.target))
+        unit_or(Vec3::from(self.eye) - Vec3::from(self.target), Vec3::ZERO).to_array()
     }
 }
 
@@ -168,12 +167,8 @@ fn bounds(positions: &[[f32; 3]]) -> ([f32; 3], f32) {
     if positions.is_empty() {
         return ([0.0; 3], 1.0);
     }
-    let c = [
-        (lo[0] + hi[0]) / 2.0,
-        (lo[1] + hi[1]) / 2.0,
-        (lo[2] + hi[2]) / 2.0,
-    ];
-    (c, 0.5 * crate::mesh::length(sub(hi, lo)))
+    let (lo, hi) = (Vec3::from(lo), Vec3::from(hi));
+    (((lo + hi) / 2.0).to_array(), 0.5 * (hi - lo).length())
 }
 
 /// A light source.
@@ -223,7 +218,7 @@ impl Light {
         let v = numbers("--light", s, what, &[3, 4])?;
         let direction = [v[0], v[1], v[2]];
         let intensity = v.get(3).copied().unwrap_or(1.0);
-        if dot(direction, direction) < 1e-12 || intensity < 0.0 {
+        if Vec3::from(direction).length_squared() < 1e-12 || intensity < 0.0 {
             return Err(Error::Config(format!("--light '{s}': expected {what}")));
         }
         Ok(Light::Directional { direction, intensity })
@@ -247,20 +242,17 @@ impl Light {
     /// line through the target towards the eye): a directional light keeps
     /// its angle to the axis, a point light its distance to the axis line.
     pub fn orbit(&self, camera: &Camera, angle: f32) -> Light {
-        let axis = camera.axis();
+        let axis = Vec3::from(camera.axis());
+        let target = Vec3::from(camera.target);
         match *self {
             Light::Directional { direction, intensity } => Light::Directional {
-                direction: rotate(direction, axis, angle),
+                direction: rotate(direction.into(), axis, angle).to_array(),
                 intensity,
             },
             Light::Point { position, intensity } => {
-                let r = rotate(sub(position, camera.target), axis, angle);
+                let r = rotate(Vec3::from(position) - target, axis, angle);
                 Light::Point {
-                    position: [
-                        r[0] + camera.target[0],
-                        r[1] + camera.target[1],
-                        r[2] + camera.target[2],
-                    ],
+                    position: (r + target).to_array(),
                     intensity,
                 }
             }
@@ -269,11 +261,11 @@ impl Light {
 }
 
 /// Rodrigues' rotation of `v` by `angle` about the unit `axis`.
-fn rotate(v: [f32; 3], axis: [f32; 3], angle: f32) -> [f32; 3] {
+fn rotate(v: Vec3, axis: Vec3, angle: f32) -> Vec3 {
     let (s, c) = angle.sin_cos();
-    let kxv = cross(axis, v);
-    let kdv = dot(axis, v);
-    std::array::from_fn(|i| v[i] * c + kxv[i] * s + axis[i] * kdv * (1.0 - c))
+    let kxv = axis.cross(v);
+    let kdv = axis.dot(v);
+    v * c + kxv * s + axis * kdv * (1.0 - c)
 }
 
 /// What to render.
@@ -337,7 +329,7 @@ impl RenderConfig {
             let ok = match *l {
                 Light::Directional { direction, intensity } => {
                     direction.iter().all(|v| v.is_finite())
-                        && dot(direction, direction) > 1e-12
+                        && Vec3::from(direction).length_squared() > 1e-12
                         && intensity.is_finite()
                         && intensity >= 0.0
                 }
@@ -456,16 +448,16 @@ pub fn render_frames(
 /// Measured directions of one kind (views or lights) as unit vectors in
 /// sample axes, for nearest-direction interpolation.
 struct Directions {
-    dirs: Vec<[f32; 3]>,
+    dirs: Vec<Vec3>,
     cos_max: f32,
     sin_max: f32,
 }
 
 impl Directions {
     fn new(angles: &[Angles]) -> Directions {
-        let dirs: Vec<[f32; 3]> = angles
+        let dirs: Vec<Vec3> = angles
             .iter()
-            .map(|a| crate::generate::direction(a.theta, a.phi))
+            .map(|a| crate::generate::direction(a.theta, a.phi).into())
             .collect();
         let theta_max = angles
             .iter()
@@ -481,15 +473,15 @@ impl Directions {
     }
 
     /// `d` (unit, sample axes) with θ clamped to the measured range, φ kept.
-    fn clamp(&self, d: [f32; 3]) -> [f32; 3] {
-        if d[2] >= self.cos_max {
+    fn clamp(&self, d: Vec3) -> Vec3 {
+        if d.z >= self.cos_max {
             return d;
         }
-        let h = (d[0] * d[0] + d[1] * d[1]).sqrt();
+        let h = (d.x * d.x + d.y * d.y).sqrt();
         if h < 1e-12 {
-            return [self.sin_max, 0.0, self.cos_max];
+            return Vec3::new(self.sin_max, 0.0, self.cos_max);
         }
-        [self.sin_max * d[0] / h, self.sin_max * d[1] / h, self.cos_max]
+        Vec3::new(self.sin_max * d.x / h, self.sin_max * d.y / h, self.cos_max)
     }
 
     /// The (up to) 3 measured directions nearest to the unit `d` by angle
@@ -500,16 +492,12 @@ impl Directions {
     /// over the surface (plain inverse-angle weights over the three nearest
     /// step where the third changes, a faint line across the render). With
     /// three directions or fewer, plain inverse-angle weights.
-    fn nearest(&self, d: [f32; 3]) -> ([(u32, f32); 3], usize) {
+    fn nearest(&self, d: Vec3) -> ([(u32, f32); 3], usize) {
         // a degenerate frame can only give a non-finite direction: take the pole
-        let d = if d.iter().all(|v| v.is_finite()) {
-            d
-        } else {
-            [0.0, 0.0, 1.0]
-        };
+        let d = if d.is_finite() { d } else { Vec3::Z };
         let mut best = [(f32::NEG_INFINITY, u32::MAX); 4];
         for (j, m) in self.dirs.iter().enumerate() {
-            let c = dot(d, *m);
+            let c = d.dot(*m);
             if c > best[3].0 {
                 let mut k = 3;
                 while k > 0 && c > best[k - 1].0 {
@@ -520,7 +508,7 @@ impl Directions {
             }
         }
         let angle = |k: usize| {
-            let chord = crate::mesh::length(sub(d, self.dirs[best[k].1 as usize]));
+            let chord = d.distance(self.dirs[best[k].1 as usize]);
             2.0 * (0.5 * chord).min(1.0).asin()
         };
         let count = self.dirs.len().min(3);
@@ -617,17 +605,15 @@ pub struct Scene {
 fn corner_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3]; 2]>> {
     let faces = face_maps(mesh, corner_uv, r);
     // wedge key: vertex and uv bits; sums accumulated in face order
-    let mut wedges: std::collections::HashMap<(u32, u32, u32), ([[f32; 3]; 2], u32)> =
+    let mut wedges: std::collections::HashMap<(u32, u32, u32), ([Vec3; 2], u32)> =
         std::collections::HashMap::new();
     let key = |c: usize, v: u32| (v, corner_uv[c][0].to_bits(), corner_uv[c][1].to_bits());
     for (f, tri) in mesh.triangles.iter().enumerate() {
         let Some(m) = faces[f] else { continue };
         for (k, &v) in tri.iter().enumerate() {
-            let e = wedges.entry(key(f * 3 + k, v)).or_insert(([[0.0; 3]; 2], 0));
-            for (a, b) in e.0.iter_mut().zip(&m) {
-                for d in 0..3 {
-                    a[d] += b[d];
-                }
+            let e = wedges.entry(key(f * 3 + k, v)).or_insert(([Vec3::ZERO; 2], 0));
+            for (a, b) in e.0.iter_mut().zip(m) {
+                *a += Vec3::from(b);
             }
             e.1 += 1;
         }
@@ -638,7 +624,7 @@ fn corner_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32;
             out.push(
                 wedges
                     .get(&key(f * 3 + k, v))
-                    .map(|(sum, n)| sum.map(|a| a.map(|x| x / *n as f32)))
+                    .map(|(sum, n)| sum.map(|a| (a / *n as f32).to_array()))
                     .or(faces[f]),
             );
         }
@@ -651,8 +637,8 @@ fn corner_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32;
 fn face_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3]; 2]>> {
     (0..mesh.triangles.len())
         .map(|f| {
-            let [p0, p1, p2] = mesh.corners(f);
-            let (e1, e2) = (sub(p1, p0), sub(p2, p0));
+            let [p0, p1, p2] = mesh.corners(f).map(Vec3::from);
+            let (e1, e2) = (p1 - p0, p2 - p0);
             let (u0, u1, u2) = (corner_uv[f * 3], corner_uv[f * 3 + 1], corner_uv[f * 3 + 2]);
             let a = [(u1[0] - u0[0]) * r, (u1[1] - u0[1]) * r];
             let b = [(u2[0] - u0[0]) * r, (u2[1] - u0[1]) * r];
@@ -662,9 +648,8 @@ fn face_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3
             }
             // [e1 e2] = [dX dY] [a b]  ⇒  [dX dY] = [e1 e2] [a b]⁻¹
             let (i00, i01, i10, i11) = (b[1] / det, -b[0] / det, -a[1] / det, a[0] / det);
-            let dx: [f32; 3] = std::array::from_fn(|k| e1[k] * i00 + e2[k] * i10);
-            let dy: [f32; 3] = std::array::from_fn(|k| e1[k] * i01 + e2[k] * i11);
-            Some([dx, dy])
+            let (dx, dy) = (e1 * i00 + e2 * i10, e1 * i01 + e2 * i11);
+            Some([dx.to_array(), dy.to_array()])
         })
         .collect()
 }
@@ -865,22 +850,18 @@ impl Scene {
                 let f = face as usize;
                 let tri = self.mesh.triangles[f];
                 let b = [g.bary[i][0], g.bary[i][1], 1.0 - g.bary[i][0] - g.bary[i][1]];
-                let mut pos = [0f32; 3];
-                let mut n = [0f32; 3];
+                let mut pos = Vec3::ZERO;
+                let mut n = Vec3::ZERO;
                 let mut uv = [0f32; 2];
                 for k in 0..3 {
-                    let p = self.mesh.positions[tri[k] as usize];
-                    let vn = self.normals[tri[k] as usize];
-                    for d in 0..3 {
-                        pos[d] += b[k] * p[d];
-                        n[d] += b[k] * vn[d];
-                    }
+                    pos += b[k] * Vec3::from(self.mesh.positions[tri[k] as usize]);
+                    n += b[k] * Vec3::from(self.normals[tri[k] as usize]);
                     uv[0] += b[k] * self.corner_uv[f * 3 + k][0];
                     uv[1] += b[k] * self.corner_uv[f * 3 + k][1];
                 }
-                let mut n = normalize(n);
-                if dot(n, n) < 0.5 {
-                    n = self.mesh.face_normal(f);
+                let mut n = unit_or(n, Vec3::ZERO);
+                if n.length_squared() < 0.5 {
+                    n = self.mesh.face_normal(f).into();
                 }
                 lights.clear();
                 lights.extend(cfg.lights.iter().map(|l| self.light_at(l, pos)));
@@ -888,12 +869,12 @@ impl Scene {
                     Shading::Colour(texture) => {
                         let r = self.resolution as f32;
                         let colour = bilinear(texture, uv[0] * r - 0.5, uv[1] * r - 0.5);
-                        let e: f32 = lights.iter().map(|&(l, e)| e * dot(n, l).max(0.0)).sum();
+                        let e: f32 = lights.iter().map(|&(l, e)| e * n.dot(l).max(0.0)).sum();
                         let shade = 0.18 + 0.82 * e;
                         colour.map(|v| v * shade)
                     }
                     Shading::Btf(btf) => {
-                        let view = normalize(sub(cam.eye, pos));
+                        let view = unit_or(Vec3::from(cam.eye) - pos, Vec3::ZERO);
                         self.shade_btf(btf, f, b, n, uv, view, &lights, &mut scratch)
                     }
                 };
@@ -906,16 +887,16 @@ impl Scene {
     }
 
     /// Unit direction towards the light and its irradiance scale at `pos`.
-    fn light_at(&self, light: &Light, pos: [f32; 3]) -> ([f32; 3], f32) {
+    fn light_at(&self, light: &Light, pos: Vec3) -> (Vec3, f32) {
         match *light {
-            Light::Directional { direction, intensity } => (normalize(direction), intensity),
+            Light::Directional { direction, intensity } => (unit_or(direction.into(), Vec3::ZERO), intensity),
             Light::Point { position, intensity } => {
-                let position = position.map(|v| v * self.unit);
-                let d = sub(position, pos);
-                let d2 = dot(d, d).max(1e-20);
-                let c = sub(position, self.centre);
-                let c2 = dot(c, c).max(1e-20);
-                (normalize(d), intensity * c2 / d2)
+                let position = Vec3::from(position) * self.unit;
+                let d = position - pos;
+                let d2 = d.length_squared().max(1e-20);
+                let c = position - Vec3::from(self.centre);
+                let c2 = c.length_squared().max(1e-20);
+                (unit_or(d, Vec3::ZERO), intensity * c2 / d2)
             }
         }
     }
@@ -927,10 +908,10 @@ impl Scene {
         btf: &BtfShading,
         face: usize,
         bary: [f32; 3],
-        n: [f32; 3],
+        n: Vec3,
         uv: [f32; 2],
-        view: [f32; 3],
-        lights: &[([f32; 3], f32)],
+        view: Vec3,
+        lights: &[(Vec3, f32)],
         scratch: &mut Vec<f32>,
     ) -> [f32; 3] {
         let r = self.resolution;
@@ -949,38 +930,29 @@ impl Scene {
                                             // ∂P/∂X, ∂P/∂Y at the pixel: the corners' wedge averages interpolated
         let corners = &btf.corner_maps[face * 3..face * 3 + 3];
         let maps = corners.iter().all(Option::is_some).then(|| {
-            let mut m = [[0f32; 3]; 2];
+            let mut m = [Vec3::ZERO; 2];
             for (c, w) in corners.iter().zip(bary) {
                 let c = c.expect("checked");
                 for a in 0..2 {
-                    for d in 0..3 {
-                        m[a][d] += w * c[a][d];
-                    }
+                    m[a] += w * Vec3::from(c[a]);
                 }
             }
             m
         });
         let (x3, y3) = match maps {
-            Some([dpx, dpy]) => (
-                std::array::from_fn(|k| ax[0] * dpx[k] + ax[1] * dpy[k]),
-                std::array::from_fn(|k| ay[0] * dpx[k] + ay[1] * dpy[k]),
-            ),
-            None => ([0.0; 3], [0.0; 3]),
+            Some([dpx, dpy]) => (ax[0] * dpx + ax[1] * dpy, ay[0] * dpx + ay[1] * dpy),
+            None => (Vec3::ZERO, Vec3::ZERO),
         };
-        let mut xh = normalize(sub(x3, scaled(n, dot(x3, n))));
-        if dot(xh, xh) < 0.5 {
-            let other = if n[0].abs() < 0.9 {
-                [1.0, 0.0, 0.0]
-            } else {
-                [0.0, 1.0, 0.0]
-            };
-            xh = normalize(cross(n, other));
+        let mut xh = unit_or(x3 - n * x3.dot(n), Vec3::ZERO);
+        if xh.length_squared() < 0.5 {
+            let other = if n.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
+            xh = unit_or(n.cross(other), Vec3::ZERO);
         }
-        let mut yh = cross(n, xh);
-        if dot(yh, y3) < 0.0 {
-            yh = scaled(yh, -1.0);
+        let mut yh = n.cross(xh);
+        if yh.dot(y3) < 0.0 {
+            yh = -yh;
         }
-        let local = |d: [f32; 3]| [dot(d, xh), dot(d, yh), dot(d, n)];
+        let local = |d: Vec3| Vec3::new(d.dot(xh), d.dot(yh), d.dot(n));
 
         // geometry maps: each of the (up to) four texels around the pixel's
         // atlas position continues its own patch to that position through
@@ -1048,11 +1020,11 @@ impl Scene {
         let mut acc = [0f32; 3];
         for &(l, e) in lights {
             let ll = local(l);
-            if ll[2] <= 0.0 || e <= 0.0 {
+            if ll.z <= 0.0 || e <= 0.0 {
                 continue;
             }
-            let fade = if ll[2] < btf.lights.cos_max {
-                ll[2] / btf.lights.cos_max.max(1e-3)
+            let fade = if ll.z < btf.lights.cos_max {
+                ll.z / btf.lights.cos_max.max(1e-3)
             } else {
                 1.0
             };
@@ -1080,9 +1052,10 @@ impl Scene {
     /// The G-buffer: per pixel the nearest face and perspective-correct
     /// barycentrics of its first two corners.
     fn rasterize(&self, cam: &Camera, width: usize, height: usize) -> GBuffer {
-        let f = normalize(sub(cam.target, cam.eye));
-        let s = normalize(cross(f, cam.up));
-        let u = cross(s, f);
+        let eye = Vec3::from(cam.eye);
+        let f = unit_or(Vec3::from(cam.target) - eye, Vec3::ZERO);
+        let s = unit_or(f.cross(cam.up.into()), Vec3::ZERO);
+        let u = s.cross(f);
         let focal = 0.5 * height as f32 / (0.5 * cam.fov.to_radians()).tan();
         // (pixel x, pixel y, depth)
         let proj: Vec<[f32; 3]> = self
@@ -1090,8 +1063,8 @@ impl Scene {
             .positions
             .iter()
             .map(|&p| {
-                let d = sub(p, cam.eye);
-                let (x, y, z) = (dot(d, s), dot(d, u), dot(d, f));
+                let d = Vec3::from(p) - eye;
+                let (x, y, z) = (d.dot(s), d.dot(u), d.dot(f));
                 [
                     width as f32 / 2.0 + focal * x / z,
                     height as f32 / 2.0 - focal * y / z,
@@ -1161,10 +1134,6 @@ struct GBuffer {
     /// Face per pixel, `u32::MAX` where empty.
     face: Vec<u32>,
     bary: Vec<[f32; 2]>,
-}
-
-fn scaled(a: [f32; 3], s: f32) -> [f32; 3] {
-    [a[0] * s, a[1] * s, a[2] * s]
 }
 
 /// Dot product in eight lanes (vectorises; fixed summation order).
@@ -1256,7 +1225,7 @@ mod tests {
 
     /// The interpolation weights over the measured directions as a dense
     /// vector.
-    fn weights(dirs: &Directions, d: [f32; 3]) -> Vec<f32> {
+    fn weights(dirs: &Directions, d: Vec3) -> Vec<f32> {
         let mut w = vec![0f32; dirs.dirs.len()];
         let (near, count) = dirs.nearest(d);
         for &(i, x) in &near[..count] {
@@ -1272,7 +1241,7 @@ mod tests {
         let mut t = 0f32;
         while t < 2.6 {
             let (theta, phi) = (0.05 + 0.65 * t.sin().abs(), 0.3 + t);
-            let d = [theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()];
+            let d = Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
             let w = weights(dirs, d);
             assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-5);
             if let Some(p) = &prev {

@@ -3,6 +3,8 @@
 //! zipper links and their gaps closed, else the rigid field-based unfolding)
 //! and resampled at one texel per pixel.
 
+use glam::Vec3;
+
 #[allow(unused_imports)]
 use super::*;
 
@@ -130,16 +132,14 @@ pub(super) fn patch_triangles(
     // normals): zipper triangles are stored unoriented, and the distortion
     // check reads flips from the orientation
     for tri in &mut tris {
-        let p = tri.map(|i| positions[i as usize]);
-        let n = crate::mesh::cross(crate::mesh::sub(p[1], p[0]), crate::mesh::sub(p[2], p[0]));
-        let mut avg = [0f32; 3];
+        let p = tri.map(|i| Vec3::from(positions[i as usize]));
+        let n = (p[1] - p[0]).cross(p[2] - p[0]);
+        let mut avg = Vec3::ZERO;
         for &i in tri.iter() {
             let t = patch.texels[i as usize] as usize;
-            for k in 0..3 {
-                avg[k] += surface.normal[t * 3 + k];
-            }
+            avg += Vec3::from_slice(&surface.normal[t * 3..t * 3 + 3]);
         }
-        if crate::mesh::dot(n, avg) < 0.0 {
+        if n.dot(avg) < 0.0 {
             tri.swap(1, 2);
         }
     }
