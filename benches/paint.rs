@@ -11,7 +11,7 @@
 use std::path::Path;
 use std::time::Duration;
 
-use btfquilt::gim::{self, AtlasConfig};
+use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::paint::{self, PaintConfig, PreviewSession, Verbatim};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, TileConfig};
@@ -33,7 +33,7 @@ fn bench_paint(c: &mut Criterion) {
     let d = dir.path();
     let gim_path = d.join("spot.gim");
     let spot = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj");
-    gim::build_gim(
+    atlas::build_gim(
         &spot,
         &gim_path,
         &AtlasConfig {

@@ -9,8 +9,8 @@
 
 use std::time::Duration;
 
+use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::factorize::{self, FactorizeConfig};
-use btfquilt::gim::{self, AtlasConfig};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, TileConfig};
 use criterion::{criterion_group, criterion_main, Criterion, SamplingMode};
@@ -21,7 +21,7 @@ mod common;
 fn bench_tile(c: &mut Criterion) {
     let dir = tempfile::tempdir().unwrap();
     let gim_path = dir.path().join("square400.gim");
-    gim::build_gim(
+    atlas::build_gim(
         &common::square_obj(dir.path()),
         &gim_path,
         &AtlasConfig {

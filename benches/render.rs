@@ -15,10 +15,10 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
-use btfquilt::gim::{self, AtlasConfig};
 use btfquilt::output::render::{self, RenderConfig, Scene};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, TileConfig};
@@ -45,7 +45,7 @@ fn quilt() -> PathBuf {
             resolution: 1024,
             ..AtlasConfig::default()
         };
-        gim::build_gim(&root.join("data/spot_5.8k.obj"), &gim_path, &cfg, &Silent).unwrap();
+        atlas::build_gim(&root.join("data/spot_5.8k.obj"), &gim_path, &cfg, &Silent).unwrap();
         step("atlas 1024²", t);
     }
     let svd = dir.join("bricks128.svd");

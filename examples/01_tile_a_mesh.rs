@@ -7,8 +7,8 @@
 //! The three stages are the CLI's `atlas`, `tile` and `bake`; each reads
 //! artifacts from disk and writes a new one.
 
+use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::container::MemoryBudget;
-use btfquilt::gim::{self, AtlasConfig};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, TileConfig};
 use std::path::Path;
@@ -26,7 +26,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         resolution: 256,
         ..Default::default()
     };
-    let atlas = gim::build_gim(&data.join("spot_5.8k.obj"), &gim_path, &atlas_cfg, &Silent)?;
+    let atlas = atlas::build_gim(&data.join("spot_5.8k.obj"), &gim_path, &atlas_cfg, &Silent)?;
     println!("atlas: {atlas}");
 
     // 2. Graphcut quilting of the 192² brick wall over the dense mesh. The

@@ -27,11 +27,12 @@ use std::time::Instant;
 use glam::Vec3;
 
 use crate::artifact::btf::{Angles, Btf};
+use crate::artifact::gim::Gim;
 use crate::artifact::svd::SvdArtifact;
+use crate::atlas::{self, AtlasConfig};
 use crate::container::MemoryBudget;
 use crate::factorize::{self, FactorizeConfig};
 use crate::generate::{self, Family, GenerateConfig, Imperfection};
-use crate::gim::{self, AtlasConfig, Gim};
 use crate::ingest;
 use crate::io::imageio::{self, PngDepth, RgbImage};
 use crate::mesh::unit_or;
@@ -352,7 +353,7 @@ pub fn run(out_dir: &Path, memory: MemoryBudget, progress: &dyn Progress) -> Res
         PathBuf::from("data/spot_5.8k.obj")
     };
     let gim_path = out_dir.join("spot.gim");
-    let atlas = gim::build_gim(
+    let atlas = atlas::build_gim(
         &spot,
         &gim_path,
         &AtlasConfig {

@@ -10,7 +10,7 @@
 //!
 //! | stage | function | writes |
 //! |---|---|---|
-//! | mesh → dense mesh (multi-chart geometry image) | [`gim::build_gim`] | `.gim` |
+//! | mesh → dense mesh (multi-chart geometry image) | [`atlas::build_gim`] | `.gim` |
 //! | BTF or colour image → geometry maps | [`factorize::factorize`] | `.svd` |
 //! | graphcut quilting | [`quilt::tile`] | `.quilt` |
 //! | graphcut texture painting | [`paint::paint`], [`paint::replay`] | `.quilt` |
@@ -25,14 +25,14 @@
 //!
 //! ```no_run
 //! use btfquilt::container::MemoryBudget;
-//! use btfquilt::gim::{self, AtlasConfig};
+//! use btfquilt::atlas::{self, AtlasConfig};
 //! use btfquilt::progress::Silent;
 //! use btfquilt::quilt::{self, TileConfig};
 //! use std::path::Path;
 //!
 //! fn main() -> btfquilt::Result<()> {
 //!     let atlas = AtlasConfig { resolution: 512, ..Default::default() };
-//!     gim::build_gim(Path::new("data/spot_5.8k.obj"), Path::new("spot.gim"), &atlas, &Silent)?;
+//!     atlas::build_gim(Path::new("data/spot_5.8k.obj"), Path::new("spot.gim"), &atlas, &Silent)?;
 //!
 //!     let report = quilt::tile(
 //!         Path::new("spot.gim"),
@@ -60,7 +60,7 @@ pub mod error;
 pub mod factorize;
 pub mod field;
 pub mod generate;
-pub mod gim;
+
 pub mod ingest;
 pub mod io;
 pub mod mesh;

@@ -8,11 +8,12 @@ use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use btfquilt::artifact::btf::{self, Angles, Btf};
+use btfquilt::artifact::gim::Gim;
 use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::container::{Container, MemoryBudget};
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
-use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::ingest::{self, ImageFormat, IngestConfig};
 use btfquilt::mesh::io::LoadOptions;
 use btfquilt::output::export::MeshFormat;
@@ -749,7 +750,7 @@ fn run(cli: Cli) -> Result<()> {
             cfg.charts.max_stretch = max_stretch;
             cfg.charts.max_area_distortion = max_area_distortion;
             cfg.validate()?;
-            let report = gim::build_gim(&mesh, &output, &cfg, &bars)?;
+            let report = atlas::build_gim(&mesh, &output, &cfg, &bars)?;
             say!("{}: {}", mesh.display(), report.repair);
             say!("wrote {}: {report}", output.display());
         }

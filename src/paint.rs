@@ -26,8 +26,8 @@ use std::collections::{BinaryHeap, VecDeque};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::Param;
-use crate::gim::{Gim, EMPTY};
 use crate::progress::Progress;
 use crate::quilt::{same_file, sample_svd, Quilt, Synthesis, TileConfig};
 use crate::{Error, Result};

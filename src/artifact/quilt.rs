@@ -7,8 +7,8 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::artifact::gim::Gim;
 use crate::container::{Container, DType, MemoryBudget, Param};
-use crate::gim::Gim;
 use crate::{Error, Result};
 
 /// The artifact kind of a decorated surface.
@@ -129,12 +129,12 @@ impl Quilt {
                 container.array_shaped(name, dtype, &shape, &why)?;
             }
         }
-        if resolution > crate::gim::MAX_RESOLUTION {
+        if resolution > crate::artifact::gim::MAX_RESOLUTION {
             return Err(Error::input(
                 path,
                 format!(
                     "parameter 'resolution' is {resolution}, more than the {} an atlas may have",
-                    crate::gim::MAX_RESOLUTION
+                    crate::artifact::gim::MAX_RESOLUTION
                 ),
             ));
         }

@@ -12,9 +12,9 @@ use std::path::Path;
 
 use serde::Serialize;
 
+use crate::artifact::gim::EMPTY;
 use crate::container::MemoryBudget;
 use crate::factorize::rotate_maps;
-use crate::gim::EMPTY;
 use crate::io::imageio::RgbImage;
 use crate::output::{atlas_colour, open_samples, OpenSample};
 use crate::quilt::{Quilt, NO_PATCH};

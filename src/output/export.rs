@@ -22,9 +22,9 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
+use crate::artifact::gim::Gim;
 use crate::artifact::svd::SvdArtifact;
 use crate::container::{Container, MemoryBudget};
-use crate::gim::Gim;
 use crate::io::imageio;
 use crate::mesh::io::write_obj;
 use crate::mesh::Mesh;
@@ -92,7 +92,7 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
             quilt,
             gim,
         }
-    } else if kind == crate::gim::KIND {
+    } else if kind == crate::artifact::gim::KIND {
         if opts.btf.is_some() {
             return Err(Error::input(
                 file,

@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::str::FromStr;
 
-use crate::gim::{atlas_direction, Gim, EMPTY};
+use crate::artifact::gim::{atlas_direction, Gim, EMPTY};
 use crate::io::imageio::{self, srgb_to_linear, PngDepth, RgbImage};
 use crate::{Error, Result};
 

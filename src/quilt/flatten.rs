@@ -107,7 +107,7 @@ pub(super) fn patch_triangles(
     for &t in &patch.texels {
         let (x, y) = (t as usize % r, t as usize / r);
         if x + 1 < r && y + 1 < r {
-            for tri in crate::gim::block_triangles(&state.chart, r, x, y) {
+            for tri in crate::artifact::gim::block_triangles(&state.chart, r, x, y) {
                 if let (Some(a), Some(b), Some(c)) = (local(tri[0]), local(tri[1]), local(tri[2])) {
                     tris.push([a as u32, b as u32, c as u32]);
                 }

@@ -133,7 +133,12 @@ pub(super) struct Bfs {
 }
 
 impl Bfs {
-    pub(super) fn patch(&mut self, graph: &crate::gim::DenseGraph, v: u32, radius: usize) -> WorkPatch {
+    pub(super) fn patch(
+        &mut self,
+        graph: &crate::artifact::gim::DenseGraph,
+        v: u32,
+        radius: usize,
+    ) -> WorkPatch {
         self.epoch += 1;
         let mut texels = vec![v];
         let mut depth = vec![0u16];
@@ -183,7 +188,7 @@ pub(super) fn face_angles(gim: &Gim) -> Result<Vec<f64>> {
                 field[f * 3 + 1] as f64,
                 field[f * 3 + 2] as f64,
             ];
-            crate::gim::atlas_direction(&mesh, &uv, f, v).map_or(0.0, |d| d[1].atan2(d[0]))
+            crate::artifact::gim::atlas_direction(&mesh, &uv, f, v).map_or(0.0, |d| d[1].atan2(d[0]))
         })
         .collect())
 }
@@ -191,7 +196,7 @@ pub(super) fn face_angles(gim: &Gim) -> Result<Vec<f64>> {
 /// Everything the loop reads.
 pub(super) struct Surface {
     pub(super) r: usize,
-    pub(super) graph: crate::gim::DenseGraph,
+    pub(super) graph: crate::artifact::gim::DenseGraph,
     pub(super) face: Vec<u32>,
     /// Dense positions multiplied by `unit` (exactly: a power of two, 1 but
     /// for a mesh of extreme size, see [`crate::mesh::extreme_scale`]).

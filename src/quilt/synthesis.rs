@@ -137,7 +137,7 @@ impl Synthesis {
     }
 
     /// The dense mesh graph.
-    pub(crate) fn graph(&self) -> &crate::gim::DenseGraph {
+    pub(crate) fn graph(&self) -> &crate::artifact::gim::DenseGraph {
         &self.surface.graph
     }
 

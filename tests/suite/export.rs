@@ -3,9 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
+use btfquilt::artifact::gim::Gim;
 use btfquilt::artifact::svd::SvdArtifact;
 use btfquilt::container::MemoryBudget;
-use btfquilt::gim::Gim;
 use btfquilt::quilt::{Quilt, NO_PATCH};
 use serde_json::Value as Json;
 

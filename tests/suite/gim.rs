@@ -3,8 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
+use btfquilt::artifact::gim::{Gim, EMPTY};
+use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::container::MemoryBudget;
-use btfquilt::gim::{self, AtlasConfig, Gim, EMPTY};
 use btfquilt::progress::Silent;
 
 fn data(name: &str) -> PathBuf {
@@ -21,12 +22,12 @@ fn shared_meshes() -> Option<PathBuf> {
     }
 }
 
-fn build(mesh: &Path, out: &Path, resolution: usize) -> gim::AtlasReport {
+fn build(mesh: &Path, out: &Path, resolution: usize) -> atlas::AtlasReport {
     let cfg = AtlasConfig {
         resolution,
         ..AtlasConfig::default()
     };
-    gim::build_gim(mesh, out, &cfg, &Silent).unwrap()
+    atlas::build_gim(mesh, out, &cfg, &Silent).unwrap()
 }
 
 fn dist(a: &[f32], b: &[f32]) -> f64 {
@@ -94,7 +95,10 @@ fn spot_dense_mesh_is_zippered_and_uniform() {
     let max = lens.iter().cloned().fold(0.0, f64::max);
     let mean = lens.iter().sum::<f64>() / lens.len() as f64;
     eprintln!("zipper links: {} mean {mean:.2} max {max:.2} texels", links.len());
-    assert!(max <= gim::MAX_LINK + 1e-6 && mean < 1.6, "mean {mean} max {max}");
+    assert!(
+        max <= btfquilt::artifact::gim::MAX_LINK + 1e-6 && mean < 1.6,
+        "mean {mean} max {max}"
+    );
 
     // every chart boundary of a closed surface is a seam: boundary texels are
     // linked across it, or sit next to a linked texel
@@ -185,12 +189,15 @@ fn spot_dense_mesh_is_zippered_and_uniform() {
     assert!((ro / rs - 1.0).abs() < 0.3, "{rs} vs {ro}");
 
     // dense triangles: grid triangles inside charts plus zipper strips
-    let grid = gim::grid_triangles(&graph.chart, r);
+    let grid = btfquilt::artifact::gim::grid_triangles(&graph.chart, r);
     let zt = g.zipper_triangles().unwrap();
     assert!(grid.len() > report.texels && !zt.is_empty());
     for t in &zt {
         for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[0], t[2])] {
-            assert!(dist(&pos[a as usize * 3..], &pos[b as usize * 3..]) <= 2.0 * gim::MAX_LINK * texel);
+            assert!(
+                dist(&pos[a as usize * 3..], &pos[b as usize * 3..])
+                    <= 2.0 * btfquilt::artifact::gim::MAX_LINK * texel
+            );
         }
     }
 }
@@ -225,7 +232,7 @@ fn field_keys_orient_the_tangent_frames() {
         field_keys: Some(keys),
         ..AtlasConfig::default()
     };
-    gim::build_gim(&data("spot_5.8k.obj"), &out, &cfg, &Silent).unwrap();
+    atlas::build_gim(&data("spot_5.8k.obj"), &out, &cfg, &Silent).unwrap();
     let g = Gim::open(&out, MemoryBudget::default()).unwrap();
     let mesh = g.mesh().unwrap();
     let field: Vec<f32> = g.read("face_field").unwrap();
@@ -257,7 +264,7 @@ fn every_shared_mesh_builds_or_fails_clearly() {
             resolution: 256,
             ..AtlasConfig::default()
         };
-        match gim::build_gim(&mesh, &out, &cfg, &Silent) {
+        match atlas::build_gim(&mesh, &out, &cfg, &Silent) {
             Ok(report) => {
                 eprintln!("{}: {report}", mesh.display());
                 let g = Gim::open(&out, MemoryBudget::default()).unwrap();
@@ -288,7 +295,7 @@ fn bad_inputs_are_refused_without_output() {
     let out = dir.path().join("o.gim");
     let empty = dir.path().join("empty.obj");
     std::fs::write(&empty, "# nothing\n").unwrap();
-    let e = gim::build_gim(&empty, &out, &AtlasConfig::default(), &Silent)
+    let e = atlas::build_gim(&empty, &out, &AtlasConfig::default(), &Silent)
         .err()
         .unwrap()
         .to_string();
@@ -297,7 +304,7 @@ fn bad_inputs_are_refused_without_output() {
         resolution: 8,
         ..AtlasConfig::default()
     };
-    let e = gim::build_gim(&data("spot_5.8k.obj"), &out, &cfg, &Silent)
+    let e = atlas::build_gim(&data("spot_5.8k.obj"), &out, &cfg, &Silent)
         .err()
         .unwrap()
         .to_string();
@@ -309,7 +316,7 @@ fn bad_inputs_are_refused_without_output() {
         field_keys: Some(keys),
         ..AtlasConfig::default()
     };
-    let e = gim::build_gim(&data("spot_5.8k.obj"), &out, &cfg, &Silent)
+    let e = atlas::build_gim(&data("spot_5.8k.obj"), &out, &cfg, &Silent)
         .err()
         .unwrap()
         .to_string();

@@ -14,11 +14,12 @@
 use std::path::{Path, PathBuf};
 
 use btfquilt::artifact::btf;
+use btfquilt::artifact::gim::Gim;
 use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::container::{ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
-use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::io::imageio::{self, PngDepth, RgbImage};
 use btfquilt::output::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
 use btfquilt::progress::Silent;
@@ -131,7 +132,7 @@ fn square(dir: &Path) -> (PathBuf, Vec<u8>) {
         resolution: ATLAS,
         ..AtlasConfig::default()
     };
-    gim::build_gim(&common::square_obj(dir), &g, &cfg, &Silent).unwrap();
+    atlas::build_gim(&common::square_obj(dir), &g, &cfg, &Silent).unwrap();
     let gim = Gim::open(&g, MemoryBudget::default()).unwrap();
     let pos: Vec<f32> = gim.read("position").unwrap();
     let left = (0..ATLAS * ATLAS).map(|t| u8::from(pos[t * 3] < 0.5)).collect();

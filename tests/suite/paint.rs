@@ -4,8 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
+use btfquilt::artifact::gim::{Gim, EMPTY};
+use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::container::MemoryBudget;
-use btfquilt::gim::{self, AtlasConfig, Gim, EMPTY};
 use btfquilt::io::imageio;
 use btfquilt::paint::{self, PaintConfig, Verbatim};
 use btfquilt::progress::Silent;
@@ -55,7 +56,7 @@ fn scene() -> Scene {
         resolution: R,
         ..AtlasConfig::default()
     };
-    gim::build_gim(&common::square_obj(&d), &g, &cfg, &Silent).unwrap();
+    atlas::build_gim(&common::square_obj(&d), &g, &cfg, &Silent).unwrap();
     let sample = common::brick_crop(&d, 96, Some((100, 100)));
     let mask = d.join("mask.png");
     let disk = |x: usize, y: usize| (x as f32 - 22.0).powi(2) + (y as f32 - 22.0).powi(2) < 16.0f32.powi(2);

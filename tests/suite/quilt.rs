@@ -3,8 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
+use btfquilt::artifact::gim::{Gim, EMPTY};
+use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::container::MemoryBudget;
-use btfquilt::gim::{self, AtlasConfig, Gim, EMPTY};
 use btfquilt::io::imageio;
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
@@ -16,7 +17,7 @@ fn atlas(mesh: &Path, out: &Path, r: usize) {
         resolution: r,
         ..AtlasConfig::default()
     };
-    gim::build_gim(mesh, out, &cfg, &Silent).unwrap();
+    atlas::build_gim(mesh, out, &cfg, &Silent).unwrap();
 }
 
 #[test]
@@ -166,13 +167,14 @@ fn spot_is_covered_and_baked_and_rendered() {
     // the stored seams are exactly the mesh edges whose ends took different
     // patches: grid edges inside a chart, and zipper links between charts
     let (patches, seams) = (q.patches().unwrap(), q.seams().unwrap());
-    let gim = btfquilt::gim::Gim::open(&g, MemoryBudget::default()).unwrap();
+    let gim = btfquilt::artifact::gim::Gim::open(&g, MemoryBudget::default()).unwrap();
     let chart: Vec<u32> = gim.read("chart").unwrap();
     let r = 192;
     let mut want = vec![0u8; r * r];
     for t in 0..r * r {
-        let inside =
-            |n: usize| chart[n] == chart[t] && chart[t] != btfquilt::gim::EMPTY && patches[n] != patches[t];
+        let inside = |n: usize| {
+            chart[n] == chart[t] && chart[t] != btfquilt::artifact::gim::EMPTY && patches[n] != patches[t]
+        };
         if t % r + 1 < r && inside(t + 1) {
             want[t] |= quilt::SEAM_X;
         }

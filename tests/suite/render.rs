@@ -8,13 +8,14 @@
 use std::path::PathBuf;
 
 use btfquilt::artifact::btf::{self, Angles};
+use btfquilt::artifact::gim::Gim;
 use btfquilt::artifact::svd::SvdArtifact;
+use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{
     self, BlockRenderer, Family, GenerateConfig, Imperfection, MaterialParams, Mesostructure,
 };
-use btfquilt::gim::{self, AtlasConfig, Gim};
 use btfquilt::io::imageio::{self, RgbImage};
 use btfquilt::output::render::{self, Camera, Light, RenderConfig, BACKGROUND};
 use btfquilt::progress::Silent;
@@ -40,7 +41,7 @@ fn fixture() -> Fixture {
         resolution: ATLAS,
         ..AtlasConfig::default()
     };
-    gim::build_gim(&common::square_obj(dir.path()), &gim_path, &cfg, &Silent).unwrap();
+    atlas::build_gim(&common::square_obj(dir.path()), &gim_path, &cfg, &Silent).unwrap();
     let btf_path = dir.path().join("bricks.btf");
     let grid = btf::grid(4, 3, 75.0);
     let g = GenerateConfig {

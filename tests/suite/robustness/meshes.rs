@@ -5,8 +5,8 @@
 
 use crate::common::{self, s};
 use crate::robustness::{fuzz_cases, mutate, refuses, run_bounded, Rng};
+use btfquilt::artifact::gim::{Gim, EMPTY};
 use btfquilt::container::MemoryBudget;
-use btfquilt::gim::{Gim, EMPTY};
 use std::path::{Path, PathBuf};
 
 /// The square grid as OBJ text, its copies offset by `dx` along x and
