@@ -31,8 +31,8 @@
 //! use std::path::Path;
 //!
 //! fn main() -> btfquilt::Result<()> {
-//!     let atlas = AtlasConfig { resolution: 512, ..Default::default() };
-//!     atlas::build_gim(Path::new("data/spot_5.8k.obj"), Path::new("spot.gim"), &atlas, &Silent)?;
+//!     let cfg = AtlasConfig { resolution: 512, ..Default::default() };
+//!     atlas::build_gim(Path::new("data/spot_5.8k.obj"), Path::new("spot.gim"), &cfg, &Silent)?;
 //!
 //!     let report = quilt::tile(
 //!         Path::new("spot.gim"),
@@ -71,3 +71,8 @@ pub mod quilt;
 mod rng;
 
 pub use error::{Error, Result};
+
+/// The README's code, compiled as doc tests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;
