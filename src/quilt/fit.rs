@@ -2,8 +2,12 @@
 //! values and the new patch over P(v), with seam nodes on old seams, and
 //! applying the result to the state.
 
-#[allow(unused_imports)]
-use super::*;
+use super::flatten::WorkImage;
+use super::maxflow::{Graph, Segment};
+use super::placement::PlacementChoice;
+use super::sample::{dist, Sample};
+use super::state::{State, Surface, WorkPatch, NO_FOREIGN};
+use crate::progress::Progress;
 
 /// The outcome of a graphcut fitting.
 pub(super) struct Fit {

@@ -28,14 +28,10 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::artifact::gim::{Gim, EMPTY, TILE};
-use crate::artifact::svd::SvdArtifact;
-use crate::container::{ArraySpec, BoundedCache, ContainerWriter, DType, MemoryBudget, Param};
-use crate::factorize::{self, FactorizeConfig};
+use crate::artifact::gim::{Gim, EMPTY};
+use crate::container::MemoryBudget;
 use crate::progress::Progress;
 use crate::{Error, Result};
-use matching::{Image, MatchConfig, Matcher};
-use maxflow::{Graph, Segment};
 
 mod fit;
 mod flatten;

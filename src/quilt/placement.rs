@@ -1,8 +1,11 @@
 //! Placement (section III-B, step 4): the candidate translations and
 //! rotations from FFT matching, and the seeded choice among near-minimal ones.
 
-#[allow(unused_imports)]
-use super::*;
+use super::flatten::{rotation_index, WorkImage};
+use super::matching::{Image, MatchConfig, Matcher};
+use super::sample::Sample;
+use super::{matching, TileConfig};
+use crate::Result;
 
 /// Placements tried by a refinement are at least this many pixels apart.
 pub(super) const REFINE_SPACING: i32 = 4;

@@ -2,8 +2,13 @@
 //! through the `.svd` (section III-A), and the factorization of a colour image
 //! on the fly.
 
-#[allow(unused_imports)]
-use super::*;
+use std::path::{Path, PathBuf};
+
+use crate::artifact::svd::SvdArtifact;
+use crate::container::{BoundedCache, MemoryBudget};
+use crate::factorize::FactorizeConfig;
+use crate::progress::Progress;
+use crate::{factorize, Error, Result};
 
 /// The sample: unrotated geometry maps, and rotated copies on demand.
 pub(super) struct Sample {

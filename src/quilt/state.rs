@@ -2,8 +2,10 @@
 //! surface it lives on, work patches P(v) and their breadth-first traversal
 //! (section III-B, step 2).
 
-#[allow(unused_imports)]
-use super::*;
+use super::sample::Sample;
+use crate::artifact::gim::{Gim, EMPTY};
+use crate::artifact::quilt::NO_PATCH;
+use crate::Result;
 
 /// No foreign feature vector (a texel of the active sample).
 pub(super) const NO_FOREIGN: u32 = u32::MAX;
@@ -20,7 +22,7 @@ pub(super) struct State {
     pub(super) jacobian: Vec<[f32; 4]>,
     pub(super) rotation: Vec<u8>,
     pub(super) patch: Vec<u32>,
-    /// Index of the sample each texel draws from ([`Quilt::samples`]).
+    /// Index of the sample each texel draws from ([`Quilt::samples`](crate::quilt::Quilt::samples)).
     pub(super) source: Vec<u8>,
     /// The sample new patches come from.
     pub(super) active: u8,
@@ -30,7 +32,7 @@ pub(super) struct State {
     /// at their coordinate when needed, not stored).
     pub(super) foreign: Vec<u32>,
     /// Their geometry-map vectors projected into the active sample's basis
-    /// (see [`Synthesis::load`]), `n` per entry.
+    /// (see [`Synthesis::load`](super::synthesis::Synthesis::load)), `n` per entry.
     pub(super) foreign_features: Vec<f32>,
     /// m_σ(p): the sample's foreground mask at each texel's coordinate
     /// (when the sample has a mask).

@@ -2,11 +2,32 @@
 //! picking the next work patch, matching, fitting, seam refinement, and the
 //! state painting starts from.
 
-#[allow(unused_imports)]
-use super::*;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use super::fit::{apply, fit_patch, Fit, INFINITE};
+use super::flatten::{
+    chart_work_image, flattened_work_image, rotation_index, unfolded_work_image, Flattening, WorkImage,
+};
+use super::matching::Matcher;
+use super::placement::{
+    choose_placement, covering_candidates, distinct_best, place_covering, to_sample, PlacementChoice,
+    REFINE_SPACING,
+};
+use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample};
+use super::state::{face_angles, Bfs, State, Surface, WorkPatch, NO_FOREIGN};
+use super::write::write_quilt;
+use super::{TileConfig, TileReport};
+use crate::artifact::gim::{Gim, EMPTY};
+use crate::artifact::quilt::{Quilt, MAX_SAMPLES, NO_PATCH};
+use crate::artifact::svd::SvdArtifact;
+use crate::container::MemoryBudget;
+use crate::io::staging::same_file;
+use crate::progress::Progress;
+use crate::{Error, Result};
 
 /// The quilting loop's working set: the surface, the sample, the synthesis
-/// state and the reusable buffers. [`tile`] runs it from an empty surface;
+/// state and the reusable buffers. [`tile`](super::tile) runs it from an empty surface;
 /// painting (`crate::paint`) from a decorated one with a constraint.
 pub(crate) struct Synthesis {
     pub(super) cfg: TileConfig,
@@ -265,7 +286,7 @@ impl Synthesis {
         Ok(())
     }
 
-    /// Writes the state as a `.quilt` (see [`tile`]); `paint_log` for a
+    /// Writes the state as a `.quilt` (see [`tile`](super::tile)); `paint_log` for a
     /// painted surface.
     pub(crate) fn write(
         &mut self,

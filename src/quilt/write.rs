@@ -1,8 +1,14 @@
 //! Writing the `.quilt` artifact ([`crate::artifact::quilt`]): the synthesis
 //! state, the seams it left, and the files it depends on.
 
-#[allow(unused_imports)]
-use super::*;
+use std::path::Path;
+
+use super::synthesis::Synthesis;
+use super::{TileConfig, TileReport};
+use crate::artifact::gim::{Gim, EMPTY, TILE};
+use crate::artifact::quilt::{KIND, SEAM_X, SEAM_Y, SEAM_ZIPPER};
+use crate::container::{ArraySpec, ContainerWriter, DType, Param};
+use crate::Result;
 
 /// Writes the synthesis state as a `.quilt`; `paint_log` (a JSON array of
 /// strokes) when the surface was painted.
