@@ -33,6 +33,7 @@ use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use crate::artifact::btf::{Angles, Btf, BtfLayout, BtfWriter};
+use crate::artifact::svd::SvdArtifact;
 use crate::container::{codec, ArrayId, ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
 use crate::io::imageio::{self, RgbImage};
 use crate::progress::Progress;
@@ -634,6 +635,75 @@ fn write_svd(
     c.write_array(id, preview)?;
     if cfg.rotations > 0 {
         write_rotations(&mut c, cfg, l.width, l.height, sigma.len(), &g_flat, progress)?;
+    }
+    c.finish()
+}
+
+/// Writes `src` resampled to `width`×`height` texels as the `.svd` `out`:
+/// the geometry maps and the preview resampled
+/// ([`crate::io::imageio::resample`]), the appearance functions, singular
+/// values and directions unchanged (the BTF's columns do not depend on the
+/// texel grid), and `rotations` rotated copies made from the resampled maps.
+/// Quilting uses it to give a sample its size on the surface.
+pub fn resample_svd(
+    src: &SvdArtifact,
+    out: &Path,
+    width: usize,
+    height: usize,
+    rotations: usize,
+    progress: &dyn Progress,
+) -> Result<()> {
+    let (w0, h0, terms) = (src.width, src.height, src.terms);
+    let g = crate::io::imageio::resample(&src.geometry_maps()?, w0, h0, terms, width, height);
+    let preview = crate::io::imageio::resample(&src.preview()?.data, w0, h0, 3, width, height);
+    let meta = src.container().metadata();
+    let cfg = FactorizeConfig {
+        rotations,
+        tileable: src.tileable(),
+        seed: meta.seed.unwrap_or(FactorizeConfig::default().seed),
+        ..FactorizeConfig::default()
+    };
+    let (w, h, t) = (width as u64, height as u64, SVD_TILE);
+    let mut c = ContainerWriter::create(out, KIND)?;
+    c.set_level(cfg.level);
+    c.set_seed(cfg.seed);
+    c.add_input(
+        &src.container().path().display().to_string(),
+        src.container().content_hash(),
+    );
+    for (name, value) in &meta.params {
+        let value = match name.as_str() {
+            "width" => Param::Int(w as i64),
+            "height" => Param::Int(h as i64),
+            "rotations" => Param::Int(rotations as i64),
+            _ => value.clone(),
+        };
+        c.set_param(name, value);
+    }
+    c.set_param("resampled_from", Param::Text(format!("{w0}x{h0}")));
+    for name in ["view_dirs", "light_dirs", "singular_values"] {
+        let id = src.container().array(name)?;
+        let spec = src.container().spec(id).clone();
+        let values: Vec<f32> = src.container().read_array(id)?;
+        let id = c.add_array(spec)?;
+        c.write_array(id, &values)?;
+    }
+    let id = c.add_array(ArraySpec::new(
+        "geometry_maps",
+        DType::F32,
+        &[h, w, terms as u64],
+        &[t, t, terms as u64],
+    )?)?;
+    c.write_array(id, &g)?;
+    let id = src.container().array("appearance")?;
+    let spec = src.container().spec(id).clone();
+    let appearance: Vec<f32> = src.container().read_array(id)?;
+    let id = c.add_array(spec)?;
+    c.write_array(id, &appearance)?;
+    let id = c.add_array(ArraySpec::new("preview", DType::F32, &[h, w, 3], &[t, t, 3])?)?;
+    c.write_array(id, &preview)?;
+    if rotations > 0 {
+        write_rotations(&mut c, &cfg, width, height, terms, &g, progress)?;
     }
     c.finish()
 }

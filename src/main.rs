@@ -58,6 +58,11 @@ struct Quilting {
     constraint_weight: f64,
     #[arg(long, default_value_t = TileConfig::default().seed)]
     seed: u64,
+    /// The sample's size on the surface: mesh units its width spans (it is
+    /// resampled to the atlas's texel density). Default: one sample pixel per
+    /// texel; painting with the tiling's sample keeps the tiling's width.
+    #[arg(long)]
+    sample_width: Option<f64>,
 }
 
 impl Quilting {
@@ -68,6 +73,7 @@ impl Quilting {
             seam_threshold: self.seam_threshold,
             constraint_weight: self.constraint_weight,
             seed: self.seed,
+            sample_width: self.sample_width,
             memory,
             ..TileConfig::default()
         }

@@ -29,7 +29,7 @@ use std::time::Instant;
 use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::Param;
 use crate::progress::Progress;
-use crate::quilt::{same_file, sample_svd, Quilt, Synthesis, TileConfig};
+use crate::quilt::{same_file, sample_at_density, sample_role, Quilt, SizedSample, Synthesis, TileConfig};
 use crate::{Error, Result};
 
 /// A verbatim copy: where and how the foreground goes.
@@ -158,7 +158,7 @@ pub fn preview(quilt_path: &Path, cfg: &PaintConfig, progress: &dyn Progress) ->
 /// re-reading of the artifacts), about 60 ms on Spot at 1024².
 pub struct PreviewSession {
     syn: Synthesis,
-    _tmp: Option<tempfile::TempDir>,
+    _tmp: SizedSample,
 }
 
 impl PreviewSession {
@@ -206,7 +206,7 @@ fn open_synthesis(
     base: &Quilt,
     stroke: &Stroke,
     progress: &dyn Progress,
-) -> Result<(Synthesis, Gim, Option<tempfile::TempDir>)> {
+) -> Result<(Synthesis, Gim, SizedSample)> {
     let start = Instant::now();
     let cfg = TileConfig {
         sample_mask: Some(stroke.sample_mask.clone()),
@@ -214,16 +214,23 @@ fn open_synthesis(
     };
     let gim = base.open_gim(None, cfg.memory)?;
     let matching = stroke.verbatim.is_none();
-    let (svd_path, tmp) = sample_svd(&stroke.sample, matching, progress)?;
+    let sized = sample_at_density(
+        &stroke.sample,
+        gim.texel_size,
+        cfg.sample_width,
+        matching,
+        progress,
+    )?;
     let trace = |what: &str| crate::progress::trace(progress, start, what);
     trace("factorized");
-    let mut syn = Synthesis::open(&gim, &stroke.sample, &svd_path, &cfg, matching)?;
+    let mut syn = Synthesis::open(&gim, &stroke.sample, &sized.svd, &cfg, matching)?;
+    syn.set_scale(&sized);
     trace("opened");
     syn.set_mask(&stroke.sample_mask)?;
     syn.load(base, progress)?;
     syn.painting = true;
     trace("loaded");
-    Ok((syn, gim, tmp))
+    Ok((syn, gim, sized))
 }
 
 /// [`paint`]: applies the stroke of `cfg` and writes `out`.
@@ -365,6 +372,7 @@ impl Stroke {
                 t.patch_radius,
                 t.seam_threshold,
                 t.constraint_weight,
+                t.sample_width.or_else(|| recorded_span(base, &sample)),
                 t.memory,
             ),
             sample,
@@ -383,6 +391,7 @@ impl Stroke {
         patch_radius: Option<usize>,
         seam_threshold: f64,
         constraint_weight: f64,
+        sample_width: Option<f64>,
         memory: crate::container::MemoryBudget,
     ) -> TileConfig {
         TileConfig {
@@ -390,6 +399,7 @@ impl Stroke {
             patch_radius,
             seam_threshold,
             constraint_weight,
+            sample_width,
             memory,
             ..TileConfig::default()
         }
@@ -411,6 +421,7 @@ impl Stroke {
             patch_radius: self.tile.patch_radius,
             seam_threshold: self.tile.seam_threshold,
             constraint_weight: self.tile.constraint_weight,
+            sample_width: self.tile.sample_width,
         }
     }
 
@@ -424,6 +435,7 @@ impl Stroke {
                 r.patch_radius,
                 r.seam_threshold,
                 r.constraint_weight,
+                r.sample_width,
                 crate::container::MemoryBudget::default(),
             ),
             sample: r.sample.map_or_else(|| base_sample.to_path_buf(), PathBuf::from),
@@ -435,6 +447,21 @@ impl Stroke {
             }),
             transition: r.transition,
         }
+    }
+}
+
+/// The width (mesh units) the surface `base` records for `sample`, if it
+/// draws from that sample and was given one: painting with the tiling's
+/// sample keeps its size on the surface.
+fn recorded_span(base: &Quilt, sample: &Path) -> Option<f64> {
+    let k = base.samples.iter().position(|p| same_file(p, sample))?;
+    match base
+        .container()
+        .metadata()
+        .param(&format!("{}_span", sample_role(k)))
+    {
+        Some(Param::Float(v)) => Some(*v),
+        _ => None,
     }
 }
 
@@ -455,6 +482,9 @@ struct StrokeRecord {
     patch_radius: Option<usize>,
     seam_threshold: f64,
     constraint_weight: f64,
+    /// Mesh units the sample's width spans; absent: one pixel per texel.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    sample_width: Option<f64>,
 }
 
 /// A verbatim copy in the paint log's JSON.
@@ -937,6 +967,7 @@ mod log_json_tests {
                 Some(5),
                 3.0,
                 0.1,
+                None,
                 crate::container::MemoryBudget::default(),
             ),
         };

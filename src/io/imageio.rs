@@ -335,6 +335,80 @@ pub fn bilinear(img: &RgbImage, x: f32, y: f32) -> [f32; 3] {
     out
 }
 
+/// Per output pixel of a 1-D resampling from `n` to `m` pixels: the source
+/// pixels and their weights (summing to 1). Shrinking averages each output
+/// pixel's footprint (a box filter, so no aliasing); enlarging interpolates
+/// linearly between pixel centres.
+fn resample_weights(n: usize, m: usize) -> Vec<Vec<(usize, f32)>> {
+    let s = n as f64 / m as f64;
+    (0..m)
+        .map(|o| {
+            if s > 1.0 {
+                let (a, b) = (o as f64 * s, (o as f64 + 1.0) * s);
+                let mut w = Vec::new();
+                let mut i = a.floor() as usize;
+                while (i as f64) < b && i < n {
+                    let cover = (b.min(i as f64 + 1.0) - a.max(i as f64)) / s;
+                    if cover > 0.0 {
+                        w.push((i, cover as f32));
+                    }
+                    i += 1;
+                }
+                w
+            } else {
+                let x = ((o as f64 + 0.5) * s - 0.5).clamp(0.0, (n - 1) as f64);
+                let i = x.floor() as usize;
+                let f = (x - i as f64) as f32;
+                if f > 0.0 && i + 1 < n {
+                    vec![(i, 1.0 - f), (i + 1, f)]
+                } else {
+                    vec![(i, 1.0)]
+                }
+            }
+        })
+        .collect()
+}
+
+/// Resamples row-major `channels`-channel maps of `width`×`height` pixels to
+/// `to_width`×`to_height` (separable: a box filter where it shrinks, linear
+/// where it enlarges). Used to bring a sample to the atlas's texel density.
+pub fn resample(
+    maps: &[f32],
+    width: usize,
+    height: usize,
+    channels: usize,
+    to_width: usize,
+    to_height: usize,
+) -> Vec<f32> {
+    let (wx, wy) = (
+        resample_weights(width, to_width),
+        resample_weights(height, to_height),
+    );
+    let mut rows = vec![0f32; height * to_width * channels];
+    for y in 0..height {
+        for (x, taps) in wx.iter().enumerate() {
+            let out = &mut rows[(y * to_width + x) * channels..(y * to_width + x + 1) * channels];
+            for &(i, w) in taps {
+                let src = &maps[(y * width + i) * channels..(y * width + i + 1) * channels];
+                for (o, v) in out.iter_mut().zip(src) {
+                    *o += w * v;
+                }
+            }
+        }
+    }
+    let mut out = vec![0f32; to_height * to_width * channels];
+    for (y, taps) in wy.iter().enumerate() {
+        let dst = &mut out[y * to_width * channels..(y + 1) * to_width * channels];
+        for &(i, w) in taps {
+            let src = &rows[i * to_width * channels..(i + 1) * to_width * channels];
+            for (o, v) in dst.iter_mut().zip(src) {
+                *o += w * v;
+            }
+        }
+    }
+    out
+}
+
 /// A foreground mask value at sample coordinates `c` (pixel indices, `[y][x]`
 /// storage), bilinear between pixel centres. A tileable sample wraps round
 /// its borders; any other reads 0 outside `[0, width − 1] × [0, height − 1]`.

@@ -102,6 +102,13 @@ pub struct TileConfig {
     /// 0.684 (1 placement), 0.667 (2), 0.658 (4); each extra placement costs
     /// a graphcut per refined seam (there 2-3 s more per placement).
     pub refine_placements: usize,
+    /// The sample's size on the surface: how many mesh units its width
+    /// spans. The sample (its geometry maps, rotated copies and mask) is
+    /// resampled to the atlas's texel density, so the texture keeps its
+    /// size in the world whatever the atlas resolution. `None`: one sample
+    /// pixel per atlas texel ([`TileReport::sample_width`] says what width
+    /// that is).
+    pub sample_width: Option<f64>,
 }
 
 impl Default for TileConfig {
@@ -119,6 +126,7 @@ impl Default for TileConfig {
             constraint_weight: 16.0,
             refine: Some(2.0),
             refine_placements: REFINE_PLACEMENTS,
+            sample_width: None,
         }
     }
 }
@@ -154,6 +162,14 @@ impl TileConfig {
                 "a finite number > 0 (a seam step in sample neighbour differences), or 0 for none",
             )?;
         }
+        if let Some(w) = self.sample_width {
+            check(
+                "--sample-width",
+                w,
+                w > 0.0,
+                "a finite number > 0 (mesh units spanned by the sample's width)",
+            )?;
+        }
         if self.refine_placements == 0 {
             return Err(Error::Config("--refine-placements must be at least 1".into()));
         }
@@ -177,6 +193,11 @@ pub struct TileReport {
     pub seconds: f64,
     pub matching_seconds: f64,
     pub graphcut_seconds: f64,
+    /// Mesh units spanned by the sample's width on the surface.
+    pub sample_width: f64,
+    /// Sample pixels per atlas texel (1 unless resampled to a
+    /// [`TileConfig::sample_width`]).
+    pub sample_scale: f64,
 }
 
 impl std::fmt::Display for TileReport {
@@ -194,6 +215,11 @@ impl std::fmt::Display for TileReport {
             self.seconds,
             self.matching_seconds,
             self.graphcut_seconds
+        )?;
+        write!(
+            f,
+            "; the sample spans {:.4} mesh units ({:.3} sample pixels per texel)",
+            self.sample_width, self.sample_scale
         )
     }
 }
@@ -217,8 +243,9 @@ pub fn tile(
     }
     crate::io::staging::check_output(out, &inputs)?;
     let gim = Gim::open(gim_path, cfg.memory)?;
-    let (svd_path, _tmp) = sample_svd(sample_path, true, progress)?;
-    let mut syn = Synthesis::open(&gim, sample_path, &svd_path, cfg, true)?;
+    let sized = sample_at_density(sample_path, gim.texel_size, cfg.sample_width, true, progress)?;
+    let mut syn = Synthesis::open(&gim, sample_path, &sized.svd, cfg, true)?;
+    syn.set_scale(&sized);
     if let Some(mask) = &cfg.sample_mask {
         syn.set_mask(mask)?;
         syn.set_target(vec![0.0; syn.surface.r * syn.surface.r]);

@@ -192,3 +192,80 @@ pub(crate) fn sample_svd(
         Ok((sample_path.to_path_buf(), None))
     }
 }
+
+/// A sample brought to the atlas's texel density (section III-A samples the
+/// texture at the dense mesh's resolution): its `.svd`, kept alive by the
+/// temporary directories, and the scale from the resampled pixels to the
+/// original ones.
+pub(crate) struct SizedSample {
+    /// The `.svd` to quilt with.
+    pub(crate) svd: PathBuf,
+    /// Original sample pixels per resampled pixel, along x and y (`[1, 1]`
+    /// when the sample is used as it is).
+    pub(crate) scale: [f64; 2],
+    /// The original sample's size in pixels.
+    pub(crate) size: [usize; 2],
+    /// Mesh units the sample's width spans on the surface.
+    pub(crate) width_units: f64,
+    /// Whether a width was asked for (recorded in the quilt).
+    pub(crate) given: bool,
+    _tmp: Vec<tempfile::TempDir>,
+}
+
+/// The sample at `sample_path` sized for an atlas of `texel_size` mesh units
+/// per texel: with `width` (mesh units its width spans), resampled so one
+/// pixel is one texel ([`factorize::resample_svd`]); without, as it is.
+pub(crate) fn sample_at_density(
+    sample_path: &Path,
+    texel_size: f64,
+    width: Option<f64>,
+    matching: bool,
+    progress: &dyn Progress,
+) -> Result<SizedSample> {
+    let mut tmp = Vec::new();
+    let (svd_path, dir) = sample_svd(sample_path, matching && width.is_none(), progress)?;
+    tmp.extend(dir);
+    let svd = SvdArtifact::open(&svd_path, MemoryBudget(0))?;
+    let size = [svd.width, svd.height];
+    let Some(units) = width else {
+        return Ok(SizedSample {
+            svd: svd_path,
+            scale: [1.0, 1.0],
+            size,
+            width_units: svd.width as f64 * texel_size,
+            given: false,
+            _tmp: tmp,
+        });
+    };
+    // texels the sample's width covers on the surface
+    let texels = units / texel_size;
+    let to_w = texels.round().max(1.0);
+    let to_h = (texels * svd.height as f64 / svd.width as f64).round().max(1.0);
+    if !(to_w <= crate::artifact::gim::MAX_RESOLUTION as f64
+        && to_h <= crate::artifact::gim::MAX_RESOLUTION as f64)
+    {
+        return Err(Error::Config(format!(
+            "--sample-width {units}: the sample would span {texels:.0} texels of this atlas (texel {texel_size:.3e} units), more than {}",
+            crate::artifact::gim::MAX_RESOLUTION
+        )));
+    }
+    let (to_w, to_h) = (to_w as usize, to_h as usize);
+    if to_w < 8 || to_h < 8 {
+        return Err(Error::Config(format!(
+            "--sample-width {units}: the sample would span only {to_w}×{to_h} texels of this atlas (texel {texel_size:.3e} units); give a larger width or a finer atlas"
+        )));
+    }
+    let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+    let out = dir.path().join("sized.svd");
+    let rotations = if matching { factorize::DEFAULT_ROTATIONS } else { 0 };
+    factorize::resample_svd(&svd, &out, to_w, to_h, rotations, progress)?;
+    tmp.push(dir);
+    Ok(SizedSample {
+        svd: out,
+        scale: [size[0] as f64 / to_w as f64, size[1] as f64 / to_h as f64],
+        size,
+        width_units: units,
+        given: true,
+        _tmp: tmp,
+    })
+}

@@ -14,7 +14,7 @@ use super::placement::{
     choose_placement, covering_candidates, distinct_best, place_covering, to_sample, PlacementChoice,
     REFINE_SPACING,
 };
-use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample};
+use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
 use super::state::{face_angles, Bfs, State, Surface, WorkPatch, NO_FOREIGN};
 use super::write::write_quilt;
 use super::{TileConfig, TileReport};
@@ -52,6 +52,15 @@ pub(crate) struct Synthesis {
     pub(crate) painting: bool,
     pub(super) seam_sum: f64,
     pub(super) seam_cnt: usize,
+    /// Original sample pixels per pixel of the (resampled) sample the loop
+    /// works in; the quilt stores coordinates in original pixels.
+    pub(super) scale: [f64; 2],
+    /// The original sample's size in pixels.
+    pub(super) original_size: [usize; 2],
+    /// Mesh units each sample's width spans, where one was given (by index
+    /// like `sample_paths`; the active one's is `active_span`).
+    pub(super) sample_spans: Vec<Option<f64>>,
+    pub(super) active_span: Option<f64>,
 }
 
 impl Synthesis {
@@ -100,6 +109,7 @@ impl Synthesis {
         let reference = sample.neighbour_difference();
         let state = State::new(surface.graph.chart.clone(), n, r);
         let total = state.remaining;
+        let original_size = [sample.width, sample.height];
         Ok(Synthesis {
             cfg: cfg.clone(),
             sample_path: sample_path.to_path_buf(),
@@ -119,10 +129,14 @@ impl Synthesis {
                 texels: total,
                 ..TileReport::default()
             },
+            original_size,
             surface,
             painting: false,
             seam_sum: 0.0,
             seam_cnt: 0,
+            scale: [1.0, 1.0],
+            sample_spans: vec![None],
+            active_span: None,
         })
     }
 
@@ -130,13 +144,17 @@ impl Synthesis {
     /// channel above one half counts as foreground, grey levels between).
     /// Call it before [`Synthesis::load`], which looks m_σ up per texel.
     pub(crate) fn set_mask(&mut self, path: &Path) -> Result<()> {
-        let (w, h) = (self.sample.width, self.sample.height);
-        let mask = crate::io::imageio::read_sized_mask(
+        let [w, h] = self.original_size;
+        let mut mask = crate::io::imageio::read_sized_mask(
             path,
             w,
             h,
             "the sample's foreground mask must be the sample's size",
         )?;
+        if self.scale != [1.0, 1.0] {
+            let (to_w, to_h) = (self.sample.width, self.sample.height);
+            mask = crate::io::imageio::resample(&mask, w, h, 1, to_w, to_h);
+        }
         if !mask.iter().any(|&m| m >= 0.5) {
             return Err(Error::input(
                 path,
@@ -145,6 +163,16 @@ impl Synthesis {
         }
         self.sample.mask = Some(mask);
         Ok(())
+    }
+
+    /// Works in the sample resampled as `sized` says (open the synthesis
+    /// with `sized.svd`), before a mask is set or a surface loaded.
+    pub(crate) fn set_scale(&mut self, sized: &SizedSample) {
+        self.scale = sized.scale;
+        self.original_size = sized.size;
+        self.active_span = sized.given.then_some(sized.width_units);
+        self.report.sample_width = sized.width_units;
+        self.report.sample_scale = sized.scale[0];
     }
 
     /// Sets the constraint function m0 per atlas texel.
@@ -259,9 +287,25 @@ impl Synthesis {
             st.rotation[t] = rotations[t];
             st.patch[t] = patches[t];
             st.jacobian[t] = jacobians[t];
+            if source[t] as usize == active && self.scale != [1.0, 1.0] {
+                // the file holds original sample pixels; the loop works in
+                // the resampled sample's
+                let [sx, sy] = self.scale;
+                st.coord[t] = [
+                    (coords[t][0] as f64 / sx) as f32,
+                    (coords[t][1] as f64 / sy) as f32,
+                ];
+                let j = jacobians[t];
+                st.jacobian[t] = [
+                    (j[0] as f64 / sx) as f32,
+                    (j[1] as f64 / sy) as f32,
+                    (j[2] as f64 / sx) as f32,
+                    (j[3] as f64 / sy) as f32,
+                ];
+            }
             st.source[t] = source[t];
             next = next.max(patches[t] + 1);
-            let c = [coords[t][0] as f64, coords[t][1] as f64];
+            let c = [st.coord[t][0] as f64, st.coord[t][1] as f64];
             match &others[source[t] as usize] {
                 None => {
                     st.foreign[t] = NO_FOREIGN;
@@ -281,6 +325,18 @@ impl Synthesis {
             }
         }
         st.next_patch = next;
+        self.sample_spans = (0..paths.len())
+            .map(|k| {
+                match quilt
+                    .container()
+                    .metadata()
+                    .param(&format!("{}_span", sample_role(k)))
+                {
+                    Some(crate::container::Param::Float(v)) => Some(*v),
+                    _ => None,
+                }
+            })
+            .collect();
         self.sample_paths = paths;
         self.other_previews = previews;
         Ok(())
@@ -735,5 +791,15 @@ impl Synthesis {
             0.0
         };
         self.report.seconds = start.elapsed().as_secs_f64();
+    }
+}
+
+/// The role under which a quilt records sample `k`: `sample` for the
+/// tiling's, `sample_K` for one painted in.
+pub(crate) fn sample_role(k: usize) -> String {
+    if k == 0 {
+        "sample".to_string()
+    } else {
+        format!("sample_{k}")
     }
 }

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use super::synthesis::Synthesis;
+use super::synthesis::{sample_role, Synthesis};
 use super::{TileConfig, TileReport};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{KIND, SEAM_X, SEAM_Y, SEAM_ZIPPER};
@@ -46,16 +46,61 @@ pub(super) fn write_quilt(
         w.set_param("paint_log", Param::Text(log.to_string()));
     }
     w.set_param("resolution", Param::Int(r as i64));
-    w.set_param("sample_width", Param::Int(sample.width as i64));
-    w.set_param("sample_height", Param::Int(sample.height as i64));
+    let [width, height] = syn.original_size;
+    w.set_param("sample_width", Param::Int(width as i64));
+    w.set_param("sample_height", Param::Int(height as i64));
+    for k in 0..paths.len() {
+        let span = if k == state.active as usize {
+            syn.active_span
+        } else {
+            syn.sample_spans.get(k).copied().flatten()
+        };
+        if let Some(units) = span {
+            w.set_param(&format!("{}_span", sample_role(k)), Param::Float(units));
+        }
+    }
     w.set_param("terms", Param::Int(sample.n as i64));
     w.set_param("rotations", Param::Int(sample.rotations as i64));
     w.set_param("patches", Param::Int(state.next_patch as i64));
     w.set_param("mean_seam_cost", Param::Float(report.mean_seam_cost));
-    let coord: Vec<f32> = state.coord.iter().flatten().copied().collect();
+    // coordinates and Jacobians in original sample pixels (the loop works
+    // in the resampled sample's, for the texels of the active sample)
+    let active = state.active;
+    let [sx, sy] = syn.scale;
+    let scaled = syn.scale != [1.0, 1.0];
+    let coord: Vec<f32> = if scaled {
+        (state.coord.iter().zip(&state.source))
+            .flat_map(|(c, &k)| {
+                if k == active {
+                    [(c[0] as f64 * sx) as f32, (c[1] as f64 * sy) as f32]
+                } else {
+                    *c
+                }
+            })
+            .collect()
+    } else {
+        state.coord.iter().flatten().copied().collect()
+    };
     let id = w.add_array(ArraySpec::new("coord", DType::F32, &[r, r, 2], &[t, t, 2])?)?;
     w.write_array(id, &coord)?;
-    let jacobian: Vec<f32> = state.jacobian.iter().flatten().copied().collect();
+    let jacobian: Vec<f32> = if scaled {
+        (state.jacobian.iter().zip(&state.source))
+            .flat_map(|(j, &k)| {
+                if k == active {
+                    [
+                        (j[0] as f64 * sx) as f32,
+                        (j[1] as f64 * sy) as f32,
+                        (j[2] as f64 * sx) as f32,
+                        (j[3] as f64 * sy) as f32,
+                    ]
+                } else {
+                    *j
+                }
+            })
+            .collect()
+    } else {
+        state.jacobian.iter().flatten().copied().collect()
+    };
     let id = w.add_array(ArraySpec::new("jacobian", DType::F32, &[r, r, 4], &[t, t, 4])?)?;
     w.write_array(id, &jacobian)?;
     let id = w.add_array(ArraySpec::new("rotation", DType::U8, &[r, r], &[t, t])?)?;
