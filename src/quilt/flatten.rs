@@ -6,6 +6,8 @@
 #[allow(unused_imports)]
 use super::*;
 
+use faer::{c64, Mat};
+
 /// The work image of a patch and where each patch vertex sits in it.
 pub(super) struct WorkImage {
     pub(super) width: usize,
@@ -152,60 +154,63 @@ pub(super) fn patch_triangles(
 /// this distance.
 pub(super) const ALIGN_PRIOR: f64 = 4.0;
 
-pub(super) type C64 = [f64; 2];
-
-pub(super) fn cmul(a: C64, b: C64) -> C64 {
-    [a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]]
+/// `1/z` as `conj(z)/|z|²`: `(re/|z|², −im/|z|²)`, in this operation order.
+/// (num-complex's `Complex::inv` computes the same today, but its `a / b`
+/// does not — it divides `a·conj(b)` by `|b|²` at the end, which rounds
+/// differently — and the flattening must not move by a bit, so the
+/// expression is spelled out here.)
+fn recip(z: c64) -> c64 {
+    let d = z.norm_sqr();
+    c64::new(z.re / d, -z.im / d)
 }
 
-pub(super) fn conj(a: C64) -> C64 {
-    [a[0], -a[1]]
-}
-
-/// Solves the small dense complex system `a x = b` (Gaussian elimination
-/// with partial pivoting); `None` if singular.
-pub(super) fn solve_complex(mut a: Vec<C64>, mut b: Vec<C64>) -> Option<Vec<C64>> {
+/// Solves the small dense complex system `a x = b` (`a` square, `b` of its
+/// size) by Gaussian elimination with partial pivoting on |a_ik|²; `None`
+/// if singular.
+///
+/// Why not faer's `partial_piv_lu`: it pivots on |re| + |im| (first maximum
+/// wins where this loop takes the last) and updates through blocked,
+/// FMA-using matrix products, so its solution differs in the last bits;
+/// the flattened coordinates feed the rasterised work images, and any such
+/// change would move the quilt. This elimination keeps the pivot order and
+/// every rounding of the original solver.
+pub(super) fn solve_complex(mut a: Mat<c64>, mut b: Vec<c64>) -> Option<Vec<c64>> {
     let n = b.len();
-    let norm = |z: C64| z[0] * z[0] + z[1] * z[1];
+    debug_assert!(a.nrows() == n && a.ncols() == n);
     for k in 0..n {
-        let p = (k..n).max_by(|&i, &j| norm(a[i * n + k]).total_cmp(&norm(a[j * n + k])))?;
-        if !(norm(a[p * n + k]) > 1e-300) {
+        let p = (k..n).max_by(|&i, &j| a[(i, k)].norm_sqr().total_cmp(&a[(j, k)].norm_sqr()))?;
+        if !(a[(p, k)].norm_sqr() > 1e-300) {
             return None;
         }
         if p != k {
             for j in 0..n {
-                a.swap(p * n + j, k * n + j);
+                let t = a[(p, j)];
+                a[(p, j)] = a[(k, j)];
+                a[(k, j)] = t;
             }
             b.swap(p, k);
         }
-        let d = norm(a[k * n + k]);
-        let inv = [a[k * n + k][0] / d, -a[k * n + k][1] / d];
+        let inv = recip(a[(k, k)]);
         for i in k + 1..n {
-            let f = cmul(a[i * n + k], inv);
-            if f == [0.0, 0.0] {
+            let f = a[(i, k)] * inv;
+            if f == c64::ZERO {
                 continue;
             }
             for j in k..n {
-                let v = cmul(f, a[k * n + j]);
-                a[i * n + j][0] -= v[0];
-                a[i * n + j][1] -= v[1];
+                let v = f * a[(k, j)];
+                a[(i, j)] -= v;
             }
-            let v = cmul(f, b[k]);
-            b[i][0] -= v[0];
-            b[i][1] -= v[1];
+            let v = f * b[k];
+            b[i] -= v;
         }
     }
-    let mut x = vec![[0.0; 2]; n];
+    let mut x = vec![c64::ZERO; n];
     for k in (0..n).rev() {
         let mut s = b[k];
         for j in k + 1..n {
-            let v = cmul(a[k * n + j], x[j]);
-            s[0] -= v[0];
-            s[1] -= v[1];
+            s -= a[(k, j)] * x[j];
         }
-        let d = a[k * n + k];
-        let dn = d[0] * d[0] + d[1] * d[1];
-        x[k] = cmul(s, [d[0] / dn, -d[1] / dn]);
+        x[k] = s * recip(a[(k, k)]);
     }
     Some(x)
 }
@@ -241,23 +246,19 @@ pub(super) fn aligned_unfolding(
     if n == 0 {
         return u;
     }
-    let mut a = vec![[0.0f64; 2]; n * n];
-    let mut b = vec![[0.0f64; 2]; n];
+    let mut a = Mat::<c64>::zeros(n, n);
+    let mut b = vec![c64::ZERO; n];
     // adds the weighted row Σ coeff·x = c to the normal equations
-    let mut add_row = |coeffs: &[(usize, C64)], c: C64, w: f64| {
+    let mut add_row = |coeffs: &[(usize, c64)], c: c64, w: f64| {
         for &(i, ci) in coeffs {
-            let ci_h = conj(ci);
+            let ci_h = ci.conj();
             for &(j, cj) in coeffs {
-                let v = cmul(ci_h, cj);
-                a[i * n + j][0] += w * v[0];
-                a[i * n + j][1] += w * v[1];
+                a[(i, j)] += (ci_h * cj).scale(w);
             }
-            let v = cmul(ci_h, c);
-            b[i][0] += w * v[0];
-            b[i][1] += w * v[1];
+            b[i] += (ci_h * c).scale(w);
         }
     };
-    let mut row: Vec<(usize, C64)> = Vec::with_capacity(4);
+    let mut row: Vec<(usize, c64)> = Vec::with_capacity(4);
     for (i, &t) in patch.texels.iter().enumerate() {
         let p = piece(t);
         surface.graph.for_each_neighbour(t, |nb, zipper| {
@@ -271,15 +272,14 @@ pub(super) fn aligned_unfolding(
             }
             // γ_p u_i + δ_p − γ_q u_j − δ_q = 0
             row.clear();
-            let mut c = [0.0, 0.0];
+            let mut c = c64::ZERO;
             for (piece_k, coord, sign) in [(p, u[i], 1.0), (q, u[j], -1.0)] {
                 if piece_k == seed {
-                    c[0] -= sign * coord[0];
-                    c[1] -= sign * coord[1];
+                    c -= c64::new(sign * coord[0], sign * coord[1]);
                 } else {
                     let k = unknown(piece_k);
-                    row.push((2 * k, [sign * coord[0], sign * coord[1]]));
-                    row.push((2 * k + 1, [sign, 0.0]));
+                    row.push((2 * k, c64::new(sign * coord[0], sign * coord[1])));
+                    row.push((2 * k + 1, c64::new(sign, 0.0)));
                 }
             }
             add_row(&row, c, 1.0);
@@ -287,8 +287,8 @@ pub(super) fn aligned_unfolding(
     }
     for p in (0..charts.len()).filter(|&p| p != seed) {
         let k = unknown(p);
-        add_row(&[(2 * k, [1.0, 0.0])], [1.0, 0.0], ALIGN_PRIOR);
-        add_row(&[(2 * k + 1, [1.0, 0.0])], [0.0, 0.0], 1e-6);
+        add_row(&[(2 * k, c64::ONE)], c64::ONE, ALIGN_PRIOR);
+        add_row(&[(2 * k + 1, c64::ONE)], c64::ZERO, 1e-6);
     }
     let Some(x) = solve_complex(a, b) else { return u };
     patch
@@ -301,8 +301,8 @@ pub(super) fn aligned_unfolding(
                 ui
             } else {
                 let k = unknown(p);
-                let w = cmul(x[2 * k], ui);
-                [w[0] + x[2 * k + 1][0], w[1] + x[2 * k + 1][1]]
+                let w = x[2 * k] * c64::new(ui[0], ui[1]) + x[2 * k + 1];
+                [w.re, w.im]
             }
         })
         .collect()
