@@ -33,6 +33,8 @@ use crate::output::show::{show, ShowWhat};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
 
+use serde::Serialize;
+
 /// A mesh file format for `export --format`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum MeshFormat {
@@ -431,12 +433,160 @@ const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 const FLOAT: u32 = 5126;
 const UNSIGNED_INT: u32 = 5125;
 
+/// serde_json's compact layout with numbers as Rust prints them (`1`, not
+/// `1.0`; `-0`; never an exponent), as the glTF JSON has always been
+/// written.
+struct GltfFormatter;
+
+impl serde_json::ser::Formatter for GltfFormatter {
+    fn write_f64<W: ?Sized + Write>(&mut self, w: &mut W, v: f64) -> std::io::Result<()> {
+        write!(w, "{v}")
+    }
+}
+
+// The glTF document of `glb_bytes`: the fields in key order.
+
+#[derive(Serialize)]
+struct Gltf {
+    asset: Asset,
+    scene: u32,
+    scenes: [Scene; 1],
+    nodes: [Node; 1],
+    meshes: [GltfMesh; 1],
+    materials: [Material; 1],
+    textures: [Texture; 1],
+    images: [Image; 1],
+    samplers: [Sampler; 1],
+    accessors: [Accessor; 4],
+    #[serde(rename = "bufferViews")]
+    buffer_views: Vec<BufferView>,
+    buffers: [Buffer; 1],
+}
+
+#[derive(Serialize)]
+struct Asset {
+    version: &'static str,
+    generator: &'static str,
+}
+
+#[derive(Serialize)]
+struct Scene {
+    nodes: [u32; 1],
+}
+
+#[derive(Serialize)]
+struct Node {
+    mesh: u32,
+    name: &'static str,
+}
+
+#[derive(Serialize)]
+struct GltfMesh {
+    name: &'static str,
+    primitives: [Primitive; 1],
+}
+
+#[derive(Serialize)]
+struct Primitive {
+    attributes: Attributes,
+    indices: u32,
+    material: u32,
+    mode: u32,
+}
+
+#[derive(Serialize)]
+#[serde(rename_all = "SCREAMING_SNAKE_CASE")]
+struct Attributes {
+    position: u32,
+    normal: u32,
+    texcoord_0: u32,
+}
+
+#[derive(Serialize)]
+#[serde(rename_all = "camelCase")]
+struct Material {
+    name: &'static str,
+    pbr_metallic_roughness: Pbr,
+    double_sided: bool,
+}
+
+#[derive(Serialize)]
+#[serde(rename_all = "camelCase")]
+struct Pbr {
+    base_color_texture: TextureRef,
+    base_color_factor: [f64; 4],
+    metallic_factor: f64,
+    roughness_factor: f64,
+}
+
+#[derive(Serialize)]
+#[serde(rename_all = "camelCase")]
+struct TextureRef {
+    index: u32,
+    tex_coord: u32,
+}
+
+#[derive(Serialize)]
+struct Texture {
+    sampler: u32,
+    source: u32,
+}
+
+#[derive(Serialize)]
+#[serde(rename_all = "camelCase")]
+struct Image {
+    name: &'static str,
+    buffer_view: usize,
+    mime_type: &'static str,
+}
+
+#[derive(Serialize)]
+#[serde(rename_all = "camelCase")]
+struct Sampler {
+    mag_filter: u32,
+    min_filter: u32,
+    wrap_s: u32,
+    wrap_t: u32,
+}
+
+#[derive(Serialize)]
+#[serde(rename_all = "camelCase")]
+struct Accessor {
+    buffer_view: usize,
+    byte_offset: usize,
+    component_type: u32,
+    count: usize,
+    #[serde(rename = "type")]
+    kind: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    min: Option<[f64; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    max: Option<[f64; 3]>,
+}
+
+#[derive(Serialize)]
+#[serde(rename_all = "camelCase")]
+struct BufferView {
+    buffer: u32,
+    byte_offset: usize,
+    byte_length: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    target: Option<u32>,
+}
+
+#[derive(Serialize)]
+#[serde(rename_all = "camelCase")]
+struct Buffer {
+    byte_length: usize,
+}
+
 /// A binary glTF 2.0 file: one node with one mesh (POSITION with min/max,
 /// NORMAL, TEXCOORD_0, u32 indices, triangles), one material
 /// (pbrMetallicRoughness with `png` as the sRGB base colour texture, metallic
 /// 0, roughness 1, single sided), a sampler with trilinear filtering and
-/// clamping, the PNG embedded through a bufferView. The JSON is written in a
-/// fixed key order, so the bytes depend only on the inputs.
+/// clamping, the PNG embedded through a bufferView. The JSON is serialized
+/// from typed structs in a fixed key order, so the bytes depend only on the
+/// inputs.
 pub fn glb_bytes(mesh: &SplitMesh, png: &[u8]) -> std::result::Result<Vec<u8>, String> {
     let n = mesh.positions.len();
     if n == 0 || mesh.triangles.is_empty() {
@@ -485,60 +635,100 @@ pub fn glb_bytes(mesh: &SplitMesh, png: &[u8]) -> std::result::Result<Vec<u8>, S
         }
     }
     // f32 → its exact f64 decimal, so a reader comparing as f32 or f64 agrees
-    let nums = |v: &[f32]| {
-        v.iter()
-            .map(|&x| format!("{}", x as f64))
-            .collect::<Vec<_>>()
-            .join(",")
+    let wide = |v: [f32; 3]| v.map(|x| x as f64);
+    let accessor = |view: usize, component_type: u32, count: usize, kind: &'static str| Accessor {
+        buffer_view: view,
+        byte_offset: 0,
+        component_type,
+        count,
+        kind,
+        min: None,
+        max: None,
     };
-
-    let mut j = String::new();
-    let _ = write!(
-        j,
-        "{{\"asset\":{{\"version\":\"2.0\",\"generator\":{}}},",
-        serde_json::Value::from(format!("btfquilt {}", env!("CARGO_PKG_VERSION")))
-    );
-    j += "\"scene\":0,\"scenes\":[{\"nodes\":[0]}],\"nodes\":[{\"mesh\":0,\"name\":\"mesh\"}],";
-    let _ = write!(
-        j,
-        "\"meshes\":[{{\"name\":\"mesh\",\"primitives\":[{{\"attributes\":{{\"POSITION\":0,\"NORMAL\":1,\"TEXCOORD_0\":2}},\"indices\":3,\"material\":0,\"mode\":4}}]}}],"
-    );
-    j += "\"materials\":[{\"name\":\"atlas\",\"pbrMetallicRoughness\":{\"baseColorTexture\":{\"index\":0,\"texCoord\":0},\
-          \"baseColorFactor\":[1,1,1,1],\"metallicFactor\":0,\"roughnessFactor\":1},\"doubleSided\":false}],";
-    j += "\"textures\":[{\"sampler\":0,\"source\":0}],";
-    let _ = write!(
-        j,
-        "\"images\":[{{\"name\":\"atlas\",\"bufferView\":{img},\"mimeType\":\"image/png\"}}],"
-    );
-    // LINEAR magnification, LINEAR_MIPMAP_LINEAR minification, CLAMP_TO_EDGE
-    j += "\"samplers\":[{\"magFilter\":9729,\"minFilter\":9987,\"wrapS\":33071,\"wrapT\":33071}],";
-    let _ = write!(
-        j,
-        "\"accessors\":[\
-         {{\"bufferView\":{pos},\"byteOffset\":0,\"componentType\":{FLOAT},\"count\":{n},\"type\":\"VEC3\",\"min\":[{}],\"max\":[{}]}},\
-         {{\"bufferView\":{nor},\"byteOffset\":0,\"componentType\":{FLOAT},\"count\":{n},\"type\":\"VEC3\"}},\
-         {{\"bufferView\":{tex},\"byteOffset\":0,\"componentType\":{FLOAT},\"count\":{n},\"type\":\"VEC2\"}},\
-         {{\"bufferView\":{idx},\"byteOffset\":0,\"componentType\":{UNSIGNED_INT},\"count\":{},\"type\":\"SCALAR\"}}],",
-        nums(&min),
-        nums(&max),
-        3 * mesh.triangles.len()
-    );
-    j += "\"bufferViews\":[";
-    for (i, (offset, len, target)) in views.iter().enumerate() {
-        let _ = write!(
-            j,
-            "{}{{\"buffer\":0,\"byteOffset\":{offset},\"byteLength\":{len}",
-            if i > 0 { "," } else { "" }
-        );
-        if let Some(t) = target {
-            let _ = write!(j, ",\"target\":{t}");
-        }
-        j += "}";
-    }
-    let _ = write!(j, "],\"buffers\":[{{\"byteLength\":{buffer_len}}}]}}");
+    let doc = Gltf {
+        asset: Asset {
+            version: "2.0",
+            generator: concat!("btfquilt ", env!("CARGO_PKG_VERSION")),
+        },
+        scene: 0,
+        scenes: [Scene { nodes: [0] }],
+        nodes: [Node {
+            mesh: 0,
+            name: "mesh",
+        }],
+        meshes: [GltfMesh {
+            name: "mesh",
+            primitives: [Primitive {
+                attributes: Attributes {
+                    position: 0,
+                    normal: 1,
+                    texcoord_0: 2,
+                },
+                indices: 3,
+                material: 0,
+                mode: 4, // triangles
+            }],
+        }],
+        materials: [Material {
+            name: "atlas",
+            pbr_metallic_roughness: Pbr {
+                base_color_texture: TextureRef {
+                    index: 0,
+                    tex_coord: 0,
+                },
+                base_color_factor: [1.0; 4],
+                metallic_factor: 0.0,
+                roughness_factor: 1.0,
+            },
+            double_sided: false,
+        }],
+        textures: [Texture {
+            sampler: 0,
+            source: 0,
+        }],
+        images: [Image {
+            name: "atlas",
+            buffer_view: img,
+            mime_type: "image/png",
+        }],
+        // LINEAR magnification, LINEAR_MIPMAP_LINEAR minification, CLAMP_TO_EDGE
+        samplers: [Sampler {
+            mag_filter: 9729,
+            min_filter: 9987,
+            wrap_s: 33071,
+            wrap_t: 33071,
+        }],
+        accessors: [
+            Accessor {
+                min: Some(wide(min)),
+                max: Some(wide(max)),
+                ..accessor(pos, FLOAT, n, "VEC3")
+            },
+            accessor(nor, FLOAT, n, "VEC3"),
+            accessor(tex, FLOAT, n, "VEC2"),
+            accessor(idx, UNSIGNED_INT, 3 * mesh.triangles.len(), "SCALAR"),
+        ],
+        buffer_views: views
+            .iter()
+            .map(|&(byte_offset, byte_length, target)| BufferView {
+                buffer: 0,
+                byte_offset,
+                byte_length,
+                target,
+            })
+            .collect(),
+        buffers: [Buffer {
+            byte_length: buffer_len,
+        }],
+    };
+    let mut json = Vec::new();
+    doc.serialize(&mut serde_json::Serializer::with_formatter(
+        &mut json,
+        GltfFormatter,
+    ))
+    .map_err(|e| format!("writing the glTF JSON: {e}"))?;
 
     // the GLB container: header, JSON chunk (space padded), BIN chunk (zero padded)
-    let mut json = j.into_bytes();
     while json.len() % 4 != 0 {
         json.push(b' ');
     }
@@ -1007,4 +1197,60 @@ listed view and light (or blend neighbours) to find `pair`.
         sample_texel = sample_texel,
         reconstruct_several = reconstruct_several,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 1×1 PNG (just the signature matters to `glb_bytes`).
+    const PNG: &[u8] = b"\x89PNG\r\n\x1a\nnot really an image";
+
+    fn json_chunk(glb: &[u8]) -> &str {
+        let len = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+        std::str::from_utf8(&glb[20..20 + len]).unwrap()
+    }
+
+    /// The glTF JSON's exact text: key order, no whitespace, numbers as Rust
+    /// prints them (`1`, `-0`, no exponents), as files have always been
+    /// written.
+    #[test]
+    fn glb_json_text_is_pinned() {
+        let mesh = SplitMesh {
+            positions: vec![[-0.0, 0.1, -1e-7], [1.5, 2e20, -3.25], [0.0, 1e-30, 7.0]],
+            normals: vec![[0.0, 0.0, 1.0]; 3],
+            uvs: vec![[0.0, 0.0], [1.0, 0.5], [0.25, 1.0]],
+            triangles: vec![[0, 1, 2]],
+            source: vec![0, 1, 2],
+        };
+        let glb = glb_bytes(&mesh, PNG).unwrap();
+        let expected = concat!(
+            r#"{"asset":{"version":"2.0","generator":"btfquilt "#,
+            env!("CARGO_PKG_VERSION"),
+            r#""},"scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0,"name":"mesh"}],"#,
+            r#""meshes":[{"name":"mesh","primitives":[{"attributes":{"POSITION":0,"NORMAL":1,"TEXCOORD_0":2},"#,
+            r#""indices":3,"material":0,"mode":4}]}],"#,
+            r#""materials":[{"name":"atlas","pbrMetallicRoughness":{"baseColorTexture":{"index":0,"texCoord":0},"#,
+            r#""baseColorFactor":[1,1,1,1],"metallicFactor":0,"roughnessFactor":1},"doubleSided":false}],"#,
+            r#""textures":[{"sampler":0,"source":0}],"images":[{"name":"atlas","bufferView":4,"mimeType":"image/png"}],"#,
+            r#""samplers":[{"magFilter":9729,"minFilter":9987,"wrapS":33071,"wrapT":33071}],"#,
+            r#""accessors":[{"bufferView":0,"byteOffset":0,"componentType":5126,"count":3,"type":"VEC3","#,
+            r#""min":[-0,0.0000000000000000000000000000010000000031710769,-3.25],"max":[1.5,200000004008175470000,7]},"#,
+            r#"{"bufferView":1,"byteOffset":0,"componentType":5126,"count":3,"type":"VEC3"},"#,
+            r#"{"bufferView":2,"byteOffset":0,"componentType":5126,"count":3,"type":"VEC2"},"#,
+            r#"{"bufferView":3,"byteOffset":0,"componentType":5125,"count":3,"type":"SCALAR"}],"#,
+            r#""bufferViews":[{"buffer":0,"byteOffset":0,"byteLength":36,"target":34962},"#,
+            r#"{"buffer":0,"byteOffset":36,"byteLength":36,"target":34962},"#,
+            r#"{"buffer":0,"byteOffset":72,"byteLength":24,"target":34962},"#,
+            r#"{"buffer":0,"byteOffset":96,"byteLength":12,"target":34963},"#,
+            r#"{"buffer":0,"byteOffset":108,"byteLength":27}],"buffers":[{"byteLength":135}]}"#
+        );
+        let json = json_chunk(&glb);
+        assert_eq!(json.trim_end_matches(' '), expected);
+        // and it is JSON with the four accessors and five buffer views
+        let v: serde_json::Value = serde_json::from_str(json).unwrap();
+        assert_eq!(v["accessors"].as_array().map(Vec::len), Some(4));
+        assert_eq!(v["bufferViews"].as_array().map(Vec::len), Some(5));
+        assert_eq!(v["accessors"][0]["max"][1].as_f64(), Some(2e20f32 as f64));
+    }
 }
