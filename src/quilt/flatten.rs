@@ -3,14 +3,13 @@
 //! zipper links and their gaps closed, else the rigid field-based unfolding)
 //! and resampled at one texel per pixel.
 
-use glam::Vec3;
-
-#[allow(unused_imports)]
-use super::*;
-
 use faer::sparse::linalg::matmul::sparse_dense_matmul;
 use faer::sparse::{SparseRowMat, SymbolicSparseRowMat};
 use faer::{c64, Accum, ColMut, ColRef, Mat, Par};
+use glam::Vec3;
+
+use super::sample::Sample;
+use super::state::{Bfs, State, Surface, WorkPatch};
 
 /// The work image of a patch and where each patch vertex sits in it.
 pub(super) struct WorkImage {
@@ -671,7 +670,7 @@ pub(super) fn raster_work_image(
     Some(work)
 }
 
-/// Cross-chart work image: the patch flattened by [`flatten`] and resampled.
+/// Cross-chart work image: the patch flattened by [`flatten()`] and resampled.
 /// `None` if it cannot be flattened within the distortion bound.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn flattened_work_image(

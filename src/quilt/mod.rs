@@ -46,17 +46,9 @@ mod write;
 pub use crate::artifact::quilt::{
     Dependency, Quilt, KIND, MAX_SAMPLES, NO_PATCH, SEAM_X, SEAM_Y, SEAM_ZIPPER,
 };
-#[allow(unused_imports)]
-use fit::*;
-#[allow(unused_imports)]
-use flatten::*;
-#[allow(unused_imports)]
-use placement::*;
 pub(crate) use sample::*;
-pub(crate) use state::*;
 pub(crate) use synthesis::*;
-#[allow(unused_imports)]
-use write::*;
+use write::write_quilt;
 
 /// Options of [`tile`].
 #[derive(Clone, Debug, PartialEq)]
