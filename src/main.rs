@@ -63,6 +63,10 @@ struct Quilting {
     /// texel; painting with the tiling's sample keeps the tiling's width.
     #[arg(long)]
     sample_width: Option<f64>,
+    /// The sample's size on the surface per pixel: mesh units one sample
+    /// pixel spans (instead of --sample-width).
+    #[arg(long, conflicts_with = "sample_width")]
+    sample_pixel: Option<f64>,
 }
 
 impl Quilting {
@@ -74,6 +78,7 @@ impl Quilting {
             constraint_weight: self.constraint_weight,
             seed: self.seed,
             sample_width: self.sample_width,
+            sample_pixel: self.sample_pixel,
             memory,
             ..TileConfig::default()
         }

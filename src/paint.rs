@@ -29,7 +29,9 @@ use std::time::Instant;
 use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::Param;
 use crate::progress::Progress;
-use crate::quilt::{same_file, sample_at_density, sample_role, Quilt, SizedSample, Synthesis, TileConfig};
+use crate::quilt::{
+    same_file, sample_at_density, sample_role, Quilt, SampleSize, SizedSample, Synthesis, TileConfig,
+};
 use crate::{Error, Result};
 
 /// A verbatim copy: where and how the foreground goes.
@@ -217,7 +219,7 @@ fn open_synthesis(
     let sized = sample_at_density(
         &stroke.sample,
         gim.texel_size,
-        cfg.sample_width,
+        cfg.sample_size(),
         matching,
         progress,
     )?;
@@ -372,7 +374,10 @@ impl Stroke {
                 t.patch_radius,
                 t.seam_threshold,
                 t.constraint_weight,
-                t.sample_width.or_else(|| recorded_span(base, &sample)),
+                match t.sample_size() {
+                    Some(size) => Some(size),
+                    None => recorded_span(base, &sample).map(SampleSize::Width),
+                },
                 t.memory,
             ),
             sample,
@@ -391,15 +396,21 @@ impl Stroke {
         patch_radius: Option<usize>,
         seam_threshold: f64,
         constraint_weight: f64,
-        sample_width: Option<f64>,
+        sample_size: Option<SampleSize>,
         memory: crate::container::MemoryBudget,
     ) -> TileConfig {
+        let (sample_width, sample_pixel) = match sample_size {
+            Some(SampleSize::Width(w)) => (Some(w), None),
+            Some(SampleSize::Pixel(p)) => (None, Some(p)),
+            None => (None, None),
+        };
         TileConfig {
             seed,
             patch_radius,
             seam_threshold,
             constraint_weight,
             sample_width,
+            sample_pixel,
             memory,
             ..TileConfig::default()
         }
@@ -422,6 +433,7 @@ impl Stroke {
             seam_threshold: self.tile.seam_threshold,
             constraint_weight: self.tile.constraint_weight,
             sample_width: self.tile.sample_width,
+            sample_pixel: self.tile.sample_pixel,
         }
     }
 
@@ -435,7 +447,9 @@ impl Stroke {
                 r.patch_radius,
                 r.seam_threshold,
                 r.constraint_weight,
-                r.sample_width,
+                r.sample_width
+                    .map(SampleSize::Width)
+                    .or(r.sample_pixel.map(SampleSize::Pixel)),
                 crate::container::MemoryBudget::default(),
             ),
             sample: r.sample.map_or_else(|| base_sample.to_path_buf(), PathBuf::from),
@@ -485,6 +499,9 @@ struct StrokeRecord {
     /// Mesh units the sample's width spans; absent: one pixel per texel.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     sample_width: Option<f64>,
+    /// Mesh units one sample pixel spans (instead of `sample_width`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    sample_pixel: Option<f64>,
 }
 
 /// A verbatim copy in the paint log's JSON.

@@ -6,7 +6,9 @@
 //! - zippers: mean colour difference across zipper links divided by the mean
 //!   across grid links inside charts (≈ 1 means chart seams are invisible);
 //! - coherence: mean RGB distance from 5×5 output windows to their nearest
-//!   5×5 window of the sample (turned by the window's rotation).
+//!   5×5 window of the sample (turned by the window's rotation);
+//! - scale: the size of the sample on the surface, measured from the stored
+//!   sample coordinates against the 3D positions (mesh units).
 
 use std::path::Path;
 
@@ -41,6 +43,22 @@ pub struct EvaluateReport {
     pub seam: SeamFigures,
     pub zipper: ZipperFigures,
     pub coherence: CoherenceFigures,
+    pub scale: ScaleFigures,
+}
+
+/// The sample's size on the surface, measured: over grid edges inside one
+/// patch of the first sample, the median of |Δ sample coordinate| (original
+/// sample pixels) / |Δ position| (mesh units).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ScaleFigures {
+    /// Grid edges measured.
+    pub edges: usize,
+    /// Median sample pixels per mesh unit along the surface.
+    pub sample_pixels_per_unit: f64,
+    /// The first sample's width in mesh units it spans on the surface
+    /// (its width in pixels over the median above): a brick `p` sample
+    /// pixels long is `p / sample_pixels_per_unit` units long.
+    pub sample_width_units: f64,
 }
 
 /// Colour differences across grid edges inside charts where the patch
@@ -160,6 +178,7 @@ pub fn evaluate(
         p.len()
     };
     let painting = painting_measures(&quilt, &chart, &samples)?;
+    let scale = scale(&quilt, &gim, &chart, previews.first().map_or(0, |p| p.width))?;
     Ok(EvaluateReport {
         texels: covered.iter().filter(|&&c| c).count(),
         patches: patch_count,
@@ -184,6 +203,50 @@ pub fn evaluate(
             windows: coherence.1,
             mean_rgb_distance_to_nearest_sample_window: coherence.0,
         },
+        scale,
+    })
+}
+
+/// [`ScaleFigures`] of the first sample, `width` pixels wide.
+fn scale(
+    quilt: &Quilt,
+    gim: &crate::artifact::gim::Gim,
+    chart: &[u32],
+    width: usize,
+) -> Result<ScaleFigures> {
+    let r = quilt.resolution;
+    let (coords, patches, index) = (quilt.coords()?, quilt.patches()?, quilt.sample_index()?);
+    let position: Vec<f32> = gim.read("position")?;
+    let p = |t: usize| glam::Vec3::from_slice(&position[t * 3..t * 3 + 3]);
+    let mut ratios = Vec::new();
+    for y in 0..r {
+        for x in 0..r {
+            let t = y * r + x;
+            if chart[t] == EMPTY || patches[t] == NO_PATCH || index[t] != 0 {
+                continue;
+            }
+            for n in [(x + 1 < r).then(|| t + 1), (y + 1 < r).then(|| t + r)]
+                .into_iter()
+                .flatten()
+            {
+                if chart[n] != chart[t] || patches[n] != patches[t] || index[n] != 0 {
+                    continue;
+                }
+                let units = p(t).distance(p(n)) as f64;
+                let (a, b) = (coords[t], coords[n]);
+                let pixels = ((a[0] - b[0]) as f64).hypot((a[1] - b[1]) as f64);
+                if units > 0.0 && pixels.is_finite() {
+                    ratios.push(pixels / units);
+                }
+            }
+        }
+    }
+    ratios.sort_by(f64::total_cmp);
+    let median = ratios.get(ratios.len() / 2).copied().unwrap_or(0.0);
+    Ok(ScaleFigures {
+        edges: ratios.len(),
+        sample_pixels_per_unit: median,
+        sample_width_units: if median > 0.0 { width as f64 / median } else { 0.0 },
     })
 }
 

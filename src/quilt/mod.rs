@@ -101,6 +101,10 @@ pub struct TileConfig {
     /// pixel per atlas texel ([`TileReport::sample_width`] says what width
     /// that is).
     pub sample_width: Option<f64>,
+    /// The sample's size on the surface per pixel: mesh units one sample
+    /// pixel spans (the width is this times the sample's width in pixels).
+    /// At most one of `sample_width` and `sample_pixel`.
+    pub sample_pixel: Option<f64>,
 }
 
 impl Default for TileConfig {
@@ -119,11 +123,38 @@ impl Default for TileConfig {
             refine: Some(2.0),
             refine_placements: REFINE_PLACEMENTS,
             sample_width: None,
+            sample_pixel: None,
+        }
+    }
+}
+
+/// The sample's size on the surface, as a user gives it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SampleSize {
+    /// Mesh units the sample's width spans.
+    Width(f64),
+    /// Mesh units one sample pixel spans.
+    Pixel(f64),
+}
+
+impl SampleSize {
+    /// Mesh units the width of a sample `pixels` wide spans.
+    pub fn width_units(self, pixels: usize) -> f64 {
+        match self {
+            SampleSize::Width(w) => w,
+            SampleSize::Pixel(p) => p * pixels as f64,
         }
     }
 }
 
 impl TileConfig {
+    /// The sample's size on the surface, if one is given.
+    pub fn sample_size(&self) -> Option<SampleSize> {
+        self.sample_width
+            .map(SampleSize::Width)
+            .or(self.sample_pixel.map(SampleSize::Pixel))
+    }
+
     /// Checks the numbers a user gives (each must be finite and in range),
     /// naming the command-line flag and the value.
     pub fn validate(&self) -> Result<()> {
@@ -161,6 +192,19 @@ impl TileConfig {
                 w > 0.0,
                 "a finite number > 0 (mesh units spanned by the sample's width)",
             )?;
+        }
+        if let Some(p) = self.sample_pixel {
+            check(
+                "--sample-pixel",
+                p,
+                p > 0.0,
+                "a finite number > 0 (mesh units spanned by one sample pixel)",
+            )?;
+            if self.sample_width.is_some() {
+                return Err(Error::Config(
+                    "--sample-width and --sample-pixel both give the sample's size; give one".into(),
+                ));
+            }
         }
         if self.refine_placements == 0 {
             return Err(Error::Config("--refine-placements must be at least 1".into()));
@@ -235,7 +279,7 @@ pub fn tile(
     }
     crate::io::staging::check_output(out, &inputs)?;
     let gim = Gim::open(gim_path, cfg.memory)?;
-    let sized = sample_at_density(sample_path, gim.texel_size, cfg.sample_width, true, progress)?;
+    let sized = sample_at_density(sample_path, gim.texel_size, cfg.sample_size(), true, progress)?;
     let mut syn = Synthesis::open(&gim, sample_path, &sized.svd, cfg, true)?;
     syn.set_scale(&sized);
     if let Some(mask) = &cfg.sample_mask {

@@ -115,22 +115,27 @@ impl Sample {
     /// Mean ‖g(x) − g(x + 1)‖ over horizontal and vertical neighbours: the
     /// sample's own seam scale, the unit of T_c.
     pub(super) fn neighbour_difference(&self) -> f64 {
-        let (w, h, n) = (self.width, self.height, self.n);
-        let (mut s, mut c) = (0f64, 0usize);
-        for y in 0..h {
-            for x in 0..w {
-                let a = (y * w + x) * n;
-                for (dx, dy) in [(1, 0), (0, 1)] {
-                    if x + dx < w && y + dy < h {
-                        let b = ((y + dy) * w + x + dx) * n;
-                        s += dist(&self.maps[a..a + n], &self.maps[b..b + n]);
-                        c += 1;
-                    }
+        neighbour_difference(&self.maps, self.width, self.height, self.n)
+    }
+}
+
+/// Mean ‖g(x) − g(x + 1)‖ over horizontal and vertical neighbours of `n`-term
+/// maps `w`×`h`.
+fn neighbour_difference(maps: &[f32], w: usize, h: usize, n: usize) -> f64 {
+    let (mut s, mut c) = (0f64, 0usize);
+    for y in 0..h {
+        for x in 0..w {
+            let a = (y * w + x) * n;
+            for (dx, dy) in [(1, 0), (0, 1)] {
+                if x + dx < w && y + dy < h {
+                    let b = ((y + dy) * w + x + dx) * n;
+                    s += dist(&maps[a..a + n], &maps[b..b + n]);
+                    c += 1;
                 }
             }
         }
-        (s / c.max(1) as f64).max(1e-12)
     }
+    (s / c.max(1) as f64).max(1e-12)
 }
 
 /// Whether two paths name the same file (textually equal when either is
@@ -209,34 +214,40 @@ pub(crate) struct SizedSample {
     pub(crate) width_units: f64,
     /// Whether a width was asked for (recorded in the quilt).
     pub(crate) given: bool,
+    /// The original sample's neighbour difference (the unit of T_c at its
+    /// own resolution) when resampled: an enlarged sample is smoother than
+    /// the material, so seams are judged against the original's scale.
+    pub(crate) native_reference: Option<f64>,
     _tmp: Vec<tempfile::TempDir>,
 }
 
 /// The sample at `sample_path` sized for an atlas of `texel_size` mesh units
-/// per texel: with `width` (mesh units its width spans), resampled so one
-/// pixel is one texel ([`factorize::resample_svd`]); without, as it is.
+/// per texel: with a size `on_surface`, resampled so one pixel is one
+/// texel ([`factorize::resample_svd`]); without, as it is.
 pub(crate) fn sample_at_density(
     sample_path: &Path,
     texel_size: f64,
-    width: Option<f64>,
+    on_surface: Option<super::SampleSize>,
     matching: bool,
     progress: &dyn Progress,
 ) -> Result<SizedSample> {
     let mut tmp = Vec::new();
-    let (svd_path, dir) = sample_svd(sample_path, matching && width.is_none(), progress)?;
+    let (svd_path, dir) = sample_svd(sample_path, matching && on_surface.is_none(), progress)?;
     tmp.extend(dir);
     let svd = SvdArtifact::open(&svd_path, MemoryBudget(0))?;
     let size = [svd.width, svd.height];
-    let Some(units) = width else {
+    let Some(on_surface) = on_surface else {
         return Ok(SizedSample {
             svd: svd_path,
             scale: [1.0, 1.0],
             size,
             width_units: svd.width as f64 * texel_size,
             given: false,
+            native_reference: None,
             _tmp: tmp,
         });
     };
+    let units = on_surface.width_units(svd.width);
     // texels the sample's width covers on the surface
     let texels = units / texel_size;
     let to_w = texels.round().max(1.0);
@@ -260,12 +271,14 @@ pub(crate) fn sample_at_density(
     let rotations = if matching { factorize::DEFAULT_ROTATIONS } else { 0 };
     factorize::resample_svd(&svd, &out, to_w, to_h, rotations, progress)?;
     tmp.push(dir);
+    let native_reference = neighbour_difference(&svd.geometry_maps()?, svd.width, svd.height, svd.terms);
     Ok(SizedSample {
         svd: out,
         scale: [size[0] as f64 / to_w as f64, size[1] as f64 / to_h as f64],
         size,
         width_units: units,
         given: true,
+        native_reference: Some(native_reference),
         _tmp: tmp,
     })
 }

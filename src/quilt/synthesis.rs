@@ -173,6 +173,10 @@ impl Synthesis {
         self.active_span = sized.given.then_some(sized.width_units);
         self.report.sample_width = sized.width_units;
         self.report.sample_scale = sized.scale[0];
+        // seams are judged at the sample's own resolution or coarser
+        if let Some(native) = sized.native_reference {
+            self.reference = self.reference.max(native);
+        }
     }
 
     /// Sets the constraint function m0 per atlas texel.

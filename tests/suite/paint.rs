@@ -588,3 +588,126 @@ fn painting_with_another_sample_adds_it_to_the_surface() {
     paint::replay(&twice, &again2, &Silent).unwrap();
     assert_eq!(std::fs::read(&again2).unwrap(), std::fs::read(&twice).unwrap());
 }
+
+/// A surface tiled with a size on the surface (`sample_pixel`) is painted at
+/// that size: the stroke keeps the recorded width, a stroke's own size is
+/// recorded in the log, and both replay to the same bytes.
+#[test]
+fn painting_keeps_the_sample_size_on_the_surface() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let g = d.join("square.gim");
+    let acfg = AtlasConfig {
+        resolution: 96,
+        ..AtlasConfig::default()
+    };
+    atlas::build_gim(&common::square_obj(d), &g, &acfg, &Silent).unwrap();
+    let sample = common::brick_crop(d, 64, Some((100, 100)));
+    let mask = d.join("mask.png");
+    write_mask_png(&mask, 64, 64, |x, y| {
+        (x as f32 - 20.0).hypot(y as f32 - 20.0) < 10.0
+    });
+    let base = d.join("base.quilt");
+    let tc = TileConfig {
+        sample_mask: Some(mask.clone()),
+        sample_pixel: Some(0.008),
+        ..TileConfig::default()
+    };
+    quilt::tile(&g, &sample, &base, &tc, &Silent).unwrap();
+    let width = |q: &Path| {
+        btfquilt::output::evaluate::evaluate(q, None, None, MemoryBudget::default())
+            .unwrap()
+            .scale
+            .sample_width_units
+    };
+    let want = 64.0 * 0.008;
+    assert!(
+        (width(&base) / want - 1.0).abs() < 0.05,
+        "{} vs {want}",
+        width(&base)
+    );
+    let strokes = d.join("s.json");
+    std::fs::write(&strokes, r#"[{"point": [0.5, 0.5, 0.0], "radius": 0.25}]"#).unwrap();
+    for (name, tile) in [
+        ("kept", TileConfig::default()),
+        (
+            "own",
+            TileConfig {
+                sample_width: Some(want),
+                ..TileConfig::default()
+            },
+        ),
+    ] {
+        let out = d.join(format!("{name}.quilt"));
+        let cfg = PaintConfig {
+            sample_mask: Some(mask.clone()),
+            region: Some(strokes.clone()),
+            tile,
+            ..PaintConfig::default()
+        };
+        let report = paint::paint(&base, &out, &cfg, &Silent).unwrap();
+        assert!(report.repainted > 0, "{report}");
+        let w = painted_width(&base, &out, &g, 64);
+        assert!((w / want - 1.0).abs() < 0.05, "{name}: {w} vs {want}");
+        let again = d.join(format!("{name}-replayed.quilt"));
+        paint::replay(&out, &again, &Silent).unwrap();
+        assert_eq!(
+            std::fs::read(&again).unwrap(),
+            std::fs::read(&out).unwrap(),
+            "{name}"
+        );
+    }
+    // both sizes at once are refused, naming the flags
+    let cfg = PaintConfig {
+        sample_mask: Some(mask),
+        region: Some(strokes),
+        tile: TileConfig {
+            sample_width: Some(0.5),
+            sample_pixel: Some(0.01),
+            ..TileConfig::default()
+        },
+        ..PaintConfig::default()
+    };
+    let out = d.join("both.quilt");
+    let e = paint::paint(&base, &out, &cfg, &Silent).unwrap_err().to_string();
+    assert!(
+        e.contains("--sample-width") && e.contains("--sample-pixel"),
+        "{e}"
+    );
+    assert!(!out.exists());
+}
+
+/// The sample width (mesh units) measured over the patches of `painted`
+/// that are not in `base`: the median |Δ sample coordinate| / |Δ position|
+/// over grid edges inside one new patch.
+fn painted_width(base: &Path, painted: &Path, gim: &Path, sample_px: usize) -> f64 {
+    let (b, q) = (
+        Quilt::open(base, MemoryBudget::default()).unwrap(),
+        Quilt::open(painted, MemoryBudget::default()).unwrap(),
+    );
+    let old: std::collections::BTreeSet<u32> = b.patches().unwrap().into_iter().collect();
+    let (patches, coords) = (q.patches().unwrap(), q.coords().unwrap());
+    let position: Vec<f32> = Gim::open(gim, MemoryBudget::default())
+        .unwrap()
+        .read("position")
+        .unwrap();
+    let r = q.resolution;
+    let mut ratios = Vec::new();
+    for t in 0..r * r {
+        for n in [t + 1, t + r] {
+            if n >= r * r || patches[t] != patches[n] || old.contains(&patches[t]) {
+                continue;
+            }
+            let d = (0..3)
+                .map(|k| (position[t * 3 + k] - position[n * 3 + k]).powi(2))
+                .sum::<f32>();
+            let c = (coords[t][0] - coords[n][0]).hypot(coords[t][1] - coords[n][1]);
+            if d > 0.0 {
+                ratios.push((c / d.sqrt()) as f64);
+            }
+        }
+    }
+    assert!(ratios.len() > 100, "{} edges in new patches", ratios.len());
+    ratios.sort_by(f64::total_cmp);
+    sample_px as f64 / ratios[ratios.len() / 2]
+}

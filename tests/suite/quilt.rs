@@ -247,3 +247,56 @@ fn bad_tiling_inputs_are_refused() {
     assert!(e.contains("square.gim") && e.contains("'gim'"), "{e}");
     assert!(!out.exists());
 }
+
+/// Issue 15's world size: with `sample_width` the sample spans the same mesh
+/// units at any atlas resolution (measured from the stored coordinates by
+/// `evaluate`), and a bad width is refused with the figures it implies.
+#[test]
+fn sample_width_is_the_same_on_the_surface_at_any_resolution() {
+    let dir = tempfile::tempdir().unwrap();
+    let sample = brick_crop(dir.path(), 64, None);
+    let measured = |r: usize, width: Option<f64>| {
+        let g = dir.path().join(format!("square{r}.gim"));
+        if !g.exists() {
+            atlas(&square_obj(dir.path()), &g, r);
+        }
+        let out = dir.path().join(format!("s{r}-{width:?}.quilt"));
+        let cfg = TileConfig {
+            sample_width: width,
+            ..TileConfig::default()
+        };
+        let report = quilt::tile(&g, &sample, &out, &cfg, &Silent).unwrap();
+        let eval = btfquilt::output::evaluate::evaluate(&out, None, None, MemoryBudget::default()).unwrap();
+        eprintln!("R {r} width {width:?}: {report} measured {:?}", eval.scale);
+        assert!(eval.scale.edges > 1000, "{:?}", eval.scale);
+        // the report's width (implied or asked) is the one on the surface
+        let w = eval.scale.sample_width_units;
+        assert!(
+            (w / report.sample_width - 1.0).abs() < 0.05,
+            "{w} vs {}",
+            report.sample_width
+        );
+        w
+    };
+    // by default one sample pixel per texel: the width halves at twice the resolution
+    let (d96, d192) = (measured(96, None), measured(192, None));
+    assert!((d96 / d192 - 2.0).abs() < 0.15, "{d96} {d192}");
+    // with a width: the same size in the world
+    for r in [96, 192] {
+        let w = measured(r, Some(0.4));
+        assert!((w / 0.4 - 1.0).abs() < 0.05, "R {r}: {w}");
+    }
+    // too small for the atlas: refused, naming the flag
+    let g = dir.path().join("square96.gim");
+    let cfg = TileConfig {
+        sample_width: Some(0.01),
+        ..TileConfig::default()
+    };
+    let out = dir.path().join("tiny.quilt");
+    let e = quilt::tile(&g, &sample, &out, &cfg, &Silent)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("--sample-width") && e.contains("texels"), "{e}");
+    assert!(!out.exists());
+}
