@@ -237,26 +237,28 @@ pub struct Btf {
     rgb: ArrayId,
 }
 
+/// The directions array `name` (f32 [n, 2] of θ, φ) of an artifact at `path`.
+pub(crate) fn read_directions(container: &Container, path: &Path, name: &str) -> Result<Vec<Angles>> {
+    let id = container.array(name)?;
+    let spec = container.spec(id);
+    if spec.dtype != DType::F32 || spec.shape.len() != 2 || spec.shape[1] != 2 {
+        return Err(Error::input(path, format!("array '{name}' must be f32 [n, 2]")));
+    }
+    let v: Vec<f32> = container.read_array(id)?;
+    Ok(v.chunks_exact(2)
+        .map(|a| Angles {
+            theta: a[0],
+            phi: a[1],
+        })
+        .collect())
+}
+
 impl Btf {
     /// Opens a BTF, checking kind and array shapes.
     pub fn open(path: &Path, budget: MemoryBudget) -> Result<Btf> {
         let container = Container::open_kind(path, KIND, budget)?;
-        let read_dirs = |name: &str| -> Result<Vec<Angles>> {
-            let id = container.array(name)?;
-            let spec = container.spec(id);
-            if spec.dtype != DType::F32 || spec.shape.len() != 2 || spec.shape[1] != 2 {
-                return Err(Error::input(path, format!("array '{name}' must be f32 [n, 2]")));
-            }
-            let v: Vec<f32> = container.read_array(id)?;
-            Ok(v.chunks_exact(2)
-                .map(|a| Angles {
-                    theta: a[0],
-                    phi: a[1],
-                })
-                .collect())
-        };
-        let views = read_dirs("view_dirs")?;
-        let lights = read_dirs("light_dirs")?;
+        let views = read_directions(&container, path, "view_dirs")?;
+        let lights = read_directions(&container, path, "light_dirs")?;
         let rgb = container.array("rgb")?;
         let spec = container.spec(rgb).clone();
         let ok = spec.dtype == DType::F16

@@ -44,20 +44,7 @@ impl SvdArtifact {
         };
         let (width, height, terms, rotations) =
             (int("width")?, int("height")?, int("terms")?, int("rotations")?);
-        let dirs = |name: &str| -> Result<Vec<Angles>> {
-            let id = container.array(name)?;
-            let spec = container.spec(id);
-            if spec.dtype != DType::F32 || spec.shape.len() != 2 || spec.shape[1] != 2 {
-                return Err(Error::input(path, format!("array '{name}' must be f32 [n, 2]")));
-            }
-            let v: Vec<f32> = container.read_array(id)?;
-            Ok(v.chunks_exact(2)
-                .map(|a| Angles {
-                    theta: a[0],
-                    phi: a[1],
-                })
-                .collect())
-        };
+        let dirs = |name: &str| crate::artifact::btf::read_directions(&container, path, name);
         let (views, lights) = (dirs("view_dirs")?, dirs("light_dirs")?);
         let g = container.spec(container.array("geometry_maps")?);
         let p = container.spec(container.array("appearance")?);
