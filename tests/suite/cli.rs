@@ -358,3 +358,142 @@ fn tile_bake_evaluate_render_export_a_square() {
         &["square.obj"],
     );
 }
+
+/// The same inputs and seed give the same bytes whatever `--threads` and
+/// `--memory`: the whole chain (atlas, tile of a resampled BTF, paint, bake,
+/// render, glTF) at 1 thread and 1 MiB against 2 threads and 16 GiB. At
+/// 1 MiB (each cache's floor) the sample's rotated copies (the sample
+/// resampled to 97² six-term texels on a 160² Spot, 263 KB each) are
+/// evicted and read again: three of the 24 fit.
+#[test]
+fn outputs_do_not_depend_on_threads_or_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let spot = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj");
+    let btf = d.join("b.btf");
+    let svd = d.join("b.svd");
+    crate::common::ok(&[
+        "generate-btf",
+        "--size",
+        "40",
+        "--views",
+        "4x2",
+        "--lights",
+        "4x2",
+        "--imperfection",
+        "cracks",
+        "-q",
+        "-o",
+        s(&btf),
+    ]);
+    crate::common::ok(&[
+        "factorize",
+        s(&btf),
+        "--terms",
+        "6",
+        "--rotations",
+        "24",
+        "-q",
+        "-o",
+        s(&svd),
+    ]);
+    let strokes = d.join("strokes.json");
+    std::fs::write(&strokes, r#"[{"point": [-0.27, 0.17, 0.23], "radius": 0.2}]"#).unwrap();
+    let run = |name: &str, threads: &str, memory: &str| -> Vec<(String, Vec<u8>)> {
+        let o = d.join(name);
+        std::fs::create_dir(&o).unwrap();
+        let p = |f: &str| o.join(f).display().to_string();
+        let common = ["--threads", threads, "--memory", memory];
+        let with = |args: &[&str]| {
+            let v: Vec<String> = args.iter().chain(&common).map(|a| a.to_string()).collect();
+            let out = crate::common::btfquilt(&v.iter().map(String::as_str).collect::<Vec<_>>());
+            assert!(
+                out.status.success(),
+                "{v:?}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        };
+        let (gim, quilt, painted) = (p("spot.gim"), p("t.quilt"), p("p.quilt"));
+        crate::common::ok(&[
+            "atlas",
+            s(&spot),
+            "--resolution",
+            "160",
+            "-q",
+            "-o",
+            &gim,
+            "--threads",
+            threads,
+        ]);
+        with(&[
+            "tile",
+            "--gim",
+            &gim,
+            "--sample",
+            s(&svd),
+            "--sample-width",
+            "2.4",
+            "-q",
+            "-o",
+            &quilt,
+        ]);
+        let mask = btf.with_extension("mask.png");
+        with(&[
+            "paint",
+            &quilt,
+            "--sample-mask",
+            s(&mask),
+            "--region",
+            s(&strokes),
+            "-q",
+            "-o",
+            &painted,
+        ]);
+        with(&["bake", &painted, "-o", &p("bake.png")]);
+        with(&[
+            "render",
+            &painted,
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "-o",
+            &p("r.png"),
+        ]);
+        with(&["export", &painted, "--format", "gltf", "-o", &p("gltf")]);
+        let mut files = Vec::new();
+        for f in crate::common::listing(&o) {
+            if o.join(&f).is_dir() {
+                for g in crate::common::listing(&o.join(&f)) {
+                    files.push(format!("{f}/{g}"));
+                }
+            } else {
+                files.push(f);
+            }
+        }
+        files
+            .into_iter()
+            .map(|f| {
+                let bytes = std::fs::read(o.join(&f)).unwrap();
+                (f, bytes)
+            })
+            .collect()
+    };
+    let small = run("small", "1", "1MiB");
+    let large = run("large", "2", "16GiB");
+    assert!(
+        small.len() >= 6,
+        "{:?}",
+        small.iter().map(|f| &f.0).collect::<Vec<_>>()
+    );
+    assert_eq!(
+        small.iter().map(|f| &f.0).collect::<Vec<_>>(),
+        large.iter().map(|f| &f.0).collect::<Vec<_>>()
+    );
+    for ((name, a), (_, b)) in small.iter().zip(&large) {
+        assert!(
+            a == b,
+            "{name} differs between 1 thread / 1 MiB and 2 threads / 16 GiB"
+        );
+    }
+}
