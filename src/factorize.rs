@@ -639,14 +639,16 @@ fn write_svd(
     c.finish()
 }
 
-/// Writes `src` resampled to `width`×`height` texels as the `.svd` `out`:
-/// the geometry maps and the preview resampled
+/// Writes `src` (whose geometry maps `maps` the caller has read) resampled
+/// to `width`×`height` texels as the `.svd` `out`: the geometry maps and the
+/// preview resampled
 /// ([`crate::io::imageio::resample`]), the appearance functions, singular
 /// values and directions unchanged (the BTF's columns do not depend on the
 /// texel grid), and `rotations` rotated copies made from the resampled maps.
 /// Quilting uses it to give a sample its size on the surface.
 pub fn resample_svd(
     src: &SvdArtifact,
+    maps: &[f32],
     out: &Path,
     width: usize,
     height: usize,
@@ -654,7 +656,7 @@ pub fn resample_svd(
     progress: &dyn Progress,
 ) -> Result<()> {
     let (w0, h0, terms) = (src.width, src.height, src.terms);
-    let g = crate::io::imageio::resample(&src.geometry_maps()?, w0, h0, terms, width, height);
+    let g = crate::io::imageio::resample(maps, w0, h0, terms, width, height);
     let preview = crate::io::imageio::resample(&src.preview()?.data, w0, h0, 3, width, height);
     let meta = src.container().metadata();
     let cfg = FactorizeConfig {

@@ -29,9 +29,7 @@ use std::time::Instant;
 use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::Param;
 use crate::progress::Progress;
-use crate::quilt::{
-    same_file, sample_at_density, sample_role, Quilt, SampleSize, SizedSample, Synthesis, TileConfig,
-};
+use crate::quilt::{same_file, sample_at_density, sample_role, Quilt, SizedSample, Synthesis, TileConfig};
 use crate::{Error, Result};
 
 /// A verbatim copy: where and how the foreground goes.
@@ -368,16 +366,19 @@ impl Stroke {
         }
         cfg.tile.validate()?;
         let t = &cfg.tile;
+        // painting with the tiling's sample keeps its recorded width
+        let (sample_width, sample_pixel) = match (t.sample_width, t.sample_pixel) {
+            (None, None) => (recorded_span(base, &sample), None),
+            given => given,
+        };
         Ok(Stroke {
             tile: Stroke::tiling(
                 t.seed,
                 t.patch_radius,
                 t.seam_threshold,
                 t.constraint_weight,
-                match t.sample_size() {
-                    Some(size) => Some(size),
-                    None => recorded_span(base, &sample).map(SampleSize::Width),
-                },
+                sample_width,
+                sample_pixel,
                 t.memory,
             ),
             sample,
@@ -396,14 +397,10 @@ impl Stroke {
         patch_radius: Option<usize>,
         seam_threshold: f64,
         constraint_weight: f64,
-        sample_size: Option<SampleSize>,
+        sample_width: Option<f64>,
+        sample_pixel: Option<f64>,
         memory: crate::container::MemoryBudget,
     ) -> TileConfig {
-        let (sample_width, sample_pixel) = match sample_size {
-            Some(SampleSize::Width(w)) => (Some(w), None),
-            Some(SampleSize::Pixel(p)) => (None, Some(p)),
-            None => (None, None),
-        };
         TileConfig {
             seed,
             patch_radius,
@@ -440,20 +437,18 @@ impl Stroke {
     /// `base_sample`: the sample of logs written before strokes recorded
     /// theirs (the tiling's, the only one they could use).
     fn from_record(r: StrokeRecord, base_sample: &Path) -> Stroke {
-        let sample_mask = PathBuf::from(r.sample_mask);
         Stroke {
             tile: Stroke::tiling(
                 r.seed,
                 r.patch_radius,
                 r.seam_threshold,
                 r.constraint_weight,
-                r.sample_width
-                    .map(SampleSize::Width)
-                    .or(r.sample_pixel.map(SampleSize::Pixel)),
+                r.sample_width,
+                r.sample_pixel,
                 crate::container::MemoryBudget::default(),
             ),
             sample: r.sample.map_or_else(|| base_sample.to_path_buf(), PathBuf::from),
-            sample_mask,
+            sample_mask: PathBuf::from(r.sample_mask),
             region: r.region.map(PathBuf::from),
             verbatim: r.verbatim.map(|v| Verbatim {
                 at: v.at,
@@ -984,6 +979,7 @@ mod log_json_tests {
                 Some(5),
                 3.0,
                 0.1,
+                None,
                 None,
                 crate::container::MemoryBudget::default(),
             ),

@@ -129,7 +129,7 @@ pub fn evaluate(
         .collect::<Result<Vec<_>>>()?;
     let (img, covered) = atlas_colour(&quilt, &previews)?;
     let r = quilt.resolution;
-    let patches = quilt.patches()?;
+    let (patches, index) = (quilt.patches()?, quilt.sample_index()?);
     let chart: Vec<u32> = gim.read("chart")?;
     let (mut seam, mut inner) = (Vec::new(), Vec::new());
     for y in 0..r {
@@ -169,7 +169,7 @@ pub fn evaluate(
         .collect();
     let all_inside: Vec<f64> = inner.iter().chain(&seam).copied().collect();
     let zipper_ratio = mean(&zip) / mean(&all_inside).max(1e-12) + 0.0;
-    let coherence = coherence(&quilt, &img, &covered, &chart, &previews)?;
+    let coherence = coherence(&quilt, &img, &covered, &chart, &index, &previews)?;
     let seams_fraction = seam.len() as f64 / (seam.len() + inner.len()).max(1) as f64;
     let patch_count = {
         let mut p: Vec<u32> = patches.iter().copied().filter(|&p| p != NO_PATCH).collect();
@@ -178,7 +178,8 @@ pub fn evaluate(
         p.len()
     };
     let painting = painting_measures(&quilt, &chart, &samples)?;
-    let scale = scale(&quilt, &gim, &chart, previews.first().map_or(0, |p| p.width))?;
+    let width = previews.first().map_or(0, |p| p.width);
+    let scale = scale(&quilt, &gim, &chart, &patches, &index, width)?;
     Ok(EvaluateReport {
         texels: covered.iter().filter(|&&c| c).count(),
         patches: patch_count,
@@ -212,10 +213,12 @@ fn scale(
     quilt: &Quilt,
     gim: &crate::artifact::gim::Gim,
     chart: &[u32],
+    patches: &[u32],
+    index: &[u8],
     width: usize,
 ) -> Result<ScaleFigures> {
     let r = quilt.resolution;
-    let (coords, patches, index) = (quilt.coords()?, quilt.patches()?, quilt.sample_index()?);
+    let coords = quilt.coords()?;
     let position: Vec<f32> = gim.read("position")?;
     let p = |t: usize| glam::Vec3::from_slice(&position[t * 3..t * 3 + 3]);
     let mut ratios = Vec::new();
@@ -258,11 +261,11 @@ fn coherence(
     img: &RgbImage,
     covered: &[bool],
     chart: &[u32],
+    index: &[u8],
     previews: &[RgbImage],
 ) -> Result<(f64, usize)> {
     let r = quilt.resolution;
     let rotations = quilt.rotations()?;
-    let index = quilt.sample_index()?;
     let steps = match quilt.container().metadata().param("rotations") {
         Some(crate::container::Param::Int(v)) if *v > 0 => *v as usize,
         _ => 72,

@@ -138,6 +138,14 @@ pub enum SampleSize {
 }
 
 impl SampleSize {
+    /// The flag and value, as a message names them (`--sample-width 2`).
+    pub fn flag(self) -> String {
+        match self {
+            SampleSize::Width(w) => format!("--sample-width {w}"),
+            SampleSize::Pixel(p) => format!("--sample-pixel {p}"),
+        }
+    }
+
     /// Mesh units the width of a sample `pixels` wide spans.
     pub fn width_units(self, pixels: usize) -> f64 {
         match self {

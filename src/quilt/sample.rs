@@ -212,11 +212,10 @@ pub(crate) struct SizedSample {
     pub(crate) size: [usize; 2],
     /// Mesh units the sample's width spans on the surface.
     pub(crate) width_units: f64,
-    /// Whether a width was asked for (recorded in the quilt).
-    pub(crate) given: bool,
     /// The original sample's neighbour difference (the unit of T_c at its
-    /// own resolution) when resampled: an enlarged sample is smoother than
-    /// the material, so seams are judged against the original's scale.
+    /// own resolution), exactly when a size was given and the sample
+    /// resampled: an enlarged sample is smoother than the material, so seams
+    /// are judged against the original's scale.
     pub(crate) native_reference: Option<f64>,
     _tmp: Vec<tempfile::TempDir>,
 }
@@ -242,7 +241,6 @@ pub(crate) fn sample_at_density(
             scale: [1.0, 1.0],
             size,
             width_units: svd.width as f64 * texel_size,
-            given: false,
             native_reference: None,
             _tmp: tmp,
         });
@@ -256,28 +254,30 @@ pub(crate) fn sample_at_density(
         && to_h <= crate::artifact::gim::MAX_RESOLUTION as f64)
     {
         return Err(Error::Config(format!(
-            "--sample-width {units}: the sample would span {texels:.0} texels of this atlas (texel {texel_size:.3e} units), more than {}",
+            "{}: the sample would span {texels:.0} texels of this atlas (texel {texel_size:.3e} units), more than {}",
+            on_surface.flag(),
             crate::artifact::gim::MAX_RESOLUTION
         )));
     }
     let (to_w, to_h) = (to_w as usize, to_h as usize);
     if to_w < 8 || to_h < 8 {
         return Err(Error::Config(format!(
-            "--sample-width {units}: the sample would span only {to_w}×{to_h} texels of this atlas (texel {texel_size:.3e} units); give a larger width or a finer atlas"
+            "{}: the sample would span only {to_w}×{to_h} texels of this atlas (texel {texel_size:.3e} units); give a larger width or a finer atlas",
+            on_surface.flag()
         )));
     }
     let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
     let out = dir.path().join("sized.svd");
     let rotations = if matching { factorize::DEFAULT_ROTATIONS } else { 0 };
-    factorize::resample_svd(&svd, &out, to_w, to_h, rotations, progress)?;
+    let maps = svd.geometry_maps()?;
+    factorize::resample_svd(&svd, &maps, &out, to_w, to_h, rotations, progress)?;
     tmp.push(dir);
-    let native_reference = neighbour_difference(&svd.geometry_maps()?, svd.width, svd.height, svd.terms);
+    let native_reference = neighbour_difference(&maps, svd.width, svd.height, svd.terms);
     Ok(SizedSample {
         svd: out,
         scale: [size[0] as f64 / to_w as f64, size[1] as f64 / to_h as f64],
         size,
         width_units: units,
-        given: true,
         native_reference: Some(native_reference),
         _tmp: tmp,
     })

@@ -170,7 +170,7 @@ impl Synthesis {
     pub(crate) fn set_scale(&mut self, sized: &SizedSample) {
         self.scale = sized.scale;
         self.original_size = sized.size;
-        self.active_span = sized.given.then_some(sized.width_units);
+        self.active_span = sized.native_reference.map(|_| sized.width_units);
         self.report.sample_width = sized.width_units;
         self.report.sample_scale = sized.scale[0];
         // seams are judged at the sample's own resolution or coarser
