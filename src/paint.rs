@@ -182,7 +182,7 @@ impl PreviewSession {
             &base,
             quilt_path,
         )?;
-        let (syn, _, tmp) = open_synthesis(&base, &stroke, progress)?;
+        let (syn, _, tmp) = open_synthesis(&base, &stroke, quilt_path, progress)?;
         Ok(PreviewSession { syn, _tmp: tmp })
     }
 
@@ -205,6 +205,7 @@ impl PreviewSession {
 fn open_synthesis(
     base: &Quilt,
     stroke: &Stroke,
+    beside: &Path,
     progress: &dyn Progress,
 ) -> Result<(Synthesis, Gim, SizedSample)> {
     let start = Instant::now();
@@ -223,7 +224,7 @@ fn open_synthesis(
     )?;
     let trace = |what: &str| crate::progress::trace(progress, start, what);
     trace("factorized");
-    let mut syn = Synthesis::open(&gim, &stroke.sample, &sized.svd, &cfg, matching)?;
+    let mut syn = Synthesis::open(&gim, &stroke.sample, &sized.svd, beside, &cfg, matching)?;
     syn.set_scale(&sized);
     trace("opened");
     syn.set_mask(&stroke.sample_mask)?;
@@ -666,7 +667,7 @@ fn apply_stroke(
 ) -> Result<PaintReport> {
     let start = Instant::now();
     let trace = |what: &str| crate::progress::trace(progress, start, what);
-    let (mut syn, gim, _tmp) = open_synthesis(base, stroke, progress)?;
+    let (mut syn, gim, _tmp) = open_synthesis(base, stroke, out, progress)?;
     let mut report = PaintReport::default();
     if let Some(v) = stroke.verbatim {
         let (centre, extent) = foreground_extent(&syn);
@@ -687,7 +688,7 @@ fn apply_stroke(
         if report.region_texels == 0 {
             return Err(Error::input(region_path, "marks no texel of the surface"));
         }
-        syn.set_target(m0.clone());
+        syn.set_target(&m0);
         trace("region");
         // every texel of the zone is re-synthesized once, as the seed or
         // inside (not on the rim of) a work patch; seeds deepest in F first
@@ -773,12 +774,11 @@ fn nearest_vertex(syn: &Synthesis, p: [f64; 3]) -> std::result::Result<u32, Stri
         return Err(format!("point {} is not a finite position", show(p)));
     }
     let r = syn.resolution();
-    let graph = syn.graph();
     let mut best: Option<(f64, u32)> = None;
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for t in 0..(r * r) as u32 {
-        if graph.chart[t as usize] == EMPTY {
+        if syn.chart(t) == EMPTY {
             continue;
         }
         let q = syn.position(t).map(|c| c as f64);
@@ -872,7 +872,8 @@ fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec<bool>> {
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
     let r = syn.resolution();
-    let chart = &syn.graph().chart;
+    let chart: Vec<u32> = gim.read("chart")?;
+    let chart = &chart;
     match ext.as_str() {
         _ if crate::io::imageio::is_image_path(path) => {
             let mask =
@@ -1047,7 +1048,6 @@ fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
         return Err(bad("the list is empty"));
     }
     let r = syn.resolution();
-    let graph = syn.graph();
     let mut region = vec![false; r * r];
     let mut dist = vec![f32::INFINITY; r * r];
     for (k, s) in strokes.iter().enumerate() {
@@ -1080,7 +1080,7 @@ fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
                     heap.push((std::cmp::Reverse(OrdF32(nd)), nb));
                 }
             };
-            graph.for_each_neighbour(t, |nb, _| relax(nb));
+            syn.for_each_neighbour(t, |nb, _| relax(nb));
             // diagonal grid neighbours too, so the disk is round (8-neighbour
             // paths are within 8 % of the geodesic distance)
             let (x, y) = ((t as usize % r) as isize, (t as usize / r) as isize);
@@ -1088,7 +1088,7 @@ fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
                 let (nx, ny) = (x + dx, y + dy);
                 if nx >= 0 && ny >= 0 && (nx as usize) < r && (ny as usize) < r {
                     let nb = ny as usize * r + nx as usize;
-                    if graph.chart[nb] == graph.chart[t as usize] {
+                    if syn.chart(nb as u32) == syn.chart(t) {
                         relax(nb as u32);
                     }
                 }
@@ -1122,7 +1122,6 @@ impl Ord for OrdF32 {
 /// The constraint function m0 (§IV): 1 on F, falling linearly to 0 over
 /// `transition` texels of hop distance outside F on the dense mesh.
 fn constraint_function(syn: &Synthesis, region: &[bool], transition: usize) -> Vec<f32> {
-    let graph = syn.graph();
     let mut hops = vec![u32::MAX; region.len()];
     let mut queue = VecDeque::new();
     for (t, &f) in region.iter().enumerate() {
@@ -1136,7 +1135,7 @@ fn constraint_function(syn: &Synthesis, region: &[bool], transition: usize) -> V
         if d as usize >= transition {
             continue;
         }
-        graph.for_each_neighbour(t, |nb, _| {
+        syn.for_each_neighbour(t, |nb, _| {
             if hops[nb as usize] == u32::MAX {
                 hops[nb as usize] = d + 1;
                 queue.push_back(nb);

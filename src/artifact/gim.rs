@@ -183,6 +183,43 @@ impl Gim {
         Ok(v)
     }
 
+    /// The per-texel surface of the atlas region `(x0, y0, w, h)`, each
+    /// plane row-major: chart, face, position (3 per texel), normal (3).
+    /// Chart and face indices are checked like [`Gim::read`] checks them.
+    pub fn texel_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<TexelRegion> {
+        let c = &self.container;
+        let (o, e) = ([y0 as u64, x0 as u64], [h as u64, w as u64]);
+        let (o3, e3) = ([y0 as u64, x0 as u64, 0], [h as u64, w as u64, 3]);
+        let region = TexelRegion {
+            chart: c.read_region(c.array("chart")?, &o, &e)?,
+            face: c.read_region(c.array("face")?, &o, &e)?,
+            position: c.read_region(c.array("position")?, &o3, &e3)?,
+            normal: c.read_region(c.array("normal")?, &o3, &e3)?,
+        };
+        let charts = self.charts as u64;
+        for (i, (&ch, &f)) in region.chart.iter().zip(&region.face).enumerate() {
+            let texel = (y0 + i / w) * self.resolution + x0 + i % w;
+            if ch != EMPTY && ch as u64 >= charts {
+                return Err(Error::input(
+                    c.path(),
+                    format!(
+                        "array 'chart' holds index {ch} at element {texel}, but there are {charts} charts"
+                    ),
+                ));
+            }
+            if ch != EMPTY && f as u64 >= self.faces {
+                return Err(Error::input(
+                    c.path(),
+                    format!(
+                        "array 'face' holds face {f} at covered texel {texel}, but the mesh has {} faces",
+                        self.faces
+                    ),
+                ));
+            }
+        }
+        Ok(region)
+    }
+
     /// The repaired input mesh.
     pub fn mesh(&self) -> Result<Mesh> {
         let p: Vec<f32> = self.read("mesh_positions")?;
@@ -229,40 +266,68 @@ impl Gim {
     }
 }
 
+/// The per-texel surface of an atlas region ([`Gim::texel_region`]).
+pub struct TexelRegion {
+    pub chart: Vec<u32>,
+    pub face: Vec<u32>,
+    pub position: Vec<f32>,
+    pub normal: Vec<f32>,
+}
+
+/// The zipper links of the dense mesh M_d as adjacency lists (CSR): each
+/// texel on a chart border to its partners in other charts.
+pub struct ZipperLinks {
+    start: Vec<u32>,
+    to: Vec<u32>,
+    index: Vec<u32>,
+}
+
+impl ZipperLinks {
+    /// Both directions of every link.
+    pub fn new(links: &[[u32; 2]]) -> ZipperLinks {
+        let mut pairs: Vec<(u32, u32)> = links.iter().flat_map(|&[a, b]| [(a, b), (b, a)]).collect();
+        pairs.sort_unstable();
+        let mut start = Vec::new();
+        let mut index = Vec::new();
+        let mut to = Vec::with_capacity(pairs.len());
+        for (i, &(a, b)) in pairs.iter().enumerate() {
+            if index.last() != Some(&a) {
+                start.push(i as u32);
+                index.push(a);
+            }
+            to.push(b);
+        }
+        ZipperLinks { start, to, index }
+    }
+
+    /// Calls `f` for every zipper partner of texel `t`.
+    #[inline]
+    pub fn for_each(&self, t: u32, mut f: impl FnMut(u32)) {
+        if let Ok(k) = self.index.binary_search(&t) {
+            let s = self.start[k] as usize;
+            let e = self.start.get(k + 1).map_or(self.to.len(), |&v| v as usize);
+            for &n in &self.to[s..e] {
+                f(n);
+            }
+        }
+    }
+}
+
 /// Adjacency of the dense mesh M_d: each covered texel's 4-neighbours of the
-/// same chart, plus its zipper partners (CSR).
+/// same chart, plus its zipper partners.
 pub struct DenseGraph {
     pub resolution: usize,
     pub chart: Vec<u32>,
-    zip_start: Vec<u32>,
-    zip_to: Vec<u32>,
-    zip_index: Vec<u32>,
+    zippers: ZipperLinks,
 }
 
 impl DenseGraph {
     /// Builds the graph from the chart map and zipper links.
     pub fn new(resolution: usize, chart: Vec<u32>, links: &[[u32; 2]]) -> DenseGraph {
-        let mut pairs: Vec<(u32, u32)> = links.iter().flat_map(|&[a, b]| [(a, b), (b, a)]).collect();
-        pairs.sort_unstable();
-        let zip_index: Vec<u32> = pairs.iter().map(|p| p.0).collect();
-        let mut zip_start = Vec::new();
-        let mut zip_to = Vec::with_capacity(pairs.len());
-        let mut last = u32::MAX;
-        for (i, &(a, b)) in pairs.iter().enumerate() {
-            if a != last {
-                zip_start.push(i as u32);
-                last = a;
-            }
-            zip_to.push(b);
-        }
-        let mut dedup_index = zip_index.clone();
-        dedup_index.dedup();
         DenseGraph {
             resolution,
             chart,
-            zip_start,
-            zip_to,
-            zip_index: dedup_index,
+            zippers: ZipperLinks::new(links),
         }
     }
 
@@ -298,16 +363,7 @@ impl DenseGraph {
         if y + 1 < r {
             grid(x, y + 1);
         }
-        if let Ok(k) = self.zip_index.binary_search(&t) {
-            let s = self.zip_start[k] as usize;
-            let e = self
-                .zip_start
-                .get(k + 1)
-                .map_or(self.zip_to.len(), |&v| v as usize);
-            for &n in &self.zip_to[s..e] {
-                f(n, true);
-            }
-        }
+        self.zippers.for_each(t, |n| f(n, true));
     }
 
     /// Breadth-first hop distances from `source` (u32::MAX where unreached).
@@ -397,10 +453,19 @@ pub fn grid_triangles(chart: &[u32], r: usize) -> Vec<[u32; 3]> {
 
 /// The grid triangles of the 2×2 block whose top-left texel is (x, y)
 /// (x + 1 < r, y + 1 < r).
-pub fn block_triangles(chart: &[u32], r: usize, x: usize, y: usize) -> impl Iterator<Item = [u32; 3]> {
+pub fn block_triangles(chart: &[u32], r: usize, x: usize, y: usize) -> impl Iterator<Item = [u32; 3]> + '_ {
+    block_triangles_by(|t| chart[t as usize], r, x, y)
+}
+
+/// [`block_triangles`] with the chart of a texel given by `ch`.
+pub fn block_triangles_by(
+    ch: impl Fn(u32) -> u32,
+    r: usize,
+    x: usize,
+    y: usize,
+) -> impl Iterator<Item = [u32; 3]> {
     let id = |dx: usize, dy: usize| ((y + dy) * r + x + dx) as u32;
     let (a, b, c, d) = (id(0, 0), id(1, 0), id(0, 1), id(1, 1));
-    let ch = |t: u32| chart[t as usize];
     let same = |p: u32, q: u32| ch(p) != EMPTY && ch(p) == ch(q);
     let mut out: [Option<[u32; 3]>; 2] = [None, None];
     if same(a, b) && same(a, c) && same(a, d) {

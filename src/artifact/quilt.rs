@@ -49,6 +49,15 @@ pub const SEAM_Y: u8 = 2;
 /// A seam across one of the texel's zipper links (to another chart).
 pub const SEAM_ZIPPER: u8 = 4;
 
+/// The per-texel state of an atlas region ([`Quilt::texel_region`]).
+pub struct QuiltRegion {
+    pub coord: Vec<[f32; 2]>,
+    pub jacobian: Vec<[f32; 4]>,
+    pub patch: Vec<u32>,
+    pub rotation: Vec<u8>,
+    pub sample: Vec<u8>,
+}
+
 /// A decorated surface opened for reading.
 pub struct Quilt {
     container: Container,
@@ -289,6 +298,46 @@ impl Quilt {
             ));
         }
         Ok(v)
+    }
+
+    /// The per-texel state of the atlas region `(x0, y0, w, h)`, each plane
+    /// row-major (sample indices checked against the samples, all 0 for a
+    /// surface of one sample).
+    pub fn texel_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<QuiltRegion> {
+        let c = &self.container;
+        let (o, e) = ([y0 as u64, x0 as u64], [h as u64, w as u64]);
+        let plane = |name: &str, k: u64| -> Result<Vec<f32>> {
+            c.read_region(
+                c.array(name)?,
+                &[y0 as u64, x0 as u64, 0],
+                &[h as u64, w as u64, k],
+            )
+        };
+        let coord = plane("coord", 2)?;
+        let jacobian = plane("jacobian", 4)?;
+        let sample = match c.array("sample") {
+            Ok(id) => c.read_region(id, &o, &e)?,
+            Err(_) => vec![0u8; w * h],
+        };
+        if sample.iter().any(|&k| k as usize >= self.samples.len()) {
+            return Err(Error::input(
+                c.path(),
+                format!(
+                    "its sample indices do not match its {} samples",
+                    self.samples.len()
+                ),
+            ));
+        }
+        Ok(QuiltRegion {
+            coord: coord.chunks_exact(2).map(|v| [v[0], v[1]]).collect(),
+            jacobian: jacobian
+                .chunks_exact(4)
+                .map(|v| [v[0], v[1], v[2], v[3]])
+                .collect(),
+            patch: c.read_region(c.array("patch")?, &o, &e)?,
+            rotation: c.read_region(c.array("rotation")?, &o, &e)?,
+            sample,
+        })
     }
 
     /// Which sample the recorded `sample_mask` belongs to (the last painted

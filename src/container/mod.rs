@@ -21,6 +21,7 @@
 mod cache;
 pub mod codec;
 mod mmap;
+mod scratch;
 
 use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
@@ -33,6 +34,7 @@ use cache::ChunkCache;
 pub use cache::{BoundedCache, MemoryBudget};
 pub use codec::{ChunkData, DType, Element, EncodedChunk};
 use mmap::ByteSource;
+pub use scratch::Scratch;
 
 use crate::{Error, Result};
 

@@ -107,16 +107,17 @@ pub(super) fn fit_patch(
     }
     for i in 0..m {
         let t = patch.texels[i];
-        let synth = state.synthesized[t as usize];
+        let (synth, old_mask, m0) = state.texel(t, |s, i| (s.synthesized[i], s.mask[i], s.target[i]));
+        let m0 = state.constrained.then_some(m0);
         // the data term of constrained synthesis (§IV): D_p(σ) = |m_σ(p) −
         // m0(p)| on the t-links — keeping A costs D_p(A) (the sink edge is
         // cut), taking B costs D_p(B)
-        if let (Some(m0), false, true) = (&state.target, new_mask.is_empty(), synth && valid[i]) {
-            let d_a = (state.mask[t as usize] - m0[t as usize]).abs() as f64;
-            let d_b = (new_mask[i] - m0[t as usize]).abs() as f64;
+        if let (Some(m0), false, true) = (m0, new_mask.is_empty(), synth && valid[i]) {
+            let d_a = (old_mask - m0).abs() as f64;
+            let d_b = (new_mask[i] - m0).abs() as f64;
             g.add_tweights(i as u32, data_weight * d_b, data_weight * d_a);
         }
-        let outside = keep_outside_target && state.target.as_ref().is_some_and(|m0| m0[t as usize] <= 0.0);
+        let outside = keep_outside_target && m0.is_some_and(|m0| m0 <= 0.0);
         if valid[i] && synth && patch.depth[i] < core {
             // refinement: the core around the seed takes the new patch
             g.add_tweights(i as u32, 0.0, INFINITE);
@@ -133,8 +134,9 @@ pub(super) fn fit_patch(
     }
     // the old values A at the patch's synthesized vertices
     let mut old_values = vec![0f32; m * n];
+    let synthesized: Vec<bool> = patch.texels.iter().map(|&t| state.synthesized(t)).collect();
     for (i, &t) in patch.texels.iter().enumerate() {
-        if state.synthesized[t as usize] {
+        if synthesized[i] {
             state.feature_into(sample, t, &mut old_values[i * n..(i + 1) * n]);
         }
     }
@@ -142,8 +144,7 @@ pub(super) fn fit_patch(
     let b_at = |i: usize| &new_features[i * n..(i + 1) * n];
     // continue old patch at s one step (dx, dy in atlas texels) into t
     let old_continued = |s_t: u32, step: (f64, f64), out: &mut [f32]| -> bool {
-        let jc = state.jacobian[s_t as usize];
-        let cs = state.coord[s_t as usize];
+        let (jc, cs) = state.texel(s_t, |s, i| (s.jacobian[i], s.coord[i]));
         let cc = [
             cs[0] as f64 + jc[0] as f64 * step.0 + jc[2] as f64 * step.1,
             cs[1] as f64 + jc[1] as f64 * step.0 + jc[3] as f64 * step.1,
@@ -153,30 +154,30 @@ pub(super) fn fit_patch(
     let mut tmp_a = vec![0f32; n];
     let mut tmp_b = vec![0f32; n];
     let mut edges: Vec<(usize, usize, f64)> = Vec::new();
+    let mut neighbours: Vec<(u32, Option<(f64, f64)>)> = Vec::with_capacity(8);
     // the cost of the old seams inside the patch: what keeping every old
     // value would cost (refinement compares the cut with it)
     let mut baseline = 0.0;
     for i in 0..m {
         let t = patch.texels[i];
-        let (x, y) = (t as usize % r, t as usize / r);
-        let mut neighbours: Vec<(u32, Option<(f64, f64)>)> = Vec::with_capacity(4);
-        if x + 1 < r && state.chart[t as usize + 1] == state.chart[t as usize] {
-            neighbours.push((t + 1, Some((1.0, 0.0))));
-        }
-        if y + 1 < r && state.chart[t as usize + r] == state.chart[t as usize] {
-            neighbours.push((t + r as u32, Some((0.0, 1.0))));
-        }
-        surface.graph.for_each_neighbour(t, |nb, zipper| {
-            if zipper && nb > t {
-                neighbours.push((nb, None));
+        neighbours.clear();
+        surface.for_each_neighbour(t, |nb, zipper| {
+            if zipper {
+                if nb > t {
+                    neighbours.push((nb, None));
+                }
+            } else if nb == t + 1 {
+                neighbours.push((nb, Some((1.0, 0.0))));
+            } else if nb == t + r as u32 {
+                neighbours.push((nb, Some((0.0, 1.0))));
             }
         });
-        for (nb, step) in neighbours {
+        for &(nb, step) in &neighbours {
             let Some(k) = find(nb) else { continue };
             if !valid[i] || !valid[k] {
                 continue;
             }
-            let (si, sk) = (state.synthesized[t as usize], state.synthesized[nb as usize]);
+            let (si, sk) = (synthesized[i], synthesized[k]);
             let d_s = if si { dist(a_at(i), b_at(i)) } else { 0.0 };
             let d_t = if sk { dist(a_at(k), b_at(k)) } else { 0.0 };
             let weight = match (si, sk) {
@@ -185,7 +186,7 @@ pub(super) fn fit_patch(
                 (false, true) => 2.0 * d_t,
                 (false, false) => 0.0,
             };
-            let old_seam = si && sk && state.patch[t as usize] != state.patch[nb as usize];
+            let old_seam = si && sk && state.patch(t) != state.patch(nb);
             match (old_seam, step) {
                 (true, Some(st)) => {
                     // seam node (Kwatra et al. 2003): s–n = M(A_s, B), n–t = M(A_t, B), n–sink = M(A_s, A_t)
@@ -214,7 +215,7 @@ pub(super) fn fit_patch(
         }
     }
     let flow = g.maxflow();
-    if std::env::var_os("BTFQUILT_TRACE").is_some() && !state.synthesized[patch.texels[0] as usize] {
+    if std::env::var_os("BTFQUILT_TRACE").is_some() && !synthesized[0] {
         eprintln!(
             "seed valid {} segment {:?} coord {:?} work {:?}",
             valid[0],
@@ -229,14 +230,14 @@ pub(super) fn fit_patch(
         take[i] = valid[i] && g.segment(i as u32) == Segment::Sink;
         if take[i] {
             taken += 1;
-            taken_new_synth += state.synthesized[patch.texels[i] as usize] as usize;
+            taken_new_synth += synthesized[i] as usize;
         }
     }
     // the seam: edges whose ends took different sides, both synthesized after
     let (mut seam_cost, mut seam_edges) = (0.0, 0usize);
     for &(i, k, w) in &edges {
-        let ti = state.synthesized[patch.texels[i] as usize] || take[i];
-        let tk = state.synthesized[patch.texels[k] as usize] || take[k];
+        let ti = synthesized[i] || take[i];
+        let tk = synthesized[k] || take[k];
         if take[i] != take[k] && ti && tk {
             seam_cost += w;
             seam_edges += 1;
@@ -257,7 +258,8 @@ pub(super) fn fit_patch(
     }
 }
 
-/// Records the vertices that took the new patch.
+/// Records the vertices that took the new patch, and recounts the
+/// frontier of the tiles it touched.
 pub(super) fn apply(
     state: &mut State,
     sample: &Sample,
@@ -268,44 +270,57 @@ pub(super) fn apply(
     progress: &dyn Progress,
 ) {
     let mut newly = 0u64;
+    let grid = surface.grid();
+    let mut touched: Vec<usize> = Vec::new();
+    let active = state.active;
+    let masked = sample.mask.is_some();
+    let mut neighbours: Vec<u32> = Vec::with_capacity(8);
     for (i, &t) in patch.texels.iter().enumerate() {
         if !fit.take[i] {
             continue;
         }
-        let tu = t as usize;
-        state.coord[tu] = [fit.coord[i][0] as f32, fit.coord[i][1] as f32];
-        state.jacobian[tu] = fit.jacobian;
-        state.rotation[tu] = fit.rotation as u8;
-        state.patch[tu] = id;
-        state.source[tu] = state.active;
-        state.foreign[tu] = NO_FOREIGN;
-        if sample.mask.is_some() {
-            state.mask[tu] = fit.new_mask[i];
-        }
-        if !state.synthesized[tu] {
-            state.synthesized[tu] = true;
+        touched.push(grid.locate(t).0);
+        let was = state.texel_mut(t, |s, k| {
+            s.coord[k] = [fit.coord[i][0] as f32, fit.coord[i][1] as f32];
+            s.jacobian[k] = fit.jacobian;
+            s.rotation[k] = fit.rotation as u8;
+            s.patch[k] = id;
+            s.source[k] = active;
+            s.foreign[k] = NO_FOREIGN;
+            if masked {
+                s.mask[k] = fit.new_mask[i];
+            }
+            std::mem::replace(&mut s.synthesized[k], true)
+        });
+        if !was {
             state.remaining -= 1;
             newly += 1;
-            let b = state.count[tu] as usize;
-            state.buckets[b.min(15)].remove(&t);
-            surface.graph.for_each_neighbour(t, |nb, _| {
-                let nu = nb as usize;
-                if !state.synthesized[nu] {
-                    let old = (state.count[nu] as usize).min(15);
-                    state.buckets[old].remove(&nb);
-                    state.count[nu] = state.count[nu].saturating_add(1);
-                    state.buckets[(state.count[nu] as usize).min(15)].insert(nb);
+            neighbours.clear();
+            surface.for_each_neighbour(t, |nb, _| neighbours.push(nb));
+            for &nb in &neighbours {
+                let counted = state.texel_mut(nb, |s, k| {
+                    if !s.synthesized[k] {
+                        s.count[k] = s.count[k].saturating_add(1);
+                    }
+                    !s.synthesized[k]
+                });
+                if counted {
+                    touched.push(grid.locate(nb).0);
                 }
-            });
+            }
         }
     }
+    touched.sort_unstable();
+    touched.dedup();
+    state.refresh_frontier(surface, &touched);
     // the Jacobian per taken texel from finite differences of the sample
     // coordinates over atlas neighbours of the same patch and chart (exact
     // for flattened patches, whose map to the sample varies per chart);
     // the patch-wide estimate where a texel has no such neighbour
     for (i, &t) in patch.texels.iter().enumerate() {
         if fit.take[i] {
-            state.jacobian[t as usize] = local_jacobian(state, t, id).unwrap_or(fit.jacobian);
+            let j = local_jacobian(state, surface, t, id).unwrap_or(fit.jacobian);
+            state.texel_mut(t, |s, k| s.jacobian[k] = j);
         }
     }
     progress.advance(newly);
@@ -313,17 +328,19 @@ pub(super) fn apply(
 
 /// Sample offset per atlas +x and +y step at `t`, from the coordinates of
 /// its grid neighbours that belong to patch `id` in the same chart.
-pub(super) fn local_jacobian(state: &State, t: u32, id: u32) -> Option<[f32; 4]> {
+pub(super) fn local_jacobian(state: &State, surface: &Surface, t: u32, id: u32) -> Option<[f32; 4]> {
     let r = state.r;
+    let chart = surface.chart(t);
     let (x, y) = (t as usize % r, t as usize / r);
     let same = |nx: isize, ny: isize| -> Option<[f32; 2]> {
         if nx < 0 || ny < 0 || nx >= r as isize || ny >= r as isize {
             return None;
         }
         let n = ny as usize * r + nx as usize;
-        (state.patch[n] == id && state.chart[n] == state.chart[t as usize]).then(|| state.coord[n])
+        let n = n as u32;
+        (state.patch(n) == id && surface.chart(n) == chart).then(|| state.coord(n))
     };
-    let c = state.coord[t as usize];
+    let c = state.coord(t);
     let axis = |dx: isize, dy: isize| -> Option<[f32; 2]> {
         let (x, y) = (x as isize, y as isize);
         match (same(x + dx, y + dy), same(x - dx, y - dy)) {

@@ -46,7 +46,7 @@ impl WorkImage {
             coords,
             angle,
             atlas_to_work: None,
-            constraint: vec![0f32; if state.target.is_some() { width * height } else { 0 }],
+            constraint: vec![0f32; if state.constrained { width * height } else { 0 }],
         }
     }
 }
@@ -68,7 +68,7 @@ pub(super) fn chart_work_image(
     patch: &WorkPatch,
 ) -> WorkImage {
     let r = surface.r;
-    let chart = state.chart[patch.texels[0] as usize];
+    let chart = surface.chart(patch.texels[0]);
     let (x0, y0, w, h) = patch.atlas_box(r);
     let n = state.n;
     let coords = patch
@@ -81,13 +81,13 @@ pub(super) fn chart_work_image(
     work.atlas_to_work = Some([1.0, 0.0, 0.0, 1.0]);
     for y in 0..h {
         for x in 0..w {
-            let (t, p) = ((y0 + y) * r + x0 + x, y * w + x);
-            if state.chart[t] == chart && state.synthesized[t] {
+            let (t, p) = (((y0 + y) * r + x0 + x) as u32, y * w + x);
+            if surface.chart(t) == chart && state.synthesized(t) {
                 work.known[p] = 1.0;
-                state.feature_into(sample, t as u32, &mut work.features[p * n..(p + 1) * n]);
+                state.feature_into(sample, t, &mut work.features[p * n..(p + 1) * n]);
             }
-            if let Some(m0) = &state.target {
-                work.constraint[p] = m0[t];
+            if let Some(m0) = state.target(t) {
+                work.constraint[p] = m0;
             }
         }
     }
@@ -110,7 +110,7 @@ pub(super) fn patch_triangles(
     for &t in &patch.texels {
         let (x, y) = (t as usize % r, t as usize / r);
         if x + 1 < r && y + 1 < r {
-            for tri in crate::artifact::gim::block_triangles(&state.chart, r, x, y) {
+            for tri in crate::artifact::gim::block_triangles_by(|t| surface.chart(t), r, x, y) {
                 if let (Some(a), Some(b), Some(c)) = (local(tri[0]), local(tri[1]), local(tri[2])) {
                     tris.push([a as u32, b as u32, c as u32]);
                 }
@@ -123,14 +123,7 @@ pub(super) fn patch_triangles(
             tris.push([a as u32, b as u32, c as u32]);
         }
     }
-    let positions: Vec<[f32; 3]> = patch
-        .texels
-        .iter()
-        .map(|&t| {
-            let p = &surface.position[t as usize * 3..t as usize * 3 + 3];
-            [p[0], p[1], p[2]]
-        })
-        .collect();
+    let positions: Vec<[f32; 3]> = patch.texels.iter().map(|&t| surface.position(t)).collect();
     // wind every triangle like the surface (its 3D normal along the texels'
     // normals): zipper triangles are stored unoriented, and the distortion
     // check reads flips from the orientation
@@ -139,8 +132,7 @@ pub(super) fn patch_triangles(
         let n = (p[1] - p[0]).cross(p[2] - p[0]);
         let mut avg = Vec3::ZERO;
         for &i in tri.iter() {
-            let t = patch.texels[i as usize] as usize;
-            avg += Vec3::from_slice(&surface.normal[t * 3..t * 3 + 3]);
+            avg += Vec3::from(surface.normal(patch.texels[i as usize]));
         }
         if n.dot(avg) < 0.0 {
             tri.swap(1, 2);
@@ -236,15 +228,12 @@ pub(super) fn aligned_unfolding(
     bfs: &Bfs,
 ) -> Vec<[f64; 2]> {
     let (u, _) = unfold(surface, state, patch, bfs);
-    let mut charts: Vec<u32> = patch.texels.iter().map(|&t| state.chart[t as usize]).collect();
+    let patch_charts: Vec<u32> = patch.texels.iter().map(|&t| surface.chart(t)).collect();
+    let mut charts = patch_charts.clone();
     charts.sort_unstable();
     charts.dedup();
-    let piece = |t: u32| {
-        charts
-            .binary_search(&state.chart[t as usize])
-            .expect("patch chart")
-    };
-    let seed = piece(patch.texels[0]);
+    let piece_of = |c: u32| charts.binary_search(&c).expect("patch chart");
+    let seed = piece_of(patch_charts[0]);
     // unknowns: (γ, δ) of every piece but the seed's
     let unknown = |p: usize| if p < seed { p } else { p - 1 };
     let n = 2 * (charts.len() - 1);
@@ -265,13 +254,13 @@ pub(super) fn aligned_unfolding(
     };
     let mut row: Vec<(usize, c64)> = Vec::with_capacity(4);
     for (i, &t) in patch.texels.iter().enumerate() {
-        let p = piece(t);
-        surface.graph.for_each_neighbour(t, |nb, zipper| {
+        let p = piece_of(patch_charts[i]);
+        surface.for_each_neighbour(t, |nb, zipper| {
             if !zipper {
                 return;
             }
             let Some(j) = bfs.contains(nb) else { return };
-            let q = piece(nb);
+            let q = piece_of(patch_charts[j]);
             if j <= i || q == p {
                 return;
             }
@@ -300,8 +289,9 @@ pub(super) fn aligned_unfolding(
         .texels
         .iter()
         .zip(&u)
-        .map(|(&t, &ui)| {
-            let p = piece(t);
+        .zip(&patch_charts)
+        .map(|((_, &ui), &c)| {
+            let p = piece_of(c);
             if p == seed {
                 ui
             } else {
@@ -318,7 +308,7 @@ pub(super) fn aligned_unfolding(
 pub(super) fn zipper_gap(surface: &Surface, patch: &WorkPatch, bfs: &Bfs, coords: &[[f64; 2]]) -> f64 {
     let (mut gap, mut links) = (0.0, 0usize);
     for (i, &t) in patch.texels.iter().enumerate() {
-        surface.graph.for_each_neighbour(t, |nb, zipper| {
+        surface.for_each_neighbour(t, |nb, zipper| {
             if let (true, Some(j)) = (zipper, bfs.contains(nb)) {
                 gap += (coords[i][0] - coords[j][0]).powi(2) + (coords[i][1] - coords[j][1]).powi(2);
                 links += 1;
@@ -371,7 +361,7 @@ pub(super) fn close_gaps(
     let mut any_link = false;
     start.push(0);
     for (i, &t) in patch.texels.iter().enumerate() {
-        surface.graph.for_each_neighbour(t, |nb, zipper| {
+        surface.for_each_neighbour(t, |nb, zipper| {
             if let Some(j) = bfs.contains(nb) {
                 let w = if zipper { LINK_WEIGHT } else { 1.0 };
                 nbr.push((j as u32, w));
@@ -507,7 +497,7 @@ pub(super) fn flatten(
     let border = |i: u32| {
         let t = patch.texels[i as usize];
         let mut on = false;
-        surface.graph.for_each_neighbour(t, |_, zipper| on |= zipper);
+        surface.for_each_neighbour(t, |_, zipper| on |= zipper);
         on
     };
     let area = |p: [[f64; 2]; 3]| {
@@ -549,7 +539,7 @@ pub(super) fn flatten(
     // against the atlas on grid edges
     let (mut len, mut cnt, mut rc, mut rs) = (0.0, 0usize, 0.0, 0.0);
     for (i, &t) in patch.texels.iter().enumerate() {
-        if (t as usize % r) + 1 < r && state.chart[t as usize + 1] == state.chart[t as usize] {
+        if (t as usize % r) + 1 < r && surface.chart(t + 1) == surface.chart(t) {
             if let Some(j) = local(t + 1) {
                 let d = [uv[j][0] - uv[i][0], uv[j][1] - uv[i][1]];
                 len += (d[0] * d[0] + d[1] * d[1]).sqrt();
@@ -618,9 +608,12 @@ pub(super) fn raster_work_image(
             patch.texels[tri[1] as usize],
             patch.texels[tri[2] as usize],
         ];
-        if !ids.iter().all(|&t| state.synthesized[t as usize]) {
+        if !ids.iter().all(|&t| state.synthesized(t)) {
             continue;
         }
+        let corner_m0 = state
+            .constrained
+            .then(|| ids.map(|t| state.target(t).unwrap_or(0.0)));
         for (k, &t) in ids.iter().enumerate() {
             state.feature_into(sample, t, &mut corner[k * n..(k + 1) * n]);
         }
@@ -654,10 +647,8 @@ pub(super) fn raster_work_image(
                 }
                 let i = y * w + x;
                 work.known[i] = 1.0;
-                if let Some(m0) = &state.target {
-                    work.constraint[i] = (l0 as f32) * m0[ids[0] as usize]
-                        + (l1 as f32) * m0[ids[1] as usize]
-                        + (l2 as f32) * m0[ids[2] as usize];
+                if let Some(m0) = corner_m0 {
+                    work.constraint[i] = (l0 as f32) * m0[0] + (l1 as f32) * m0[1] + (l2 as f32) * m0[2];
                 }
                 for c in 0..n {
                     work.features[i * n + c] = (l0 as f32) * corner[c]
@@ -738,15 +729,15 @@ pub(super) fn unfolded_work_image(
     let n = state.n;
     let mut work = WorkImage::blank(w, h, state, coords, angle);
     for (i, &t) in patch.texels.iter().enumerate() {
-        if state.synthesized[t as usize] {
+        if state.synthesized(t) {
             let c = work.coords[i];
             let (x, y) = (c[0].round() as usize, c[1].round() as usize);
             let p = (y.min(h - 1)) * w + x.min(w - 1);
             if work.known[p] == 0.0 {
                 work.known[p] = 1.0;
                 state.feature_into(sample, t, &mut work.features[p * n..(p + 1) * n]);
-                if let Some(m0) = &state.target {
-                    work.constraint[p] = m0[t as usize];
+                if let Some(m0) = state.target(t) {
+                    work.constraint[p] = m0;
                 }
             }
         }
@@ -764,18 +755,19 @@ pub(super) fn unfold(surface: &Surface, state: &State, patch: &WorkPatch, bfs: &
     // per chart: (rotation φ, work origin, atlas origin)
     let mut frames: std::collections::BTreeMap<u32, (f64, [f64; 2], [f64; 2])> = Default::default();
     let v = patch.texels[0];
-    frames.insert(state.chart[v as usize], (0.0, [0.0, 0.0], atlas(v)));
+    let charts: Vec<u32> = patch.texels.iter().map(|&t| surface.chart(t)).collect();
+    frames.insert(charts[0], (0.0, [0.0, 0.0], atlas(v)));
     let mut coords = vec![[0f64; 2]; m];
     for i in 0..m {
         let t = patch.texels[i];
-        let c = state.chart[t as usize];
+        let c = charts[i];
         if !frames.contains_key(&c) {
             // entered through a zipper from an earlier texel of a known chart
             let mut entry = None;
-            surface.graph.for_each_neighbour(t, |nb, zipper| {
+            surface.for_each_neighbour(t, |nb, zipper| {
                 if entry.is_none() && zipper {
                     if let Some(k) = bfs.contains(nb) {
-                        if k < i && frames.contains_key(&state.chart[nb as usize]) {
+                        if k < i && frames.contains_key(&charts[k]) {
                             entry = Some((nb, k));
                         }
                     }
@@ -783,7 +775,7 @@ pub(super) fn unfold(surface: &Surface, state: &State, patch: &WorkPatch, bfs: &
             });
             let (phi, origin) = match entry {
                 Some((p, k)) => {
-                    let pf = frames[&state.chart[p as usize]].0;
+                    let pf = frames[&charts[k]].0;
                     (pf + surface.texel_angle(p) - surface.texel_angle(t), coords[k])
                 }
                 None => (0.0, [0.0, 0.0]),
@@ -800,7 +792,8 @@ pub(super) fn unfold(surface: &Surface, state: &State, patch: &WorkPatch, bfs: &
         patch
             .texels
             .iter()
-            .map(|&t| surface.texel_angle(t) + frames[&state.chart[t as usize]].0),
+            .zip(&charts)
+            .map(|(&t, c)| surface.texel_angle(t) + frames[c].0),
     );
     (coords, angle)
 }

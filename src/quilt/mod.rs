@@ -28,7 +28,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::artifact::gim::{Gim, EMPTY};
+use crate::artifact::gim::Gim;
 use crate::container::MemoryBudget;
 use crate::progress::Progress;
 use crate::{Error, Result};
@@ -37,6 +37,7 @@ mod fit;
 mod flatten;
 pub mod matching;
 pub mod maxflow;
+mod pager;
 mod placement;
 mod sample;
 mod state;
@@ -286,26 +287,27 @@ pub fn tile(
         inputs.push(("the sample's foreground mask", mask.as_path()));
     }
     crate::io::staging::check_output(out, &inputs)?;
-    let gim = Gim::open(gim_path, cfg.memory)?;
+    // (the surface is read by tiles through a reader of its own)
+    let gim = Gim::open(gim_path, MemoryBudget(1 << 20))?;
     let sized = sample_at_density(sample_path, gim.texel_size, cfg.sample_size(), true, progress)?;
-    let mut syn = Synthesis::open(&gim, sample_path, &sized.svd, cfg, true)?;
+    let mut syn = Synthesis::open(&gim, sample_path, &sized.svd, out, cfg, true)?;
     syn.set_scale(&sized);
     if let Some(mask) = &cfg.sample_mask {
         syn.set_mask(mask)?;
-        syn.set_target(vec![0.0; syn.surface.r * syn.surface.r]);
+        syn.constrain_to_background();
     }
-    let r = gim.resolution;
     let radius0 = syn.radius0();
     progress.begin("tile", syn.state.remaining as u64);
     // the first vertex: a seeded choice among all dense vertices
     let mut first = {
-        let covered: Vec<u32> = (0..(r * r) as u32)
-            .filter(|&t| syn.state.chart[t as usize] != EMPTY)
-            .collect();
-        if covered.is_empty() {
+        let vertices = syn.surface.vertices();
+        if vertices == 0 {
             return Err(Error::input(gim_path, "has no dense vertices"));
         }
-        Some(covered[(crate::rng::mix64(cfg.seed) % covered.len() as u64) as usize])
+        Some(
+            syn.surface
+                .nth_vertex((crate::rng::mix64(cfg.seed) % vertices as u64) as usize),
+        )
     };
     while syn.state.remaining > 0 {
         let v = first
@@ -313,6 +315,7 @@ pub fn tile(
             .or_else(|| syn.state.most_constrained())
             .expect("remaining > 0");
         syn.step(v, radius0, progress)?;
+        syn.check_paging()?;
     }
     progress.end();
     if let Some(step) = cfg.refine {

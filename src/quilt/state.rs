@@ -1,20 +1,32 @@
-//! The synthesis state over atlas texels (struct-of-arrays), the dense
-//! surface it lives on, work patches P(v) and their breadth-first traversal
-//! (section III-B, step 2).
+//! The synthesis state over atlas texels, the dense surface it lives on, work
+//! patches P(v) and their breadth-first traversal (section III-B, step 2).
+//!
+//! Both the surface (read from the `.gim` by tiles) and the state (written
+//! back compressed to a scratch store beside the output) are paged
+//! ([`super::pager`]): `--memory` bounds them however large the atlas.
 
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+use std::path::Path;
+
+use super::pager::{Pager, PagerStats, TileGrid, TileSource, TILE_TEXELS};
 use super::sample::Sample;
-use crate::artifact::gim::{Gim, EMPTY};
+use crate::artifact::gim::{Gim, ZipperLinks, EMPTY, TILE};
 use crate::artifact::quilt::NO_PATCH;
+use crate::container::{MemoryBudget, Scratch};
 use crate::Result;
 
 /// No foreign feature vector (a texel of the active sample).
 pub(super) const NO_FOREIGN: u32 = u32::MAX;
 
-/// Per-texel synthesis state (struct of arrays over the atlas).
-pub(super) struct State {
-    pub(super) r: usize,
-    pub(super) n: usize,
-    pub(super) chart: Vec<u32>,
+/// Priority buckets of the "most constrained" choice (synthesized-neighbour
+/// counts; 15 and more share the last).
+const BUCKETS: usize = 16;
+
+/// The synthesis state of one 64×64 tile (struct of arrays; texels outside
+/// the atlas are padding).
+#[derive(Clone)]
+pub(super) struct StateTile {
     pub(super) synthesized: Vec<bool>,
     pub(super) coord: Vec<[f32; 2]>,
     /// Sample-space offset per +x and per +y atlas step (columns of the local
@@ -24,83 +36,501 @@ pub(super) struct State {
     pub(super) patch: Vec<u32>,
     /// Index of the sample each texel draws from ([`Quilt::samples`](crate::quilt::Quilt::samples)).
     pub(super) source: Vec<u8>,
-    /// The sample new patches come from.
-    pub(super) active: u8,
     /// Texels of other samples than the active one (painting with a new
-    /// sample): index into `foreign_features` (`NO_FOREIGN` for texels of
-    /// the active sample, whose geometry-map vectors are looked up in it
+    /// sample): index into `State::foreign_features` (`NO_FOREIGN` for texels
+    /// of the active sample, whose geometry-map vectors are looked up in it
     /// at their coordinate when needed, not stored).
     pub(super) foreign: Vec<u32>,
-    /// Their geometry-map vectors projected into the active sample's basis
-    /// (see [`Synthesis::load`](super::synthesis::Synthesis::load)), `n` per entry.
-    pub(super) foreign_features: Vec<f32>,
     /// m_σ(p): the sample's foreground mask at each texel's coordinate
     /// (when the sample has a mask).
     pub(super) mask: Vec<f32>,
     /// m0(p): the constraint function (1 on the painted region F, falling
     /// to 0 over the transition zone, 0 elsewhere), when constrained.
-    pub(super) target: Option<Vec<f32>>,
+    pub(super) target: Vec<f32>,
+    /// Synthesized-neighbour counts of unsynthesized texels.
+    pub(super) count: Vec<u8>,
+}
+
+/// Bytes of a state tile.
+const STATE_TILE_BYTES: usize = TILE_TEXELS * (1 + 8 + 16 + 1 + 4 + 1 + 4 + 4 + 4 + 1);
+
+impl StateTile {
+    fn blank() -> StateTile {
+        StateTile {
+            synthesized: vec![false; TILE_TEXELS],
+            coord: vec![[0.0; 2]; TILE_TEXELS],
+            jacobian: vec![[0.0; 4]; TILE_TEXELS],
+            rotation: vec![0; TILE_TEXELS],
+            patch: vec![NO_PATCH; TILE_TEXELS],
+            source: vec![0; TILE_TEXELS],
+            foreign: vec![NO_FOREIGN; TILE_TEXELS],
+            mask: vec![0.0; TILE_TEXELS],
+            target: vec![0.0; TILE_TEXELS],
+            count: vec![0; TILE_TEXELS],
+        }
+    }
+
+    fn to_bytes(&self) -> Vec<u8> {
+        let mut b = Vec::with_capacity(STATE_TILE_BYTES);
+        b.extend(self.synthesized.iter().map(|&s| s as u8));
+        b.extend_from_slice(bytemuck::cast_slice(&self.coord));
+        b.extend_from_slice(bytemuck::cast_slice(&self.jacobian));
+        b.extend_from_slice(&self.rotation);
+        b.extend_from_slice(bytemuck::cast_slice(&self.patch));
+        b.extend_from_slice(&self.source);
+        b.extend_from_slice(bytemuck::cast_slice(&self.foreign));
+        b.extend_from_slice(bytemuck::cast_slice(&self.mask));
+        b.extend_from_slice(bytemuck::cast_slice(&self.target));
+        b.extend_from_slice(&self.count);
+        b
+    }
+
+    fn from_bytes(b: &[u8]) -> StateTile {
+        let mut t = StateTile::blank();
+        let mut at = 0;
+        let mut take = |dst: &mut [u8]| {
+            dst.copy_from_slice(&b[at..at + dst.len()]);
+            at += dst.len();
+        };
+        let mut synth = vec![0u8; TILE_TEXELS];
+        take(&mut synth);
+        t.synthesized = synth.iter().map(|&s| s != 0).collect();
+        take(bytemuck::cast_slice_mut(&mut t.coord));
+        take(bytemuck::cast_slice_mut(&mut t.jacobian));
+        take(&mut t.rotation);
+        take(bytemuck::cast_slice_mut(&mut t.patch));
+        take(&mut t.source);
+        take(bytemuck::cast_slice_mut(&mut t.foreign));
+        take(bytemuck::cast_slice_mut(&mut t.mask));
+        take(bytemuck::cast_slice_mut(&mut t.target));
+        take(&mut t.count);
+        t
+    }
+}
+
+/// State tiles: blank until first evicted, then from the scratch store.
+pub(super) struct StateTiles {
+    scratch: Scratch,
+    /// The value of m0 on a tile never written (0 when constrained
+    /// everywhere, e.g. by a foreground mask).
+    target_default: f32,
+}
+
+impl TileSource<StateTile> for StateTiles {
+    fn load(&mut self, k: usize) -> Result<StateTile> {
+        if self.scratch.contains(k) {
+            return Ok(StateTile::from_bytes(&self.scratch.get(k, STATE_TILE_BYTES)?));
+        }
+        let mut t = StateTile::blank();
+        t.target.fill(self.target_default);
+        Ok(t)
+    }
+
+    fn store(&mut self, k: usize, tile: &StateTile) -> Result<()> {
+        self.scratch.put(k, &tile.to_bytes())
+    }
+
+    fn blank(&self) -> StateTile {
+        StateTile::blank()
+    }
+
+    fn holds(&self, k: usize) -> bool {
+        self.scratch.contains(k)
+    }
+}
+
+/// Per tile, how many unsynthesized dense vertices each priority bucket
+/// holds and the lowest id among them: the "most constrained" choice over
+/// the whole atlas without holding its tiles.
+struct Frontier {
+    count: Vec<[u32; BUCKETS]>,
+    first: Vec<[u32; BUCKETS]>,
+    total: [u64; BUCKETS],
+}
+
+/// Per-texel synthesis state (struct of arrays over paged atlas tiles).
+pub(super) struct State {
+    pub(super) r: usize,
+    pub(super) n: usize,
+    tiles: Pager<StateTile, StateTiles>,
+    /// The sample new patches come from.
+    pub(super) active: u8,
+    /// Geometry-map vectors of foreign texels projected into the active
+    /// sample's basis (see [`Synthesis::load`](super::synthesis::Synthesis::load)), `n` per entry.
+    pub(super) foreign_features: Vec<f32>,
+    /// Whether m0 is set (constrained synthesis).
+    pub(super) constrained: bool,
     /// The id the next accepted patch gets.
     pub(super) next_patch: u32,
-    /// Synthesized-neighbour counts of unsynthesized texels (the
-    /// "most constrained" priority), bucketed.
-    pub(super) count: Vec<u8>,
-    pub(super) buckets: Vec<std::collections::BTreeSet<u32>>,
     pub(super) remaining: usize,
+    frontier: Frontier,
 }
 
 impl State {
-    pub(super) fn new(chart: Vec<u32>, n: usize, r: usize) -> State {
-        let texels = chart.len();
-        let mut buckets = vec![std::collections::BTreeSet::new(); 16];
+    /// An empty state over `surface`, its tiles paged within `budget`, their
+    /// scratch store beside `output`.
+    pub(super) fn new(surface: &Surface, n: usize, output: &Path, budget: MemoryBudget) -> Result<State> {
+        let grid = surface.grid();
+        let tiles = grid.tiles();
+        let source = StateTiles {
+            scratch: Scratch::create_beside(output, tiles)?,
+            target_default: 0.0,
+        };
+        let pager = Pager::new(grid.r, source, budget.bytes(), STATE_TILE_BYTES as u64, 16);
+        let mut frontier = Frontier {
+            count: vec![[0; BUCKETS]; tiles],
+            first: vec![[u32::MAX; BUCKETS]; tiles],
+            total: [0; BUCKETS],
+        };
         let mut remaining = 0;
-        for (t, &c) in chart.iter().enumerate() {
-            if c != EMPTY {
-                buckets[0].insert(t as u32);
-                remaining += 1;
+        for k in 0..tiles {
+            frontier.count[k][0] = surface.covered[k];
+            frontier.first[k][0] = surface.first_covered[k];
+            remaining += surface.covered[k] as usize;
+        }
+        frontier.total[0] = remaining as u64;
+        Ok(State {
+            r: grid.r,
+            n,
+            tiles: pager,
+            active: 0,
+            foreign_features: Vec::new(),
+            constrained: false,
+            next_patch: 0,
+            remaining,
+            frontier,
+        })
+    }
+
+    /// Sets m0 = `value` everywhere.
+    pub(super) fn constrain_everywhere(&mut self, value: f32) {
+        self.constrained = true;
+        self.tiles.source_mut().target_default = value;
+        // tiles already made hold their own m0
+        for k in 0..self.tiles.grid.tiles() {
+            if self.tiles.made(k) {
+                self.tiles.write_tile(k, |s| s.target.fill(value));
             }
         }
-        State {
-            r,
-            n,
-            synthesized: vec![false; texels],
-            coord: vec![[0.0; 2]; texels],
-            jacobian: vec![[0.0; 4]; texels],
-            rotation: vec![0; texels],
-            patch: vec![NO_PATCH; texels],
-            source: vec![0; texels],
-            active: 0,
-            foreign: vec![NO_FOREIGN; texels],
-            foreign_features: Vec::new(),
-            mask: vec![0.0; texels],
-            target: None,
-            next_patch: 0,
-            count: vec![0; texels],
-            buckets,
-            remaining,
-            chart,
-        }
+    }
+
+    /// Reads texel `t` of its state tile.
+    #[inline]
+    pub(super) fn texel<R>(&self, t: u32, f: impl FnOnce(&StateTile, usize) -> R) -> R {
+        self.tiles.read(t, f)
+    }
+
+    /// Changes texel `t` of its state tile.
+    #[inline]
+    pub(super) fn texel_mut<R>(&mut self, t: u32, f: impl FnOnce(&mut StateTile, usize) -> R) -> R {
+        self.tiles.write(t, f)
+    }
+
+    /// Changes state tile `k` whole.
+    pub(super) fn tile_mut<R>(&mut self, k: usize, f: impl FnOnce(&mut StateTile) -> R) -> R {
+        self.tiles.write_tile(k, f)
+    }
+
+    /// Reads state tile `k` whole.
+    pub(super) fn tile<R>(&self, k: usize, f: impl FnOnce(&StateTile) -> R) -> R {
+        self.tiles.read_tile(k, f)
+    }
+
+    pub(super) fn synthesized(&self, t: u32) -> bool {
+        self.texel(t, |s, i| s.synthesized[i])
+    }
+    pub(super) fn coord(&self, t: u32) -> [f32; 2] {
+        self.texel(t, |s, i| s.coord[i])
+    }
+    pub(super) fn patch(&self, t: u32) -> u32 {
+        self.texel(t, |s, i| s.patch[i])
+    }
+    pub(super) fn source(&self, t: u32) -> u8 {
+        self.texel(t, |s, i| s.source[i])
+    }
+    /// m0 at `t` when constrained.
+    pub(super) fn target(&self, t: u32) -> Option<f32> {
+        self.constrained.then(|| self.texel(t, |s, i| s.target[i]))
+    }
+
+    /// The first error paging met (checked between steps).
+    pub(super) fn take_error(&mut self) -> Result<()> {
+        self.tiles.take_error()
+    }
+
+    pub(super) fn stats(&self) -> PagerStats {
+        self.tiles.stats()
     }
 
     /// The most constrained unsynthesized texel (lowest id among equals).
     pub(super) fn most_constrained(&self) -> Option<u32> {
-        self.buckets.iter().rev().find_map(|b| b.first().copied())
+        let f = &self.frontier;
+        let b = (0..BUCKETS).rev().find(|&b| f.total[b] > 0)?;
+        f.first.iter().map(|first| first[b]).min()
+    }
+
+    /// Recounts the frontier of the tiles `changed` (sorted, distinct) after
+    /// texels in them were synthesized or gained synthesized neighbours.
+    pub(super) fn refresh_frontier(&mut self, surface: &Surface, changed: &[usize]) {
+        let grid = surface.grid();
+        for &k in changed {
+            let (x0, y0, w, h) = grid.region(k);
+            let chart = surface.chart_tile(k);
+            let (mut count, mut first) = ([0u32; BUCKETS], [u32::MAX; BUCKETS]);
+            self.tiles.read_tile(k, |s| {
+                for y in 0..h {
+                    for x in 0..w {
+                        let i = y * TILE + x;
+                        if chart[i] != EMPTY && !s.synthesized[i] {
+                            let b = (s.count[i] as usize).min(BUCKETS - 1);
+                            count[b] += 1;
+                            first[b] = first[b].min(((y0 + y) * grid.r + x0 + x) as u32);
+                        }
+                    }
+                }
+            });
+            let f = &mut self.frontier;
+            for b in 0..BUCKETS {
+                f.total[b] = f.total[b] - f.count[k][b] as u64 + count[b] as u64;
+            }
+            f.count[k] = count;
+            f.first[k] = first;
+        }
     }
 
     /// The geometry-map vector of synthesized texel `t` in the active
     /// sample's basis, into `out` (`n` values).
     pub(super) fn feature_into(&self, sample: &Sample, t: u32, out: &mut [f32]) {
-        let f = self.foreign[t as usize];
+        let (f, c) = self.texel(t, |s, i| (s.foreign[i], s.coord[i]));
         if f != NO_FOREIGN {
             let f = f as usize * self.n;
             out.copy_from_slice(&self.foreign_features[f..f + self.n]);
             return;
         }
-        let c = self.coord[t as usize];
         if !sample.lookup([c[0] as f64, c[1] as f64], out) {
             out.fill(0.0);
         }
     }
+}
+
+/// The per-texel surface of one tile, from the `.gim`.
+pub(super) struct SurfaceTile {
+    pub(super) chart: Vec<u32>,
+    pub(super) face: Vec<u32>,
+    /// Positions multiplied by the surface's `unit`.
+    pub(super) position: Vec<[f32; 3]>,
+    pub(super) normal: Vec<[f32; 3]>,
+}
+
+/// Bytes of a surface tile.
+const SURFACE_TILE_BYTES: usize = TILE_TEXELS * (4 + 4 + 12 + 12);
+
+/// Surface tiles read from the geometry image (never written back).
+pub(super) struct GimTiles {
+    gim: Gim,
+    grid: TileGrid,
+    unit: f32,
+}
+
+impl TileSource<SurfaceTile> for GimTiles {
+    fn load(&mut self, k: usize) -> Result<SurfaceTile> {
+        let (x0, y0, w, h) = self.grid.region(k);
+        let region = self.gim.texel_region(x0, y0, w, h)?;
+        let mut tile = self.blank();
+        for y in 0..h {
+            for x in 0..w {
+                let (i, j) = (y * TILE + x, y * w + x);
+                tile.chart[i] = region.chart[j];
+                tile.face[i] = region.face[j];
+                let p = &region.position[j * 3..j * 3 + 3];
+                tile.position[i] = [p[0], p[1], p[2]].map(|c| c * self.unit);
+                let q = &region.normal[j * 3..j * 3 + 3];
+                tile.normal[i] = [q[0], q[1], q[2]];
+            }
+        }
+        Ok(tile)
+    }
+
+    fn store(&mut self, _: usize, _: &SurfaceTile) -> Result<()> {
+        Ok(())
+    }
+
+    fn blank(&self) -> SurfaceTile {
+        SurfaceTile {
+            chart: vec![EMPTY; TILE_TEXELS],
+            face: vec![0; TILE_TEXELS],
+            position: vec![[0.0; 3]; TILE_TEXELS],
+            normal: vec![[0.0; 3]; TILE_TEXELS],
+        }
+    }
+}
+
+/// Everything the loop reads of the dense mesh M_d: per texel (paged) the
+/// chart, face, position and normal; the zipper links; the field angle per
+/// face.
+pub(super) struct Surface {
+    pub(super) r: usize,
+    tiles: Pager<SurfaceTile, GimTiles>,
+    zippers: ZipperLinks,
+    /// Dense positions are multiplied by `unit` (exactly: a power of two, 1
+    /// but for a mesh of extreme size, see [`crate::mesh::extreme_scale`]).
+    pub(super) unit: f32,
+    pub(super) face_angle: Vec<f64>,
+    /// Per tile, its dense vertices and the lowest id among them.
+    covered: Vec<u32>,
+    first_covered: Vec<u32>,
+}
+
+impl Surface {
+    /// The surface of the geometry image at `path`, its tiles held within
+    /// `budget`.
+    pub(super) fn open(gim: &Gim, budget: MemoryBudget) -> Result<Surface> {
+        let r = gim.resolution;
+        let points: Vec<[f32; 3]> = gim.mesh()?.positions;
+        let unit = crate::mesh::extreme_scale(&points) as f32;
+        // a reader of its own: its chunk cache is the pager's business
+        let own = Gim::open(gim.container().path(), MemoryBudget(0))?;
+        let grid = TileGrid::new(r);
+        let chart = gim.container().array("chart")?;
+        let (mut covered, mut first_covered) = (vec![0; grid.tiles()], vec![u32::MAX; grid.tiles()]);
+        for k in 0..grid.tiles() {
+            let (x0, y0, w, h) = grid.region(k);
+            let c: Vec<u32> =
+                gim.container()
+                    .read_region(chart, &[y0 as u64, x0 as u64], &[h as u64, w as u64])?;
+            for (j, &ch) in c.iter().enumerate() {
+                if ch != EMPTY {
+                    covered[k] += 1;
+                    first_covered[k] = first_covered[k].min(((y0 + j / w) * r + x0 + j % w) as u32);
+                }
+            }
+        }
+        let source = GimTiles { gim: own, grid, unit };
+        Ok(Surface {
+            covered,
+            first_covered,
+            r,
+            tiles: Pager::new(r, source, budget.bytes(), SURFACE_TILE_BYTES as u64, 16),
+            zippers: ZipperLinks::new(&gim.zipper_links()?),
+            unit,
+            face_angle: face_angles(gim)?,
+        })
+    }
+
+    pub(super) fn grid(&self) -> TileGrid {
+        self.tiles.grid
+    }
+
+    /// Number of dense vertices.
+    pub(super) fn vertices(&self) -> usize {
+        self.covered.iter().map(|&c| c as usize).sum()
+    }
+
+    /// The `n`-th dense vertex in texel order (row-major), `n` < [`Surface::vertices`].
+    pub(super) fn nth_vertex(&self, mut n: usize) -> u32 {
+        let grid = self.grid();
+        for ty in 0..grid.across {
+            let row: usize = (0..grid.across)
+                .map(|tx| self.covered[ty * grid.across + tx] as usize)
+                .sum();
+            if n >= row {
+                n -= row;
+                continue;
+            }
+            let (y0, y1) = (ty * TILE, ((ty + 1) * TILE).min(self.r));
+            for y in y0..y1 {
+                for x in 0..self.r {
+                    let t = (y * self.r + x) as u32;
+                    if self.covered(t) {
+                        if n == 0 {
+                            return t;
+                        }
+                        n -= 1;
+                    }
+                }
+            }
+        }
+        unreachable!("n < vertices")
+    }
+
+    /// The chart plane of tile `k` (64×64, padding [`EMPTY`]).
+    pub(super) fn chart_tile(&self, k: usize) -> Vec<u32> {
+        self.tiles.read_tile(k, |s| s.chart.clone())
+    }
+
+    #[inline]
+    pub(super) fn chart(&self, t: u32) -> u32 {
+        self.tiles.read(t, |s, i| s.chart[i])
+    }
+
+    pub(super) fn covered(&self, t: u32) -> bool {
+        self.chart(t) != EMPTY
+    }
+
+    /// Position of dense vertex `t`, multiplied by `unit`.
+    pub(super) fn position(&self, t: u32) -> [f32; 3] {
+        self.tiles.read(t, |s, i| s.position[i])
+    }
+
+    pub(super) fn normal(&self, t: u32) -> [f32; 3] {
+        self.tiles.read(t, |s, i| s.normal[i])
+    }
+
+    pub(super) fn texel_angle(&self, t: u32) -> f64 {
+        self.face_angle[self.tiles.read(t, |s, i| s.face[i]) as usize]
+    }
+
+    /// Calls `f` for every neighbour of texel `t` in M_d (grid neighbours of
+    /// its chart, then zipper partners); `f`'s second argument says whether
+    /// the edge is a zipper link.
+    pub(super) fn for_each_neighbour(&self, t: u32, mut f: impl FnMut(u32, bool)) {
+        let c = self.chart(t);
+        if c == EMPTY {
+            return;
+        }
+        let r = self.r;
+        let (x, y) = self.tiles.grid.xy(t);
+        let candidates = [
+            (x > 0).then(|| t - 1),
+            (x + 1 < r).then(|| t + 1),
+            (y > 0).then(|| t - r as u32),
+            (y + 1 < r).then(|| t + r as u32),
+        ];
+        for n in candidates.into_iter().flatten() {
+            if self.chart(n) == c {
+                f(n, false);
+            }
+        }
+        self.zippers.for_each(t, |n| f(n, true));
+    }
+
+    /// The first error paging met.
+    pub(super) fn take_error(&mut self) -> Result<()> {
+        self.tiles.take_error()
+    }
+
+    pub(super) fn stats(&self) -> PagerStats {
+        self.tiles.stats()
+    }
+}
+
+/// Per face, the atlas-space angle of its field direction (radians, y down).
+pub(super) fn face_angles(gim: &Gim) -> Result<Vec<f64>> {
+    let mut mesh = gim.mesh()?;
+    // angles do not depend on the scale; f32 products of extreme ones would overflow
+    mesh.normalize_extreme_scale();
+    let uv = gim.corner_uv()?;
+    let field: Vec<f32> = gim.read("face_field")?;
+    Ok((0..mesh.triangles.len())
+        .map(|f| {
+            let v = [
+                field[f * 3] as f64,
+                field[f * 3 + 1] as f64,
+                field[f * 3 + 2] as f64,
+            ];
+            crate::artifact::gim::atlas_direction(&mesh, &uv, f, v).map_or(0.0, |d| d[1].atan2(d[0]))
+        })
+        .collect())
 }
 
 /// A work patch: its vertices (texels) and their BFS depth.
@@ -127,25 +557,36 @@ impl WorkPatch {
     }
 }
 
-/// Reusable BFS buffers.
+/// A multiplicative hash for texel ids (the map's keys are small integers).
+#[derive(Default)]
+pub(super) struct TexelHasher(u64);
+
+impl Hasher for TexelHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ b as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        }
+    }
+    fn write_u32(&mut self, v: u32) {
+        self.0 = (v as u64 ^ 0x5555_5555).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    }
+}
+
+/// The last work patch's vertices by texel (sized by the patch, not the atlas).
+#[derive(Default)]
 pub(super) struct Bfs {
-    pub(super) stamp: Vec<u32>,
-    pub(super) index: Vec<u32>,
-    pub(super) epoch: u32,
+    index: HashMap<u32, u32, BuildHasherDefault<TexelHasher>>,
 }
 
 impl Bfs {
-    pub(super) fn patch(
-        &mut self,
-        graph: &crate::artifact::gim::DenseGraph,
-        v: u32,
-        radius: usize,
-    ) -> WorkPatch {
-        self.epoch += 1;
+    pub(super) fn patch(&mut self, surface: &Surface, v: u32, radius: usize) -> WorkPatch {
+        self.index.clear();
         let mut texels = vec![v];
         let mut depth = vec![0u16];
-        self.stamp[v as usize] = self.epoch;
-        self.index[v as usize] = 0;
+        self.index.insert(v, 0);
         let mut crosses = false;
         let mut head = 0;
         while head < texels.len() {
@@ -154,10 +595,9 @@ impl Bfs {
             if d as usize >= radius {
                 continue;
             }
-            graph.for_each_neighbour(t, |n, zipper| {
-                if self.stamp[n as usize] != self.epoch {
-                    self.stamp[n as usize] = self.epoch;
-                    self.index[n as usize] = texels.len() as u32;
+            surface.for_each_neighbour(t, |n, zipper| {
+                if let std::collections::hash_map::Entry::Vacant(e) = self.index.entry(n) {
+                    e.insert(texels.len() as u32);
                     texels.push(n);
                     depth.push(d + 1);
                     crosses |= zipper;
@@ -172,44 +612,6 @@ impl Bfs {
     }
 
     pub(super) fn contains(&self, t: u32) -> Option<usize> {
-        (self.stamp[t as usize] == self.epoch).then(|| self.index[t as usize] as usize)
-    }
-}
-
-/// Per face, the atlas-space angle of its field direction (radians, y down).
-pub(super) fn face_angles(gim: &Gim) -> Result<Vec<f64>> {
-    let mut mesh = gim.mesh()?;
-    // angles do not depend on the scale; f32 products of extreme ones would overflow
-    mesh.normalize_extreme_scale();
-    let uv = gim.corner_uv()?;
-    let field: Vec<f32> = gim.read("face_field")?;
-    Ok((0..mesh.triangles.len())
-        .map(|f| {
-            let v = [
-                field[f * 3] as f64,
-                field[f * 3 + 1] as f64,
-                field[f * 3 + 2] as f64,
-            ];
-            crate::artifact::gim::atlas_direction(&mesh, &uv, f, v).map_or(0.0, |d| d[1].atan2(d[0]))
-        })
-        .collect())
-}
-
-/// Everything the loop reads.
-pub(super) struct Surface {
-    pub(super) r: usize,
-    pub(super) graph: crate::artifact::gim::DenseGraph,
-    pub(super) face: Vec<u32>,
-    /// Dense positions multiplied by `unit` (exactly: a power of two, 1 but
-    /// for a mesh of extreme size, see [`crate::mesh::extreme_scale`]).
-    pub(super) position: Vec<f32>,
-    pub(super) unit: f32,
-    pub(super) normal: Vec<f32>,
-    pub(super) face_angle: Vec<f64>,
-}
-
-impl Surface {
-    pub(super) fn texel_angle(&self, t: u32) -> f64 {
-        self.face_angle[self.face[t as usize] as usize]
+        self.index.get(&t).map(|&i| i as usize)
     }
 }

@@ -15,10 +15,10 @@ use super::placement::{
     REFINE_SPACING,
 };
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
-use super::state::{face_angles, Bfs, State, Surface, WorkPatch, NO_FOREIGN};
+use super::state::{Bfs, State, StateTile, Surface, WorkPatch, NO_FOREIGN};
 use super::write::write_quilt;
 use super::{TileConfig, TileReport};
-use crate::artifact::gim::{Gim, EMPTY};
+use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{Quilt, MAX_SAMPLES, NO_PATCH};
 use crate::artifact::svd::SvdArtifact;
 use crate::container::MemoryBudget;
@@ -64,21 +64,25 @@ pub(crate) struct Synthesis {
 }
 
 impl Synthesis {
-    /// Opens the geometry image and the sample's `.svd`, with an empty state.
-    /// Without `matching` (verbatim copy) the rotated copies are not needed:
+    /// Opens the geometry image and the sample's `.svd`, with an empty state
+    /// whose evicted tiles go to a scratch store beside `output`. Without
+    /// `matching` (verbatim copy) the rotated copies are not needed:
     /// rotations are then quantized to the default 72 steps.
     pub(crate) fn open(
         gim: &Gim,
         sample_path: &Path,
         svd_path: &Path,
+        output: &Path,
         cfg: &TileConfig,
         matching: bool,
     ) -> Result<Self> {
-        // --memory is shared by the three caches of the loop: decoded tiles
-        // of the .svd, the rotated copies as f32, and the sample spectra of
-        // the matcher (a quarter each; the per-texel state comes on top)
-        let [tiles, ..] = cfg.memory.split([1, 1, 1, 1]);
+        // --memory is shared by the four stores of the loop: decoded tiles
+        // of the .svd, the rotated copies as f32, the sample spectra of the
+        // matcher, and the paged atlas (surface and state tiles), a quarter
+        // each; the work patch's own buffers come on top
+        let [tiles, _, _, atlas] = cfg.memory.split([1, 1, 1, 1]);
         let quarter = MemoryBudget(tiles.bytes().max(1 << 20));
+        let [surface_budget, state_budget] = atlas.split([8, 11]);
         let svd = SvdArtifact::open(svd_path, quarter)?;
         if matching && svd.rotations == 0 {
             return Err(Error::input(
@@ -88,26 +92,9 @@ impl Synthesis {
         }
         let sample = Sample::from_svd(svd, quarter)?;
         let n = sample.n;
-        let r = gim.resolution;
-        let mut position: Vec<f32> = gim.read("position")?;
-        let unit = {
-            let points: Vec<[f32; 3]> = position.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
-            crate::mesh::extreme_scale(&points) as f32
-        };
-        if unit != 1.0 {
-            position.iter_mut().for_each(|c| *c *= unit);
-        }
-        let surface = Surface {
-            r,
-            graph: gim.graph()?,
-            face: gim.read("face")?,
-            position,
-            unit,
-            normal: gim.read("normal")?,
-            face_angle: face_angles(gim)?,
-        };
+        let surface = Surface::open(gim, surface_budget)?;
         let reference = sample.neighbour_difference();
-        let state = State::new(surface.graph.chart.clone(), n, r);
+        let state = State::new(&surface, n, output, state_budget)?;
         let total = state.remaining;
         let original_size = [sample.width, sample.height];
         Ok(Synthesis {
@@ -118,11 +105,7 @@ impl Synthesis {
             zipper_triangles: gim.zipper_triangles()?,
             sample,
             state,
-            bfs: Bfs {
-                stamp: vec![0; r * r],
-                index: vec![0; r * r],
-                epoch: 0,
-            },
+            bfs: Bfs::default(),
             matcher: Matcher::with_cache_budget(quarter.bytes() as usize),
             reference,
             report: TileReport {
@@ -180,8 +163,41 @@ impl Synthesis {
     }
 
     /// Sets the constraint function m0 per atlas texel.
-    pub(crate) fn set_target(&mut self, m0: Vec<f32>) {
-        self.state.target = Some(m0);
+    pub(crate) fn set_target(&mut self, m0: &[f32]) {
+        self.state.constrained = true;
+        let grid = self.surface.grid();
+        for k in 0..grid.tiles() {
+            let (x0, y0, w, h) = grid.region(k);
+            self.state.tile_mut(k, |s| {
+                for y in 0..h {
+                    let row = (y0 + y) * grid.r + x0;
+                    s.target[y * TILE..y * TILE + w].copy_from_slice(&m0[row..row + w]);
+                }
+            });
+        }
+    }
+
+    /// Sets m0 = 0 everywhere (a foreground mask keeps the foreground out
+    /// of the whole surface), before the loop starts.
+    pub(crate) fn constrain_to_background(&mut self) {
+        self.state.constrain_everywhere(0.0);
+    }
+
+    /// A per-texel plane of the state over the whole atlas.
+    fn plane<T: Copy + Default>(&self, f: impl Fn(&StateTile, usize) -> T) -> Vec<T> {
+        let grid = self.surface.grid();
+        let mut out = vec![T::default(); grid.r * grid.r];
+        for k in 0..grid.tiles() {
+            let (x0, y0, w, h) = grid.region(k);
+            self.state.tile(k, |s| {
+                for y in 0..h {
+                    for x in 0..w {
+                        out[(y0 + y) * grid.r + x0 + x] = f(s, y * TILE + x);
+                    }
+                }
+            });
+        }
+        out
     }
 
     /// Resolution R of the atlas.
@@ -189,20 +205,28 @@ impl Synthesis {
         self.surface.r
     }
 
-    /// The dense mesh graph.
-    pub(crate) fn graph(&self) -> &crate::artifact::gim::DenseGraph {
-        &self.surface.graph
+    /// The chart of texel `t` ([`EMPTY`] outside the charts).
+    pub(crate) fn chart(&self, t: u32) -> u32 {
+        self.surface.chart(t)
+    }
+
+    /// Calls `f` for every neighbour of dense vertex `t` in M_d (whether
+    /// across a zipper link as the second argument).
+    pub(crate) fn for_each_neighbour(&self, t: u32, f: impl FnMut(u32, bool)) {
+        self.surface.for_each_neighbour(t, f)
     }
 
     /// 3D position of a dense vertex, in the mesh's units.
     pub(crate) fn position(&self, t: u32) -> [f32; 3] {
-        let p = &self.surface.position[t as usize * 3..t as usize * 3 + 3];
-        [p[0], p[1], p[2]].map(|c| c / self.surface.unit)
+        self.surface.position(t).map(|c| c / self.surface.unit)
     }
 
-    /// The constraint function m0 (empty when unconstrained).
-    pub(crate) fn target(&self) -> &[f32] {
-        self.state.target.as_deref().unwrap_or(&[])
+    /// The constraint function m0 over the atlas (empty when unconstrained).
+    pub(crate) fn target(&self) -> Vec<f32> {
+        if !self.state.constrained {
+            return Vec::new();
+        }
+        self.plane(|s, i| s.target[i])
     }
 
     /// The sample's width and foreground mask (empty without one).
@@ -211,8 +235,8 @@ impl Synthesis {
     }
 
     /// Patch id per texel.
-    pub(crate) fn patch_ids(&self) -> &[u32] {
-        &self.state.patch
+    pub(crate) fn patch_ids(&self) -> Vec<u32> {
+        self.plane(|s, i| s.patch[i])
     }
 
     /// Starts from a decorated surface: its coordinates, rotations, patch
@@ -231,11 +255,6 @@ impl Synthesis {
                 format!("is {}² but its geometry image is {r}²", quilt.resolution),
             ));
         }
-        let coords = quilt.coords()?;
-        let patches = quilt.patches()?;
-        let rotations = quilt.rotations()?;
-        let jacobians = quilt.jacobians()?;
-        let source = quilt.sample_index()?;
         let mut paths = quilt.samples.clone();
         let active = match paths.iter().position(|p| same_file(p, &self.sample_path)) {
             Some(k) => k,
@@ -251,11 +270,16 @@ impl Synthesis {
             }
         };
         // the other samples in use, with their projections into the active basis
+        let grid = self.surface.grid();
         let mut others: Vec<Option<(Sample, Vec<f32>)>> = (0..paths.len()).map(|_| None).collect();
         let mut previews = vec![None; paths.len()];
         let mut used = vec![false; paths.len()];
-        for (t, &k) in source.iter().enumerate() {
-            used[k as usize] |= patches[t] != NO_PATCH;
+        for k in 0..grid.tiles() {
+            let (x0, y0, w, h) = grid.region(k);
+            let region = quilt.texel_region(x0, y0, w, h)?;
+            for (&p, &s) in region.patch.iter().zip(&region.sample) {
+                used[s as usize] |= p != NO_PATCH;
+            }
         }
         let active_p = self.sample.svd.appearance()?;
         for k in (0..paths.len()).filter(|&k| used[k] && k != active) {
@@ -269,65 +293,76 @@ impl Synthesis {
         }
         let n = self.state.n;
         let mut scratch = Vec::new();
-        let st = &mut self.state;
-        st.active = active as u8;
-        for b in st.buckets.iter_mut() {
-            b.clear();
-        }
-        st.remaining = 0;
+        let [sx, sy] = self.scale;
+        let scaled = self.scale != [1.0, 1.0];
+        self.state.active = active as u8;
+        self.state.remaining = 0;
         let mut next = 0u32;
-        for t in 0..r * r {
-            if st.chart[t] == EMPTY {
-                continue;
-            }
-            if patches[t] == NO_PATCH {
-                return Err(Error::input(
-                    quilt.container().path(),
-                    "is not fully decorated (texels without a patch)",
-                ));
-            }
-            st.synthesized[t] = true;
-            st.coord[t] = coords[t];
-            st.rotation[t] = rotations[t];
-            st.patch[t] = patches[t];
-            st.jacobian[t] = jacobians[t];
-            if source[t] as usize == active && self.scale != [1.0, 1.0] {
-                // the file holds original sample pixels; the loop works in
-                // the resampled sample's
-                let [sx, sy] = self.scale;
-                st.coord[t] = [
-                    (coords[t][0] as f64 / sx) as f32,
-                    (coords[t][1] as f64 / sy) as f32,
-                ];
-                let j = jacobians[t];
-                st.jacobian[t] = [
-                    (j[0] as f64 / sx) as f32,
-                    (j[1] as f64 / sy) as f32,
-                    (j[2] as f64 / sx) as f32,
-                    (j[3] as f64 / sy) as f32,
-                ];
-            }
-            st.source[t] = source[t];
-            next = next.max(patches[t] + 1);
-            let c = [st.coord[t][0] as f64, st.coord[t][1] as f64];
-            match &others[source[t] as usize] {
-                None => {
-                    st.foreign[t] = NO_FOREIGN;
-                    st.mask[t] = self.sample.mask_at(c);
-                }
-                Some((other, projection)) => {
-                    scratch.clear();
-                    scratch.resize(other.n, 0f32);
-                    other.lookup(c, &mut scratch);
-                    st.foreign[t] = (st.foreign_features.len() / n) as u32;
-                    for a in 0..n {
-                        let v = dot_f32(&projection[a * other.n..(a + 1) * other.n], &scratch);
-                        st.foreign_features.push(v);
+        for k in 0..grid.tiles() {
+            let (x0, y0, w, h) = grid.region(k);
+            let q = quilt.texel_region(x0, y0, w, h)?;
+            let chart = self.surface.chart_tile(k);
+            let (sample, st) = (&self.sample, &mut self.state);
+            let mut foreign_features = std::mem::take(&mut st.foreign_features);
+            let loaded = st.tile_mut(k, |s| -> Result<()> {
+                for y in 0..h {
+                    for x in 0..w {
+                        let (i, j) = (y * TILE + x, y * w + x);
+                        if chart[i] == EMPTY {
+                            continue;
+                        }
+                        if q.patch[j] == NO_PATCH {
+                            return Err(Error::input(
+                                quilt.container().path(),
+                                "is not fully decorated (texels without a patch)",
+                            ));
+                        }
+                        s.synthesized[i] = true;
+                        s.coord[i] = q.coord[j];
+                        s.rotation[i] = q.rotation[j];
+                        s.patch[i] = q.patch[j];
+                        s.jacobian[i] = q.jacobian[j];
+                        if q.sample[j] as usize == active && scaled {
+                            // the file holds original sample pixels; the loop
+                            // works in the resampled sample's
+                            let (c, jc) = (q.coord[j], q.jacobian[j]);
+                            s.coord[i] = [(c[0] as f64 / sx) as f32, (c[1] as f64 / sy) as f32];
+                            s.jacobian[i] = [
+                                (jc[0] as f64 / sx) as f32,
+                                (jc[1] as f64 / sy) as f32,
+                                (jc[2] as f64 / sx) as f32,
+                                (jc[3] as f64 / sy) as f32,
+                            ];
+                        }
+                        s.source[i] = q.sample[j];
+                        next = next.max(q.patch[j] + 1);
+                        let c = [s.coord[i][0] as f64, s.coord[i][1] as f64];
+                        match &others[q.sample[j] as usize] {
+                            None => {
+                                s.foreign[i] = NO_FOREIGN;
+                                s.mask[i] = sample.mask_at(c);
+                            }
+                            Some((other, projection)) => {
+                                scratch.clear();
+                                scratch.resize(other.n, 0f32);
+                                other.lookup(c, &mut scratch);
+                                s.foreign[i] = (foreign_features.len() / n) as u32;
+                                for a in 0..n {
+                                    let v = dot_f32(&projection[a * other.n..(a + 1) * other.n], &scratch);
+                                    foreign_features.push(v);
+                                }
+                                s.mask[i] = 0.0;
+                            }
+                        }
                     }
-                    st.mask[t] = 0.0;
                 }
-            }
+                Ok(())
+            });
+            st.foreign_features = foreign_features;
+            loaded?;
+            self.state.refresh_frontier(&self.surface, &[k]);
         }
+        let st = &mut self.state;
         st.next_patch = next;
         self.sample_spans = (0..paths.len())
             .map(|k| {
@@ -393,7 +428,7 @@ impl Synthesis {
         // larger pieces than always ending at r_w = 4)
         let mut best: Option<(f64, WorkPatch, Fit, bool)> = None;
         loop {
-            let patch = self.bfs.patch(&self.surface.graph, v, radius);
+            let patch = self.bfs.patch(&self.surface, v, radius);
             let (work, unfolded) = self.work_image(&patch, &mut flattening);
             let fit = self.match_and_fit(&patch, &work, painting, 0)?;
             let mean = if fit.seam_edges > 0 {
@@ -463,21 +498,25 @@ impl Synthesis {
     /// seams it replaces. Returns how many were kept. Seams already inside
     /// a refined patch are not visited again.
     pub(crate) fn refine(&mut self, radius: usize, step: f64, progress: &dyn Progress) -> Result<usize> {
-        let r = self.surface.r;
         let n = self.state.n;
         let (mut fa, mut fb) = (vec![0f32; n], vec![0f32; n]);
         let mut seeds: Vec<(f64, u32)> = Vec::new();
         let mut across: Vec<u32> = Vec::with_capacity(8);
-        for t in 0..(r * r) as u32 {
-            let tu = t as usize;
-            if self.state.chart[tu] == EMPTY {
+        let grid = self.surface.grid();
+        // tile by tile (the seeds are sorted after)
+        for t in (0..grid.tiles()).flat_map(|k| {
+            let (x0, y0, w, h) = grid.region(k);
+            (0..h).flat_map(move |y| (0..w).map(move |x| ((y0 + y) * grid.r + x0 + x) as u32))
+        }) {
+            if !self.surface.covered(t) {
                 continue;
             }
             // seams inside charts and across zippers alike: a seam that runs
             // along a chart border is as visible as any other
             across.clear();
-            self.surface.graph.for_each_neighbour(t, |nb, _| {
-                if nb > t && self.state.patch[nb as usize] != self.state.patch[tu] {
+            let own = self.state.patch(t);
+            self.surface.for_each_neighbour(t, |nb, _| {
+                if nb > t && self.state.patch(nb) != own {
                     across.push(nb);
                 }
             });
@@ -495,19 +534,20 @@ impl Synthesis {
             }
         }
         seeds.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-        let mut visited = vec![false; r * r];
+        // one bit per texel
+        let mut visited = vec![0u64; (grid.r * grid.r).div_ceil(64)];
         let mut kept = 0;
         for &(_, v) in &seeds {
-            if visited[v as usize] {
+            if visited[v as usize / 64] >> (v % 64) & 1 == 1 {
                 continue;
             }
-            let patch = self.bfs.patch(&self.surface.graph, v, radius);
+            let patch = self.bfs.patch(&self.surface, v, radius);
             let (work, _) = self.work_image(&patch, &mut None);
             let fit = self.best_of_placements(&patch, &work, self.cfg.refine_placements, 3)?;
             let rim = patch.depth.iter().copied().max().unwrap_or(0);
             for (&t, &d) in patch.texels.iter().zip(&patch.depth) {
                 if d + 2 < rim {
-                    visited[t as usize] = true;
+                    visited[t as usize / 64] |= 1 << (t % 64);
                 }
             }
             if fit.taken > 0 && fit.flow < 0.9 * fit.baseline {
@@ -515,6 +555,7 @@ impl Synthesis {
                 self.report.refined += 1;
                 kept += 1;
             }
+            self.check_paging()?;
         }
         Ok(kept)
     }
@@ -698,7 +739,7 @@ impl Synthesis {
     ) -> Result<usize> {
         let t0 = Instant::now();
         let trace = |what: &str| crate::progress::trace(progress, t0, &format!("verbatim {what}"));
-        let patch = self.bfs.patch(&self.surface.graph, v, radius);
+        let patch = self.bfs.patch(&self.surface, v, radius);
         trace("work patch");
         let mut flattening = None;
         let (work, _) = self.work_image(&patch, &mut flattening);
@@ -732,10 +773,10 @@ impl Synthesis {
             let mut data = vec![0f32; w * h * 3];
             for y in 0..h {
                 for x in 0..w {
-                    let t = (y0 + y) * r + x0 + x;
-                    if self.state.synthesized[t] {
-                        let c = self.state.coord[t];
-                        let from = self.other_previews.get(self.state.source[t] as usize);
+                    let t = ((y0 + y) * r + x0 + x) as u32;
+                    if self.state.synthesized(t) {
+                        let c = self.state.coord(t);
+                        let from = self.other_previews.get(self.state.source(t) as usize);
                         let col = crate::io::imageio::bilinear(
                             from.and_then(Option::as_ref).unwrap_or(&colours),
                             c[0],
@@ -764,11 +805,10 @@ impl Synthesis {
             return Ok(fg.iter().filter(|&&m| m >= 0.5).count());
         }
         // m0 = the placed foreground on the patch, 0 elsewhere
-        let mut m0 = vec![0f32; self.state.chart.len()];
+        self.state.constrain_everywhere(0.0);
         for (i, &t) in patch.texels.iter().enumerate() {
-            m0[t as usize] = fg[i];
+            self.state.texel_mut(t, |s, k| s.target[k] = fg[i]);
         }
-        self.state.target = Some(m0);
         let t = Instant::now();
         let fit = fit_patch(
             &self.sample,
@@ -784,6 +824,12 @@ impl Synthesis {
         self.report.graphcut_seconds += t.elapsed().as_secs_f64();
         self.accept(&patch, &fit, progress);
         Ok(fit.taken)
+    }
+
+    /// The first error met paging the atlas in or out, if any.
+    pub(super) fn check_paging(&mut self) -> Result<()> {
+        self.surface.take_error()?;
+        self.state.take_error()
     }
 
     /// Mean seam cost per seam edge in units of the sample's neighbour

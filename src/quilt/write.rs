@@ -3,11 +3,12 @@
 
 use std::path::Path;
 
+use super::state::{State, StateTile, Surface};
 use super::synthesis::{sample_role, Synthesis};
 use super::{TileConfig, TileReport};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{KIND, SEAM_X, SEAM_Y, SEAM_ZIPPER};
-use crate::container::{ArraySpec, ContainerWriter, DType, Param};
+use crate::container::{ArraySpec, ContainerWriter, DType, Element, Param};
 use crate::Result;
 
 /// Writes the synthesis state as a `.quilt`; `paint_log` (a JSON array of
@@ -64,59 +65,109 @@ pub(super) fn write_quilt(
     w.set_param("patches", Param::Int(state.next_patch as i64));
     w.set_param("mean_seam_cost", Param::Float(report.mean_seam_cost));
     // coordinates and Jacobians in original sample pixels (the loop works
-    // in the resampled sample's, for the texels of the active sample)
+    // in the resampled sample's, for the texels of the active sample);
+    // written tile by tile, array after array
     let active = state.active;
     let [sx, sy] = syn.scale;
     let scaled = syn.scale != [1.0, 1.0];
-    let coord: Vec<f32> = if scaled {
-        (state.coord.iter().zip(&state.source))
-            .flat_map(|(c, &k)| {
-                if k == active {
-                    [(c[0] as f64 * sx) as f32, (c[1] as f64 * sy) as f32]
-                } else {
-                    *c
-                }
-            })
-            .collect()
-    } else {
-        state.coord.iter().flatten().copied().collect()
-    };
-    let id = w.add_array(ArraySpec::new("coord", DType::F32, &[r, r, 2], &[t, t, 2])?)?;
-    w.write_array(id, &coord)?;
-    let jacobian: Vec<f32> = if scaled {
-        (state.jacobian.iter().zip(&state.source))
-            .flat_map(|(j, &k)| {
-                if k == active {
-                    [
-                        (j[0] as f64 * sx) as f32,
-                        (j[1] as f64 * sy) as f32,
-                        (j[2] as f64 * sx) as f32,
-                        (j[3] as f64 * sy) as f32,
-                    ]
-                } else {
-                    *j
-                }
-            })
-            .collect()
-    } else {
-        state.jacobian.iter().flatten().copied().collect()
-    };
-    let id = w.add_array(ArraySpec::new("jacobian", DType::F32, &[r, r, 4], &[t, t, 4])?)?;
-    w.write_array(id, &jacobian)?;
-    let id = w.add_array(ArraySpec::new("rotation", DType::U8, &[r, r], &[t, t])?)?;
-    w.write_array(id, &state.rotation)?;
-    let id = w.add_array(ArraySpec::new("patch", DType::U32, &[r, r], &[t, t])?)?;
-    w.write_array(id, &state.patch)?;
+    write_plane(
+        &mut w,
+        state,
+        &syn.surface,
+        "coord",
+        2,
+        |s, i, _, buf: &mut Vec<f32>| {
+            let c = s.coord[i];
+            if scaled && s.source[i] == active {
+                buf.extend_from_slice(&[(c[0] as f64 * sx) as f32, (c[1] as f64 * sy) as f32]);
+            } else {
+                buf.extend_from_slice(&c);
+            }
+        },
+    )?;
+    write_plane(
+        &mut w,
+        state,
+        &syn.surface,
+        "jacobian",
+        4,
+        |s, i, _, buf: &mut Vec<f32>| {
+            let j = s.jacobian[i];
+            if scaled && s.source[i] == active {
+                buf.extend_from_slice(&[
+                    (j[0] as f64 * sx) as f32,
+                    (j[1] as f64 * sy) as f32,
+                    (j[2] as f64 * sx) as f32,
+                    (j[3] as f64 * sy) as f32,
+                ]);
+            } else {
+                buf.extend_from_slice(&j);
+            }
+        },
+    )?;
+    write_plane(
+        &mut w,
+        state,
+        &syn.surface,
+        "rotation",
+        1,
+        |s, i, _, buf: &mut Vec<u8>| buf.push(s.rotation[i]),
+    )?;
+    write_plane(
+        &mut w,
+        state,
+        &syn.surface,
+        "patch",
+        1,
+        |s, i, _, buf: &mut Vec<u32>| buf.push(s.patch[i]),
+    )?;
     if paths.len() > 1 {
-        let id = w.add_array(ArraySpec::new("sample", DType::U8, &[r, r], &[t, t])?)?;
-        w.write_array(id, &state.source)?;
+        write_plane(
+            &mut w,
+            state,
+            &syn.surface,
+            "sample",
+            1,
+            |s, i, _, buf: &mut Vec<u8>| buf.push(s.source[i]),
+        )?;
     }
-    let seams = seam_flags(&state.patch, &state.chart, gim.resolution, &gim.zipper_links()?);
+    let zippers = gim.zipper_links()?;
+    let mut zipper_flag: std::collections::HashMap<u32, u8> = Default::default();
+    for &[a, b] in &zippers {
+        if state.patch(a) != state.patch(b) {
+            zipper_flag.insert(a, SEAM_ZIPPER);
+            zipper_flag.insert(b, SEAM_ZIPPER);
+        }
+    }
+    let surface = &syn.surface;
+    // (the patch ids of +x/+y neighbours may sit in the next tiles)
+    let grid = syn.surface.grid();
     let id = w.add_array(ArraySpec::new("seam", DType::U8, &[r, r], &[t, t])?)?;
-    w.write_array(id, &seams)?;
-    if let (Some(m0), Some(_)) = (&state.target, paint_log) {
-        let id = w.add_array(ArraySpec::new("region", DType::F32, &[r, r], &[t, t])?)?;
-        w.write_array(id, m0)?;
+    for k in 0..grid.tiles() {
+        let (x0, y0, tw, th) = grid.region(k);
+        let patches = state.tile(k, |s| s.patch.clone());
+        let mut flags = Vec::with_capacity(tw * th);
+        for y in 0..th {
+            for x in 0..tw {
+                let texel = ((y0 + y) * grid.r + x0 + x) as u32;
+                let own = patches[y * TILE + x];
+                flags.push(
+                    seam_flags_at(surface, own, texel, grid.r, state)
+                        | zipper_flag.get(&texel).copied().unwrap_or(0),
+                );
+            }
+        }
+        w.write_chunk(id, k as u64, &flags)?;
+    }
+    if let (true, Some(_)) = (state.constrained, paint_log) {
+        write_plane(
+            &mut w,
+            state,
+            &syn.surface,
+            "region",
+            1,
+            |s, i, _, buf: &mut Vec<f32>| buf.push(s.target[i]),
+        )?;
     }
     w.finish()
 }
@@ -136,28 +187,56 @@ pub(super) fn record_dependency(w: &mut ContainerWriter, out: &Path, role: &str,
     Ok(())
 }
 
-/// Per texel: which of its mesh edges the patches meet across (the seams
-/// the graphcut left), as [`SEAM_X`] | [`SEAM_Y`] | [`SEAM_ZIPPER`].
-pub(super) fn seam_flags(patch: &[u32], chart: &[u32], r: usize, zipper_links: &[[u32; 2]]) -> Vec<u8> {
-    let mut flags = vec![0u8; r * r];
-    let seam = |a: usize, b: usize| chart[a] == chart[b] && chart[a] != EMPTY && patch[a] != patch[b];
-    for y in 0..r {
-        for x in 0..r {
-            let t = y * r + x;
-            if x + 1 < r && seam(t, t + 1) {
-                flags[t] |= SEAM_X;
-            }
-            if y + 1 < r && seam(t, t + r) {
-                flags[t] |= SEAM_Y;
-            }
-        }
+/// The seam flags [`SEAM_X`] | [`SEAM_Y`] of texel `t` (patch `patch`):
+/// whether the patches meet across its atlas edges to +x and +y.
+fn seam_flags_at(surface: &Surface, patch: u32, t: u32, r: usize, state: &State) -> u8 {
+    let chart = surface.chart(t);
+    if chart == EMPTY {
+        return 0;
     }
-    for &[a, b] in zipper_links {
-        let (a, b) = (a as usize, b as usize);
-        if patch[a] != patch[b] {
-            flags[a] |= SEAM_ZIPPER;
-            flags[b] |= SEAM_ZIPPER;
-        }
+    let (x, y) = (t as usize % r, t as usize / r);
+    let seam = |n: u32| surface.chart(n) == chart && state.patch(n) != patch;
+    let mut flags = 0;
+    if x + 1 < r && seam(t + 1) {
+        flags |= SEAM_X;
+    }
+    if y + 1 < r && seam(t + r as u32) {
+        flags |= SEAM_Y;
     }
     flags
+}
+
+/// Writes a per-texel array `name` of `c` values per texel, tile by tile
+/// (its chunks): `f` appends the values of a texel of a state tile
+/// (`(tile, index in it, texel id, out)`).
+fn write_plane<T: Element>(
+    w: &mut ContainerWriter,
+    state: &State,
+    surface: &Surface,
+    name: &str,
+    c: u64,
+    mut f: impl FnMut(&StateTile, usize, u32, &mut Vec<T>),
+) -> Result<()> {
+    let grid = surface.grid();
+    let (r, t) = (grid.r as u64, TILE as u64);
+    let (shape, chunk) = if c == 1 {
+        (vec![r, r], vec![t, t])
+    } else {
+        (vec![r, r, c], vec![t, t, c])
+    };
+    let id = w.add_array(ArraySpec::new(name, T::DTYPE, &shape, &chunk)?)?;
+    let mut buf: Vec<T> = Vec::new();
+    for k in 0..grid.tiles() {
+        let (x0, y0, tw, th) = grid.region(k);
+        buf.clear();
+        state.tile(k, |s| {
+            for y in 0..th {
+                for x in 0..tw {
+                    f(s, y * TILE + x, ((y0 + y) * grid.r + x0 + x) as u32, &mut buf);
+                }
+            }
+        });
+        w.write_chunk(id, k as u64, &buf)?;
+    }
+    Ok(())
 }

@@ -1,0 +1,196 @@
+//! A scratch store beside an output: evicted atlas tiles written back
+//! compressed (zstd) while a long run pages its working set. It is named
+//! after the output and the process (`.NAME.PID.scratch`), removed when
+//! dropped, and removed by the next run beside the same output if the
+//! process that made it died (on Linux, where a dead process is seen in
+//! `/proc`; elsewhere only a file of the same process id is replaced).
+
+use std::fs::{File, OpenOptions};
+use std::io::{Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+
+use crate::{Error, Result};
+
+/// zstd level of written-back tiles: fast, they are read back soon.
+const LEVEL: i32 = 1;
+
+/// Where a record sits in the scratch file and its stored length.
+#[derive(Clone, Copy, Debug)]
+struct Extent {
+    offset: u64,
+    stored: u32,
+    capacity: u32,
+}
+
+/// Records by key (small integers: tile ids) in one file; a rewritten record
+/// reuses its extent when it fits, else goes to the end.
+pub struct Scratch {
+    path: PathBuf,
+    file: File,
+    end: u64,
+    extents: Vec<Option<Extent>>,
+    written: u64,
+}
+
+impl Scratch {
+    /// The scratch path of an output for process `pid`.
+    pub fn path_for(output: &Path, pid: u32) -> PathBuf {
+        output.with_file_name(format!(".{}.{pid}.scratch", Self::name_of(output)))
+    }
+
+    fn name_of(output: &Path) -> String {
+        output
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "output".into())
+    }
+
+    /// Removes the scratch files beside `output` of processes that are gone.
+    fn remove_stale(output: &Path) {
+        let (prefix, suffix) = (format!(".{}.", Self::name_of(output)), ".scratch");
+        let dir = match output.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            return;
+        };
+        let proc_seen = Path::new("/proc/self").exists();
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let Some(pid) = name
+                .strip_prefix(&prefix)
+                .and_then(|r| r.strip_suffix(suffix))
+                .and_then(|p| p.parse::<u32>().ok())
+            else {
+                continue;
+            };
+            let gone = proc_seen && !Path::new(&format!("/proc/{pid}")).exists();
+            if gone || pid == std::process::id() {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
+
+    /// A fresh scratch store beside `output` for keys `0..keys`, after
+    /// removing those dead runs left.
+    pub fn create_beside(output: &Path, keys: usize) -> Result<Scratch> {
+        Self::remove_stale(output);
+        let path = Self::path_for(output, std::process::id());
+        let file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&path)
+            .map_err(|e| Error::io(&path, e))?;
+        Ok(Scratch {
+            path,
+            file,
+            end: 0,
+            extents: vec![None; keys],
+            written: 0,
+        })
+    }
+
+    /// Whether `key` holds a record.
+    pub fn contains(&self, key: usize) -> bool {
+        self.extents[key].is_some()
+    }
+
+    /// Bytes written so far (compressed), for reports.
+    pub fn written(&self) -> u64 {
+        self.written
+    }
+
+    /// Compresses and stores `bytes` under `key`.
+    pub fn put(&mut self, key: usize, bytes: &[u8]) -> Result<()> {
+        let packed = zstd::bulk::compress(bytes, LEVEL).map_err(|e| Error::io(&self.path, e))?;
+        let stored = packed.len() as u32;
+        let extent = match self.extents[key] {
+            Some(e) if e.capacity >= stored => Extent { stored, ..e },
+            _ => {
+                let e = Extent {
+                    offset: self.end,
+                    stored,
+                    capacity: stored,
+                };
+                self.end += stored as u64;
+                e
+            }
+        };
+        self.file
+            .seek(SeekFrom::Start(extent.offset))
+            .and_then(|_| self.file.write_all(&packed))
+            .map_err(|e| Error::io(&self.path, e))?;
+        self.extents[key] = Some(extent);
+        self.written += stored as u64;
+        Ok(())
+    }
+
+    /// The record under `key`, decompressed to `len` bytes.
+    pub fn get(&mut self, key: usize, len: usize) -> Result<Vec<u8>> {
+        let e = self.extents[key]
+            .ok_or_else(|| Error::Config(format!("scratch record {key} was never written")))?;
+        let mut packed = vec![0u8; e.stored as usize];
+        self.file
+            .seek(SeekFrom::Start(e.offset))
+            .and_then(|_| self.file.read_exact(&mut packed))
+            .map_err(|err| Error::io(&self.path, err))?;
+        let bytes = zstd::bulk::decompress(&packed, len).map_err(|err| Error::io(&self.path, err))?;
+        if bytes.len() != len {
+            return Err(Error::input(
+                &self.path,
+                format!("scratch record {key} holds {} bytes, expected {len}", bytes.len()),
+            ));
+        }
+        Ok(bytes)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn records_round_trip_and_the_file_goes_with_the_store() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("deco.quilt");
+        // a scratch file a dead run left is removed (a process id above
+        // the kernel's largest), one of a live process kept
+        let dead = Scratch::path_for(&out, 4_194_305);
+        let live = Scratch::path_for(&out, 1);
+        std::fs::write(&dead, b"stale").unwrap();
+        std::fs::write(&live, b"busy").unwrap();
+        let mut s = Scratch::create_beside(&out, 3).unwrap();
+        let a: Vec<u8> = (0..5000u32).map(|i| (i * 7 % 251) as u8).collect();
+        let b = vec![9u8; 300];
+        s.put(2, &a).unwrap();
+        s.put(0, &b).unwrap();
+        assert!(s.contains(2) && s.contains(0) && !s.contains(1));
+        assert_eq!(s.get(2, a.len()).unwrap(), a);
+        assert_eq!(s.get(0, b.len()).unwrap(), b);
+        // a rewrite that fits stays in place, a longer one moves
+        s.put(0, &vec![1u8; 300]).unwrap();
+        assert_eq!(s.get(0, 300).unwrap(), vec![1u8; 300]);
+        s.put(0, &a).unwrap();
+        assert_eq!(s.get(0, a.len()).unwrap(), a);
+        assert_eq!(s.get(2, a.len()).unwrap(), a);
+        assert!(s.get(1, 10).is_err());
+        assert!(s.get(2, 10).is_err(), "a wrong length is an error");
+        if Path::new("/proc/self").exists() {
+            assert!(!dead.exists());
+        }
+        assert!(live.exists());
+        let path = Scratch::path_for(&out, std::process::id());
+        assert!(path.exists());
+        drop(s);
+        assert!(!path.exists());
+    }
+}
