@@ -183,21 +183,21 @@ impl Gim {
         Ok(v)
     }
 
-    /// The per-texel surface of the atlas region `(x0, y0, w, h)`, each
-    /// plane row-major: chart, face, position (3 per texel), normal (3).
-    /// Chart and face indices are checked like [`Gim::read`] checks them.
-    pub fn texel_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<TexelRegion> {
+    /// The chart and face planes of the atlas region `(x0, y0, w, h)`
+    /// (row-major), their indices checked like [`Gim::read`] checks them.
+    pub fn chart_face_region(
+        &self,
+        x0: usize,
+        y0: usize,
+        w: usize,
+        h: usize,
+    ) -> Result<(Vec<u32>, Vec<u32>)> {
         let c = &self.container;
         let (o, e) = ([y0 as u64, x0 as u64], [h as u64, w as u64]);
-        let (o3, e3) = ([y0 as u64, x0 as u64, 0], [h as u64, w as u64, 3]);
-        let region = TexelRegion {
-            chart: c.read_region(c.array("chart")?, &o, &e)?,
-            face: c.read_region(c.array("face")?, &o, &e)?,
-            position: c.read_region(c.array("position")?, &o3, &e3)?,
-            normal: c.read_region(c.array("normal")?, &o3, &e3)?,
-        };
+        let chart: Vec<u32> = c.read_region(c.array("chart")?, &o, &e)?;
+        let face: Vec<u32> = c.read_region(c.array("face")?, &o, &e)?;
         let charts = self.charts as u64;
-        for (i, (&ch, &f)) in region.chart.iter().zip(&region.face).enumerate() {
+        for (i, (&ch, &f)) in chart.iter().zip(&face).enumerate() {
             let texel = (y0 + i / w) * self.resolution + x0 + i % w;
             if ch != EMPTY && ch as u64 >= charts {
                 return Err(Error::input(
@@ -217,7 +217,22 @@ impl Gim {
                 ));
             }
         }
-        Ok(region)
+        Ok((chart, face))
+    }
+
+    /// The per-texel surface of the atlas region `(x0, y0, w, h)`, each
+    /// plane row-major: chart, face, position (3 per texel), normal (3).
+    /// Chart and face indices are checked ([`Gim::chart_face_region`]).
+    pub fn texel_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<TexelRegion> {
+        let c = &self.container;
+        let (o3, e3) = ([y0 as u64, x0 as u64, 0], [h as u64, w as u64, 3]);
+        let (chart, face) = self.chart_face_region(x0, y0, w, h)?;
+        Ok(TexelRegion {
+            chart,
+            face,
+            position: c.read_region(c.array("position")?, &o3, &e3)?,
+            normal: c.read_region(c.array("normal")?, &o3, &e3)?,
+        })
     }
 
     /// The repaired input mesh.

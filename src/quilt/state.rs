@@ -391,13 +391,11 @@ impl Surface {
         // a reader of its own: its chunk cache is the pager's business
         let own = Gim::open(gim.container().path(), MemoryBudget(0))?;
         let grid = TileGrid::new(r);
-        let chart = gim.container().array("chart")?;
+        // (every tile's indices are checked here, before the loop starts)
         let (mut covered, mut first_covered) = (vec![0; grid.tiles()], vec![u32::MAX; grid.tiles()]);
         for k in 0..grid.tiles() {
             let (x0, y0, w, h) = grid.region(k);
-            let c: Vec<u32> =
-                gim.container()
-                    .read_region(chart, &[y0 as u64, x0 as u64], &[h as u64, w as u64])?;
+            let (c, _) = gim.chart_face_region(x0, y0, w, h)?;
             for (j, &ch) in c.iter().enumerate() {
                 if ch != EMPTY {
                     covered[k] += 1;
@@ -450,7 +448,8 @@ impl Surface {
                 }
             }
         }
-        unreachable!("n < vertices")
+        // (only if a tile failed to load, whose error ends the loop)
+        0
     }
 
     /// The chart plane of tile `k` (64×64, padding [`EMPTY`]).
@@ -477,7 +476,9 @@ impl Surface {
     }
 
     pub(super) fn texel_angle(&self, t: u32) -> f64 {
-        self.face_angle[self.tiles.read(t, |s, i| s.face[i]) as usize]
+        let face = self.tiles.read(t, |s, i| s.face[i]) as usize;
+        // (a tile that failed to load is blank; its error ends the loop)
+        self.face_angle.get(face).copied().unwrap_or(0.0)
     }
 
     /// Calls `f` for every neighbour of texel `t` in M_d (grid neighbours of
