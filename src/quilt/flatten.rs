@@ -98,7 +98,6 @@ pub(super) fn chart_work_image(
 /// zipper triangles, all wound like the surface; and how many are grid ones.
 pub(super) fn patch_triangles(
     surface: &Surface,
-    state: &State,
     patch: &WorkPatch,
     bfs: &Bfs,
     zipper_triangles: &[[u32; 3]],
@@ -221,13 +220,8 @@ pub(super) fn solve_complex(mut a: Mat<c64>, mut b: Vec<c64>) -> Option<Vec<c64>
 /// texels ≈ 0.4 texel apart on the surface), with a weak prior towards the
 /// unfolding and the seed's chart fixed. Returns work coordinates per patch
 /// vertex.
-pub(super) fn aligned_unfolding(
-    surface: &Surface,
-    state: &State,
-    patch: &WorkPatch,
-    bfs: &Bfs,
-) -> Vec<[f64; 2]> {
-    let (u, _) = unfold(surface, state, patch, bfs);
+pub(super) fn aligned_unfolding(surface: &Surface, patch: &WorkPatch, bfs: &Bfs) -> Vec<[f64; 2]> {
+    let (u, _) = unfold(surface, patch, bfs);
     let patch_charts: Vec<u32> = patch.texels.iter().map(|&t| surface.chart(t)).collect();
     let mut charts = patch_charts.clone();
     charts.sort_unstable();
@@ -480,7 +474,6 @@ pub(super) fn apply_membrane(op: &SparseRowMat<usize, f64>, x: &[f64], out: &mut
 /// cone point).
 pub(super) fn flatten(
     surface: &Surface,
-    state: &State,
     patch: &WorkPatch,
     bfs: &Bfs,
     grid_triangles: &[[u32; 3]],
@@ -488,7 +481,7 @@ pub(super) fn flatten(
 ) -> Option<(Vec<[f64; 2]>, f64)> {
     let r = surface.r;
     let local = |t: u32| bfs.contains(t);
-    let mut uv = aligned_unfolding(surface, state, patch, bfs);
+    let mut uv = aligned_unfolding(surface, patch, bfs);
     close_gaps(surface, patch, bfs, &mut uv, 300);
     let gap = zipper_gap(surface, patch, bfs, &uv);
     // grid triangles have atlas area ½; those touching a chart border are
@@ -673,8 +666,8 @@ pub(super) fn flattened_work_image(
     zipper_triangles: &[[u32; 3]],
     max_distortion: f64,
 ) -> Option<(WorkImage, Vec<[f64; 2]>)> {
-    let (tris, _, grid_count) = patch_triangles(surface, state, patch, bfs, zipper_triangles);
-    let (coords, angle) = flatten(surface, state, patch, bfs, &tris[..grid_count], max_distortion)?;
+    let (tris, _, grid_count) = patch_triangles(surface, patch, bfs, zipper_triangles);
+    let (coords, angle) = flatten(surface, patch, bfs, &tris[..grid_count], max_distortion)?;
     let work = raster_work_image(sample, state, patch, &tris, coords.clone(), angle, surface.r)?;
     Some((work, coords))
 }
@@ -708,7 +701,7 @@ impl Flattening {
                     .map(|k| self.coords[k].1)
             })
             .collect::<Option<_>>()?;
-        let (tris, _, _) = patch_triangles(surface, state, patch, bfs, zipper_triangles);
+        let (tris, _, _) = patch_triangles(surface, patch, bfs, zipper_triangles);
         raster_work_image(sample, state, patch, &tris, coords, self.angle, surface.r)
     }
 }
@@ -724,7 +717,7 @@ pub(super) fn unfolded_work_image(
     patch: &WorkPatch,
     bfs: &Bfs,
 ) -> WorkImage {
-    let (mut coords, angle) = unfold(surface, state, patch, bfs);
+    let (mut coords, angle) = unfold(surface, patch, bfs);
     let (w, h) = shift_to_origin(&mut coords);
     let n = state.n;
     let mut work = WorkImage::blank(w, h, state, coords, angle);
@@ -748,7 +741,7 @@ pub(super) fn unfolded_work_image(
 /// The rigid unfolding of a patch: each chart's part keeps its atlas layout,
 /// turned so the vector field agrees across the zipper it was entered
 /// through. Work coordinates per patch vertex and the mean field angle.
-pub(super) fn unfold(surface: &Surface, state: &State, patch: &WorkPatch, bfs: &Bfs) -> (Vec<[f64; 2]>, f64) {
+pub(super) fn unfold(surface: &Surface, patch: &WorkPatch, bfs: &Bfs) -> (Vec<[f64; 2]>, f64) {
     let r = surface.r;
     let m = patch.texels.len();
     let atlas = |t: u32| [(t as usize % r) as f64, (t as usize / r) as f64];

@@ -243,6 +243,13 @@ pub struct TileReport {
     /// Sample pixels per atlas texel (1 unless resampled to a
     /// [`TileConfig::sample_width`]).
     pub sample_scale: f64,
+    /// The atlas's 64×64 tiles, and how often one was read in (surface and
+    /// state tiles counted apart; above twice the tiles when `--memory`
+    /// made the loop evict some and read them again).
+    pub atlas_tiles: usize,
+    pub tiles_read: u64,
+    /// Compressed bytes written to the scratch store by evictions.
+    pub scratch_bytes: u64,
 }
 
 impl std::fmt::Display for TileReport {
@@ -263,8 +270,12 @@ impl std::fmt::Display for TileReport {
         )?;
         write!(
             f,
-            "; the sample spans {:.4} mesh units ({:.3} sample pixels per texel)",
-            self.sample_width, self.sample_scale
+            "; the sample spans {:.4} mesh units ({:.3} sample pixels per texel); {} atlas tiles read {} times, {} evicted to scratch",
+            self.sample_width,
+            self.sample_scale,
+            self.atlas_tiles,
+            self.tiles_read,
+            crate::container::human_bytes(self.scratch_bytes)
         )
     }
 }

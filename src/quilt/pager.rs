@@ -93,14 +93,6 @@ pub(super) struct Pager<T, S> {
     inner: RefCell<Inner<T, S>>,
 }
 
-/// What a pager did, for reports.
-#[derive(Clone, Copy, Debug, Default)]
-pub(super) struct PagerStats {
-    pub(super) faults: u64,
-    pub(super) resident: usize,
-    pub(super) capacity: usize,
-}
-
 impl<T, S: TileSource<T>> Pager<T, S> {
     /// A pager over an `r`×`r` atlas holding at most `budget` bytes of
     /// tiles of `tile_bytes` each (at least `min_tiles`).
@@ -173,29 +165,23 @@ impl<T, S: TileSource<T>> Pager<T, S> {
         }
     }
 
-    /// Writes every changed resident tile back (they stay resident).
-    pub(super) fn flush(&mut self) -> Result<()> {
-        let inner = self.inner.get_mut();
-        for k in 0..inner.resident.len() {
-            if let Some((tile, dirty @ true)) = &mut inner.resident[k] {
-                inner.source.store(k, tile)?;
-                *dirty = false;
-            }
-        }
-        Ok(())
-    }
-
     pub(super) fn source_mut(&mut self) -> &mut S {
         &mut self.inner.get_mut().source
     }
 
-    pub(super) fn stats(&self) -> PagerStats {
-        let inner = self.inner.borrow();
-        PagerStats {
-            faults: inner.faults,
-            resident: inner.count,
-            capacity: inner.capacity,
-        }
+    pub(super) fn with_source<R>(&self, f: impl FnOnce(&S) -> R) -> R {
+        f(&self.inner.borrow().source)
+    }
+
+    /// How many tiles were read in so far.
+    pub(super) fn faults(&self) -> u64 {
+        self.inner.borrow().faults
+    }
+
+    /// Tiles resident now.
+    #[cfg(test)]
+    pub(super) fn resident(&self) -> usize {
+        self.inner.borrow().count
     }
 }
 
@@ -314,7 +300,7 @@ mod tests {
             for t in 0..(r * r) as u32 {
                 assert_eq!(p.read(t, |tile, i| tile[i]), 2 * t, "capacity {capacity}");
             }
-            assert!(p.stats().resident <= capacity.max(1));
+            assert!(p.resident() <= capacity.max(1));
             p.take_error().unwrap();
         }
     }

@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 use std::path::Path;
 
-use super::pager::{Pager, PagerStats, TileGrid, TileSource, TILE_TEXELS};
+use super::pager::{Pager, TileGrid, TileSource, TILE_TEXELS};
 use super::sample::Sample;
 use crate::artifact::gim::{Gim, ZipperLinks, EMPTY, TILE};
 use crate::artifact::quilt::NO_PATCH;
@@ -18,6 +18,10 @@ use crate::Result;
 
 /// No foreign feature vector (a texel of the active sample).
 pub(super) const NO_FOREIGN: u32 = u32::MAX;
+
+/// Fewest tiles a pager holds whatever the budget (a work patch spans a
+/// few).
+const MIN_TILES: usize = 4;
 
 /// Priority buckets of the "most constrained" choice (synthesized-neighbour
 /// counts; 15 and more share the last).
@@ -176,7 +180,7 @@ impl State {
             scratch: Scratch::create_beside(output, tiles)?,
             target_default: 0.0,
         };
-        let pager = Pager::new(grid.r, source, budget.bytes(), STATE_TILE_BYTES as u64, 16);
+        let pager = Pager::new(grid.r, source, budget.bytes(), STATE_TILE_BYTES as u64, MIN_TILES);
         let mut frontier = Frontier {
             count: vec![[0; BUCKETS]; tiles],
             first: vec![[u32::MAX; BUCKETS]; tiles],
@@ -258,8 +262,14 @@ impl State {
         self.tiles.take_error()
     }
 
-    pub(super) fn stats(&self) -> PagerStats {
-        self.tiles.stats()
+    /// How many tiles were read in so far.
+    pub(super) fn tiles_read(&self) -> u64 {
+        self.tiles.faults()
+    }
+
+    /// Compressed bytes evictions wrote so far.
+    pub(super) fn scratch_bytes(&self) -> u64 {
+        self.tiles.with_source(|s| s.scratch.written())
     }
 
     /// The most constrained unsynthesized texel (lowest id among equals).
@@ -408,7 +418,7 @@ impl Surface {
             covered,
             first_covered,
             r,
-            tiles: Pager::new(r, source, budget.bytes(), SURFACE_TILE_BYTES as u64, 16),
+            tiles: Pager::new(r, source, budget.bytes(), SURFACE_TILE_BYTES as u64, MIN_TILES),
             zippers: ZipperLinks::new(&gim.zipper_links()?),
             unit,
             face_angle: face_angles(gim)?,
@@ -510,8 +520,9 @@ impl Surface {
         self.tiles.take_error()
     }
 
-    pub(super) fn stats(&self) -> PagerStats {
-        self.tiles.stats()
+    /// How many tiles were read in so far.
+    pub(super) fn tiles_read(&self) -> u64 {
+        self.tiles.faults()
     }
 }
 

@@ -841,6 +841,9 @@ impl Synthesis {
             0.0
         };
         self.report.seconds = start.elapsed().as_secs_f64();
+        self.report.atlas_tiles = self.surface.grid().tiles();
+        self.report.tiles_read = self.surface.tiles_read() + self.state.tiles_read();
+        self.report.scratch_bytes = self.state.scratch_bytes();
     }
 }
 

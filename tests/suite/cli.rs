@@ -413,7 +413,8 @@ fn outputs_do_not_depend_on_threads_or_memory() {
             "atlas",
             s(&spot),
             "--resolution",
-            "160",
+            // 16 atlas tiles: at 1 MiB the loop evicts and reads them again
+            "256",
             "-q",
             "-o",
             &gim,

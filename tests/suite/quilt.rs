@@ -300,3 +300,44 @@ fn sample_width_is_the_same_on_the_surface_at_any_resolution() {
     assert!(e.contains("--sample-width") && e.contains("texels"), "{e}");
     assert!(!out.exists());
 }
+
+#[test]
+fn a_budget_that_forces_eviction_changes_no_byte() {
+    // 256² = 16 atlas tiles; 1 MiB leaves the loop a few of them resident
+    let dir = tempfile::tempdir().unwrap();
+    let g = dir.path().join("square.gim");
+    atlas(&square_obj(dir.path()), &g, 256);
+    let sample = brick_crop(dir.path(), 64, None);
+    let run = |memory: u64, threads: usize| {
+        let out = dir.path().join(format!("m{memory}-t{threads}.quilt"));
+        let cfg = TileConfig {
+            memory: MemoryBudget(memory),
+            seed: 5,
+            ..TileConfig::default()
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let report = pool
+            .install(|| quilt::tile(&g, &sample, &out, &cfg, &Silent))
+            .unwrap();
+        eprintln!("{memory} B, {threads} threads: {report}");
+        (std::fs::read(&out).unwrap(), report)
+    };
+    let (small, paged) = run(1 << 20, 1);
+    let (large, held) = run(16 << 30, 2);
+    assert_eq!(paged.atlas_tiles, 16);
+    // every tile read once per pager when all fit; evicted ones again
+    assert_eq!(held.tiles_read, 2 * 16, "{held}");
+    assert_eq!(held.scratch_bytes, 0);
+    assert!(paged.tiles_read > 2 * 16 + 16, "{paged}");
+    assert!(paged.scratch_bytes > 0, "{paged}");
+    assert!(small == large, "the quilt depends on the budget");
+    // the scratch store went with the run
+    let left: Vec<String> = crate::common::listing(dir.path())
+        .into_iter()
+        .filter(|f| f.ends_with(".scratch"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+}
