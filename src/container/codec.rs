@@ -179,7 +179,7 @@ pub fn decode(stored: &[u8], dtype: DType, elements: usize, expect: u64) -> Resu
         Ok(_) => {}
         Err(_) => return Err("not a zstd frame".into()),
     }
-    let shuffled = zstd::bulk::decompress(stored, raw_len).map_err(|e| format!("zstd: {e}"))?;
+    let shuffled = decompress(stored, raw_len).map_err(|e| format!("zstd: {e}"))?;
     if shuffled.len() != raw_len {
         return Err(format!("decoded {} bytes, expected {raw_len}", shuffled.len()));
     }
@@ -224,4 +224,23 @@ mod tests {
         let err = decode(&e.bytes, DType::F32, v.len(), e.checksum ^ 1).unwrap_err();
         assert!(err.contains("checksum"), "{err}");
     }
+}
+
+thread_local! {
+    /// One zstd decompression context per thread: making one per chunk
+    /// costs more than decoding a small chunk.
+    static DECOMPRESSOR: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// zstd-decompresses `stored` into at most `capacity` bytes with this
+/// thread's context.
+pub(crate) fn decompress(stored: &[u8], capacity: usize) -> std::io::Result<Vec<u8>> {
+    DECOMPRESSOR.with(|cell| {
+        let mut cell = cell.borrow_mut();
+        if cell.is_none() {
+            *cell = Some(zstd::bulk::Decompressor::new()?);
+        }
+        cell.as_mut().expect("made above").decompress(stored, capacity)
+    })
 }

@@ -30,6 +30,7 @@ pub struct Scratch {
     end: u64,
     extents: Vec<Option<Extent>>,
     written: u64,
+    compressor: zstd::bulk::Compressor<'static>,
 }
 
 impl Scratch {
@@ -84,12 +85,14 @@ impl Scratch {
             .truncate(true)
             .open(&path)
             .map_err(|e| Error::io(&path, e))?;
+        let compressor = zstd::bulk::Compressor::new(LEVEL).map_err(|e| Error::io(&path, e))?;
         Ok(Scratch {
             path,
             file,
             end: 0,
             extents: vec![None; keys],
             written: 0,
+            compressor,
         })
     }
 
@@ -105,7 +108,10 @@ impl Scratch {
 
     /// Compresses and stores `bytes` under `key`.
     pub fn put(&mut self, key: usize, bytes: &[u8]) -> Result<()> {
-        let packed = zstd::bulk::compress(bytes, LEVEL).map_err(|e| Error::io(&self.path, e))?;
+        let packed = self
+            .compressor
+            .compress(bytes)
+            .map_err(|e| Error::io(&self.path, e))?;
         let stored = packed.len() as u32;
         let extent = match self.extents[key] {
             Some(e) if e.capacity >= stored => Extent { stored, ..e },
@@ -137,7 +143,7 @@ impl Scratch {
             .seek(SeekFrom::Start(e.offset))
             .and_then(|_| self.file.read_exact(&mut packed))
             .map_err(|err| Error::io(&self.path, err))?;
-        let bytes = zstd::bulk::decompress(&packed, len).map_err(|err| Error::io(&self.path, err))?;
+        let bytes = super::codec::decompress(&packed, len).map_err(|err| Error::io(&self.path, err))?;
         if bytes.len() != len {
             return Err(Error::input(
                 &self.path,

@@ -90,25 +90,24 @@ impl StateTile {
     }
 
     fn from_bytes(b: &[u8]) -> StateTile {
-        let mut t = StateTile::blank();
         let mut at = 0;
-        let mut take = |dst: &mut [u8]| {
-            dst.copy_from_slice(&b[at..at + dst.len()]);
-            at += dst.len();
+        let mut take = |bytes: usize| {
+            at += bytes;
+            &b[at - bytes..at]
         };
-        let mut synth = vec![0u8; TILE_TEXELS];
-        take(&mut synth);
-        t.synthesized = synth.iter().map(|&s| s != 0).collect();
-        take(bytemuck::cast_slice_mut(&mut t.coord));
-        take(bytemuck::cast_slice_mut(&mut t.jacobian));
-        take(&mut t.rotation);
-        take(bytemuck::cast_slice_mut(&mut t.patch));
-        take(&mut t.source);
-        take(bytemuck::cast_slice_mut(&mut t.foreign));
-        take(bytemuck::cast_slice_mut(&mut t.mask));
-        take(bytemuck::cast_slice_mut(&mut t.target));
-        take(&mut t.count);
-        t
+        let n = TILE_TEXELS;
+        StateTile {
+            synthesized: take(n).iter().map(|&s| s != 0).collect(),
+            coord: bytemuck::pod_collect_to_vec(take(n * 8)),
+            jacobian: bytemuck::pod_collect_to_vec(take(n * 16)),
+            rotation: take(n).to_vec(),
+            patch: bytemuck::pod_collect_to_vec(take(n * 4)),
+            source: take(n).to_vec(),
+            foreign: bytemuck::pod_collect_to_vec(take(n * 4)),
+            mask: bytemuck::pod_collect_to_vec(take(n * 4)),
+            target: bytemuck::pod_collect_to_vec(take(n * 4)),
+            count: take(n).to_vec(),
+        }
     }
 }
 
@@ -495,20 +494,40 @@ impl Surface {
     /// its chart, then zipper partners); `f`'s second argument says whether
     /// the edge is a zipper link.
     pub(super) fn for_each_neighbour(&self, t: u32, mut f: impl FnMut(u32, bool)) {
-        let c = self.chart(t);
+        let r = self.r;
+        let (x, y) = self.tiles.grid.xy(t);
+        let (lx, ly) = (x % TILE, y % TILE);
+        // the chart of t and of its 4 grid neighbours (NONE off the atlas),
+        // from one tile when they all lie in it
+        const NONE: u32 = EMPTY - 1;
+        let charts: [u32; 5] = if lx > 0 && lx + 1 < TILE && ly > 0 && ly + 1 < TILE && x + 1 < r && y + 1 < r
+        {
+            self.tiles.read(t, |s, i| {
+                [
+                    s.chart[i],
+                    s.chart[i - 1],
+                    s.chart[i + 1],
+                    s.chart[i - TILE],
+                    s.chart[i + TILE],
+                ]
+            })
+        } else {
+            let at = |ok: bool, n: u32| if ok { self.chart(n) } else { NONE };
+            [
+                self.chart(t),
+                at(x > 0, t.wrapping_sub(1)),
+                at(x + 1 < r, t + 1),
+                at(y > 0, t.wrapping_sub(r as u32)),
+                at(y + 1 < r, t + r as u32),
+            ]
+        };
+        let c = charts[0];
         if c == EMPTY {
             return;
         }
-        let r = self.r;
-        let (x, y) = self.tiles.grid.xy(t);
-        let candidates = [
-            (x > 0).then(|| t - 1),
-            (x + 1 < r).then(|| t + 1),
-            (y > 0).then(|| t - r as u32),
-            (y + 1 < r).then(|| t + r as u32),
-        ];
-        for n in candidates.into_iter().flatten() {
-            if self.chart(n) == c {
+        let ids = [t.wrapping_sub(1), t + 1, t.wrapping_sub(r as u32), t + r as u32];
+        for (k, &n) in ids.iter().enumerate() {
+            if charts[k + 1] == c {
                 f(n, false);
             }
         }
