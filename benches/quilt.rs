@@ -6,10 +6,16 @@
 //! writing the `.quilt`. The geometry image and the `.svd` are built in
 //! setup through the library, as `tests/suite/quilt.rs` does. Ten flat samples
 //! of one run each: about 15 s.
+//!
+//! `paged/square400_{resident,evicting}`: the same run with `--memory 16GiB`
+//! (every atlas tile stays resident) and with `--memory 2MiB` (a few of the
+//! 49 atlas tiles resident: the loop evicts tiles to its scratch store and
+//! reads them back), the cost of paging the atlas; both write the same bytes.
 
 use std::time::Duration;
 
 use btfquilt::atlas::{self, AtlasConfig};
+use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, TileConfig};
@@ -51,6 +57,23 @@ fn bench_tile(c: &mut Criterion) {
     group.bench_function("square400_from_brick192", |b| {
         b.iter(|| quilt::tile(&gim_path, &svd, &out, &cfg, &Silent).unwrap())
     });
+    group.finish();
+
+    let mut group = c.benchmark_group("paged");
+    group
+        .sample_size(10)
+        .sampling_mode(SamplingMode::Flat)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(15));
+    for (name, memory) in [("resident", 16u64 << 30), ("evicting", 2 << 20)] {
+        let cfg = TileConfig {
+            memory: MemoryBudget(memory),
+            ..TileConfig::default()
+        };
+        group.bench_function(format!("square400_{name}"), |b| {
+            b.iter(|| quilt::tile(&gim_path, &svd, &out, &cfg, &Silent).unwrap())
+        });
+    }
     group.finish();
 }
 
