@@ -131,7 +131,10 @@ pub fn evaluate(
     let r = quilt.resolution;
     let (patches, index) = (quilt.patches()?, quilt.sample_index()?);
     let chart: Vec<u32> = gim.read("chart")?;
-    let (mut seam, mut inner) = (Vec::new(), Vec::new());
+    // seam steps are kept (their percentiles are reported); steps inside
+    // patches only summed, in the order a list would sum them
+    let mut seam = Vec::new();
+    let (mut inner_sum, mut inner_count) = (0f64, 0usize);
     for y in 0..r {
         for x in 0..r {
             let t = y * r + x;
@@ -146,7 +149,8 @@ pub fn evaluate(
                     if patches[n] != patches[t] {
                         seam.push(diff(&img, t, n));
                     } else {
-                        inner.push(diff(&img, t, n));
+                        inner_sum += diff(&img, t, n);
+                        inner_count += 1;
                     }
                 }
             }
@@ -167,10 +171,11 @@ pub fn evaluate(
         .filter(|l| covered[l[0] as usize] && covered[l[1] as usize])
         .map(|l| diff(&img, l[0] as usize, l[1] as usize))
         .collect();
-    let all_inside: Vec<f64> = inner.iter().chain(&seam).copied().collect();
-    let zipper_ratio = mean(&zip) / mean(&all_inside).max(1e-12) + 0.0;
+    let inner_mean = inner_sum / inner_count.max(1) as f64;
+    let inside_mean = seam.iter().fold(inner_sum, |a, &d| a + d) / (inner_count + seam.len()).max(1) as f64;
+    let zipper_ratio = mean(&zip) / inside_mean.max(1e-12) + 0.0;
     let coherence = coherence(&quilt, &img, &covered, &chart, &index, &previews)?;
-    let seams_fraction = seam.len() as f64 / (seam.len() + inner.len()).max(1) as f64;
+    let seams_fraction = seam.len() as f64 / (seam.len() + inner_count).max(1) as f64;
     let patch_count = {
         let mut p: Vec<u32> = patches.iter().copied().filter(|&p| p != NO_PATCH).collect();
         p.sort_unstable();
@@ -191,13 +196,13 @@ pub fn evaluate(
             median: pct(0.5),
             p95: pct(0.95),
             max: pct(1.0),
-            inside_patches_mean: mean(&inner),
-            ratio_to_inside: mean(&seam) / mean(&inner).max(1e-12),
+            inside_patches_mean: inner_mean,
+            ratio_to_inside: mean(&seam) / inner_mean.max(1e-12),
         },
         zipper: ZipperFigures {
             links: zip.len(),
             mean_colour_difference: mean(&zip),
-            inside_charts_mean: mean(&all_inside),
+            inside_charts_mean: inside_mean,
             ratio: zipper_ratio,
         },
         coherence: CoherenceFigures {

@@ -299,8 +299,8 @@ impl State {
                 }
             });
             let f = &mut self.frontier;
-            for b in 0..BUCKETS {
-                f.total[b] = f.total[b] - f.count[k][b] as u64 + count[b] as u64;
+            for ((total, &old), &new) in f.total.iter_mut().zip(&f.count[k]).zip(&count) {
+                *total = *total - old as u64 + new as u64;
             }
             f.count[k] = count;
             f.first[k] = first;
