@@ -676,41 +676,39 @@ fn apply_stroke(
         let taken = syn.verbatim(vertex, radius, v.angle.to_radians(), centre, None, progress)?;
         report.repainted = taken;
         report.patches = 1;
-        let m0 = syn.target().to_vec();
-        report.region_texels = m0.iter().filter(|&&m| m >= 0.5).count();
-        report.zone_texels = m0.iter().filter(|&&m| m > 0.0).count();
+        (report.region_texels, report.zone_texels) = syn.target_summary();
     } else {
         let region_path = stroke.region.as_deref().expect("checked: a region or verbatim");
         let region = read_region(&syn, &gim, region_path)?;
-        let m0 = constraint_function(&syn, &region, stroke.transition);
-        report.region_texels = region.iter().filter(|&&f| f).count();
-        report.zone_texels = m0.iter().filter(|&&m| m > 0.0).count();
+        let zone = constraint_function(&syn, &region, stroke.transition);
+        report.region_texels = region.len();
+        report.zone_texels = zone.len();
         if report.region_texels == 0 {
             return Err(Error::input(region_path, "marks no texel of the surface"));
         }
-        syn.set_target(&m0);
+        syn.set_target_zone(&zone);
         trace("region");
         // every texel of the zone is re-synthesized once, as the seed or
         // inside (not on the rim of) a work patch; seeds deepest in F first
         // (highest m0, then lowest id), so the first patch lays the feature
         // where it must be and later ones continue it
-        let mut pending: Vec<bool> = m0.iter().map(|&m| m > 0.0).collect();
-        let mut order: Vec<u32> = (0..m0.len() as u32).filter(|&t| pending[t as usize]).collect();
-        order.sort_by(|&a, &b| m0[b as usize].total_cmp(&m0[a as usize]).then(a.cmp(&b)));
+        let mut pending: std::collections::HashSet<u32> = zone.iter().map(|&(t, _)| t).collect();
+        let mut order = zone;
+        order.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+        let order: Vec<u32> = order.into_iter().map(|(t, _)| t).collect();
         let mut left = report.zone_texels;
         let radius0 = syn.radius0();
         progress.begin("paint", left as u64);
         let mut cursor = 0usize;
         while left > 0 {
-            while !pending[order[cursor] as usize] {
+            while !pending.contains(&order[cursor]) {
                 cursor += 1;
             }
             let next = order[cursor] as usize;
             let patch = syn.step(next as u32, radius0, progress)?;
             let rim = patch.depth.iter().copied().max().unwrap_or(0);
             for (&t, &d) in patch.texels.iter().zip(&patch.depth) {
-                if pending[t as usize] && (d < rim || t as usize == next) {
-                    pending[t as usize] = false;
+                if (d < rim || t as usize == next) && pending.remove(&t) {
                     left -= 1;
                     progress.advance(1);
                 }
@@ -719,13 +717,7 @@ fn apply_stroke(
         progress.end();
         trace("painted");
         report.patches = syn.report.patches;
-        let before = base.patches()?;
-        report.repainted = syn
-            .patch_ids()
-            .iter()
-            .zip(&before)
-            .filter(|(a, b)| a != b)
-            .count();
+        report.repainted = syn.changed_patches(base)?;
     }
     let mut log = log.clone();
     log.strokes.push(stroke.clone());
@@ -864,27 +856,30 @@ fn check_stroke(path: &Path, k: usize, point: [f64; 3], radius: f64) -> Result<(
     Ok(())
 }
 
-/// The region F per atlas texel, from a mask PNG, a mesh with vertex paint,
-/// or JSON strokes (by extension).
-fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec<bool>> {
+/// The region F (its texels, ascending), from a mask PNG, a mesh with
+/// vertex paint, or JSON strokes (by extension).
+fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec<u32>> {
     let ext = path
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
     let r = syn.resolution();
-    let chart: Vec<u32> = gim.read("chart")?;
-    let chart = &chart;
+    let texels = |marked: Vec<bool>| -> Vec<u32> {
+        (0..marked.len() as u32).filter(|&t| marked[t as usize]).collect()
+    };
     match ext.as_str() {
         _ if crate::io::imageio::is_image_path(path) => {
             let mask =
                 crate::io::imageio::read_sized_mask(path, r, r, "a region mask must be the atlas size")?;
-            Ok(mask
-                .iter()
-                .zip(chart)
-                .map(|(&m, &c)| c != EMPTY && m >= 0.5)
+            Ok((0..mask.len() as u32)
+                .filter(|&t| mask[t as usize] >= 0.5 && syn.chart(t) != EMPTY)
                 .collect())
         }
-        "ply" | "obj" => vertex_paint_region(gim, chart, path),
+        "ply" | "obj" => Ok(texels(vertex_paint_region(
+            gim,
+            &gim.read::<u32>("chart")?,
+            path,
+        )?)),
         "json" => strokes_region(syn, path),
         _ => Err(Error::input(
             path,
@@ -1039,7 +1034,7 @@ struct StrokeSpec {
 /// F from JSON strokes `[{"point": [x, y, z], "radius": r}, …]`: the union
 /// of geodesic disks on the dense mesh (Dijkstra over its edges with their
 /// 3D lengths, from the vertex nearest each point).
-fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
+fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<u32>> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let bad = |why: &str| Error::input(path, format!("is not a stroke list ({why})"));
     let strokes: Vec<StrokeSpec> = serde_json::from_slice(&bytes)
@@ -1048,8 +1043,9 @@ fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
         return Err(bad("the list is empty"));
     }
     let r = syn.resolution();
-    let mut region = vec![false; r * r];
-    let mut dist = vec![f32::INFINITY; r * r];
+    let mut region = std::collections::BTreeSet::new();
+    // geodesic distance of the texels the current disk reached
+    let mut dist: std::collections::HashMap<u32, f32> = Default::default();
     for (k, s) in strokes.iter().enumerate() {
         let (point, radius) = (s.point, s.radius);
         if !(radius > 0.0 && radius.is_finite()) {
@@ -1059,24 +1055,22 @@ fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
         let source =
             nearest_vertex(syn, point).map_err(|why| Error::input(path, format!("stroke {k}: {why}")))?;
         // Dijkstra bounded by the radius
-        let mut touched = vec![source];
-        dist[source as usize] = 0.0;
+        dist.clear();
+        dist.insert(source, 0.0);
         let mut heap = BinaryHeap::new();
         heap.push((std::cmp::Reverse(OrdF32(0.0)), source));
         while let Some((std::cmp::Reverse(OrdF32(d)), t)) = heap.pop() {
-            if d > dist[t as usize] {
+            if d > dist[&t] {
                 continue;
             }
-            region[t as usize] = true;
+            region.insert(t);
             let p = syn.position(t);
             let mut relax = |nb: u32| {
                 let q = syn.position(nb);
                 let nd = d + ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
-                if nd <= radius as f32 && nd < dist[nb as usize] {
-                    if dist[nb as usize].is_infinite() {
-                        touched.push(nb);
-                    }
-                    dist[nb as usize] = nd;
+                let old = dist.entry(nb).or_insert(f32::INFINITY);
+                if nd <= radius as f32 && nd < *old {
+                    *old = nd;
                     heap.push((std::cmp::Reverse(OrdF32(nd)), nb));
                 }
             };
@@ -1094,11 +1088,8 @@ fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<bool>> {
                 }
             }
         }
-        for t in touched {
-            dist[t as usize] = f32::INFINITY;
-        }
     }
-    Ok(region)
+    Ok(region.into_iter().collect())
 }
 
 /// A totally ordered f32 for the Dijkstra heap.
@@ -1119,36 +1110,29 @@ impl Ord for OrdF32 {
     }
 }
 
-/// The constraint function m0 (§IV): 1 on F, falling linearly to 0 over
-/// `transition` texels of hop distance outside F on the dense mesh.
-fn constraint_function(syn: &Synthesis, region: &[bool], transition: usize) -> Vec<f32> {
-    let mut hops = vec![u32::MAX; region.len()];
-    let mut queue = VecDeque::new();
-    for (t, &f) in region.iter().enumerate() {
-        if f {
-            hops[t] = 0;
-            queue.push_back(t as u32);
-        }
-    }
+/// The constraint function m0 (§IV): 1 on F (`region`, its texels), falling
+/// linearly to 0 over `transition` texels of hop distance outside F on the
+/// dense mesh. Returns the zone where m0 > 0, `(texel, m0)` by texel.
+fn constraint_function(syn: &Synthesis, region: &[u32], transition: usize) -> Vec<(u32, f32)> {
+    let mut hops: std::collections::HashMap<u32, u32> = region.iter().map(|&t| (t, 0)).collect();
+    let mut queue: VecDeque<u32> = region.iter().copied().collect();
     while let Some(t) = queue.pop_front() {
-        let d = hops[t as usize];
+        let d = hops[&t];
         if d as usize >= transition {
             continue;
         }
         syn.for_each_neighbour(t, |nb, _| {
-            if hops[nb as usize] == u32::MAX {
-                hops[nb as usize] = d + 1;
+            if let std::collections::hash_map::Entry::Vacant(e) = hops.entry(nb) {
+                e.insert(d + 1);
                 queue.push_back(nb);
             }
         });
     }
-    hops.iter()
-        .map(|&d| {
-            if d == u32::MAX {
-                0.0
-            } else {
-                (1.0 - d as f32 / (transition as f32 + 1.0)).max(0.0)
-            }
-        })
-        .collect()
+    let mut zone: Vec<(u32, f32)> = hops
+        .into_iter()
+        .map(|(t, d)| (t, (1.0 - d as f32 / (transition as f32 + 1.0)).max(0.0)))
+        .filter(|&(_, m)| m > 0.0)
+        .collect();
+    zone.sort_unstable_by_key(|e| e.0);
+    zone
 }

@@ -207,8 +207,13 @@ impl State {
 
     /// Sets m0 = `value` everywhere.
     pub(super) fn constrain_everywhere(&mut self, value: f32) {
+        // unconstrained, every tile holds the default m0 still
+        let unchanged = !self.constrained && self.tiles.with_source(|s| s.target_default) == value;
         self.constrained = true;
         self.tiles.source_mut().target_default = value;
+        if unchanged {
+            return;
+        }
         // tiles already made hold their own m0
         for k in 0..self.tiles.grid.tiles() {
             if self.tiles.made(k) {

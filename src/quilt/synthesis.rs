@@ -15,7 +15,7 @@ use super::placement::{
     REFINE_SPACING,
 };
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
-use super::state::{Bfs, State, StateTile, Surface, WorkPatch, NO_FOREIGN};
+use super::state::{Bfs, State, Surface, WorkPatch, NO_FOREIGN};
 use super::write::write_quilt;
 use super::{TileConfig, TileReport};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
@@ -162,42 +162,58 @@ impl Synthesis {
         }
     }
 
-    /// Sets the constraint function m0 per atlas texel.
-    pub(crate) fn set_target(&mut self, m0: &[f32]) {
-        self.state.constrained = true;
+    /// Sets m0 to the given values on a zone (`(texel, m0)`), 0 elsewhere.
+    pub(crate) fn set_target_zone(&mut self, zone: &[(u32, f32)]) {
+        self.state.constrain_everywhere(0.0);
+        for &(t, m) in zone {
+            self.state.texel_mut(t, |s, k| s.target[k] = m);
+        }
+    }
+
+    /// Texels with m0 ≥ ½ (the region F) and with m0 > 0 (F and its
+    /// transition zone).
+    pub(crate) fn target_summary(&self) -> (usize, usize) {
+        if !self.state.constrained {
+            return (0, 0);
+        }
         let grid = self.surface.grid();
+        let (mut region, mut zone) = (0, 0);
         for k in 0..grid.tiles() {
-            let (x0, y0, w, h) = grid.region(k);
-            self.state.tile_mut(k, |s| {
+            let (_, _, w, h) = grid.region(k);
+            self.state.tile(k, |s| {
                 for y in 0..h {
-                    let row = (y0 + y) * grid.r + x0;
-                    s.target[y * TILE..y * TILE + w].copy_from_slice(&m0[row..row + w]);
+                    for m in &s.target[y * TILE..y * TILE + w] {
+                        region += (*m >= 0.5) as usize;
+                        zone += (*m > 0.0) as usize;
+                    }
                 }
             });
         }
+        (region, zone)
+    }
+
+    /// Texels whose patch id differs from `base`'s.
+    pub(crate) fn changed_patches(&self, base: &Quilt) -> Result<usize> {
+        let grid = self.surface.grid();
+        let mut changed = 0;
+        for k in 0..grid.tiles() {
+            let (x0, y0, w, h) = grid.region(k);
+            let before = base.texel_region(x0, y0, w, h)?.patch;
+            self.state.tile(k, |s| {
+                for y in 0..h {
+                    for x in 0..w {
+                        changed += (s.patch[y * TILE + x] != before[y * w + x]) as usize;
+                    }
+                }
+            });
+        }
+        Ok(changed)
     }
 
     /// Sets m0 = 0 everywhere (a foreground mask keeps the foreground out
     /// of the whole surface), before the loop starts.
     pub(crate) fn constrain_to_background(&mut self) {
         self.state.constrain_everywhere(0.0);
-    }
-
-    /// A per-texel plane of the state over the whole atlas.
-    fn plane<T: Copy + Default>(&self, f: impl Fn(&StateTile, usize) -> T) -> Vec<T> {
-        let grid = self.surface.grid();
-        let mut out = vec![T::default(); grid.r * grid.r];
-        for k in 0..grid.tiles() {
-            let (x0, y0, w, h) = grid.region(k);
-            self.state.tile(k, |s| {
-                for y in 0..h {
-                    for x in 0..w {
-                        out[(y0 + y) * grid.r + x0 + x] = f(s, y * TILE + x);
-                    }
-                }
-            });
-        }
-        out
     }
 
     /// Resolution R of the atlas.
@@ -221,22 +237,9 @@ impl Synthesis {
         self.surface.position(t).map(|c| c / self.surface.unit)
     }
 
-    /// The constraint function m0 over the atlas (empty when unconstrained).
-    pub(crate) fn target(&self) -> Vec<f32> {
-        if !self.state.constrained {
-            return Vec::new();
-        }
-        self.plane(|s, i| s.target[i])
-    }
-
     /// The sample's width and foreground mask (empty without one).
     pub(crate) fn sample_mask(&self) -> (usize, &[f32]) {
         (self.sample.width, self.sample.mask.as_deref().unwrap_or(&[]))
-    }
-
-    /// Patch id per texel.
-    pub(crate) fn patch_ids(&self) -> Vec<u32> {
-        self.plane(|s, i| s.patch[i])
     }
 
     /// Starts from a decorated surface: its coordinates, rotations, patch
