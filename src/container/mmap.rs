@@ -36,6 +36,10 @@ use memmap2::{Mmap, UncheckedAdvice};
 
 /// After this many bytes read through the map, its pages are released.
 const RELEASE_EVERY: u64 = 32 << 20;
+/// Each read counts as at least this many bytes: a fault may map a whole
+/// page-cache folio (up to megabytes) around a small chunk, so many small
+/// reads map far more than they read.
+const READ_CHARGE: u64 = RELEASE_EVERY / 32;
 
 /// Read-only random access to the bytes of one file.
 pub(crate) enum ByteSource {
@@ -96,9 +100,10 @@ impl ByteSource {
                 // Decoded chunks live in the cache; mapped pages would only
                 // add to resident memory (and the kernel maps whole page-cache
                 // folios around each fault, far beyond the chunk read). Every
-                // RELEASE_EVERY bytes, let the kernel drop them all, so resident
+                // RELEASE_EVERY bytes (or 32 reads), let the kernel drop them all, so resident
                 // memory stays bounded by the cache budget, not the file size.
-                if since_release.fetch_add(len as u64, Ordering::Relaxed) + len as u64 >= RELEASE_EVERY {
+                let charge = (len as u64).max(READ_CHARGE);
+                if since_release.fetch_add(charge, Ordering::Relaxed) + charge >= RELEASE_EVERY {
                     since_release.store(0, Ordering::Relaxed);
                     // SAFETY: MADV_DONTNEED on a read-only, file-backed mapping
                     // only discards this process's page-table entries; the next
