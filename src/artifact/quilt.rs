@@ -305,18 +305,56 @@ impl Quilt {
     /// surface of one sample).
     pub fn texel_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<QuiltRegion> {
         let c = &self.container;
-        let (o, e) = ([y0 as u64, x0 as u64], [h as u64, w as u64]);
-        let plane = |name: &str, k: u64| -> Result<Vec<f32>> {
-            c.read_region(
-                c.array(name)?,
-                &[y0 as u64, x0 as u64, 0],
-                &[h as u64, w as u64, k],
-            )
-        };
-        let coord = plane("coord", 2)?;
-        let jacobian = plane("jacobian", 4)?;
+        let jacobian: Vec<f32> = c.read_region(
+            c.array("jacobian")?,
+            &[y0 as u64, x0 as u64, 0],
+            &[h as u64, w as u64, 4],
+        )?;
+        Ok(QuiltRegion {
+            coord: self.coord_region(x0, y0, w, h)?,
+            jacobian: jacobian
+                .chunks_exact(4)
+                .map(|v| [v[0], v[1], v[2], v[3]])
+                .collect(),
+            patch: self.patch_region(x0, y0, w, h)?,
+            rotation: self.rotation_region(x0, y0, w, h)?,
+            sample: self.sample_region(x0, y0, w, h)?,
+        })
+    }
+
+    /// The sample coordinates of the atlas region `(x0, y0, w, h)`, row-major.
+    pub fn coord_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<Vec<[f32; 2]>> {
+        let c = &self.container;
+        let v: Vec<f32> = c.read_region(
+            c.array("coord")?,
+            &[y0 as u64, x0 as u64, 0],
+            &[h as u64, w as u64, 2],
+        )?;
+        Ok(v.chunks_exact(2).map(|v| [v[0], v[1]]).collect())
+    }
+
+    /// The patch ids of the atlas region `(x0, y0, w, h)`, row-major.
+    pub fn patch_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<Vec<u32>> {
+        let c = &self.container;
+        c.read_region(c.array("patch")?, &[y0 as u64, x0 as u64], &[h as u64, w as u64])
+    }
+
+    /// The rotation indices of the atlas region `(x0, y0, w, h)`, row-major.
+    pub fn rotation_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<Vec<u8>> {
+        let c = &self.container;
+        c.read_region(
+            c.array("rotation")?,
+            &[y0 as u64, x0 as u64],
+            &[h as u64, w as u64],
+        )
+    }
+
+    /// The sample indices of the atlas region `(x0, y0, w, h)`, row-major,
+    /// checked against the samples (all 0 for a surface of one sample).
+    pub fn sample_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<Vec<u8>> {
+        let c = &self.container;
         let sample = match c.array("sample") {
-            Ok(id) => c.read_region(id, &o, &e)?,
+            Ok(id) => c.read_region(id, &[y0 as u64, x0 as u64], &[h as u64, w as u64])?,
             Err(_) => vec![0u8; w * h],
         };
         if sample.iter().any(|&k| k as usize >= self.samples.len()) {
@@ -328,16 +366,7 @@ impl Quilt {
                 ),
             ));
         }
-        Ok(QuiltRegion {
-            coord: coord.chunks_exact(2).map(|v| [v[0], v[1]]).collect(),
-            jacobian: jacobian
-                .chunks_exact(4)
-                .map(|v| [v[0], v[1], v[2], v[3]])
-                .collect(),
-            patch: c.read_region(c.array("patch")?, &o, &e)?,
-            rotation: c.read_region(c.array("rotation")?, &o, &e)?,
-            sample,
-        })
+        Ok(sample)
     }
 
     /// Which sample the recorded `sample_mask` belongs to (the last painted

@@ -674,6 +674,44 @@ pub fn write_png(path: &Path, img: &RgbImage, depth: PngDepth) -> Result<()> {
     }
 }
 
+/// Writes an 8-bit RGB PNG band by band, encoded as [`write_png`] encodes:
+/// `next` returns the following rows of linear RGB (whole rows, `width * 3`
+/// values each) until `height` rows are written, so only one band is held at
+/// a time. Staged like every output.
+pub fn write_png_bands<F>(path: &Path, width: usize, height: usize, mut next: F) -> Result<()>
+where
+    F: FnMut() -> Result<Vec<f32>>,
+{
+    check_write(path, width, height, 3, width * height * 3)?;
+    let (w, h) = dims_u32(path, width, height)?;
+    let png_err = |e: png::EncodingError| Error::input(path, format!("cannot encode PNG: {e}"));
+    write_atomic(path, |out| {
+        let mut encoder = png::Encoder::new(out, w, h);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        encoder.set_compression(png::Compression::Balanced);
+        encoder.set_filter(png::Filter::Adaptive);
+        let mut writer = encoder.write_header().map_err(png_err)?;
+        let mut stream = writer.stream_writer().map_err(png_err)?;
+        let mut rows = 0;
+        while rows < height {
+            let band = next()?;
+            if band.is_empty() || band.len() % (width * 3) != 0 || rows + band.len() / (width * 3) > height {
+                return Err(Error::Config(format!(
+                    "{}: a band of {} values for rows of {width} RGB pixels from row {rows} of {height}",
+                    path.display(),
+                    band.len()
+                )));
+            }
+            rows += band.len() / (width * 3);
+            let bytes: Vec<u8> = band.iter().map(|&v| encode_srgb(v, 255.0) as u8).collect();
+            stream.write_all(&bytes).map_err(|e| Error::io(path, e))?;
+        }
+        stream.finish().map_err(png_err)?;
+        writer.finish().map_err(png_err)
+    })
+}
+
 /// Write an 8-bit grey PNG from values 0..1 (clamped, rounded), no sRGB encoding.
 pub fn write_mask_png(path: &Path, width: usize, height: usize, values: &[f32]) -> Result<()> {
     check_write(path, width, height, 1, values.len())?;
@@ -806,8 +844,40 @@ pub fn linear_to_srgb(v: f32) -> f32 {
 
 /// Fills empty texels from their filled neighbours, ring by ring, so
 /// mipmapping never blends in the background; what is still empty after
-/// `passes` rings gets the mean colour.
+/// `passes` rings gets the mean colour of the covered texels.
 pub fn dilate(img: &mut RgbImage, covered: &[bool], passes: usize) {
+    let mut mean = CoveredMean::default();
+    mean.add(&img.data, covered);
+    dilate_with(img, covered, passes, mean.colour());
+}
+
+/// The mean colour of covered texels, summed in texel order (so a sum over
+/// bands in order equals the sum over the whole image, bit for bit).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CoveredMean {
+    sum: [f64; 3],
+    n: usize,
+}
+
+impl CoveredMean {
+    /// Adds the covered texels of RGB `data`.
+    pub fn add(&mut self, data: &[f32], covered: &[bool]) {
+        for (t, _) in covered.iter().enumerate().filter(|(_, &c)| c) {
+            for k in 0..3 {
+                self.sum[k] += data[t * 3 + k] as f64;
+            }
+            self.n += 1;
+        }
+    }
+
+    /// The mean (0 when nothing is covered).
+    pub fn colour(&self) -> [f32; 3] {
+        self.sum.map(|s| (s / self.n.max(1) as f64) as f32)
+    }
+}
+
+/// [`dilate`], with `fill` for what is still empty after `passes` rings.
+pub fn dilate_with(img: &mut RgbImage, covered: &[bool], passes: usize, fill: [f32; 3]) {
     let (w, h) = (img.width, img.height);
     let mut filled = covered.to_vec();
     for _ in 0..passes {
@@ -856,20 +926,9 @@ pub fn dilate(img: &mut RgbImage, covered: &[bool], passes: usize) {
             break;
         }
     }
-    let (mut mean, mut n) = ([0f64; 3], 0usize);
-    for t in 0..w * h {
-        if covered[t] {
-            for k in 0..3 {
-                mean[k] += img.data[t * 3 + k] as f64;
-            }
-            n += 1;
-        }
-    }
     for t in 0..w * h {
         if !filled[t] {
-            for k in 0..3 {
-                img.data[t * 3 + k] = (mean[k] / n.max(1) as f64) as f32;
-            }
+            img.data[t * 3..t * 3 + 3].copy_from_slice(&fill);
         }
     }
 }

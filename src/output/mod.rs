@@ -82,29 +82,22 @@ pub fn open_samples(quilt: &Quilt, first: Option<&Path>, budget: MemoryBudget) -
     Ok(out)
 }
 
+/// Rows an output command reads and computes at a time: one row of the
+/// quilt's chunks, so a band decodes each chunk once.
+pub(crate) const BAND_ROWS: usize = crate::artifact::gim::TILE;
+
 /// The atlas-space preview colour of a quilt, `(image, covered mask)`:
 /// each texel looks its colour up in the preview of its own sample
-/// (`previews` in [`Quilt::samples`] order).
+/// (`previews` in [`Quilt::samples`] order). Built band by band, so only
+/// the image itself is held whole.
 pub fn atlas_colour(quilt: &Quilt, previews: &[RgbImage]) -> Result<(RgbImage, Vec<bool>)> {
     let r = quilt.resolution;
-    let coords = quilt.coords()?;
-    let patches = quilt.patches()?;
-    let index = quilt.sample_index()?;
-    if previews.len() != quilt.samples.len() {
-        return Err(Error::Config(format!(
-            "{} previews for the {} samples of {}",
-            previews.len(),
-            quilt.samples.len(),
-            quilt.container().path().display()
-        )));
-    }
-    let mut data = vec![0f32; r * r * 3];
-    let covered: Vec<bool> = patches.iter().map(|&p| p != NO_PATCH).collect();
-    for t in 0..r * r {
-        if covered[t] {
-            let c = imageio::bilinear(&previews[index[t] as usize], coords[t][0], coords[t][1]);
-            data[t * 3..t * 3 + 3].copy_from_slice(&c);
-        }
+    let mut data = Vec::with_capacity(r * r * 3);
+    let mut covered = Vec::with_capacity(r * r);
+    for y0 in (0..r).step_by(BAND_ROWS) {
+        let (rows, c) = colour_rows(quilt, previews, y0, (y0 + BAND_ROWS).min(r))?;
+        data.extend_from_slice(&rows);
+        covered.extend_from_slice(&c);
     }
     Ok((
         RgbImage {
@@ -114,4 +107,36 @@ pub fn atlas_colour(quilt: &Quilt, previews: &[RgbImage]) -> Result<(RgbImage, V
         },
         covered,
     ))
+}
+
+/// Rows `y0..y1` of [`atlas_colour`]: RGB values row-major (0 where no
+/// patch covers the texel) and the covered mask.
+pub fn colour_rows(
+    quilt: &Quilt,
+    previews: &[RgbImage],
+    y0: usize,
+    y1: usize,
+) -> Result<(Vec<f32>, Vec<bool>)> {
+    let r = quilt.resolution;
+    if previews.len() != quilt.samples.len() {
+        return Err(Error::Config(format!(
+            "{} previews for the {} samples of {}",
+            previews.len(),
+            quilt.samples.len(),
+            quilt.container().path().display()
+        )));
+    }
+    let h = y1 - y0;
+    let coords = quilt.coord_region(0, y0, r, h)?;
+    let patches = quilt.patch_region(0, y0, r, h)?;
+    let index = quilt.sample_region(0, y0, r, h)?;
+    let mut data = vec![0f32; r * h * 3];
+    let covered: Vec<bool> = patches.iter().map(|&p| p != NO_PATCH).collect();
+    for t in 0..r * h {
+        if covered[t] {
+            let c = imageio::bilinear(&previews[index[t] as usize], coords[t][0], coords[t][1]);
+            data[t * 3..t * 3 + 3].copy_from_slice(&c);
+        }
+    }
+    Ok((data, covered))
 }

@@ -341,3 +341,49 @@ fn a_budget_that_forces_eviction_changes_no_byte() {
         .collect();
     assert!(left.is_empty(), "{left:?}");
 }
+
+#[test]
+fn the_baked_atlas_in_bands_equals_the_whole_image_dilated() {
+    // Spot at 256²: 4 bands of 64 rows whose borders cross charts, gutter,
+    // and empty atlas farther than the dilation reaches
+    let dir = tempfile::tempdir().unwrap();
+    let g = dir.path().join("spot.gim");
+    atlas(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj"),
+        &g,
+        256,
+    );
+    let sample = brick_crop(dir.path(), 48, None);
+    let out = dir.path().join("s.quilt");
+    let cfg = TileConfig {
+        seed: 2,
+        ..TileConfig::default()
+    };
+    quilt::tile(&g, &sample, &out, &cfg, &Silent).unwrap();
+    // the oracle: the whole atlas's colour, dilated as one image
+    let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
+    let samples = btfquilt::output::open_samples(&q, None, MemoryBudget::default()).unwrap();
+    let previews: Vec<_> = samples.iter().map(|s| s.svd.preview().unwrap()).collect();
+    let (mut whole, covered) = btfquilt::output::atlas_colour(&q, &previews).unwrap();
+    assert!(covered.iter().any(|&c| !c), "no gutter to dilate");
+    imageio::dilate(&mut whole, &covered, 16);
+    for ext in ["png", "exr"] {
+        let want = dir.path().join(format!("want.{ext}"));
+        imageio::write_rgb(&want, &whole).unwrap();
+        for memory in [1 << 20, 16 << 30] {
+            let got = dir.path().join(format!("got{memory}.{ext}"));
+            btfquilt::output::bake::bake(&out, None, &got, MemoryBudget(memory)).unwrap();
+            let (a, b) = (
+                imageio::read_rgb(&want).unwrap(),
+                imageio::read_rgb(&got).unwrap(),
+            );
+            assert_eq!((a.width, a.height), (256, 256));
+            let same = a
+                .data
+                .iter()
+                .zip(&b.data)
+                .all(|(x, y)| x.to_bits() == y.to_bits());
+            assert!(same, "{ext} at {memory} B differs from the whole image");
+        }
+    }
+}
