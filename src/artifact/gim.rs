@@ -235,6 +235,17 @@ impl Gim {
         })
     }
 
+    /// The 3D positions of the atlas region `(x0, y0, w, h)`, row-major, three
+    /// values a texel.
+    pub fn position_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<Vec<f32>> {
+        let c = &self.container;
+        c.read_region(
+            c.array("position")?,
+            &[y0 as u64, x0 as u64, 0],
+            &[h as u64, w as u64, 3],
+        )
+    }
+
     /// The repaired input mesh.
     pub fn mesh(&self) -> Result<Mesh> {
         let p: Vec<f32> = self.read("mesh_positions")?;

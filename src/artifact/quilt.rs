@@ -349,6 +349,21 @@ impl Quilt {
         )
     }
 
+    /// The constraint function m0 of the last stroke (§IV) over the atlas
+    /// region `(x0, y0, w, h)`, row-major (`None` for a surface that was not
+    /// painted).
+    pub fn constraint_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<Option<Vec<f32>>> {
+        let c = &self.container;
+        let Ok(id) = c.array("region") else {
+            return Ok(None);
+        };
+        Ok(Some(c.read_region(
+            id,
+            &[y0 as u64, x0 as u64],
+            &[h as u64, w as u64],
+        )?))
+    }
+
     /// The sample indices of the atlas region `(x0, y0, w, h)`, row-major,
     /// checked against the samples (all 0 for a surface of one sample).
     pub fn sample_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<Vec<u8>> {

@@ -14,17 +14,18 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use crate::artifact::gim::EMPTY;
+use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::MemoryBudget;
 use crate::factorize::rotate_maps;
 use crate::io::imageio::RgbImage;
-use crate::output::{atlas_colour, open_samples, OpenSample};
+use crate::output::{colour_rows, open_samples, OpenSample, BAND_ROWS};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
 
-fn diff(img: &RgbImage, a: usize, b: usize) -> f64 {
+/// The RGB distance between texels `a` and `b` of `colour` (3 values a texel).
+fn diff(colour: &[f32], a: usize, b: usize) -> f64 {
     (0..3)
-        .map(|k| ((img.data[a * 3 + k] - img.data[b * 3 + k]) as f64).powi(2))
+        .map(|k| ((colour[a * 3 + k] - colour[b * 3 + k]) as f64).powi(2))
         .sum::<f64>()
         .sqrt()
 }
@@ -113,7 +114,9 @@ pub struct PaintingFigures {
     pub foreground_outside_region_and_transition: f64,
 }
 
-/// Computes the figures.
+/// Computes the figures, reading the atlas in bands of [`BAND_ROWS`] rows
+/// (and the row below each), so memory follows the band, the seam edges and
+/// the zipper links, not the atlas.
 pub fn evaluate(
     quilt_path: &Path,
     gim_path: Option<&Path>,
@@ -127,33 +130,48 @@ pub fn evaluate(
         .iter()
         .map(|s| s.svd.preview())
         .collect::<Result<Vec<_>>>()?;
-    let (img, covered) = atlas_colour(&quilt, &previews)?;
     let r = quilt.resolution;
-    let (patches, index) = (quilt.patches()?, quilt.sample_index()?);
-    let chart: Vec<u32> = gim.read("chart")?;
+    let links = gim.zipper_links()?;
+    let mut zipper = ZipperEnds::new(&links);
+    let mut windows = Windows::new(r);
+    let mut painting = Painting::open(&quilt, &samples)?;
+    let mut patch_ids = std::collections::HashSet::new();
+    let mut texels = 0usize;
     // seam steps are kept (their percentiles are reported); steps inside
     // patches only summed, in the order a list would sum them
     let mut seam = Vec::new();
     let (mut inner_sum, mut inner_count) = (0f64, 0usize);
-    for y in 0..r {
-        for x in 0..r {
-            let t = y * r + x;
-            if chart[t] == EMPTY || !covered[t] {
+    for y0 in (0..r).step_by(BAND_ROWS) {
+        let y1 = (y0 + BAND_ROWS).min(r);
+        let b = ColourBand::read(&quilt, &gim, &previews, y0, y1)?;
+        let own = (y1 - y0) * r;
+        for t in 0..own {
+            let (x, y) = (t % r, y0 + t / r);
+            texels += b.covered[t] as usize;
+            if b.patch[t] != NO_PATCH {
+                patch_ids.insert(b.patch[t]);
+            }
+            if b.chart[t] == EMPTY || !b.covered[t] {
                 continue;
             }
             for n in [(x + 1 < r).then(|| t + 1), (y + 1 < r).then(|| t + r)]
                 .into_iter()
                 .flatten()
             {
-                if chart[n] == chart[t] && covered[n] {
-                    if patches[n] != patches[t] {
-                        seam.push(diff(&img, t, n));
+                if b.chart[n] == b.chart[t] && b.covered[n] {
+                    if b.patch[n] != b.patch[t] {
+                        seam.push(diff(&b.colour, t, n));
                     } else {
-                        inner_sum += diff(&img, t, n);
+                        inner_sum += diff(&b.colour, t, n);
                         inner_count += 1;
                     }
                 }
             }
+        }
+        zipper.gather(&b, r);
+        windows.gather(&b, r);
+        if let Some(p) = painting.as_mut() {
+            p.count(&quilt, &b, r)?;
         }
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
@@ -165,30 +183,22 @@ pub fn evaluate(
             .copied()
             .unwrap_or(0.0)
     };
-    let links = gim.zipper_links()?;
-    let zip: Vec<f64> = links
-        .iter()
-        .filter(|l| covered[l[0] as usize] && covered[l[1] as usize])
-        .map(|l| diff(&img, l[0] as usize, l[1] as usize))
-        .collect();
+    let zip = zipper.differences(&links);
     let inner_mean = inner_sum / inner_count.max(1) as f64;
     let inside_mean = seam.iter().fold(inner_sum, |a, &d| a + d) / (inner_count + seam.len()).max(1) as f64;
     let zipper_ratio = mean(&zip) / inside_mean.max(1e-12) + 0.0;
-    let coherence = coherence(&quilt, &img, &covered, &chart, &index, &previews)?;
-    let seams_fraction = seam.len() as f64 / (seam.len() + inner_count).max(1) as f64;
-    let patch_count = {
-        let mut p: Vec<u32> = patches.iter().copied().filter(|&p| p != NO_PATCH).collect();
-        p.sort_unstable();
-        p.dedup();
-        p.len()
+    let steps = match quilt.container().metadata().param("rotations") {
+        Some(crate::container::Param::Int(v)) if *v > 0 => *v as usize,
+        _ => 72,
     };
-    let painting = painting_measures(&quilt, &chart, &samples)?;
+    let coherence = windows.coherence(&previews, steps);
+    let seams_fraction = seam.len() as f64 / (seam.len() + inner_count).max(1) as f64;
     let width = previews.first().map_or(0, |p| p.width);
-    let scale = scale(&quilt, &gim, &chart, &patches, &index, width)?;
+    let scale = scale(&quilt, &gim, width)?;
     Ok(EvaluateReport {
-        texels: covered.iter().filter(|&&c| c).count(),
-        patches: patch_count,
-        painting,
+        texels,
+        patches: patch_ids.len(),
+        painting: painting.map(|p| p.figures()),
         seam: SeamFigures {
             edges: seam.len(),
             fraction_of_edges: seams_fraction,
@@ -213,23 +223,312 @@ pub fn evaluate(
     })
 }
 
+/// Atlas rows `y0..y1` and the row below (when there is one): preview
+/// colour, covered mask, patch, sample index and chart, row-major from `y0`.
+struct ColourBand {
+    y0: usize,
+    /// Texels of the band's own rows (`(y1 - y0) * r`).
+    own: usize,
+    colour: Vec<f32>,
+    covered: Vec<bool>,
+    patch: Vec<u32>,
+    index: Vec<u8>,
+    chart: Vec<u32>,
+    rotation: Vec<u8>,
+}
+
+impl ColourBand {
+    fn read(quilt: &Quilt, gim: &Gim, previews: &[RgbImage], y0: usize, y1: usize) -> Result<ColourBand> {
+        let r = quilt.resolution;
+        let hi = (y1 + 1).min(r);
+        let (colour, covered) = colour_rows(quilt, previews, y0, hi)?;
+        Ok(ColourBand {
+            y0,
+            own: (y1 - y0) * r,
+            colour,
+            covered,
+            patch: quilt.patch_region(0, y0, r, hi - y0)?,
+            index: quilt.sample_region(0, y0, r, hi - y0)?,
+            chart: gim.chart_face_region(0, y0, r, hi - y0)?.0,
+            rotation: quilt.rotation_region(0, y0, r, hi - y0)?,
+        })
+    }
+}
+
+/// The colour and coverage of every zipper link's two texels, gathered band
+/// by band (links cross charts, so their ends lie anywhere in the atlas).
+struct ZipperEnds {
+    /// Texels at an end of a link, ascending.
+    texels: Vec<u32>,
+    colour: Vec<f32>,
+    covered: Vec<bool>,
+}
+
+impl ZipperEnds {
+    fn new(links: &[[u32; 2]]) -> ZipperEnds {
+        let mut texels: Vec<u32> = links.iter().flatten().copied().collect();
+        texels.sort_unstable();
+        texels.dedup();
+        ZipperEnds {
+            colour: vec![0.0; texels.len() * 3],
+            covered: vec![false; texels.len()],
+            texels,
+        }
+    }
+
+    fn gather(&mut self, b: &ColourBand, r: usize) {
+        let (lo, hi) = ((b.y0 * r) as u64, (b.y0 * r + b.own) as u64);
+        let first = self.texels.partition_point(|&t| (t as u64) < lo);
+        let last = self.texels.partition_point(|&t| (t as u64) < hi);
+        for i in first..last {
+            let t = self.texels[i] as usize - b.y0 * r;
+            self.covered[i] = b.covered[t];
+            self.colour[i * 3..i * 3 + 3].copy_from_slice(&b.colour[t * 3..t * 3 + 3]);
+        }
+    }
+
+    /// The colour difference across each link whose two texels are covered,
+    /// in link order.
+    fn differences(&self, links: &[[u32; 2]]) -> Vec<f64> {
+        let at = |t: u32| self.texels.binary_search(&t).ok();
+        links
+            .iter()
+            .filter_map(|l| Some((at(l[0])?, at(l[1])?)))
+            .filter(|&(a, b)| self.covered[a] && self.covered[b])
+            .map(|(a, b)| diff(&self.colour, a, b))
+            .collect()
+    }
+}
+
+/// Candidate 5×5 output windows for the coherence figure, at seeded places
+/// (the same sequence at any band size), gathered band by band.
+struct Windows {
+    /// Each candidate's centre texel, in the seeded order.
+    centres: Vec<usize>,
+    /// Per candidate and window texel (row-major 5×5): colour, covered,
+    /// chart, sample index; and the centre's rotation.
+    colour: Vec<f32>,
+    covered: Vec<bool>,
+    chart: Vec<u32>,
+    index: Vec<u8>,
+    rotation: Vec<u8>,
+    /// `(atlas row, candidate, window row)`, by atlas row.
+    rows: Vec<(usize, usize, usize)>,
+    next_row: usize,
+}
+
+/// How many seeded places the coherence figure tries, and how many windows
+/// it measures at most.
+const WINDOW_TRIES: u64 = 20_000;
+const WINDOWS: usize = 200;
+
+impl Windows {
+    fn new(r: usize) -> Windows {
+        let centres: Vec<usize> = (1..=WINDOW_TRIES)
+            .map(|k| (crate::rng::mix64(k) % (r * r) as u64) as usize)
+            .filter(|&t| {
+                let (x, y) = (t % r, t / r);
+                !(x < 2 || y < 2 || x + 2 >= r || y + 2 >= r)
+            })
+            .collect();
+        let mut rows: Vec<(usize, usize, usize)> = centres
+            .iter()
+            .enumerate()
+            .flat_map(|(c, &t)| (0..5).map(move |dy| (t / r + dy - 2, c, dy)))
+            .collect();
+        rows.sort_unstable();
+        let n = centres.len();
+        Windows {
+            colour: vec![0.0; n * 75],
+            covered: vec![false; n * 25],
+            chart: vec![EMPTY; n * 25],
+            index: vec![0; n * 25],
+            rotation: vec![0; n],
+            centres,
+            rows,
+            next_row: 0,
+        }
+    }
+
+    fn gather(&mut self, b: &ColourBand, r: usize) {
+        let end = b.y0 + b.own / r;
+        while let Some(&(y, c, dy)) = self.rows.get(self.next_row) {
+            if y >= end {
+                break;
+            }
+            self.next_row += 1;
+            let x = self.centres[c] % r;
+            for dx in 0..5 {
+                let (t, w) = ((y - b.y0) * r + x + dx - 2, c * 25 + dy * 5 + dx);
+                self.colour[w * 3..w * 3 + 3].copy_from_slice(&b.colour[t * 3..t * 3 + 3]);
+                self.covered[w] = b.covered[t];
+                self.chart[w] = b.chart[t];
+                self.index[w] = b.index[t];
+            }
+            if dy == 2 {
+                self.rotation[c] = b.rotation[(y - b.y0) * r + x];
+            }
+        }
+    }
+
+    /// Mean distance from the windows (inside one chart, drawn from one
+    /// sample) to the nearest 5×5 window of that sample's preview turned by
+    /// the window's rotation (`steps` rotations a turn); and the number of
+    /// windows.
+    fn coherence(&self, previews: &[RgbImage], steps: usize) -> (f64, usize) {
+        let mut cache: std::collections::BTreeMap<(u8, u8), (Vec<f32>, Vec<u8>)> = Default::default();
+        let (mut total, mut count) = (0f64, 0usize);
+        for c in 0..self.centres.len() {
+            if count >= WINDOWS {
+                break;
+            }
+            let w = c * 25;
+            let (chart, index) = (self.chart[w + 12], self.index[w + 12]);
+            if !(w..w + 25).all(|i| self.covered[i] && self.chart[i] == chart && self.index[i] == index) {
+                continue;
+            }
+            let rot = self.rotation[c];
+            let preview = &previews[index as usize];
+            let (sw, sh) = (preview.width, preview.height);
+            let (maps, valid) = cache.entry((index, rot)).or_insert_with(|| {
+                rotate_maps(&preview.data, sw, sh, 3, rot as f64 * 360.0 / steps as f64, false)
+            });
+            let window = &self.colour[w * 3..w * 3 + 75];
+            let mut best = f64::INFINITY;
+            for sy in 2..sh.saturating_sub(2) {
+                for sx in 2..sw.saturating_sub(2) {
+                    let mut ssd = 0f64;
+                    let mut ok = true;
+                    for i in 0..25 {
+                        let s = (sy + i / 5 - 2) * sw + sx + i % 5 - 2;
+                        if valid[s] == 0 {
+                            ok = false;
+                            break;
+                        }
+                        for k in 0..3 {
+                            ssd += ((maps[s * 3 + k] - window[i * 3 + k]) as f64).powi(2);
+                        }
+                        if ssd >= best {
+                            break;
+                        }
+                    }
+                    if ok && ssd < best {
+                        best = ssd;
+                    }
+                }
+            }
+            if best.is_finite() {
+                total += (best / 25.0).sqrt();
+                count += 1;
+            }
+        }
+        (total / count.max(1) as f64, count)
+    }
+}
+
+/// The painting measures of a painted surface (§IV), counted band by band:
+/// the fraction of F (m0 = 1) covered by foreground texels (texels of the
+/// painted sample with m_σ ≥ ½), and the fraction of foreground texels
+/// outside F and its transition zone (m0 = 0).
+struct Painting {
+    mask: Vec<f32>,
+    mask_size: (usize, usize),
+    /// The sample the mask belongs to.
+    painted: usize,
+    tileable: bool,
+    f: usize,
+    f_covered: usize,
+    fg: usize,
+    fg_outside: usize,
+}
+
+impl Painting {
+    /// `None` for a surface that was not painted.
+    fn open(quilt: &Quilt, samples: &[OpenSample]) -> Result<Option<Painting>> {
+        let (Ok(_), Some(mask_path)) = (quilt.container().array("region"), &quilt.sample_mask) else {
+            return Ok(None);
+        };
+        quilt.verify("sample_mask", mask_path)?;
+        let (mw, mh) = crate::io::imageio::image_size(mask_path)?;
+        let painted = quilt.mask_sample();
+        Ok(Some(Painting {
+            mask: crate::io::imageio::read_sized_mask(mask_path, mw, mh, "")?,
+            mask_size: (mw, mh),
+            painted,
+            // a generated BTF may be tileable; the synthesis then wraps its mask
+            tileable: samples.get(painted).is_some_and(|s| s.svd.tileable()),
+            f: 0,
+            f_covered: 0,
+            fg: 0,
+            fg_outside: 0,
+        }))
+    }
+
+    fn count(&mut self, quilt: &Quilt, b: &ColourBand, r: usize) -> Result<()> {
+        let rows = b.own / r;
+        let Some(m0) = quilt.constraint_region(0, b.y0, r, rows)? else {
+            return Ok(());
+        };
+        let coords = quilt.coord_region(0, b.y0, r, rows)?;
+        let (mw, mh) = self.mask_size;
+        for t in 0..b.own {
+            if b.chart[t] == EMPTY {
+                continue;
+            }
+            let foreground = b.index[t] as usize == self.painted
+                && crate::io::imageio::mask_bilinear(
+                    &self.mask,
+                    mw,
+                    mh,
+                    coords[t].map(f64::from),
+                    self.tileable,
+                ) >= 0.5;
+            if m0[t] >= 1.0 {
+                self.f += 1;
+                self.f_covered += foreground as usize;
+            }
+            if foreground {
+                self.fg += 1;
+                self.fg_outside += (m0[t] <= 0.0) as usize;
+            }
+        }
+        Ok(())
+    }
+
+    fn figures(&self) -> PaintingFigures {
+        PaintingFigures {
+            region_texels: self.f,
+            region_covered_by_foreground: self.f_covered as f64 / self.f.max(1) as f64,
+            foreground_texels: self.fg,
+            foreground_outside_region_and_transition: self.fg_outside as f64 / self.fg.max(1) as f64,
+        }
+    }
+}
+
 /// [`ScaleFigures`] of the first sample, `width` pixels wide.
-fn scale(
-    quilt: &Quilt,
-    gim: &crate::artifact::gim::Gim,
-    chart: &[u32],
-    patches: &[u32],
-    index: &[u8],
-    width: usize,
-) -> Result<ScaleFigures> {
+fn scale(quilt: &Quilt, gim: &Gim, width: usize) -> Result<ScaleFigures> {
+    let (edges, median) = median_of(|f| scale_ratios(quilt, gim, f))?;
+    Ok(ScaleFigures {
+        edges,
+        sample_pixels_per_unit: median,
+        sample_width_units: if median > 0.0 { width as f64 / median } else { 0.0 },
+    })
+}
+
+/// Calls `f` with |Δ sample coordinate| / |Δ position| over every grid edge
+/// inside one patch of the first sample, in atlas order, band by band.
+fn scale_ratios(quilt: &Quilt, gim: &Gim, f: &mut dyn FnMut(f64)) -> Result<()> {
     let r = quilt.resolution;
-    let coords = quilt.coords()?;
-    let position: Vec<f32> = gim.read("position")?;
-    let p = |t: usize| glam::Vec3::from_slice(&position[t * 3..t * 3 + 3]);
-    let mut ratios = Vec::new();
-    for y in 0..r {
-        for x in 0..r {
-            let t = y * r + x;
+    for y0 in (0..r).step_by(BAND_ROWS) {
+        let (y1, hi) = ((y0 + BAND_ROWS).min(r), (y0 + BAND_ROWS + 1).min(r));
+        let coords = quilt.coord_region(0, y0, r, hi - y0)?;
+        let patches = quilt.patch_region(0, y0, r, hi - y0)?;
+        let index = quilt.sample_region(0, y0, r, hi - y0)?;
+        let chart = gim.chart_face_region(0, y0, r, hi - y0)?.0;
+        let position = gim.position_region(0, y0, r, hi - y0)?;
+        let p = |t: usize| glam::Vec3::from_slice(&position[t * 3..t * 3 + 3]);
+        for t in 0..(y1 - y0) * r {
+            let (x, y) = (t % r, y0 + t / r);
             if chart[t] == EMPTY || patches[t] == NO_PATCH || index[t] != 0 {
                 continue;
             }
@@ -244,138 +543,102 @@ fn scale(
                 let (a, b) = (coords[t], coords[n]);
                 let pixels = ((a[0] - b[0]) as f64).hypot((a[1] - b[1]) as f64);
                 if units > 0.0 && pixels.is_finite() {
-                    ratios.push(pixels / units);
+                    f(pixels / units);
                 }
             }
         }
     }
-    ratios.sort_by(f64::total_cmp);
-    let median = ratios.get(ratios.len() / 2).copied().unwrap_or(0.0);
-    Ok(ScaleFigures {
-        edges: ratios.len(),
-        sample_pixels_per_unit: median,
-        sample_width_units: if median > 0.0 { width as f64 / median } else { 0.0 },
-    })
+    Ok(())
 }
 
-/// Mean distance from 5×5 output windows (at seeded places inside one chart,
-/// drawn from one sample) to the nearest 5×5 window of that sample's preview
-/// turned by the window's rotation; and the number of windows.
-fn coherence(
-    quilt: &Quilt,
-    img: &RgbImage,
-    covered: &[bool],
-    chart: &[u32],
-    index: &[u8],
-    previews: &[RgbImage],
-) -> Result<(f64, usize)> {
-    let r = quilt.resolution;
-    let rotations = quilt.rotations()?;
-    let steps = match quilt.container().metadata().param("rotations") {
-        Some(crate::container::Param::Int(v)) if *v > 0 => *v as usize,
-        _ => 72,
-    };
-    let mut cache: std::collections::BTreeMap<(u8, u8), (Vec<f32>, Vec<u8>)> = Default::default();
-    let (mut total, mut count) = (0f64, 0usize);
-    let mut k = 0u64;
-    while count < 200 && k < 20_000 {
-        k += 1;
-        let t = (crate::rng::mix64(k) % (r * r) as u64) as usize;
-        let (x, y) = (t % r, t / r);
-        if x < 2 || y < 2 || x + 2 >= r || y + 2 >= r {
-            continue;
-        }
-        let window: Vec<usize> = (0..25).map(|i| (y + i / 5 - 2) * r + x + i % 5 - 2).collect();
-        if !window
-            .iter()
-            .all(|&w| covered[w] && chart[w] == chart[t] && index[w] == index[t])
-        {
-            continue;
-        }
-        let rot = rotations[t];
-        let preview = &previews[index[t] as usize];
-        let (sw, sh) = (preview.width, preview.height);
-        let (maps, valid) = cache.entry((index[t], rot)).or_insert_with(|| {
-            rotate_maps(&preview.data, sw, sh, 3, rot as f64 * 360.0 / steps as f64, false)
-        });
-        let mut best = f64::INFINITY;
-        for sy in 2..sh.saturating_sub(2) {
-            for sx in 2..sw.saturating_sub(2) {
-                let mut ssd = 0f64;
-                let mut ok = true;
-                for i in 0..25 {
-                    let s = (sy + i / 5 - 2) * sw + sx + i % 5 - 2;
-                    if valid[s] == 0 {
-                        ok = false;
-                        break;
-                    }
-                    for c in 0..3 {
-                        ssd += ((maps[s * 3 + c] - img.data[window[i] * 3 + c]) as f64).powi(2);
-                    }
-                    if ssd >= best {
-                        break;
-                    }
-                }
-                if ok && ssd < best {
-                    best = ssd;
-                }
+/// Values [`median_of`] sorts once it has narrowed them down to this many.
+const MEDIAN_COLLECT: usize = 1 << 16;
+
+/// How many non-negative values `stream` yields (it yields the same ones on
+/// every call), and the one at rank `len / 2` in ascending order (0 when
+/// there are none): a radix select over their bits, 16 at a time (a
+/// non-negative float orders as its bits), that holds a histogram and at
+/// most [`MEDIAN_COLLECT`] values, not the stream.
+fn median_of(mut stream: impl FnMut(&mut dyn FnMut(f64)) -> Result<()>) -> Result<(usize, f64)> {
+    let (mut prefix, mut known) = (0u64, 0u32);
+    let (mut len, mut rank) = (0usize, None::<usize>);
+    let matches = |bits: u64, prefix: u64, known: u32| known == 0 || bits >> (64 - known) == prefix;
+    loop {
+        let shift = 64 - known - 16;
+        let mut hist = vec![0usize; 1 << 16];
+        let mut total = 0usize;
+        stream(&mut |v| {
+            let bits = v.to_bits();
+            if matches(bits, prefix, known) {
+                hist[((bits >> shift) & 0xffff) as usize] += 1;
+                total += 1;
             }
+        })?;
+        let k = match rank {
+            Some(k) => k,
+            None if total == 0 => return Ok((0, 0.0)),
+            None => {
+                len = total;
+                total / 2
+            }
+        };
+        let (mut below, mut bucket) = (0usize, 0usize);
+        for (i, &c) in hist.iter().enumerate() {
+            if below + c > k {
+                bucket = i;
+                break;
+            }
+            below += c;
         }
-        if best.is_finite() {
-            total += (best / 25.0).sqrt();
-            count += 1;
+        prefix = (prefix << 16) | bucket as u64;
+        known += 16;
+        let k = k - below;
+        if known == 64 {
+            return Ok((len, f64::from_bits(prefix)));
         }
+        if hist[bucket] <= MEDIAN_COLLECT {
+            let mut values = Vec::with_capacity(hist[bucket]);
+            stream(&mut |v| {
+                if matches(v.to_bits(), prefix, known) {
+                    values.push(v);
+                }
+            })?;
+            values.sort_by(f64::total_cmp);
+            return Ok((len, values[k]));
+        }
+        rank = Some(k);
     }
-    Ok((total / count.max(1) as f64, count))
 }
 
-/// The painting measures of a painted surface (§IV) (`None` for a surface
-/// that was not painted): the fraction of F (m0 = 1)
-/// covered by foreground texels (texels of the painted sample with m_σ ≥ ½),
-/// and the fraction of foreground texels outside F and its transition zone
-/// (m0 = 0).
-fn painting_measures(
-    quilt: &Quilt,
-    chart: &[u32],
-    samples: &[OpenSample],
-) -> Result<Option<PaintingFigures>> {
-    let c = quilt.container();
-    let (Ok(region), Some(mask_path)) = (c.array("region"), &quilt.sample_mask) else {
-        return Ok(None);
-    };
-    quilt.verify("sample_mask", mask_path)?;
-    let m0: Vec<f32> = c.read_array(region)?;
-    let (mw, mh) = crate::io::imageio::image_size(mask_path)?;
-    let mask = crate::io::imageio::read_sized_mask(mask_path, mw, mh, "")?;
-    let coords = quilt.coords()?;
-    let (index, painted) = (quilt.sample_index()?, quilt.mask_sample());
-    // a generated BTF may be tileable; the synthesis then wraps its mask
-    let tileable = samples.get(painted).is_some_and(|s| s.svd.tileable());
-    let m = |t: usize| {
-        if index[t] as usize != painted {
-            return 0.0;
-        }
-        crate::io::imageio::mask_bilinear(&mask, mw, mh, coords[t].map(f64::from), tileable)
-    };
-    let (mut f, mut f_covered, mut fg, mut fg_outside) = (0usize, 0usize, 0usize, 0usize);
-    for t in 0..m0.len() {
-        if chart[t] == EMPTY {
-            continue;
-        }
-        let foreground = m(t) >= 0.5;
-        if m0[t] >= 1.0 {
-            f += 1;
-            f_covered += foreground as usize;
-        }
-        if foreground {
-            fg += 1;
-            fg_outside += (m0[t] <= 0.0) as usize;
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_of_a_stream_is_the_sorted_middle() {
+        // many equal values, a spread, zeros and an infinity: the select must
+        // narrow through several passes and agree with sorting
+        for n in [0usize, 1, 2, 7, 100_000, 300_001] {
+            let values: Vec<f64> = (0..n)
+                .map(|i| match crate::rng::mix64(i as u64) % 5 {
+                    0 => 1.0,
+                    1 => 0.0,
+                    2 if i % 1000 == 0 => f64::INFINITY,
+                    _ => (crate::rng::mix64(i as u64 + 7) % 1_000_000) as f64 * 1e-3,
+                })
+                .collect();
+            let mut passes = 0;
+            let got = median_of(|f| {
+                passes += 1;
+                values.iter().for_each(|&v| f(v));
+                Ok(())
+            })
+            .unwrap();
+            let mut sorted = values.clone();
+            sorted.sort_by(f64::total_cmp);
+            let want = sorted.get(n / 2).copied().unwrap_or(0.0);
+            assert_eq!(got, (n, want), "{n} values");
+            assert!(passes <= 5, "{passes} passes");
         }
     }
-    Ok(Some(PaintingFigures {
-        region_texels: f,
-        region_covered_by_foreground: f_covered as f64 / f.max(1) as f64,
-        foreground_texels: fg,
-        foreground_outside_region_and_transition: fg_outside as f64 / fg.max(1) as f64,
-    }))
 }

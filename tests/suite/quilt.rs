@@ -343,7 +343,7 @@ fn a_budget_that_forces_eviction_changes_no_byte() {
 }
 
 #[test]
-fn the_baked_atlas_in_bands_equals_the_whole_image_dilated() {
+fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
     // Spot at 256²: 4 bands of 64 rows whose borders cross charts, gutter,
     // and empty atlas farther than the dilation reaches
     let dir = tempfile::tempdir().unwrap();
@@ -386,4 +386,42 @@ fn the_baked_atlas_in_bands_equals_the_whole_image_dilated() {
             assert!(same, "{ext} at {memory} B differs from the whole image");
         }
     }
+    // evaluate reads the same atlas in bands: its counts equal the whole
+    // atlas's, and a budget that cannot hold a band's chunks changes nothing
+    let gim = Gim::open(&g, MemoryBudget::default()).unwrap();
+    let (chart, patch): (Vec<u32>, Vec<u32>) = (gim.read("chart").unwrap(), q.patches().unwrap());
+    let position: Vec<f32> = gim.read("position").unwrap();
+    let r = 256;
+    let (mut seam_edges, mut scale_edges) = (0, 0);
+    for t in 0..r * r {
+        for n in [(t % r + 1 < r).then(|| t + 1), (t / r + 1 < r).then(|| t + r)]
+            .into_iter()
+            .flatten()
+        {
+            if chart[t] != EMPTY && chart[n] == chart[t] && covered[t] && covered[n] {
+                seam_edges += (patch[n] != patch[t]) as usize;
+                let apart = (0..3).any(|k| position[t * 3 + k] != position[n * 3 + k]);
+                scale_edges += (patch[n] == patch[t] && apart) as usize;
+            }
+        }
+    }
+    let links = gim
+        .zipper_links()
+        .unwrap()
+        .iter()
+        .filter(|l| covered[l[0] as usize] && covered[l[1] as usize])
+        .count();
+    let mut ids: Vec<u32> = patch.iter().copied().filter(|&p| p != NO_PATCH).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    let small = btfquilt::output::evaluate::evaluate(&out, None, None, MemoryBudget(1 << 20)).unwrap();
+    let large = btfquilt::output::evaluate::evaluate(&out, None, None, MemoryBudget(16 << 30)).unwrap();
+    assert_eq!(small, large);
+    assert_eq!(small.texels, covered.iter().filter(|&&c| c).count());
+    assert_eq!(small.patches, ids.len());
+    assert_eq!(small.seam.edges, seam_edges);
+    assert_eq!(small.zipper.links, links);
+    assert!(links > 0 && seam_edges > 0);
+    assert_eq!(small.scale.edges, scale_edges);
+    assert_eq!(small.coherence.windows, 200);
 }
