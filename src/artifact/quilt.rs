@@ -333,6 +333,19 @@ impl Quilt {
         Ok(v.chunks_exact(2).map(|v| [v[0], v[1]]).collect())
     }
 
+    /// The stored Jacobians of the atlas region `(x0, y0, w, h)`, row-major
+    /// (`None` for a quilt that stores none).
+    pub fn jacobian_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<Option<Vec<[f32; 4]>>> {
+        let c = &self.container;
+        let Ok(id) = c.array("jacobian") else {
+            return Ok(None);
+        };
+        let v: Vec<f32> = c.read_region(id, &[y0 as u64, x0 as u64, 0], &[h as u64, w as u64, 4])?;
+        Ok(Some(
+            v.chunks_exact(4).map(|v| [v[0], v[1], v[2], v[3]]).collect(),
+        ))
+    }
+
     /// The patch ids of the atlas region `(x0, y0, w, h)`, row-major.
     pub fn patch_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<Vec<u32>> {
         let c = &self.container;

@@ -155,29 +155,41 @@ impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
 
 type Key = (u32, u64);
 
-/// Decoded chunks shared between threads; never holds more than the budget.
-pub(crate) struct ChunkCache {
-    inner: Mutex<BoundedCache<Key, Arc<ChunkData>>>,
+/// What a [`SharedCache`] value costs in bytes.
+pub trait Weighed {
+    fn weight(&self) -> u64;
 }
 
-impl ChunkCache {
-    pub(crate) fn new(budget: MemoryBudget) -> Self {
-        ChunkCache {
+impl Weighed for ChunkData {
+    fn weight(&self) -> u64 {
+        self.byte_len() as u64
+    }
+}
+
+/// A [`BoundedCache`] shared between threads: values behind `Arc`, loaded
+/// outside the lock (two threads may load the same key; both get equal
+/// values), never holding more than the budget.
+pub struct SharedCache<K, V> {
+    inner: Mutex<BoundedCache<K, Arc<V>>>,
+}
+
+/// Decoded chunks of a container.
+pub(crate) type ChunkCache = SharedCache<Key, ChunkData>;
+
+impl<K: Hash + Eq + Clone, V: Weighed> SharedCache<K, V> {
+    pub fn new(budget: MemoryBudget) -> Self {
+        SharedCache {
             inner: Mutex::new(BoundedCache::new(budget)),
         }
     }
 
-    /// The cached chunk, or `load()`'s result (cached if it fits the budget).
-    pub(crate) fn get_or_load(
-        &self,
-        key: Key,
-        load: impl FnOnce() -> Result<ChunkData>,
-    ) -> Result<Arc<ChunkData>> {
+    /// The cached value, or `load()`'s result (cached if it fits the budget).
+    pub fn get_or_load(&self, key: K, load: impl FnOnce() -> Result<V>) -> Result<Arc<V>> {
         if let Some(data) = self.inner.lock().unwrap_or_else(|p| p.into_inner()).get(&key) {
             return Ok(data.clone());
         }
         let data = Arc::new(load()?);
-        let size = data.byte_len() as u64;
+        let size = data.weight();
         let mut cache = self.inner.lock().unwrap_or_else(|p| p.into_inner());
         // too large to be worth caching under this budget
         if size * 4 > cache.budget() || cache.contains(&key) {

@@ -319,17 +319,31 @@ pub fn read_sized_mask(path: &Path, width: usize, height: usize, must_be: &str) 
 /// (a float TIFF is taken as already linear); EXR is read as is. Alpha is
 /// Bilinear lookup in an RGB image at pixel coordinates (clamped).
 pub fn bilinear(img: &RgbImage, x: f32, y: f32) -> [f32; 3] {
-    let (w, h) = (img.width, img.height);
+    let w = img.width;
+    bilinear_with(img.width, img.height, x, y, |x, y| {
+        let p = &img.data[(y * w + x) * 3..(y * w + x) * 3 + 3];
+        [p[0], p[1], p[2]]
+    })
+}
+
+/// [`bilinear`] over a `w`×`h` image whose pixel `(x, y)` is `px(x, y)`.
+pub fn bilinear_with(
+    w: usize,
+    h: usize,
+    x: f32,
+    y: f32,
+    mut px: impl FnMut(usize, usize) -> [f32; 3],
+) -> [f32; 3] {
     let x = x.clamp(0.0, (w - 1) as f32);
     let y = y.clamp(0.0, (h - 1) as f32);
     let (x0, y0) = (x.floor() as usize, y.floor() as usize);
     let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
     let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-    let px = |x: usize, y: usize| &img.data[(y * w + x) * 3..(y * w + x) * 3 + 3];
+    let (p00, p10, p01, p11) = (px(x0, y0), px(x1, y0), px(x0, y1), px(x1, y1));
     let mut out = [0f32; 3];
     for c in 0..3 {
-        let top = px(x0, y0)[c] + (px(x1, y0)[c] - px(x0, y0)[c]) * fx;
-        let bottom = px(x0, y1)[c] + (px(x1, y1)[c] - px(x0, y1)[c]) * fx;
+        let top = p00[c] + (p10[c] - p00[c]) * fx;
+        let bottom = p01[c] + (p11[c] - p01[c]) * fx;
         out[c] = top + (bottom - top) * fy;
     }
     out

@@ -9,6 +9,7 @@ pub mod evaluate;
 pub mod export;
 pub mod render;
 pub mod show;
+mod texels;
 
 use std::path::{Path, PathBuf};
 
@@ -117,7 +118,18 @@ pub fn colour_rows(
     y0: usize,
     y1: usize,
 ) -> Result<(Vec<f32>, Vec<bool>)> {
-    let r = quilt.resolution;
+    colour_region(quilt, previews, 0, y0, quilt.resolution, y1 - y0)
+}
+
+/// The atlas region `(x0, y0, w, h)` of [`atlas_colour`], row-major.
+pub fn colour_region(
+    quilt: &Quilt,
+    previews: &[RgbImage],
+    x0: usize,
+    y0: usize,
+    w: usize,
+    h: usize,
+) -> Result<(Vec<f32>, Vec<bool>)> {
     if previews.len() != quilt.samples.len() {
         return Err(Error::Config(format!(
             "{} previews for the {} samples of {}",
@@ -126,13 +138,12 @@ pub fn colour_rows(
             quilt.container().path().display()
         )));
     }
-    let h = y1 - y0;
-    let coords = quilt.coord_region(0, y0, r, h)?;
-    let patches = quilt.patch_region(0, y0, r, h)?;
-    let index = quilt.sample_region(0, y0, r, h)?;
-    let mut data = vec![0f32; r * h * 3];
+    let coords = quilt.coord_region(x0, y0, w, h)?;
+    let patches = quilt.patch_region(x0, y0, w, h)?;
+    let index = quilt.sample_region(x0, y0, w, h)?;
+    let mut data = vec![0f32; w * h * 3];
     let covered: Vec<bool> = patches.iter().map(|&p| p != NO_PATCH).collect();
-    for t in 0..r * h {
+    for t in 0..w * h {
         if covered[t] {
             let c = imageio::bilinear(&previews[index[t] as usize], coords[t][0], coords[t][1]);
             data[t * 3..t * 3 + 3].copy_from_slice(&c);

@@ -52,10 +52,12 @@ use rayon::prelude::*;
 
 use crate::artifact::btf::Angles;
 use crate::container::MemoryBudget;
-use crate::io::imageio::{self, bilinear, dilate, PngDepth, RgbImage};
+use crate::io::imageio::{self, PngDepth, RgbImage};
+use crate::io::imageio::{bilinear_with, CoveredMean};
 use crate::mesh::{unit_or, Mesh};
-use crate::output::{atlas_colour, open_samples};
-use crate::quilt::{Quilt, NO_PATCH};
+use crate::output::texels::{btf_tiles, colour_tiles, AtlasTiles, BtfTile, ColourTile, TileView};
+use crate::output::{colour_rows, open_samples, BAND_ROWS};
+use crate::quilt::Quilt;
 use crate::{Error, Result};
 
 /// Background colour (linear RGB) where no surface is seen.
@@ -70,6 +72,16 @@ pub const MAX_FRAMES: usize = 100_000;
 const EXACT_HIT: f32 = 1e-4;
 /// Rings of neighbours searched for a covered texel around an empty one.
 const TEXEL_SEARCH: isize = 3;
+
+/// Rings of gutter the colour texture is dilated by (so bilinear lookups at
+/// chart borders never blend in the background).
+const TEXTURE_DILATION: usize = 4;
+
+/// One render thread's lookups into the scene's shading tiles.
+enum Lookup<'a> {
+    Colour(TileView<'a, ColourTile>),
+    Btf(TileView<'a, BtfTile>),
+}
 
 /// A pinhole camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -563,14 +575,11 @@ struct BtfShading {
     samples: Vec<Basis>,
     /// Σ terms over the samples: the scratch buffer's length.
     total_terms: usize,
-    /// Per texel: index into `samples`.
-    sample: Vec<u8>,
     views: Directions,
     lights: Directions,
     n_lights: usize,
-    coords: Vec<[f32; 2]>,
-    jacobians: Vec<[f32; 4]>,
-    covered: Vec<bool>,
+    /// Per texel: sample coordinate, Jacobian, sample index, covered.
+    tiles: AtlasTiles<BtfTile>,
     /// Per corner: ∂P/∂X, ∂P/∂Y (3D per atlas texel) averaged over its
     /// wedge ([`corner_maps`]), `None` if degenerate.
     corner_maps: Vec<Option<[[f32; 3]; 2]>>,
@@ -578,7 +587,7 @@ struct BtfShading {
 
 enum Shading {
     /// Dilated atlas colour texture.
-    Colour(RgbImage),
+    Colour(AtlasTiles<ColourTile>),
     Btf(Box<BtfShading>),
 }
 
@@ -657,7 +666,9 @@ fn face_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3
 impl Scene {
     /// Opens the quilt, its geometry image and its samples.
     pub fn open(quilt_path: &Path, budget: MemoryBudget) -> Result<Scene> {
-        let quilt = Quilt::open(quilt_path, budget)?;
+        // half for the quilt's decoded chunks, half for the shading tiles
+        let [cache_budget, tile_budget] = budget.split([1, 1]);
+        let quilt = Quilt::open(quilt_path, cache_budget)?;
         let gim = quilt.open_gim(None, budget)?;
         if gim.resolution != quilt.resolution {
             return Err(Error::input(
@@ -701,53 +712,31 @@ impl Scene {
         let r = quilt.resolution;
         // open_samples checked that every sample has sample 0's directions
         let pairs = svd0.views.len() * svd0.lights.len();
+        let quilt = std::sync::Arc::new(quilt);
         let shading = if pairs <= 1 {
             let previews = opened
                 .iter()
                 .map(|s| s.svd.preview())
                 .collect::<Result<Vec<_>>>()?;
-            let (mut texture, covered) = atlas_colour(&quilt, &previews)?;
-            dilate(&mut texture, &covered, 4);
-            Shading::Colour(texture)
-        } else {
-            let coords = quilt.coords()?;
-            let patches = quilt.patches()?;
-            let rotations = quilt.rotations()?;
-            let sample = quilt.sample_index()?;
-            let stored = if quilt.container().array("jacobian").is_ok() {
-                quilt.jacobians()?
-            } else {
-                Vec::new()
-            };
-            if coords.len() != r * r
-                || patches.len() != r * r
-                || rotations.len() != r * r
-                || sample.len() != r * r
-                || !(stored.is_empty() || stored.len() == r * r)
-            {
-                return Err(Error::input(
-                    quilt_path,
-                    format!("its arrays do not match its {r}² atlas"),
-                ));
+            // what dilation leaves empty gets the whole atlas's mean: a first pass
+            let mut mean = CoveredMean::default();
+            for y0 in (0..r).step_by(BAND_ROWS) {
+                let (colour, covered) = colour_rows(&quilt, &previews, y0, (y0 + BAND_ROWS).min(r))?;
+                mean.add(&colour, &covered);
             }
-            // the rotation's Jacobian, where the stored one is missing or
-            // degenerate (in steps of the texel's own sample)
-            let from_rotation = |t: usize| {
-                let steps = opened[sample[t] as usize].svd.rotations.max(1) as f32;
-                let a = rotations[t] as f32 * std::f32::consts::TAU / steps;
-                let (s, c) = a.sin_cos();
-                [c, -s, s, c]
-            };
-            let jacobians: Vec<[f32; 4]> = (0..r * r)
-                .map(|t| match stored.get(t) {
-                    Some(j)
-                        if j.iter().all(|v| v.is_finite()) && (j[0] * j[3] - j[1] * j[2]).abs() > 1e-8 =>
-                    {
-                        *j
-                    }
-                    _ => from_rotation(t),
-                })
-                .collect();
+            let tiles = colour_tiles(
+                quilt.clone(),
+                previews,
+                TEXTURE_DILATION,
+                mean.colour(),
+                tile_budget,
+            );
+            tiles.probe()?;
+            Shading::Colour(tiles)
+        } else {
+            let steps = opened.iter().map(|s| s.svd.rotations).collect();
+            let tiles = btf_tiles(quilt.clone(), steps, tile_budget);
+            tiles.probe()?;
             let mut samples = Vec::with_capacity(opened.len());
             let mut offset = 0;
             for s in &opened {
@@ -776,13 +765,10 @@ impl Scene {
             Shading::Btf(Box::new(BtfShading {
                 samples,
                 total_terms: offset,
-                sample,
                 views: Directions::new(&svd0.views),
                 lights: Directions::new(&svd0.lights),
                 n_lights: svd0.lights.len(),
-                coords,
-                jacobians,
-                covered: patches.iter().map(|&p| p != NO_PATCH).collect(),
+                tiles,
                 corner_maps: corner_maps(&mesh, &corner_uv, r as f32),
             }))
         };
@@ -839,6 +825,10 @@ impl Scene {
         let mut data = vec![0f32; width * height * 3];
         data.par_chunks_mut(width * 3).enumerate().for_each(|(y, row)| {
             let mut scratch = Vec::new();
+            let mut view = match &self.shading {
+                Shading::Colour(tiles) => Lookup::Colour(tiles.view()),
+                Shading::Btf(btf) => Lookup::Btf(btf.tiles.view()),
+            };
             let mut lights = Vec::with_capacity(cfg.lights.len());
             for (x, px) in row.chunks_exact_mut(3).enumerate() {
                 let i = y * width + x;
@@ -865,24 +855,37 @@ impl Scene {
                 }
                 lights.clear();
                 lights.extend(cfg.lights.iter().map(|l| self.light_at(l, pos)));
-                let c = match &self.shading {
-                    Shading::Colour(texture) => {
-                        let r = self.resolution as f32;
-                        let colour = bilinear(texture, uv[0] * r - 0.5, uv[1] * r - 0.5);
+                let c = match (&self.shading, &mut view) {
+                    (Shading::Colour(_), Lookup::Colour(texture)) => {
+                        let r = self.resolution;
+                        let texel = |x: usize, y: usize| {
+                            texture
+                                .with(y * r + x, |tile, i| {
+                                    [tile.0[i * 3], tile.0[i * 3 + 1], tile.0[i * 3 + 2]]
+                                })
+                                .unwrap_or([0.0; 3])
+                        };
+                        let rf = r as f32;
+                        let colour = bilinear_with(r, r, uv[0] * rf - 0.5, uv[1] * rf - 0.5, texel);
                         let e: f32 = lights.iter().map(|&(l, e)| e * n.dot(l).max(0.0)).sum();
                         let shade = 0.18 + 0.82 * e;
                         colour.map(|v| v * shade)
                     }
-                    Shading::Btf(btf) => {
+                    (Shading::Btf(btf), Lookup::Btf(texels)) => {
                         let view = unit_or(Vec3::from(cam.eye) - pos, Vec3::ZERO);
-                        self.shade_btf(btf, f, b, n, uv, view, &lights, &mut scratch)
+                        self.shade_btf(btf, texels, f, b, n, uv, view, &lights, &mut scratch)
                     }
+                    _ => unreachable!("the lookup is made from the shading"),
                 };
                 for k in 0..3 {
                     px[k] = c[k] * scale;
                 }
             }
         });
+        match &self.shading {
+            Shading::Colour(tiles) => tiles.check()?,
+            Shading::Btf(btf) => btf.tiles.check()?,
+        }
         Ok(RgbImage { width, height, data })
     }
 
@@ -906,6 +909,7 @@ impl Scene {
     fn shade_btf(
         &self,
         btf: &BtfShading,
+        texels: &mut TileView<'_, BtfTile>,
         face: usize,
         bary: [f32; 3],
         n: Vec3,
@@ -916,11 +920,20 @@ impl Scene {
     ) -> [f32; 3] {
         let r = self.resolution;
         let (xa, ya) = (uv[0] * r as f32 - 0.5, uv[1] * r as f32 - 0.5);
-        let Some((t, dx, dy)) = nearest_covered(&btf.covered, r, xa, ya) else {
+        // (coordinate, Jacobian, sample) of a covered texel
+        let mut at = |t: usize| {
+            texels
+                .with(t, |tile, i| {
+                    tile.covered[i].then(|| (tile.coord[i], tile.jacobian[i], tile.sample[i]))
+                })
+                .flatten()
+        };
+        let Some((t, dx, dy)) = nearest_covered(|t| at(t).is_some(), r, xa, ya) else {
             return [0.0; 3];
         };
-        let j = btf.jacobians[t];
-        let c = btf.coords[t];
+        let Some((c, j, sample_t)) = at(t) else {
+            return [0.0; 3];
+        };
         let sx = c[0] + j[0] * dx + j[2] * dy;
         let sy = c[1] + j[1] * dx + j[3] * dy;
         // local frame: sample +x and +y on the surface
@@ -989,14 +1002,13 @@ impl Scene {
                 continue;
             }
             let k = cy as usize * r + cx as usize;
-            if !btf.covered[k] {
+            let Some((ck, jk, sk)) = at(k) else {
                 continue;
-            }
-            let (jk, ck) = (btf.jacobians[k], btf.coords[k]);
+            };
             let (ddx, ddy) = (xa - cx, ya - cy);
             let px = ck[0] + jk[0] * ddx + jk[2] * ddy;
             let py = ck[1] + jk[1] * ddx + jk[3] * ddy;
-            let sk = btf.sample[k] as usize;
+            let sk = sk as usize;
             activate(sk, scratch);
             add_geometry(&btf.samples[sk], px, py, wgt, scratch);
             total += wgt;
@@ -1010,7 +1022,7 @@ impl Scene {
                 }
             }
         } else {
-            let sk = btf.sample[t] as usize;
+            let sk = sample_t as usize;
             activate(sk, scratch);
             add_geometry(&btf.samples[sk], sx, sy, 1.0, scratch);
         }
@@ -1157,12 +1169,17 @@ fn dot_n(a: &[f32], b: &[f32]) -> f32 {
 /// The covered texel nearest to the continuous texel position `(xa, ya)`
 /// (texel centres at integers): the texel under it, else the nearest in up to
 /// [`TEXEL_SEARCH`] rings around it; with the offset from its centre.
-fn nearest_covered(covered: &[bool], r: usize, xa: f32, ya: f32) -> Option<(usize, f32, f32)> {
+fn nearest_covered(
+    mut covered: impl FnMut(usize) -> bool,
+    r: usize,
+    xa: f32,
+    ya: f32,
+) -> Option<(usize, f32, f32)> {
     let last = (r - 1) as f32;
     let tx = xa.round().clamp(0.0, last) as isize;
     let ty = ya.round().clamp(0.0, last) as isize;
     let t = ty as usize * r + tx as usize;
-    if covered[t] {
+    if covered(t) {
         return Some((t, xa - tx as f32, ya - ty as f32));
     }
     for ring in 1..=TEXEL_SEARCH {
@@ -1178,7 +1195,7 @@ fn nearest_covered(covered: &[bool], r: usize, xa: f32, ya: f32) -> Option<(usiz
                     continue;
                 }
                 let t = y as usize * r + x as usize;
-                if !covered[t] {
+                if !covered(t) {
                     continue;
                 }
                 let (dx, dy) = (xa - x as f32, ya - y as f32);

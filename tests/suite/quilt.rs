@@ -424,4 +424,23 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
     assert!(links > 0 && seam_edges > 0);
     assert_eq!(small.scale.edges, scale_edges);
     assert_eq!(small.coherence.windows, 200);
+    // render looks the dilated texture up in tiles: a budget that evicts
+    // them draws the same pixels
+    let cfg = btfquilt::output::render::RenderConfig {
+        width: 96,
+        height: 72,
+        ..Default::default()
+    };
+    let frames: Vec<_> = [1 << 20, 16 << 30]
+        .iter()
+        .map(|&m| {
+            let scene = btfquilt::output::render::Scene::open(&out, MemoryBudget(m)).unwrap();
+            scene.render_image(&cfg).unwrap()
+        })
+        .collect();
+    assert!(frames[0].data.iter().any(|&v| v > 0.05));
+    assert!(
+        frames[0].data == frames[1].data,
+        "the render depends on the budget"
+    );
 }

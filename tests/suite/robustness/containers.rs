@@ -517,3 +517,63 @@ fn crafted_metadata_with_valid_checksums_is_read_or_refused_cleanly() {
     }
     eprintln!("crafted metadata: {cases} cases, {refused} refused");
 }
+
+#[test]
+fn a_damaged_chunk_far_into_the_atlas_is_refused_by_the_streaming_outputs() {
+    // bake, evaluate and render read the atlas in bands or tiles: a chunk
+    // that only the last band/tile reaches must still end in a clean error
+    // naming the quilt, with nothing written
+    let dir = tempfile::tempdir().unwrap();
+    let obj = common::square_obj(dir.path());
+    let g = dir.path().join("sq.gim");
+    common::ok(&["atlas", s(&obj), "--resolution", "128", "-o", s(&g), "-q"]);
+    let (png, _) = svd(dir.path());
+    let q = dir.path().join("q.quilt");
+    common::ok(&["tile", "--gim", s(&g), "--sample", s(&png), "-o", s(&q), "-q"]);
+    // and a BTF surface, whose render looks texels up tile by tile
+    let b = btf(dir.path());
+    let bsvd = dir.path().join("t.svd");
+    common::ok(&["factorize", s(&b), "--rotations", "8", "-o", s(&bsvd), "-q"]);
+    let bq = dir.path().join("b.quilt");
+    common::ok(&["tile", "--gim", s(&g), "--sample", s(&bsvd), "-o", s(&bq), "-q"]);
+    let damage = |from: &Path, name: &str| {
+        let bad = dir.path().join(name);
+        rewrite(from, &bad, |meta, chunks| {
+            let coord = &mut chunks[array_index(meta, "coord")];
+            assert_eq!(coord.len(), 4, "128² in 64² chunks");
+            // a frame that decodes to the wrong size
+            coord[3] = codec::encode(&[0f32; 10], 3);
+        });
+        bad
+    };
+    let (bad, bad_btf) = (damage(&q, "bad.quilt"), damage(&bq, "bad_btf.quilt"));
+    let out = dir.path().join("out.png");
+    let needle = "array 'coord', chunk 3";
+    for args in [
+        vec!["bake", s(&bad), "-o", s(&out)],
+        vec![
+            "render",
+            s(&bad),
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "-o",
+            s(&out),
+        ],
+        vec![
+            "render",
+            s(&bad_btf),
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "-o",
+            s(&out),
+        ],
+    ] {
+        refuses(&args, &[args[1], needle], Some(&out));
+        assert!(!out.exists(), "{args:?} wrote {}", out.display());
+    }
+    refuses(&["evaluate", s(&bad)], &["bad.quilt", needle], None);
+}
