@@ -20,12 +20,14 @@ const DILATE: usize = 16;
 /// from a first pass, so the result is exactly that of the whole image); an
 /// EXR is assembled whole before it is written.
 pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: MemoryBudget) -> Result<()> {
-    let quilt = Quilt::open(quilt_path, budget)?;
+    // decoded chunks of the quilt and of the samples
+    let [quilt_budget, sample_budget] = budget.split([3, 1]);
+    let quilt = Quilt::open(quilt_path, quilt_budget)?;
     quilt.check_output(out)?;
     if let Some(s) = sample {
         crate::io::staging::check_output(out, &[("the sample", s)])?;
     }
-    let samples = open_samples(&quilt, sample, budget)?;
+    let samples = open_samples(&quilt, sample, sample_budget)?;
     let previews = samples
         .iter()
         .map(|s| s.svd.preview())

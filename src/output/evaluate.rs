@@ -123,9 +123,12 @@ pub fn evaluate(
     sample: Option<&Path>,
     budget: MemoryBudget,
 ) -> Result<EvaluateReport> {
-    let quilt = Quilt::open(quilt_path, budget)?;
-    let gim = quilt.open_gim(gim_path, budget)?;
-    let samples = open_samples(&quilt, sample, budget)?;
+    // decoded chunks of the quilt, the geometry image and the samples; the
+    // rest for the seam steps, zipper links and bands
+    let [quilt_budget, gim_budget, sample_budget, _work] = budget.split([2, 2, 1, 3]);
+    let quilt = Quilt::open(quilt_path, quilt_budget)?;
+    let gim = quilt.open_gim(gim_path, gim_budget)?;
+    let samples = open_samples(&quilt, sample, sample_budget)?;
     let previews = samples
         .iter()
         .map(|s| s.svd.preview())

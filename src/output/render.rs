@@ -666,10 +666,11 @@ fn face_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3
 impl Scene {
     /// Opens the quilt, its geometry image and its samples.
     pub fn open(quilt_path: &Path, budget: MemoryBudget) -> Result<Scene> {
-        // half for the quilt's decoded chunks, half for the shading tiles
-        let [cache_budget, tile_budget] = budget.split([1, 1]);
-        let quilt = Quilt::open(quilt_path, cache_budget)?;
-        let gim = quilt.open_gim(None, budget)?;
+        // a quarter each for the quilt's and the geometry image's decoded
+        // chunks, half for the shading tiles
+        let [quilt_budget, gim_budget, tile_budget] = budget.split([1, 1, 2]);
+        let quilt = Quilt::open(quilt_path, quilt_budget)?;
+        let gim = quilt.open_gim(None, gim_budget)?;
         if gim.resolution != quilt.resolution {
             return Err(Error::input(
                 quilt_path,
@@ -694,7 +695,7 @@ impl Scene {
                 ));
             }
         }
-        let opened = open_samples(&quilt, None, budget)?;
+        let opened = open_samples(&quilt, None, gim_budget)?;
         let svd0 = &opened[0].svd;
         let mut mesh = gim.mesh()?;
         let unit = (1.0 / mesh.normalize_extreme_scale()) as f32;
