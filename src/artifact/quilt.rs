@@ -304,18 +304,12 @@ impl Quilt {
     /// row-major (sample indices checked against the samples, all 0 for a
     /// surface of one sample).
     pub fn texel_region(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<QuiltRegion> {
-        let c = &self.container;
-        let jacobian: Vec<f32> = c.read_region(
-            c.array("jacobian")?,
-            &[y0 as u64, x0 as u64, 0],
-            &[h as u64, w as u64, 4],
-        )?;
+        let jacobian = self
+            .jacobian_region(x0, y0, w, h)?
+            .ok_or_else(|| Error::input(self.container.path(), "it stores no 'jacobian' array"))?;
         Ok(QuiltRegion {
             coord: self.coord_region(x0, y0, w, h)?,
-            jacobian: jacobian
-                .chunks_exact(4)
-                .map(|v| [v[0], v[1], v[2], v[3]])
-                .collect(),
+            jacobian,
             patch: self.patch_region(x0, y0, w, h)?,
             rotation: self.rotation_region(x0, y0, w, h)?,
             sample: self.sample_region(x0, y0, w, h)?,

@@ -549,29 +549,18 @@ fn a_damaged_chunk_far_into_the_atlas_is_refused_by_the_streaming_outputs() {
     let (bad, bad_btf) = (damage(&q, "bad.quilt"), damage(&bq, "bad_btf.quilt"));
     let out = dir.path().join("out.png");
     let needle = "array 'coord', chunk 3";
+    let render = |q: &Path| -> Vec<String> {
+        let q = s(q).to_string();
+        ["render", &q, "--width", "64", "--height", "48", "-o", s(&out)]
+            .map(String::from)
+            .to_vec()
+    };
     for args in [
-        vec!["bake", s(&bad), "-o", s(&out)],
-        vec![
-            "render",
-            s(&bad),
-            "--width",
-            "64",
-            "--height",
-            "48",
-            "-o",
-            s(&out),
-        ],
-        vec![
-            "render",
-            s(&bad_btf),
-            "--width",
-            "64",
-            "--height",
-            "48",
-            "-o",
-            s(&out),
-        ],
+        ["bake", s(&bad), "-o", s(&out)].map(String::from).to_vec(),
+        render(&bad),
+        render(&bad_btf),
     ] {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
         refuses(&args, &[args[1], needle], Some(&out));
         assert!(!out.exists(), "{args:?} wrote {}", out.display());
     }
