@@ -15,8 +15,8 @@ use crate::Result;
 const DILATE: usize = 16;
 
 /// Bakes the quilt's preview colour to `out` (PNG or EXR), gutter dilated.
-/// A PNG is computed and written band by band ([`BAND_ROWS`] rows with
-/// [`DILATE`] rows of context each side, and the whole atlas's mean colour
+/// A PNG is computed and written band by band (64 rows with 16 rows of
+/// context each side, and the whole atlas's mean colour
 /// from a first pass, so the result is exactly that of the whole image); an
 /// EXR is assembled whole before it is written.
 pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: MemoryBudget) -> Result<()> {

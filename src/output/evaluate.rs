@@ -114,7 +114,7 @@ pub struct PaintingFigures {
     pub foreground_outside_region_and_transition: f64,
 }
 
-/// Computes the figures, reading the atlas in bands of [`BAND_ROWS`] rows
+/// Computes the figures, reading the atlas in bands of 64 rows
 /// (and the row below each), so memory follows the band, the seam edges and
 /// the zipper links, not the atlas.
 pub fn evaluate(
