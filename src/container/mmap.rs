@@ -96,6 +96,12 @@ impl ByteSource {
                         format!("changed size while being read (was {was} bytes, now {now})"),
                     ));
                 }
+                // Random advice turns readahead off, so a range not in the
+                // page cache would come in a page per fault: ask for all of it
+                // at once.
+                if len > 4096 {
+                    let _ = map.advise_range(memmap2::Advice::WillNeed, start, len);
+                }
                 let out = f(bytes);
                 // Decoded chunks live in the cache; mapped pages would only
                 // add to resident memory (and the kernel maps whole page-cache
