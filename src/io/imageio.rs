@@ -805,6 +805,39 @@ pub fn write_exr_channels(
     })
 }
 
+/// Writes a linear RGB OpenEXR (f16, ZIP-compressed, as [`write_exr`]) whose
+/// pixel `(x, y)` is `pixel(x, y)`, asked for in any order and from several
+/// threads, so the image never has to be held whole. The first error a pixel
+/// returns ends the write with nothing at `path`. Staged like every output.
+pub fn write_exr_rgb_fn<F>(path: &Path, width: usize, height: usize, pixel: F) -> Result<()>
+where
+    F: Fn(usize, usize) -> Result<[f32; 3]> + Sync,
+{
+    check_write(path, width, height, 3, width * height * 3)?;
+    let failed = std::sync::Mutex::new(None::<Error>);
+    let channels = x::SpecificChannels::rgb(|p: x::Vec2<usize>| {
+        let [r, g, b] = pixel(p.0, p.1).unwrap_or_else(|e| {
+            failed.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+            [0.0; 3]
+        });
+        (f16::from_f32(r), f16::from_f32(g), f16::from_f32(b))
+    });
+    let layer = x::Layer::new(
+        (width, height),
+        x::LayerAttributes::default(),
+        x::Encoding::SMALL_LOSSLESS,
+        channels,
+    );
+    let image = x::Image::from_layer(layer);
+    write_atomic(path, |out| {
+        image.write().to_buffered(out).map_err(|e| exr_err(path, e))?;
+        match failed.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    })
+}
+
 /// Write by extension: .png (8-bit sRGB) or .exr (f16). Other extensions are an input error.
 pub fn write_rgb(path: &Path, img: &RgbImage) -> Result<()> {
     match kind_of(path)? {
@@ -1300,6 +1333,39 @@ mod tests {
         write_png(&path, &random_image(2, 3, 4), PngDepth::Eight).unwrap();
         write_png(&path, &random_image(5, 1, 4), PngDepth::Eight).unwrap();
         assert_eq!(image_size(&path).unwrap(), (5, 1));
+        assert_eq!(files_in(dir.path()).len(), 2);
+    }
+
+    #[test]
+    fn exr_from_a_pixel_function_equals_the_whole_image_and_fails_cleanly() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = random_image(37, 29, 7);
+        let (whole, from_fn) = (dir.path().join("whole.exr"), dir.path().join("fn.exr"));
+        write_exr(&whole, &img, true).unwrap();
+        let at = |x: usize, y: usize| {
+            let i = (y * img.width + x) * 3;
+            [img.data[i], img.data[i + 1], img.data[i + 2]]
+        };
+        write_exr_rgb_fn(&from_fn, 37, 29, |x, y| Ok(at(x, y))).unwrap();
+        let (a, b) = (read_rgb(&whole).unwrap(), read_rgb(&from_fn).unwrap());
+        assert_eq!((b.width, b.height), (37, 29));
+        assert!(a
+            .data
+            .iter()
+            .zip(&b.data)
+            .all(|(p, q)| p.to_bits() == q.to_bits()));
+        // a pixel that fails: its error, and the file already there untouched
+        let before = std::fs::read(&from_fn).unwrap();
+        let err = write_exr_rgb_fn(&from_fn, 37, 29, |x, y| {
+            if (x, y) == (30, 20) {
+                Err(Error::input(Path::new("q.quilt"), "damaged chunk"))
+            } else {
+                Ok(at(x, y))
+            }
+        })
+        .unwrap_err();
+        assert!(err.to_string().contains("damaged chunk"), "{err}");
+        assert_eq!(std::fs::read(&from_fn).unwrap(), before);
         assert_eq!(files_in(dir.path()).len(), 2);
     }
 

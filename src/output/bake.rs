@@ -4,9 +4,10 @@
 //! dark lines appear at chart borders when the texture is mipmapped.
 
 use std::path::Path;
+use std::sync::Mutex;
 
 use super::{colour_rows, open_samples, BAND_ROWS};
-use crate::container::MemoryBudget;
+use crate::container::{BoundedCache, MemoryBudget};
 use crate::io::imageio::{self, dilate_with, CoveredMean, RgbImage};
 use crate::quilt::Quilt;
 use crate::Result;
@@ -15,10 +16,10 @@ use crate::Result;
 const DILATE: usize = 16;
 
 /// Bakes the quilt's preview colour to `out` (PNG or EXR), gutter dilated.
-/// A PNG is computed and written band by band (64 rows with 16 rows of
-/// context each side, and the whole atlas's mean colour
-/// from a first pass, so the result is exactly that of the whole image); an
-/// EXR is assembled whole before it is written.
+/// Computed band by band (64 rows with 16 rows of context each side, and
+/// the whole atlas's mean colour from a first pass, so the result is exactly
+/// that of the whole image dilated) and written as the bands come: a PNG in
+/// order, an EXR in whatever order its writer asks, a few bands held.
 pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: MemoryBudget) -> Result<()> {
     // decoded chunks of the quilt and of the samples
     let [quilt_budget, sample_budget] = budget.split([3, 1]);
@@ -39,72 +40,48 @@ pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: Memory
         let (colour, covered) = colour_rows(&quilt, &previews, y0, (y0 + BAND_ROWS).min(r))?;
         mean.add(&colour, &covered);
     }
-    let mut bands = DilatedBands {
-        quilt: &quilt,
-        previews: &previews,
-        fill: mean.colour(),
-        colour: Vec::new(),
-        covered: Vec::new(),
-        lo: 0,
-        hi: 0,
-        next: 0,
-    };
+    let fill = mean.colour();
     if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
-        imageio::write_png_bands(out, r, r, || bands.next_band())
+        let mut y0 = 0;
+        imageio::write_png_bands(out, r, r, || {
+            let band = dilated_band(&quilt, &previews, fill, y0);
+            y0 += BAND_ROWS;
+            band
+        })
     } else {
-        let mut data = Vec::with_capacity(r * r * 3);
-        while bands.next < r {
-            data.extend(bands.next_band()?);
-        }
-        imageio::write_rgb(
-            out,
-            &RgbImage {
-                width: r,
-                height: r,
-                data,
-            },
-        )
+        // the EXR writer asks for pixels in any order from several threads:
+        // the bands it needs are computed on demand, the last few held
+        let budget = MemoryBudget((4 * BAND_ROWS * r * 12) as u64);
+        let held: Mutex<BoundedCache<usize, Vec<f32>>> = Mutex::new(BoundedCache::new(budget));
+        imageio::write_exr_rgb_fn(out, r, r, |x, y| {
+            let mut cache = held.lock().unwrap_or_else(|p| p.into_inner());
+            let b = y / BAND_ROWS;
+            if !cache.contains(&b) {
+                let band = dilated_band(&quilt, &previews, fill, b * BAND_ROWS)?;
+                let bytes = (band.len() * 4) as u64;
+                cache.insert(b, band, bytes);
+            }
+            let band = cache.get(&b).expect("just inserted");
+            let i = ((y - b * BAND_ROWS) * r + x) * 3;
+            Ok([band[i], band[i + 1], band[i + 2]])
+        })
     }
 }
 
-/// The baked atlas in bands: a window of undilated rows `lo..hi` slides down
-/// the atlas, each band dilated with [`DILATE`] rows of context.
-struct DilatedBands<'a> {
-    quilt: &'a Quilt,
-    previews: &'a [RgbImage],
-    /// The colour of texels dilation leaves empty.
-    fill: [f32; 3],
-    colour: Vec<f32>,
-    covered: Vec<bool>,
-    lo: usize,
-    hi: usize,
-    /// The first row of the next band.
-    next: usize,
-}
-
-impl DilatedBands<'_> {
-    /// The next [`BAND_ROWS`] rows (fewer at the bottom), dilated.
-    fn next_band(&mut self) -> Result<Vec<f32>> {
-        let r = self.quilt.resolution;
-        let (y0, y1) = (self.next, (self.next + BAND_ROWS).min(r));
-        let (want_lo, want_hi) = (y0.saturating_sub(DILATE), (y1 + DILATE).min(r));
-        let drop = want_lo - self.lo;
-        self.colour.drain(..drop * r * 3);
-        self.covered.drain(..drop * r);
-        self.lo = want_lo;
-        if self.hi < want_hi {
-            let (c, m) = colour_rows(self.quilt, self.previews, self.hi, want_hi)?;
-            self.colour.extend_from_slice(&c);
-            self.covered.extend_from_slice(&m);
-            self.hi = want_hi;
-        }
-        let mut img = RgbImage {
-            width: r,
-            height: self.hi - self.lo,
-            data: self.colour.clone(),
-        };
-        dilate_with(&mut img, &self.covered, DILATE, self.fill);
-        self.next = y1;
-        Ok(img.data[(y0 - self.lo) * r * 3..(y1 - self.lo) * r * 3].to_vec())
-    }
+/// Rows `y0..y0 + BAND_ROWS` (fewer at the bottom) of the baked atlas:
+/// computed with [`DILATE`] rows of context each side and dilated, so they
+/// equal those rows of the whole image dilated (`fill` being the whole
+/// atlas's covered mean).
+fn dilated_band(quilt: &Quilt, previews: &[RgbImage], fill: [f32; 3], y0: usize) -> Result<Vec<f32>> {
+    let r = quilt.resolution;
+    let y1 = (y0 + BAND_ROWS).min(r);
+    let (lo, hi) = (y0.saturating_sub(DILATE), (y1 + DILATE).min(r));
+    let (colour, covered) = colour_rows(quilt, previews, lo, hi)?;
+    let mut img = RgbImage {
+        width: r,
+        height: hi - lo,
+        data: colour,
+    };
+    dilate_with(&mut img, &covered, DILATE, fill);
+    Ok(img.data[(y0 - lo) * r * 3..(y1 - lo) * r * 3].to_vec())
 }

@@ -555,6 +555,13 @@ fn a_damaged_chunk_far_into_the_atlas_is_refused_by_the_streaming_outputs() {
             .map(String::from)
             .to_vec()
     };
+    let exr = dir.path().join("out.exr");
+    refuses(
+        &["bake", s(&bad), "-o", s(&exr)],
+        &["bad.quilt", needle],
+        Some(&exr),
+    );
+    assert!(!exr.exists(), "bake wrote {}", exr.display());
     for args in [
         ["bake", s(&bad), "-o", s(&out)].map(String::from).to_vec(),
         render(&bad),
