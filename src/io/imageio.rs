@@ -838,6 +838,80 @@ where
     })
 }
 
+/// Writes an f32 OpenEXR (ZIP-compressed, as [`write_exr_channels`]) of the
+/// 7 or 8 channels `names` whose values at `(x, y)` are `pixel(x, y)`, asked
+/// for in any order and from several threads. The first error a pixel
+/// returns ends the write with nothing at `path`. Staged like every output.
+pub fn write_exr_f32_fn<const N: usize, F>(
+    path: &Path,
+    width: usize,
+    height: usize,
+    names: [&str; N],
+    pixel: F,
+) -> Result<()>
+where
+    F: Fn(usize, usize) -> Result<[f32; N]> + Sync,
+{
+    check_write(path, width, height, 1, width * height)?;
+    let failed = std::sync::Mutex::new(None::<Error>);
+    let at = |p: x::Vec2<usize>| {
+        pixel(p.0, p.1).unwrap_or_else(|e| {
+            failed.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+            [f32::NAN; N]
+        })
+    };
+    // one layer of the given channels, written and checked before it is renamed into place
+    macro_rules! write_layer {
+        ($channels:expr) => {{
+            let layer = x::Layer::new(
+                (width, height),
+                x::LayerAttributes::default(),
+                x::Encoding::SMALL_LOSSLESS,
+                $channels,
+            );
+            let image = x::Image::from_layer(layer);
+            write_atomic(path, |out| {
+                image.write().to_buffered(out).map_err(|e| exr_err(path, e))?;
+                match failed.lock().unwrap_or_else(|p| p.into_inner()).take() {
+                    Some(e) => Err(e),
+                    None => Ok(()),
+                }
+            })
+        }};
+    }
+    match names[..] {
+        [a, b, c, d, e, f, g] => write_layer!(x::SpecificChannels::build()
+            .with_channel::<f32>(a)
+            .with_channel::<f32>(b)
+            .with_channel::<f32>(c)
+            .with_channel::<f32>(d)
+            .with_channel::<f32>(e)
+            .with_channel::<f32>(f)
+            .with_channel::<f32>(g)
+            .with_pixel_fn(|p| {
+                let v = at(p);
+                (v[0], v[1], v[2], v[3], v[4], v[5], v[6])
+            })),
+        [a, b, c, d, e, f, g, h] => write_layer!(x::SpecificChannels::build()
+            .with_channel::<f32>(a)
+            .with_channel::<f32>(b)
+            .with_channel::<f32>(c)
+            .with_channel::<f32>(d)
+            .with_channel::<f32>(e)
+            .with_channel::<f32>(f)
+            .with_channel::<f32>(g)
+            .with_channel::<f32>(h)
+            .with_pixel_fn(|p| {
+                let v = at(p);
+                (v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7])
+            })),
+        _ => Err(Error::Config(format!(
+            "{}: {N} OpenEXR channels from a pixel function (7 or 8 are written)",
+            path.display()
+        ))),
+    }
+}
+
 /// Write by extension: .png (8-bit sRGB) or .exr (f16). Other extensions are an input error.
 pub fn write_rgb(path: &Path, img: &RgbImage) -> Result<()> {
     match kind_of(path)? {
@@ -1367,6 +1441,47 @@ mod tests {
         assert!(err.to_string().contains("damaged chunk"), "{err}");
         assert_eq!(std::fs::read(&from_fn).unwrap(), before);
         assert_eq!(files_in(dir.path()).len(), 2);
+    }
+
+    #[test]
+    fn exr_channels_from_a_pixel_function_are_the_same_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (23, 17);
+        let value = |c: usize, t: usize| {
+            if t % 5 == 0 {
+                f32::NAN
+            } else {
+                (t * 8 + c) as f32 * 0.37 - 3.0
+            }
+        };
+        let names = ["u", "v", "angle", "dudX", "dvdX", "dudY", "dvdY", "sample"];
+        for n in [7, 8] {
+            let planes: Vec<(String, Vec<f32>)> = (0..n)
+                .map(|c| (names[c].to_string(), (0..w * h).map(|t| value(c, t)).collect()))
+                .collect();
+            let (a, b) = (
+                dir.path().join(format!("a{n}.exr")),
+                dir.path().join(format!("b{n}.exr")),
+            );
+            write_exr_channels(&a, w, h, &planes, false).unwrap();
+            if n == 7 {
+                let seven: [&str; 7] = std::array::from_fn(|c| names[c]);
+                write_exr_f32_fn(&b, w, h, seven, |x, y| {
+                    Ok(std::array::from_fn(|c| value(c, y * w + x)))
+                })
+                .unwrap();
+            } else {
+                write_exr_f32_fn(&b, w, h, names, |x, y| {
+                    Ok(std::array::from_fn(|c| value(c, y * w + x)))
+                })
+                .unwrap();
+            }
+            assert_eq!(
+                std::fs::read(&a).unwrap(),
+                std::fs::read(&b).unwrap(),
+                "{n} channels"
+            );
+        }
     }
 
     #[test]

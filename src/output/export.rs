@@ -24,12 +24,14 @@ use std::str::FromStr;
 
 use crate::artifact::gim::Gim;
 use crate::artifact::svd::SvdArtifact;
-use crate::container::{Container, MemoryBudget};
+use std::sync::Mutex;
+
+use crate::container::{BoundedCache, Container, MemoryBudget};
 use crate::io::imageio;
 use crate::mesh::io::write_obj;
 use crate::mesh::Mesh;
-use crate::output::bake;
 use crate::output::show::{show, ShowWhat};
+use crate::output::{bake, BAND_ROWS};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
 
@@ -799,45 +801,22 @@ fn stage_surface_btf(
         .collect();
 
     // synthesis.exr: per atlas texel the sample coordinate and frame (and,
-    // with several samples, which one)
-    let coords = quilt.coords()?;
-    let patches = quilt.patches()?;
-    let jac = quilt.jacobians()?;
-    let index = quilt.sample_index()?;
-    if coords.len() != r * r || patches.len() != r * r || jac.len() != r * r || index.len() != r * r {
-        return Err(Error::input(
-            quilt_path,
-            "coord/patch/jacobian/sample arrays disagree with the resolution",
-        ));
-    }
-    let mut names = vec!["u", "v", "angle", "dudX", "dvdX", "dudY", "dvdY"];
-    if several {
-        names.push("sample");
-    }
-    let mut planes = vec![vec![f32::NAN; r * r]; names.len()];
+    // with several samples, which one); a first pass over bands checks the
+    // samples' extent, the second writes the bands the EXR writer asks for
     let mut covered = 0usize;
     let mut reach = vec![[0f32; 2]; svds.len()];
-    for t in 0..r * r {
-        if patches[t] == NO_PATCH {
-            continue;
-        }
-        covered += 1;
-        let [x, y] = coords[t];
-        let j = jac[t];
-        let k = index[t] as usize;
-        reach[k] = [reach[k][0].max(x.abs()), reach[k][1].max(y.abs())];
-        let values = [
-            x,
-            y,
-            j[1].atan2(j[0]).to_degrees(),
-            j[0],
-            j[1],
-            j[2],
-            j[3],
-            k as f32,
-        ];
-        for (plane, v) in planes.iter_mut().zip(values) {
-            plane[t] = v;
+    for y0 in (0..r).step_by(BAND_ROWS) {
+        let h = BAND_ROWS.min(r - y0);
+        let coords = quilt.coord_region(0, y0, r, h)?;
+        let patches = quilt.patch_region(0, y0, r, h)?;
+        let index = quilt.sample_region(0, y0, r, h)?;
+        for t in 0..r * h {
+            if patches[t] == NO_PATCH {
+                continue;
+            }
+            covered += 1;
+            let ([x, y], k) = (coords[t], index[t] as usize);
+            reach[k] = [reach[k][0].max(x.abs()), reach[k][1].max(y.abs())];
         }
     }
     for (k, s) in samples.iter().enumerate() {
@@ -860,9 +839,13 @@ fn stage_surface_btf(
             ));
         }
     }
-    let channels: Vec<(String, Vec<f32>)> = names.iter().map(|s| s.to_string()).zip(planes).collect();
-    imageio::write_exr_channels(&stage.publish("synthesis.exr"), r, r, &channels, false)?;
-    drop(channels);
+    let path = stage.publish("synthesis.exr");
+    let names = ["u", "v", "angle", "dudX", "dvdX", "dudY", "dvdY", "sample"];
+    if several {
+        write_synthesis(quilt, &path, names)?;
+    } else {
+        write_synthesis(quilt, &path, std::array::from_fn::<_, 7, _>(|c| names[c]))?;
+    }
 
     for (k, svd) in svds.iter().enumerate() {
         stage_factors(svd, k, views, lights, stage)?;
@@ -904,6 +887,57 @@ fn stage_surface_btf(
     let text = format_md(&facts);
     imageio::write_atomic(&out, |f| {
         f.write_all(text.as_bytes()).map_err(|e| Error::io(&out, e))
+    })
+}
+
+/// `synthesis.exr` of `quilt`: per covered texel its sample coordinate, the
+/// frame's angle and Jacobian (and, with 8 channels, its sample index); NaN
+/// elsewhere. Computed by bands of rows as the EXR writer asks for them, the
+/// last four held.
+fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names: [&str; N]) -> Result<()> {
+    let r = quilt.resolution;
+    let band = |y0: usize| -> Result<Vec<f32>> {
+        let h = BAND_ROWS.min(r - y0);
+        let coords = quilt.coord_region(0, y0, r, h)?;
+        let patches = quilt.patch_region(0, y0, r, h)?;
+        let index = quilt.sample_region(0, y0, r, h)?;
+        let jac = quilt
+            .jacobian_region(0, y0, r, h)?
+            .ok_or_else(|| Error::input(quilt.container().path(), "it stores no 'jacobian' array"))?;
+        let mut out = vec![f32::NAN; r * h * N];
+        for t in 0..r * h {
+            if patches[t] == NO_PATCH {
+                continue;
+            }
+            let ([x, y], j) = (coords[t], jac[t]);
+            let values = [
+                x,
+                y,
+                j[1].atan2(j[0]).to_degrees(),
+                j[0],
+                j[1],
+                j[2],
+                j[3],
+                index[t] as f32,
+            ];
+            out[t * N..(t + 1) * N].copy_from_slice(&values[..N]);
+        }
+        Ok(out)
+    };
+    let held = Mutex::new(BoundedCache::<usize, Vec<f32>>::new(MemoryBudget(
+        (4 * BAND_ROWS * r * N * 4) as u64,
+    )));
+    imageio::write_exr_f32_fn(path, r, r, names, |x, y| {
+        let mut cache = held.lock().unwrap_or_else(|p| p.into_inner());
+        let b = y / BAND_ROWS;
+        if !cache.contains(&b) {
+            let values = band(b * BAND_ROWS)?;
+            let bytes = (values.len() * 4) as u64;
+            cache.insert(b, values, bytes);
+        }
+        let values = cache.get(&b).expect("just inserted");
+        let i = ((y - b * BAND_ROWS) * r + x) * N;
+        Ok(std::array::from_fn(|c| values[i + c]))
     })
 }
 
