@@ -805,6 +805,40 @@ pub fn write_exr_channels(
     })
 }
 
+/// Writes one layer of `channels` (`SpecificChannels`) to `path` as
+/// [`write_exr`] does, staged; `failed` (a pixel function's first error)
+/// is checked before the file is renamed into place.
+macro_rules! write_exr_layer {
+    ($path:expr, $width:expr, $height:expr, $channels:expr, $failed:expr) => {{
+        let layer = x::Layer::new(
+            ($width, $height),
+            x::LayerAttributes::default(),
+            x::Encoding::SMALL_LOSSLESS,
+            $channels,
+        );
+        let image = x::Image::from_layer(layer);
+        write_atomic($path, |out| {
+            image.write().to_buffered(out).map_err(|e| exr_err($path, e))?;
+            match $failed.lock().unwrap_or_else(|p| p.into_inner()).take() {
+                Some(e) => Err(e),
+                None => Ok(()),
+            }
+        })
+    }};
+}
+
+/// f32 channels `names` whose pixel tuple is `at(position)`'s values, in order.
+macro_rules! f32_channels {
+    ($at:expr; $($name:ident : $i:tt),+) => {
+        x::SpecificChannels::build()
+            $(.with_channel::<f32>($name))+
+            .with_pixel_fn(|p| {
+                let v = $at(p);
+                ($(v[$i]),+)
+            })
+    };
+}
+
 /// Writes a linear RGB OpenEXR (f16, ZIP-compressed, as [`write_exr`]) whose
 /// pixel `(x, y)` is `pixel(x, y)`, asked for in any order and from several
 /// threads, so the image never has to be held whole. The first error a pixel
@@ -822,20 +856,7 @@ where
         });
         (f16::from_f32(r), f16::from_f32(g), f16::from_f32(b))
     });
-    let layer = x::Layer::new(
-        (width, height),
-        x::LayerAttributes::default(),
-        x::Encoding::SMALL_LOSSLESS,
-        channels,
-    );
-    let image = x::Image::from_layer(layer);
-    write_atomic(path, |out| {
-        image.write().to_buffered(out).map_err(|e| exr_err(path, e))?;
-        match failed.lock().unwrap_or_else(|p| p.into_inner()).take() {
-            Some(e) => Err(e),
-            None => Ok(()),
-        }
-    })
+    write_exr_layer!(path, width, height, channels, failed)
 }
 
 /// Writes an f32 OpenEXR (ZIP-compressed, as [`write_exr_channels`]) of the
@@ -860,51 +881,15 @@ where
             [f32::NAN; N]
         })
     };
-    // one layer of the given channels, written and checked before it is renamed into place
-    macro_rules! write_layer {
-        ($channels:expr) => {{
-            let layer = x::Layer::new(
-                (width, height),
-                x::LayerAttributes::default(),
-                x::Encoding::SMALL_LOSSLESS,
-                $channels,
-            );
-            let image = x::Image::from_layer(layer);
-            write_atomic(path, |out| {
-                image.write().to_buffered(out).map_err(|e| exr_err(path, e))?;
-                match failed.lock().unwrap_or_else(|p| p.into_inner()).take() {
-                    Some(e) => Err(e),
-                    None => Ok(()),
-                }
-            })
-        }};
-    }
     match names[..] {
-        [a, b, c, d, e, f, g] => write_layer!(x::SpecificChannels::build()
-            .with_channel::<f32>(a)
-            .with_channel::<f32>(b)
-            .with_channel::<f32>(c)
-            .with_channel::<f32>(d)
-            .with_channel::<f32>(e)
-            .with_channel::<f32>(f)
-            .with_channel::<f32>(g)
-            .with_pixel_fn(|p| {
-                let v = at(p);
-                (v[0], v[1], v[2], v[3], v[4], v[5], v[6])
-            })),
-        [a, b, c, d, e, f, g, h] => write_layer!(x::SpecificChannels::build()
-            .with_channel::<f32>(a)
-            .with_channel::<f32>(b)
-            .with_channel::<f32>(c)
-            .with_channel::<f32>(d)
-            .with_channel::<f32>(e)
-            .with_channel::<f32>(f)
-            .with_channel::<f32>(g)
-            .with_channel::<f32>(h)
-            .with_pixel_fn(|p| {
-                let v = at(p);
-                (v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7])
-            })),
+        [a, b, c, d, e, f, g] => {
+            let channels = f32_channels!(at; a: 0, b: 1, c: 2, d: 3, e: 4, f: 5, g: 6);
+            write_exr_layer!(path, width, height, channels, failed)
+        }
+        [a, b, c, d, e, f, g, h] => {
+            let channels = f32_channels!(at; a: 0, b: 1, c: 2, d: 3, e: 4, f: 5, g: 6, h: 7);
+            write_exr_layer!(path, width, height, channels, failed)
+        }
         _ => Err(Error::Config(format!(
             "{}: {N} OpenEXR channels from a pixel function (7 or 8 are written)",
             path.display()
