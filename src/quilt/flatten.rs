@@ -487,12 +487,16 @@ pub(super) fn flatten(
     // grid triangles have atlas area ½; those touching a chart border are
     // left out (conservative coverage overlaps the charts there by up to a
     // texel, which closing the gaps squeezes out)
-    let border = |i: u32| {
-        let t = patch.texels[i as usize];
-        let mut on = false;
-        surface.for_each_neighbour(t, |_, zipper| on |= zipper);
-        on
-    };
+    let on_border: Vec<bool> = patch
+        .texels
+        .iter()
+        .map(|&t| {
+            let mut on = false;
+            surface.for_each_neighbour(t, |_, zipper| on |= zipper);
+            on
+        })
+        .collect();
+    let border = |i: u32| on_border[i as usize];
     let area = |p: [[f64; 2]; 3]| {
         0.5 * ((p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]))
     };
@@ -594,22 +598,26 @@ pub(super) fn raster_work_image(
     }
     let n = state.n;
     let mut work = WorkImage::blank(w, h, state, coords, angle);
-    let mut corner = vec![0f32; 3 * n];
+    // each patch vertex's values once (a vertex is a corner of up to six
+    // triangles): whether it is synthesized, its features and its m0
+    let synthesized: Vec<bool> = patch.texels.iter().map(|&t| state.synthesized(t)).collect();
+    let mut features = vec![0f32; patch.texels.len() * n];
+    for ((&t, &s), out) in patch.texels.iter().zip(&synthesized).zip(features.chunks_exact_mut(n.max(1))) {
+        if s {
+            state.feature_into(sample, t, &mut out[..n]);
+        }
+    }
+    let m0: Vec<f32> = if state.constrained {
+        patch.texels.iter().map(|&t| state.target(t).unwrap_or(0.0)).collect()
+    } else {
+        Vec::new()
+    };
     for tri in tris {
-        let ids = [
-            patch.texels[tri[0] as usize],
-            patch.texels[tri[1] as usize],
-            patch.texels[tri[2] as usize],
-        ];
-        if !ids.iter().all(|&t| state.synthesized(t)) {
+        if !tri.iter().all(|&i| synthesized[i as usize]) {
             continue;
         }
-        let corner_m0 = state
-            .constrained
-            .then(|| ids.map(|t| state.target(t).unwrap_or(0.0)));
-        for (k, &t) in ids.iter().enumerate() {
-            state.feature_into(sample, t, &mut corner[k * n..(k + 1) * n]);
-        }
+        let corner_m0 = state.constrained.then(|| tri.map(|i| m0[i as usize]));
+        let corner = tri.map(|i| &features[i as usize * n..(i as usize + 1) * n]);
         let p = [
             work.coords[tri[0] as usize],
             work.coords[tri[1] as usize],
@@ -644,9 +652,8 @@ pub(super) fn raster_work_image(
                     work.constraint[i] = (l0 as f32) * m0[0] + (l1 as f32) * m0[1] + (l2 as f32) * m0[2];
                 }
                 for c in 0..n {
-                    work.features[i * n + c] = (l0 as f32) * corner[c]
-                        + (l1 as f32) * corner[n + c]
-                        + (l2 as f32) * corner[2 * n + c];
+                    work.features[i * n + c] =
+                        (l0 as f32) * corner[0][c] + (l1 as f32) * corner[1][c] + (l2 as f32) * corner[2][c];
                 }
             }
         }
