@@ -7,7 +7,9 @@
 //! et al. 2004), and moves the seeds to the chart centres for a few Lloyd
 //! iterations. Every chart is then checked to be a topological disk, mapped
 //! with LSCM, and split in two while it is not a disk, has a flipped triangle,
-//! or its texture stretch (Sander et al. 2001) exceeds the limit. Finally,
+//! folds over itself in uv (two of its boundary edges cross, see
+//! [`overlap`](super::overlap)), or its texture stretch (Sander et al. 2001)
+//! exceeds the limit. Finally,
 //! smallest first, each chart is merged into one of its neighbours (longest
 //! shared border first) when the union is a disk with an unflipped map within
 //! the stretch limit and its faces stay within the normal cone of the union's
@@ -463,7 +465,8 @@ fn segment(ctx: &Ctx) -> Vec<Vec<u32>> {
 }
 
 /// LSCM of a set of faces (sorted), normalised to uniform density and
-/// oriented; `None` if LSCM fails or a triangle flips.
+/// oriented; `None` if LSCM fails, a triangle flips or the map folds over
+/// itself (two boundary edges cross).
 fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
     let mesh = ctx.mesh;
     let mut vertices: Vec<u32> = faces.iter().flat_map(|&f| mesh.triangles[f as usize]).collect();
@@ -491,6 +494,10 @@ fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
             if !(s > 0.0 || ctx.area[f as usize] == 0.0) {
                 return None;
             }
+        }
+        // no flip, yet the chart may fold over itself: split it then
+        if super::overlap::boundary_crosses(&uv, &triangles) {
+            return None;
         }
         uv
     };

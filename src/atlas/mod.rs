@@ -18,6 +18,7 @@
 
 pub mod charts;
 pub mod lscm;
+mod overlap;
 pub mod pack;
 pub mod raster;
 

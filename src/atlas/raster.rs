@@ -91,6 +91,9 @@ pub struct AtlasReport {
     /// Covered texels / R².
     pub utilization: f64,
     pub texels: usize,
+    /// Texels whose centre lies inside two triangles or more (a chart
+    /// folded over itself or overlapping another); 0 for a valid atlas.
+    pub overlapping_texels: usize,
     pub zipper_links: usize,
     pub zipper_triangles: usize,
     /// Surface length of one texel.
@@ -104,12 +107,13 @@ impl std::fmt::Display for AtlasReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} charts, stretch L2 {:.3} L∞ {:.3}, utilization {:.1}%, {} dense vertices, {} zipper links, {} zipper triangles, texel {:.3e} units, {:.2} s (",
+            "{} charts, stretch L2 {:.3} L∞ {:.3}, utilization {:.1}%, {} dense vertices ({} covered twice), {} zipper links, {} zipper triangles, texel {:.3e} units, {:.2} s (",
             self.charts,
             self.l2_stretch,
             self.linf_stretch,
             100.0 * self.utilization,
             self.texels,
+            self.overlapping_texels,
             self.zipper_links,
             self.zipper_triangles,
             self.texel_size,
@@ -197,6 +201,9 @@ struct TileRaster {
     h: usize,
     /// (w + 2) × (h + 2) covers, margin included.
     cover: Vec<Cover>,
+    /// Per texel of the tile (w × h), how many triangles hold its centre
+    /// strictly inside (saturating): above one where charts overlap.
+    inside: Vec<u8>,
 }
 
 impl TileRaster {
@@ -229,6 +236,7 @@ impl FaceRaster<'_> {
         let (x0, y0) = (tx * TILE, ty * TILE);
         let (w, h) = (TILE.min(r - x0), TILE.min(r - y0));
         let mut cover = vec![NO_COVER; (w + 2) * (h + 2)];
+        let mut inside = vec![0u8; w * h];
         // region in absolute texels: [x0 - 1, x0 + w + 1)
         let (rx0, ry0) = (x0 as isize - 1, y0 as isize - 1);
         let (rx1, ry1) = ((x0 + w + 1) as isize, (y0 + h + 1) as isize);
@@ -251,6 +259,11 @@ impl FaceRaster<'_> {
                     if dist > COVER_RADIUS {
                         continue;
                     }
+                    let core = (x as usize).wrapping_sub(x0) < w && (y as usize).wrapping_sub(y0) < h;
+                    if core && bary.iter().all(|&l| l > 0.0) {
+                        let n = &mut inside[(y as usize - y0) * w + x as usize - x0];
+                        *n = n.saturating_add(1);
+                    }
                     let slot = &mut cover[((y - ry0) as usize) * (w + 2) + (x - rx0) as usize];
                     if dist < slot.dist - 1e-12 || (dist <= slot.dist + 1e-12 && f < slot.face) {
                         *slot = Cover { dist, face: f, bary };
@@ -258,7 +271,14 @@ impl FaceRaster<'_> {
                 }
             }
         }
-        TileRaster { x0, y0, w, h, cover }
+        TileRaster {
+            x0,
+            y0,
+            w,
+            h,
+            cover,
+            inside,
+        }
     }
 
     /// The attributes of a covered texel: position, normal, tangent.
@@ -296,6 +316,8 @@ struct TileArrays {
     tangent: Vec<f32>,
     boundary: Vec<BoundaryTexel>,
     covered: usize,
+    /// Texels whose centre lies inside two triangles or more.
+    overlapping: usize,
 }
 
 fn tile_arrays(fr: &FaceRaster, t: &TileRaster) -> TileArrays {
@@ -309,6 +331,7 @@ fn tile_arrays(fr: &FaceRaster, t: &TileRaster) -> TileArrays {
         tangent: vec![0.0; n * 3],
         boundary: Vec::new(),
         covered: 0,
+        overlapping: t.inside.iter().filter(|&&n| n > 1).count(),
     };
     for y in 0..t.h {
         for x in 0..t.w {
@@ -478,9 +501,10 @@ pub fn build_gim(
     let level = cfg.level;
     let mut boundary = Vec::new();
     let mut covered = 0usize;
+    let mut overlapping = 0usize;
     let tiles: Vec<usize> = (0..nt * nt).collect();
     for batch in tiles.chunks(16) {
-        let done: Vec<(Vec<codec::EncodedChunk>, Vec<BoundaryTexel>, usize)> = batch
+        let done: Vec<(Vec<codec::EncodedChunk>, Vec<BoundaryTexel>, usize, usize)> = batch
             .par_iter()
             .map(|&t| {
                 let raster = fr.rasterize(t % nt, t / nt, &buckets[t]);
@@ -493,15 +517,16 @@ pub fn build_gim(
                     codec::encode(&a.normal, level),
                     codec::encode(&a.tangent, level),
                 ];
-                (enc, a.boundary, a.covered)
+                (enc, a.boundary, a.covered, a.overlapping)
             })
             .collect();
-        for (&t, (enc, b, n)) in batch.iter().zip(done) {
+        for (&t, (enc, b, n, o)) in batch.iter().zip(done) {
             for (id, e) in ids.iter().zip(enc) {
                 w.write_encoded(*id, t as u64, e)?;
             }
             boundary.extend(b);
             covered += n;
+            overlapping += o;
         }
         progress.advance(batch.len() as u64);
     }
@@ -564,6 +589,7 @@ pub fn build_gim(
         linf_stretch: linf,
         utilization,
         texels: covered,
+        overlapping_texels: overlapping,
         zipper_links: links.len(),
         zipper_triangles: zip_tris.len(),
         texel_size,

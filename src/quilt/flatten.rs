@@ -602,13 +602,22 @@ pub(super) fn raster_work_image(
     // triangles): whether it is synthesized, its features and its m0
     let synthesized: Vec<bool> = patch.texels.iter().map(|&t| state.synthesized(t)).collect();
     let mut features = vec![0f32; patch.texels.len() * n];
-    for ((&t, &s), out) in patch.texels.iter().zip(&synthesized).zip(features.chunks_exact_mut(n.max(1))) {
+    for ((&t, &s), out) in patch
+        .texels
+        .iter()
+        .zip(&synthesized)
+        .zip(features.chunks_exact_mut(n.max(1)))
+    {
         if s {
             state.feature_into(sample, t, &mut out[..n]);
         }
     }
     let m0: Vec<f32> = if state.constrained {
-        patch.texels.iter().map(|&t| state.target(t).unwrap_or(0.0)).collect()
+        patch
+            .texels
+            .iter()
+            .map(|&t| state.target(t).unwrap_or(0.0))
+            .collect()
     } else {
         Vec::new()
     };

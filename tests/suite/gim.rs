@@ -247,6 +247,27 @@ fn field_keys_orient_the_tangent_frames() {
     }
 }
 
+/// The measure of a folded or overlapping atlas: texel centres
+/// inside two chart triangles or more, over every shared mesh at 1024².
+#[test]
+fn no_texel_is_covered_twice_on_any_shared_mesh() {
+    let Some(dir) = shared_meshes() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let mut names: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "obj"))
+        .collect();
+    names.sort();
+    assert!(names.len() >= 5, "{} meshes in {}", names.len(), dir.display());
+    for mesh in names {
+        let report = build(&mesh, &tmp.path().join("m.gim"), 1024);
+        eprintln!("{}: {report}", mesh.display());
+        assert_eq!(report.overlapping_texels, 0, "{}: {report}", mesh.display());
+    }
+}
+
 #[test]
 fn every_shared_mesh_builds_or_fails_clearly() {
     let Some(dir) = shared_meshes() else { return };

@@ -406,6 +406,46 @@ fn read_obj(path: &Path) -> Option<Mesh> {
     Some(mesh)
 }
 
+/// Brute force: of about 250 000 grid points over the chart's uv box, how
+/// many lie strictly inside two of its triangles or more (a chart that folds
+/// over itself covers some twice although no triangle is flipped).
+fn points_covered_twice(uv: &[[f64; 2]], triangles: &[[u32; 3]]) -> usize {
+    let hi = uv
+        .iter()
+        .fold([0.0f64; 2], |m, p| [m[0].max(p[0]), m[1].max(p[1])]);
+    let step = (hi[0] * hi[1] / 250_000.0).sqrt().max(1e-12);
+    let (w, h) = ((hi[0] / step) as usize + 1, (hi[1] / step) as usize + 1);
+    let mut count = vec![0u8; w * h];
+    for t in triangles {
+        let p = t.map(|v| uv[v as usize]);
+        let d = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+        if d <= 0.0 {
+            continue;
+        }
+        let lo = |k: usize| {
+            (p.iter().map(|q| q[k]).fold(f64::INFINITY, f64::min) / step)
+                .floor()
+                .max(0.0) as usize
+        };
+        let up = |k: usize, n: usize| {
+            ((p.iter().map(|q| q[k]).fold(0.0, f64::max) / step).ceil() as usize).min(n - 1)
+        };
+        for y in lo(1)..=up(1, h) {
+            for x in lo(0)..=up(0, w) {
+                let q = [(x as f64 + 0.5) * step, (y as f64 + 0.5) * step];
+                let inside = (0..3).all(|e| {
+                    let (a, b) = (p[e], p[(e + 1) % 3]);
+                    (b[0] - a[0]) * (q[1] - a[1]) - (b[1] - a[1]) * (q[0] - a[0]) > 0.0
+                });
+                if inside {
+                    count[y * w + x] = count[y * w + x].saturating_add(1);
+                }
+            }
+        }
+    }
+    count.iter().filter(|&&n| n > 1).count()
+}
+
 /// Checks the chart invariants; returns (overall L2, overall L∞).
 fn check_charts(name: &str, mesh: &Mesh, charts: &[Chart], max_l2: f64) -> (f64, f64) {
     let mut seen = vec![0u32; mesh.triangles.len()];
@@ -478,6 +518,13 @@ fn check_charts(name: &str, mesh: &Mesh, charts: &[Chart], max_l2: f64) -> (f64,
             .iter()
             .fold([f64::INFINITY; 2], |m, p| [m[0].min(p[0]), m[1].min(p[1])]);
         assert!(lo[0] == 0.0 && lo[1] == 0.0, "{name}: chart {ci} uv min {lo:?}");
+        let twice = points_covered_twice(&uv, &c.triangles);
+        assert_eq!(
+            twice,
+            0,
+            "{name}: chart {ci} ({} faces) folds over itself",
+            c.faces.len()
+        );
         let positions: Vec<[f32; 3]> = c.vertices.iter().map(|&v| mesh.positions[v as usize]).collect();
         let a3: f64 = c.faces.iter().map(|&f| mesh.face_area(f as usize) as f64).sum();
         let auv: f64 = areas.iter().sum();
