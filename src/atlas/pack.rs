@@ -1,18 +1,66 @@
 //! Packing charts into the R×R atlas at one uniform texel density.
 //!
 //! Charts arrive in surface units (uv area = 3D area). The packer finds the
-//! largest scale s (texels per surface unit) at which shelf packing of the
-//! charts' bounding rectangles, each padded so neighbouring charts keep at
-//! least `gutter` empty texels between their (half-texel dilated) coverage,
-//! fits in R×R, by bisection on s.
+//! largest scale s (texels per surface unit) at which every chart fits, by
+//! bisection on s. At each scale a chart is rasterized into its footprint —
+//! the texels the rasterizer will cover (centres within
+//! [`COVER_RADIUS`] of a triangle), dilated by half the gutter — in each of
+//! four quarter turns, and dropped into the atlas like a Tetris piece: a
+//! skyline keeps, per atlas column, the first row below everything placed,
+//! and each chart (largest first) takes the turn and column where its
+//! footprint comes to rest highest. Chart shapes then nest
+//! into each other's outlines instead of each claiming its bounding
+//! rectangle. Shelf packing of the padded bounding rectangles is the
+//! fallback when it fits a larger scale (a handful of near-rectangular
+//! charts).
+
+use rayon::prelude::*;
+
+/// Texel centres this close (in texels) to a chart triangle are covered.
+pub const COVER_RADIUS: f64 = 0.75;
+
+/// A chart as the packer sees it: its uv (surface units, from 0 to
+/// `extent`) and triangles.
+pub struct Shape<'a> {
+    pub uv: &'a [[f32; 2]],
+    pub triangles: &'a [[u32; 3]],
+    pub extent: [f64; 2],
+}
 
 /// Where each chart goes.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Packing {
     /// Texels per surface unit, the same for every chart.
     pub scale: f64,
-    /// Per chart, the texel position of its uv origin.
+    /// Per chart, the atlas texel position of the corner of its box.
     pub offsets: Vec<[f64; 2]>,
+    /// Per chart, quarter turns (0-3, clockwise in the atlas) of its box.
+    pub turns: Vec<u8>,
+}
+
+impl Packing {
+    /// Atlas texel coordinates of chart point `uv` (surface units) of a
+    /// chart with `extent`: v is flipped (atlas rows run down, and the
+    /// charts' uv is right-handed, so that keeps triangles counter-clockwise
+    /// as seen on the surface), the box turned and moved into place.
+    pub fn place(&self, chart: usize, extent: [f64; 2], uv: [f32; 2]) -> [f64; 2] {
+        let s = self.scale;
+        let local = [uv[0] as f64 * s, (extent[1] - uv[1] as f64) * s];
+        let t = turn(self.turns[chart], local, [extent[0] * s, extent[1] * s]);
+        let o = self.offsets[chart];
+        [o[0] + t[0], o[1] + t[1]]
+    }
+}
+
+/// `p` in a `box_`-sized box turned by `k` quarter turns (a rotation: the
+/// winding of triangles is kept), in the turned box.
+fn turn(k: u8, p: [f64; 2], box_: [f64; 2]) -> [f64; 2] {
+    match k % 4 {
+        0 => p,
+        1 => [box_[1] - p[1], p[0]],
+        2 => [box_[0] - p[0], box_[1] - p[1]],
+        _ => [p[1], box_[0] - p[0]],
+    }
 }
 
 /// Texels kept free around each chart: half the gutter plus the coverage
@@ -55,61 +103,360 @@ fn shelf(
     Some(offsets)
 }
 
-/// Packs charts with the given uv extents (surface units, each starting at
-/// 0) into `resolution`² with at least `gutter` texels between charts.
-pub fn pack(extents: &[[f64; 2]], resolution: usize, gutter: usize) -> Packing {
+/// A chart's footprint in one turn: per column of its bitmap, the first
+/// and one past the last occupied row (`None` for an empty column), and
+/// the integer margin between the bitmap's corner and the chart's box.
+struct Footprint {
+    columns: Vec<Option<(i32, i32)>>,
+    margin: i32,
+}
+
+impl Footprint {
+    /// The footprint of `shape` at `scale`, turned `k` times: texels whose
+    /// centre is within [`COVER_RADIUS`] of a triangle, dilated by `grow`
+    /// texels (Chebyshev). Each column's extent is kept (the skyline cannot
+    /// use holes inside a column anyway).
+    fn new(shape: &Shape, scale: f64, k: u8, grow: i32) -> Footprint {
+        let box_ = [shape.extent[0] * scale, shape.extent[1] * scale];
+        let turned = if k % 2 == 1 { [box_[1], box_[0]] } else { box_ };
+        let margin = COVER_RADIUS.ceil() as i32 + grow + 1;
+        let w = turned[0].ceil() as i32 + 2 * margin;
+        let mut columns: Vec<Option<(i32, i32)>> = vec![None; w as usize];
+        let m = margin as f64;
+        let mut mark = |x: i32, y: i32| {
+            for cx in (x - grow).max(0)..=(x + grow).min(w - 1) {
+                let e = &mut columns[cx as usize];
+                *e = Some(match *e {
+                    None => (y - grow, y + grow + 1),
+                    Some((a, b)) => (a.min(y - grow), b.max(y + grow + 1)),
+                });
+            }
+        };
+        for t in shape.triangles {
+            let p = t.map(|v| {
+                let uv = shape.uv[v as usize];
+                let local = [uv[0] as f64 * scale, (shape.extent[1] - uv[1] as f64) * scale];
+                let q = turn(k, local, box_);
+                [q[0] + m, q[1] + m]
+            });
+            let r = COVER_RADIUS + 1e-6;
+            let lo =
+                |i: usize| (p.iter().map(|c| c[i]).fold(f64::INFINITY, f64::min) - r - 0.5).ceil() as i32;
+            let hi = |i: usize| {
+                (p.iter().map(|c| c[i]).fold(f64::NEG_INFINITY, f64::max) + r - 0.5).floor() as i32
+            };
+            for y in lo(1)..=hi(1) {
+                for x in lo(0)..=hi(0) {
+                    if distance_to_triangle(&p, [x as f64 + 0.5, y as f64 + 0.5]) <= r {
+                        mark(x, y);
+                    }
+                }
+            }
+        }
+        Footprint { columns, margin }
+    }
+
+    /// Where the footprint comes to rest on the skyline `sky` (per column,
+    /// the first free row): (row, column) of its bitmap's corner, the
+    /// highest resting place and the leftmost among equals, trying every
+    /// `stride`-th column; `None` if it fits nowhere in `r` rows.
+    fn rest(&self, sky: &[i32], r: i32, stride: i32) -> Option<(i32, i32)> {
+        let first = self.columns.iter().position(|e| e.is_some())? as i32;
+        let last = self.columns.iter().rposition(|e| e.is_some())? as i32;
+        let low = self.columns.iter().filter_map(|e| e.map(|(_, b)| b)).max()?;
+        let mut best: Option<(i32, i32)> = None;
+        let mut x = -first;
+        while x + last < r {
+            let mut y = i32::MIN;
+            for (cx, e) in self.columns.iter().enumerate() {
+                if let Some((a, _)) = *e {
+                    y = y.max(sky[(x + cx as i32) as usize] - a);
+                }
+            }
+            if y + low <= r && best.is_none_or(|b| (y, x) < b) {
+                best = Some((y, x));
+            }
+            x += stride;
+        }
+        best
+    }
+}
+
+/// Distance from `q` to the triangle `p` (0 inside).
+fn distance_to_triangle(p: &[[f64; 2]; 3], q: [f64; 2]) -> f64 {
+    let side = |a: [f64; 2], b: [f64; 2]| (b[0] - a[0]) * (q[1] - a[1]) - (b[1] - a[1]) * (q[0] - a[0]);
+    let s = [side(p[0], p[1]), side(p[1], p[2]), side(p[2], p[0])];
+    if s.iter().all(|&v| v >= 0.0) || s.iter().all(|&v| v <= 0.0) {
+        return 0.0;
+    }
+    (0..3)
+        .map(|e| {
+            let (a, b) = (p[e], p[(e + 1) % 3]);
+            let ab = [b[0] - a[0], b[1] - a[1]];
+            let len2 = ab[0] * ab[0] + ab[1] * ab[1];
+            let t = if len2 > 0.0 {
+                (((q[0] - a[0]) * ab[0] + (q[1] - a[1]) * ab[1]) / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            ((q[0] - a[0] - t * ab[0]).powi(2) + (q[1] - a[1] - t * ab[1]).powi(2)).sqrt()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Drops the charts (in `order`) onto a skyline at `scale`: per chart the
+/// offset of its box and its turn, or `None` if one does not fit.
+fn skyline(
+    shapes: &[Shape],
+    order: &[usize],
+    scale: f64,
+    resolution: usize,
+    gutter: usize,
+) -> Option<(Vec<[f64; 2]>, Vec<u8>)> {
+    let r = resolution as i32;
+    // half the gutter on each chart: two footprints that do not meet leave
+    // at least 2·grow ≥ gutter free texels between covered ones
+    let grow = (gutter as i32 + 1) / 2;
+    // columns tried: every one up to 1024², a stride above
+    let stride = (resolution / 1024).max(1) as i32;
+    let mut sky = vec![0i32; resolution];
+    let mut offsets = vec![[0.0; 2]; shapes.len()];
+    let mut turns = vec![0u8; shapes.len()];
+    for &c in order {
+        // per turn: the footprint and where it comes to rest highest
+        // (lowest row, then leftmost column)
+        let tries: Vec<(Footprint, Option<(i32, i32)>)> = (0..4u8)
+            .into_par_iter()
+            .map(|k| {
+                let f = Footprint::new(&shapes[c], scale, k, grow);
+                let rest = f.rest(&sky, r, stride);
+                (f, rest)
+            })
+            .collect();
+        let (k, (y, x)) = tries
+            .iter()
+            .enumerate()
+            .filter_map(|(k, t)| t.1.map(|p| (k as u8, p)))
+            .min_by_key(|&(k, p)| (p, k))?;
+        let f = &tries[k as usize].0;
+        for (cx, e) in f.columns.iter().enumerate() {
+            if let Some((_, b)) = *e {
+                sky[(x + cx as i32) as usize] = y + b;
+            }
+        }
+        offsets[c] = [(x + f.margin) as f64, (y + f.margin) as f64];
+        turns[c] = k;
+    }
+    Some((offsets, turns))
+}
+
+/// Packs the charts into `resolution`² with at least `gutter` texels
+/// between the texels the rasterizer covers (see the module documentation).
+pub fn pack(shapes: &[Shape], resolution: usize, gutter: usize) -> Packing {
+    let extents: Vec<[f64; 2]> = shapes.iter().map(|s| s.extent).collect();
     // tallest first (ties by index), so shelves fill evenly
     let mut order: Vec<usize> = (0..extents.len()).collect();
     order.sort_by(|&a, &b| extents[b][1].total_cmp(&extents[a][1]).then(a.cmp(&b)));
     let area: f64 = extents.iter().map(|e| e[0] * e[1]).sum::<f64>().max(1e-30);
     // upper bound: the charts' total area cannot exceed the atlas
-    let mut hi = resolution as f64 / area.sqrt();
-    let mut lo = 0.0;
+    let top = resolution as f64 / area.sqrt();
+    let (mut lo, mut hi) = (0.0, top);
     for _ in 0..60 {
         let mid = 0.5 * (lo + hi);
-        if shelf(extents, &order, mid, resolution, gutter).is_some() {
+        if shelf(&extents, &order, mid, resolution, gutter).is_some() {
             lo = mid;
         } else {
             hi = mid;
         }
     }
-    let offsets =
-        shelf(extents, &order, lo, resolution, gutter).unwrap_or_else(|| vec![[0.0; 2]; extents.len()]);
-    Packing { scale: lo, offsets }
+    let shelf_scale = lo;
+    // the skyline, largest uv area first, from the shelf's scale up to what
+    // the charts' own area allows
+    let uv_area = |s: &Shape| {
+        s.triangles
+            .iter()
+            .map(|t| {
+                let p = t.map(|v| s.uv[v as usize]);
+                0.5 * ((p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]))
+                    as f64
+            })
+            .sum::<f64>()
+    };
+    let areas: Vec<f64> = shapes.iter().map(uv_area).collect();
+    let mut by_area: Vec<usize> = (0..shapes.len()).collect();
+    by_area.sort_by(|&a, &b| areas[b].total_cmp(&areas[a]).then(a.cmp(&b)));
+    let total: f64 = areas.iter().sum::<f64>().max(1e-30);
+    let (mut lo, mut hi) = (shelf_scale, resolution as f64 / total.sqrt());
+    let mut found = None;
+    if hi > lo {
+        for _ in 0..12 {
+            let mid = 0.5 * (lo + hi);
+            match skyline(shapes, &by_area, mid, resolution, gutter) {
+                Some(p) => {
+                    lo = mid;
+                    found = Some(p);
+                }
+                None => hi = mid,
+            }
+        }
+    }
+    match found {
+        Some((offsets, turns)) => Packing {
+            scale: lo,
+            offsets,
+            turns,
+        },
+        None => {
+            let offsets = shelf(&extents, &order, shelf_scale, resolution, gutter)
+                .unwrap_or_else(|| vec![[0.0; 2]; extents.len()]);
+            Packing {
+                scale: shelf_scale,
+                offsets,
+                turns: vec![0; extents.len()],
+            }
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    #[test]
-    fn packed_charts_do_not_overlap_and_fill_the_atlas() {
-        let extents: Vec<[f64; 2]> = (0..30)
-            .map(|i| [1.0 + (i * 7 % 5) as f64, 0.5 + (i * 3 % 4) as f64])
+    /// An L-shaped chart (`w`×`h` box, arms `t` thick) as unit-square
+    /// triangles, counter-clockwise, surface units.
+    fn ell(w: usize, h: usize, t: usize) -> (Vec<[f32; 2]>, Vec<[u32; 3]>) {
+        let id = |x: usize, y: usize| (y * (w + 1) + x) as u32;
+        let uv = (0..=h)
+            .flat_map(|y| (0..=w).map(move |x| [x as f32, y as f32]))
             .collect();
-        let (r, gutter) = (512usize, 2usize);
-        let p = pack(&extents, r, gutter);
-        assert!(p.scale > 0.0);
-        let rects: Vec<[f64; 4]> = extents
-            .iter()
-            .zip(&p.offsets)
-            .map(|(e, o)| [o[0], o[1], o[0] + e[0] * p.scale, o[1] + e[1] * p.scale])
-            .collect();
-        for (i, a) in rects.iter().enumerate() {
-            assert!(a[0] >= 1.0 && a[1] >= 1.0 && a[2] <= r as f64 - 1.0 && a[3] <= r as f64 - 1.0);
-            for b in &rects[i + 1..] {
-                // separated by at least gutter + 2 texels along some axis
-                let gap_x = (b[0] - a[2]).max(a[0] - b[2]);
-                let gap_y = (b[1] - a[3]).max(a[1] - b[3]);
-                assert!(gap_x.max(gap_y) >= gutter as f64 + 2.0 - 1e-9, "{a:?} {b:?}");
+        let mut tris = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                if x < t || y < t {
+                    tris.push([id(x, y), id(x + 1, y), id(x + 1, y + 1)]);
+                    tris.push([id(x, y), id(x + 1, y + 1), id(x, y + 1)]);
+                }
             }
         }
-        // a slightly larger scale no longer fits: the bisection is tight
-        let used: f64 = rects.iter().map(|r| (r[2] - r[0]) * (r[3] - r[1])).sum();
+        (uv, tris)
+    }
+
+    /// Texels the rasterizer covers for each chart at its packed place.
+    fn covered(shapes: &[Shape], p: &Packing, r: usize) -> Vec<Vec<(i64, i64)>> {
+        shapes
+            .iter()
+            .enumerate()
+            .map(|(c, s)| {
+                let mut out = Vec::new();
+                for t in s.triangles {
+                    let q = t.map(|v| p.place(c, s.extent, s.uv[v as usize]));
+                    let lo = |i: usize| {
+                        (q.iter().map(|c| c[i]).fold(f64::INFINITY, f64::min) - 2.0).floor() as i64
+                    };
+                    let hi = |i: usize| {
+                        (q.iter().map(|c| c[i]).fold(f64::NEG_INFINITY, f64::max) + 2.0).ceil() as i64
+                    };
+                    for y in lo(1)..=hi(1) {
+                        for x in lo(0)..=hi(0) {
+                            if distance_to_triangle(&q, [x as f64 + 0.5, y as f64 + 0.5]) <= COVER_RADIUS {
+                                out.push((x, y));
+                            }
+                        }
+                    }
+                }
+                out.sort_unstable();
+                out.dedup();
+                assert!(out
+                    .iter()
+                    .all(|&(x, y)| x >= 0 && y >= 0 && x < r as i64 && y < r as i64));
+                out
+            })
+            .collect()
+    }
+
+    #[test]
+    fn packed_charts_keep_the_gutter_and_nest() {
+        let charts: Vec<(Vec<[f32; 2]>, Vec<[u32; 3]>)> = (0..24)
+            .map(|i| ell(3 + i % 5, 2 + (i * 3) % 6, 1 + i % 2))
+            .collect();
+        let shapes: Vec<Shape> = charts
+            .iter()
+            .map(|(uv, t)| {
+                let ex = uv
+                    .iter()
+                    .fold([0f64; 2], |m, p| [m[0].max(p[0] as f64), m[1].max(p[1] as f64)]);
+                Shape {
+                    uv,
+                    triangles: t,
+                    extent: ex,
+                }
+            })
+            .collect();
+        let (r, gutter) = (256usize, 2usize);
+        let p = pack(&shapes, r, gutter);
+        assert!(p.scale > 0.0 && p.turns.iter().all(|&k| k < 4));
+        let cover = covered(&shapes, &p, r);
+        // owner per texel: no texel twice, and at least `gutter` free
+        // texels between two charts along rows and columns
+        let mut owner = vec![usize::MAX; r * r];
+        for (c, texels) in cover.iter().enumerate() {
+            for &(x, y) in texels {
+                let o = &mut owner[y as usize * r + x as usize];
+                assert_eq!(*o, usize::MAX, "texel ({x}, {y}) in two charts");
+                *o = c;
+            }
+        }
+        let g = gutter as i64;
+        for (c, texels) in cover.iter().enumerate() {
+            for &(x, y) in texels {
+                for dy in -g..=g {
+                    for dx in -g..=g {
+                        let (nx, ny) = (x + dx, y + dy);
+                        if nx >= 0 && ny >= 0 && nx < r as i64 && ny < r as i64 {
+                            let o = owner[ny as usize * r + nx as usize];
+                            assert!(
+                                o == usize::MAX || o == c,
+                                "charts {c} and {o} closer than the gutter"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        // the L shapes nest: a larger scale than their bounding rectangles
+        // allow on shelves
+        let extents: Vec<[f64; 2]> = shapes.iter().map(|s| s.extent).collect();
+        let order: Vec<usize> = (0..extents.len()).collect();
         assert!(
-            used / (r * r) as f64 > 0.4,
-            "utilisation {}",
-            used / (r * r) as f64
+            shelf(&extents, &order, p.scale, r, gutter).is_none(),
+            "scale {}",
+            p.scale
         );
+        // and the turned boxes keep every triangle counter-clockwise
+        for (c, s) in shapes.iter().enumerate() {
+            for t in s.triangles {
+                let q = t.map(|v| p.place(c, s.extent, s.uv[v as usize]));
+                // atlas rows run down: counter-clockwise on the surface is
+                // clockwise in (x, y-down)
+                let d = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
+                assert!(d < 0.0, "chart {c} turn {}", p.turns[c]);
+            }
+        }
+    }
+
+    #[test]
+    fn quarter_turns_are_rotations_of_the_box() {
+        let b = [3.0, 2.0];
+        for k in 0..4u8 {
+            let corners = [[0.0, 0.0], [3.0, 0.0], [3.0, 2.0], [0.0, 2.0]].map(|p| turn(k, p, b));
+            let size = if k % 2 == 1 { [2.0, 3.0] } else { b };
+            for c in corners {
+                assert!(c[0] >= 0.0 && c[1] >= 0.0 && c[0] <= size[0] && c[1] <= size[1]);
+            }
+            // a rotation keeps the winding of the box
+            let d = (corners[1][0] - corners[0][0]) * (corners[2][1] - corners[0][1])
+                - (corners[2][0] - corners[0][0]) * (corners[1][1] - corners[0][1]);
+            assert!(d > 0.0, "turn {k}");
+        }
     }
 }

@@ -9,7 +9,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::atlas::charts::{build_charts, Chart, ChartConfig};
-use crate::atlas::pack::pack;
+use crate::atlas::pack::{pack, Shape, COVER_RADIUS};
 use crate::container::{codec, ArrayId, ArraySpec, ContainerWriter, DType, Element, Param};
 use crate::field::{self, FieldKey};
 use crate::mesh::io::{self, LoadOptions};
@@ -20,8 +20,6 @@ use crate::{Error, Result};
 
 pub use crate::artifact::gim::{TexelId, EMPTY, KIND, MAX_LINK, MAX_RESOLUTION, TILE};
 
-/// Texel centres this close (in texels) to a chart triangle are covered.
-const COVER_RADIUS: f64 = 0.75;
 /// Options of [`build_gim`].
 #[derive(Clone, Debug)]
 pub struct AtlasConfig {
@@ -420,7 +418,16 @@ pub fn build_gim(
             [mx[0].max(1e-9), mx[1].max(1e-9)]
         })
         .collect();
-    let packing = pack(&extents, r, cfg.gutter);
+    let shapes: Vec<Shape> = charts
+        .iter()
+        .zip(&extents)
+        .map(|(c, &extent)| Shape {
+            uv: &c.uv,
+            triangles: &c.triangles,
+            extent,
+        })
+        .collect();
+    let packing = pack(&shapes, r, cfg.gutter);
     if packing.scale <= 0.0 {
         return Err(Error::input(
             mesh_path,
@@ -430,20 +437,15 @@ pub fn build_gim(
     let nf = mesh.triangles.len();
     let mut face_chart = vec![EMPTY; nf];
     let mut corner_texel = vec![[[0f64; 2]; 3]; nf];
-    // the charts' uv are right-handed (counter-clockwise faces stay
-    // counter-clockwise with v up); atlas rows run down, so v is flipped
-    // within each chart's box — else every chart, and everything quilted
-    // into it, would show mirrored on the surface
+    // (the charts' uv are right-handed; atlas rows run down, so `place`
+    // flips v within each chart's box — else every chart, and everything
+    // quilted into it, would show mirrored on the surface)
     for (ci, c) in charts.iter().enumerate() {
-        let o = packing.offsets[ci];
         for (k, &f) in c.faces.iter().enumerate() {
             face_chart[f as usize] = ci as u32;
             for j in 0..3 {
                 let uv = c.uv[c.triangles[k][j] as usize];
-                corner_texel[f as usize][j] = [
-                    o[0] + uv[0] as f64 * packing.scale,
-                    o[1] + (extents[ci][1] - uv[1] as f64) * packing.scale,
-                ];
+                corner_texel[f as usize][j] = packing.place(ci, extents[ci], uv);
             }
         }
     }
