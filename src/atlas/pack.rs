@@ -147,7 +147,8 @@ impl Footprint {
             };
             for y in lo(1)..=hi(1) {
                 for x in lo(0)..=hi(0) {
-                    if distance_to_triangle(&p, [x as f64 + 0.5, y as f64 + 0.5]) <= r {
+                    if closest_on_triangle(&p, [x as f64 + 0.5, y as f64 + 0.5]).is_some_and(|(d, _)| d <= r)
+                    {
                         mark(x, y);
                     }
                 }
@@ -182,26 +183,45 @@ impl Footprint {
     }
 }
 
-/// Distance from `q` to the triangle `p` (0 inside).
-fn distance_to_triangle(p: &[[f64; 2]; 3], q: [f64; 2]) -> f64 {
-    let side = |a: [f64; 2], b: [f64; 2]| (b[0] - a[0]) * (q[1] - a[1]) - (b[1] - a[1]) * (q[0] - a[0]);
-    let s = [side(p[0], p[1]), side(p[1], p[2]), side(p[2], p[0])];
-    if s.iter().all(|&v| v >= 0.0) || s.iter().all(|&v| v <= 0.0) {
-        return 0.0;
+/// Barycentrics of `q` in triangle `p`, and the distance from `q` to the
+/// triangle with the barycentrics of the closest point; `None` for a
+/// degenerate triangle (which covers nothing). The packer's footprints and
+/// the rasterizer's coverage both use it, so they agree texel for texel.
+pub(super) fn closest_on_triangle(p: &[[f64; 2]; 3], q: [f64; 2]) -> Option<(f64, [f64; 3])> {
+    let v0 = [p[1][0] - p[0][0], p[1][1] - p[0][1]];
+    let v1 = [p[2][0] - p[0][0], p[2][1] - p[0][1]];
+    let v2 = [q[0] - p[0][0], q[1] - p[0][1]];
+    let d = v0[0] * v1[1] - v1[0] * v0[1];
+    if d.abs() < 1e-18 {
+        return None;
     }
-    (0..3)
-        .map(|e| {
-            let (a, b) = (p[e], p[(e + 1) % 3]);
-            let ab = [b[0] - a[0], b[1] - a[1]];
-            let len2 = ab[0] * ab[0] + ab[1] * ab[1];
-            let t = if len2 > 0.0 {
-                (((q[0] - a[0]) * ab[0] + (q[1] - a[1]) * ab[1]) / len2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            ((q[0] - a[0] - t * ab[0]).powi(2) + (q[1] - a[1] - t * ab[1]).powi(2)).sqrt()
-        })
-        .fold(f64::INFINITY, f64::min)
+    let l1 = (v2[0] * v1[1] - v1[0] * v2[1]) / d;
+    let l2 = (v0[0] * v2[1] - v2[0] * v0[1]) / d;
+    let l0 = 1.0 - l1 - l2;
+    if l0 >= 0.0 && l1 >= 0.0 && l2 >= 0.0 {
+        return Some((0.0, [l0, l1, l2]));
+    }
+    // closest point on the three edges
+    let mut best = (f64::INFINITY, [0.0; 3]);
+    for e in 0..3 {
+        let (a, b) = (p[e], p[(e + 1) % 3]);
+        let ab = [b[0] - a[0], b[1] - a[1]];
+        let len2 = ab[0] * ab[0] + ab[1] * ab[1];
+        let t = if len2 > 0.0 {
+            (((q[0] - a[0]) * ab[0] + (q[1] - a[1]) * ab[1]) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let c = [a[0] + t * ab[0], a[1] + t * ab[1]];
+        let dist = ((q[0] - c[0]).powi(2) + (q[1] - c[1]).powi(2)).sqrt();
+        if dist < best.0 {
+            let mut bary = [0.0; 3];
+            bary[e] = 1.0 - t;
+            bary[(e + 1) % 3] = t;
+            best = (dist, bary);
+        }
+    }
+    Some(best)
 }
 
 /// Drops the charts (in `order`) onto a skyline at `scale`: per chart the
@@ -358,7 +378,9 @@ mod tests {
                     };
                     for y in lo(1)..=hi(1) {
                         for x in lo(0)..=hi(0) {
-                            if distance_to_triangle(&q, [x as f64 + 0.5, y as f64 + 0.5]) <= COVER_RADIUS {
+                            if closest_on_triangle(&q, [x as f64 + 0.5, y as f64 + 0.5])
+                                .is_some_and(|(d, _)| d <= COVER_RADIUS)
+                            {
                                 out.push((x, y));
                             }
                         }

@@ -9,7 +9,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::atlas::charts::{build_charts, Chart, ChartConfig};
-use crate::atlas::pack::{pack, Shape, COVER_RADIUS};
+use crate::atlas::pack::{closest_on_triangle, pack, Shape, COVER_RADIUS};
 use crate::container::{codec, ArrayId, ArraySpec, ContainerWriter, DType, Element, Param};
 use crate::field::{self, FieldKey};
 use crate::mesh::io::{self, LoadOptions};
@@ -151,45 +151,6 @@ const NO_COVER: Cover = Cover {
     face: NO_FACE,
     bary: [0.0; 3],
 };
-
-/// Barycentrics of `q` in triangle `p`, and the distance from `q` to the
-/// triangle with the barycentrics of the closest point.
-fn closest_on_triangle(p: &[[f64; 2]; 3], q: [f64; 2]) -> Option<(f64, [f64; 3])> {
-    let v0 = [p[1][0] - p[0][0], p[1][1] - p[0][1]];
-    let v1 = [p[2][0] - p[0][0], p[2][1] - p[0][1]];
-    let v2 = [q[0] - p[0][0], q[1] - p[0][1]];
-    let d = v0[0] * v1[1] - v1[0] * v0[1];
-    if d.abs() < 1e-18 {
-        return None;
-    }
-    let l1 = (v2[0] * v1[1] - v1[0] * v2[1]) / d;
-    let l2 = (v0[0] * v2[1] - v2[0] * v0[1]) / d;
-    let l0 = 1.0 - l1 - l2;
-    if l0 >= 0.0 && l1 >= 0.0 && l2 >= 0.0 {
-        return Some((0.0, [l0, l1, l2]));
-    }
-    // closest point on the three edges
-    let mut best = (f64::INFINITY, [0.0; 3]);
-    for e in 0..3 {
-        let (a, b) = (p[e], p[(e + 1) % 3]);
-        let ab = [b[0] - a[0], b[1] - a[1]];
-        let len2 = ab[0] * ab[0] + ab[1] * ab[1];
-        let t = if len2 > 0.0 {
-            (((q[0] - a[0]) * ab[0] + (q[1] - a[1]) * ab[1]) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let c = [a[0] + t * ab[0], a[1] + t * ab[1]];
-        let dist = ((q[0] - c[0]).powi(2) + (q[1] - c[1]).powi(2)).sqrt();
-        if dist < best.0 {
-            let mut bary = [0.0; 3];
-            bary[e] = 1.0 - t;
-            bary[(e + 1) % 3] = t;
-            best = (dist, bary);
-        }
-    }
-    Some(best)
-}
 
 /// One rasterized tile plus a one-texel margin.
 struct TileRaster {
