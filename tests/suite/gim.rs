@@ -22,6 +22,18 @@ fn shared_meshes() -> Option<PathBuf> {
     }
 }
 
+/// The `.obj` files in `dir`, sorted.
+fn obj_files(dir: &Path) -> Vec<PathBuf> {
+    let mut names: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "obj"))
+        .collect();
+    names.sort();
+    names
+}
+
 fn build(mesh: &Path, out: &Path, resolution: usize) -> atlas::AtlasReport {
     let cfg = AtlasConfig {
         resolution,
@@ -253,13 +265,7 @@ fn field_keys_orient_the_tangent_frames() {
 fn no_texel_is_covered_twice_on_any_shared_mesh() {
     let Some(dir) = shared_meshes() else { return };
     let tmp = tempfile::tempdir().unwrap();
-    let mut names: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .filter_map(|e| e.ok())
-        .map(|e| e.path())
-        .filter(|p| p.extension().is_some_and(|e| e == "obj"))
-        .collect();
-    names.sort();
+    let names = obj_files(&dir);
     assert!(names.len() >= 5, "{} meshes in {}", names.len(), dir.display());
     for mesh in names {
         let report = build(&mesh, &tmp.path().join("m.gim"), 1024);
@@ -272,13 +278,7 @@ fn no_texel_is_covered_twice_on_any_shared_mesh() {
 fn every_shared_mesh_builds_or_fails_clearly() {
     let Some(dir) = shared_meshes() else { return };
     let tmp = tempfile::tempdir().unwrap();
-    let mut names: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .filter_map(|e| e.ok())
-        .map(|e| e.path())
-        .filter(|p| p.extension().is_some_and(|e| e == "obj"))
-        .collect();
-    names.sort();
+    let names = obj_files(&dir);
     for mesh in names {
         let out = tmp.path().join("m.gim");
         let cfg = AtlasConfig {
