@@ -8,7 +8,7 @@
 //! iterations. Every chart is then checked to be a topological disk, mapped
 //! with LSCM, and split in two while it is not a disk, has a flipped triangle,
 //! folds over itself in uv (two of its boundary edges cross, see
-//! [`overlap`](super::overlap)), or its texture stretch (Sander et al. 2001)
+//! `src/atlas/overlap.rs`), or its texture stretch (Sander et al. 2001)
 //! exceeds the limit. Finally,
 //! smallest first, each chart is merged into one of its neighbours (longest
 //! shared border first) when the union is a disk with an unflipped map within
