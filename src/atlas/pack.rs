@@ -10,9 +10,9 @@
 //! and each chart (largest first) takes the turn and column where its
 //! footprint comes to rest highest. Chart shapes then nest
 //! into each other's outlines instead of each claiming its bounding
-//! rectangle. Shelf packing of the padded bounding rectangles is the
-//! fallback when it fits a larger scale (a handful of near-rectangular
-//! charts).
+//! rectangle. The bisection starts at the scale where shelf packing of the
+//! padded bounding rectangles fits; shelves remain the fallback when the
+//! skyline fits no larger scale.
 
 use rayon::prelude::*;
 
@@ -44,12 +44,19 @@ impl Packing {
     /// charts' uv is right-handed, so that keeps triangles counter-clockwise
     /// as seen on the surface), the box turned and moved into place.
     pub fn place(&self, chart: usize, extent: [f64; 2], uv: [f32; 2]) -> [f64; 2] {
-        let s = self.scale;
-        let local = [uv[0] as f64 * s, (extent[1] - uv[1] as f64) * s];
-        let t = turn(self.turns[chart], local, [extent[0] * s, extent[1] * s]);
+        let t = in_box(self.turns[chart], extent, self.scale, uv);
         let o = self.offsets[chart];
         [o[0] + t[0], o[1] + t[1]]
     }
+}
+
+/// Chart point `uv` (surface units) of a chart with `extent`, in texels
+/// within its box at `scale`: v flipped (see [`Packing::place`]), the box
+/// turned `k` quarter turns. The packer's footprints and the rasterizer's
+/// corners both go through here, so they agree to the bit.
+fn in_box(k: u8, extent: [f64; 2], scale: f64, uv: [f32; 2]) -> [f64; 2] {
+    let local = [uv[0] as f64 * scale, (extent[1] - uv[1] as f64) * scale];
+    turn(k, local, [extent[0] * scale, extent[1] * scale])
 }
 
 /// `p` in a `box_`-sized box turned by `k` quarter turns (a rotation: the
@@ -134,9 +141,7 @@ impl Footprint {
         };
         for t in shape.triangles {
             let p = t.map(|v| {
-                let uv = shape.uv[v as usize];
-                let local = [uv[0] as f64 * scale, (shape.extent[1] - uv[1] as f64) * scale];
-                let q = turn(k, local, box_);
+                let q = in_box(k, shape.extent, scale, shape.uv[v as usize]);
                 [q[0] + m, q[1] + m]
             });
             let r = COVER_RADIUS + 1e-6;

@@ -20,6 +20,17 @@ fn atlas(mesh: &Path, out: &Path, r: usize) {
     atlas::build_gim(mesh, out, &cfg, &Silent).unwrap();
 }
 
+/// The shipped Spot atlased at `r`² into `dir/spot.gim`.
+fn spot_atlas(dir: &Path, r: usize) -> PathBuf {
+    let g = dir.join("spot.gim");
+    atlas(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj"),
+        &g,
+        r,
+    );
+    g
+}
+
 #[test]
 fn flat_square_is_covered_seamlessly_and_deterministically() {
     let dir = tempfile::tempdir().unwrap();
@@ -79,12 +90,7 @@ fn flat_square_is_covered_seamlessly_and_deterministically() {
 #[test]
 fn spot_is_covered_and_baked_and_rendered() {
     let dir = tempfile::tempdir().unwrap();
-    let g = dir.path().join("spot.gim");
-    atlas(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj"),
-        &g,
-        192,
-    );
+    let g = spot_atlas(dir.path(), 192);
     let sample = brick_crop(dir.path(), 128, Some((100, 100)));
     let out = dir.path().join("spot.quilt");
     let unrefined = TileConfig {
@@ -347,12 +353,7 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
     // Spot at 256²: 4 bands of 64 rows whose borders cross charts, gutter,
     // and empty atlas farther than the dilation reaches
     let dir = tempfile::tempdir().unwrap();
-    let g = dir.path().join("spot.gim");
-    atlas(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj"),
-        &g,
-        256,
-    );
+    let g = spot_atlas(dir.path(), 256);
     let sample = brick_crop(dir.path(), 48, None);
     let out = dir.path().join("s.quilt");
     let cfg = TileConfig {
