@@ -5,14 +5,15 @@
 //! bisection on s. At each scale a chart is rasterized into its footprint —
 //! the texels the rasterizer will cover (centres within
 //! [`COVER_RADIUS`] of a triangle), dilated by half the gutter — in each of
-//! four quarter turns, and dropped into the atlas like a Tetris piece: a
-//! skyline keeps, per atlas column, the first row below everything placed,
-//! and each chart (largest first) takes the turn and column where its
-//! footprint comes to rest highest. Chart shapes then nest
-//! into each other's outlines instead of each claiming its bounding
+//! four quarter turns, and placed first-fit: each chart (largest first)
+//! takes the turn and place where its footprint first fits among the
+//! texels already taken, scanning rows from the top and columns from the
+//! left. Taken texels are kept as runs per row, so the holes between and
+//! inside charts placed earlier are filled like open space: chart shapes
+//! nest into each other's outlines instead of each claiming its bounding
 //! rectangle. The bisection starts at the scale where shelf packing of the
-//! padded bounding rectangles fits; shelves remain the fallback when the
-//! skyline fits no larger scale.
+//! padded bounding rectangles fits; shelves remain the fallback when
+//! first-fit fits no larger scale.
 
 use rayon::prelude::*;
 
@@ -110,82 +111,248 @@ fn shelf(
     Some(offsets)
 }
 
-/// A chart's footprint in one turn: per column of its bitmap, the first
-/// and one past the last occupied row (`None` for an empty column), and
-/// the integer margin between the bitmap's corner and the chart's box.
+/// A chart's footprint in one turn: the texels it claims, as runs along
+/// the rows of its bitmap, and the integer margin between the bitmap's
+/// corner and the chart's box.
 struct Footprint {
-    columns: Vec<Option<(i32, i32)>>,
+    /// Per bitmap row, the range of `spans` holding its runs.
+    rows: Vec<(u32, u32)>,
+    /// Runs `[start, end)` of claimed columns, row after row.
+    spans: Vec<(i32, i32)>,
+    width: i32,
     margin: i32,
 }
 
 impl Footprint {
     /// The footprint of `shape` at `scale`, turned `k` times: texels whose
     /// centre is within [`COVER_RADIUS`] of a triangle, dilated by `grow`
-    /// texels (Chebyshev). Each column's extent is kept (the skyline cannot
-    /// use holes inside a column anyway).
+    /// texels (Chebyshev). Holes stay holes, so other charts can use them.
     fn new(shape: &Shape, scale: f64, k: u8, grow: i32) -> Footprint {
         let box_ = [shape.extent[0] * scale, shape.extent[1] * scale];
         let turned = if k % 2 == 1 { [box_[1], box_[0]] } else { box_ };
         let margin = COVER_RADIUS.ceil() as i32 + grow + 1;
         let w = turned[0].ceil() as i32 + 2 * margin;
-        let mut columns: Vec<Option<(i32, i32)>> = vec![None; w as usize];
+        let h = turned[1].ceil() as i32 + 2 * margin;
+        let mut bits = vec![false; (w * h) as usize];
         let m = margin as f64;
-        let mut mark = |x: i32, y: i32| {
-            for cx in (x - grow).max(0)..=(x + grow).min(w - 1) {
-                let e = &mut columns[cx as usize];
-                *e = Some(match *e {
-                    None => (y - grow, y + grow + 1),
-                    Some((a, b)) => (a.min(y - grow), b.max(y + grow + 1)),
-                });
-            }
-        };
         for t in shape.triangles {
             let p = t.map(|v| {
                 let q = in_box(k, shape.extent, scale, shape.uv[v as usize]);
                 [q[0] + m, q[1] + m]
             });
             let r = COVER_RADIUS + 1e-6;
-            let lo =
-                |i: usize| (p.iter().map(|c| c[i]).fold(f64::INFINITY, f64::min) - r - 0.5).ceil() as i32;
-            let hi = |i: usize| {
-                (p.iter().map(|c| c[i]).fold(f64::NEG_INFINITY, f64::max) + r - 0.5).floor() as i32
-            };
-            for y in lo(1)..=hi(1) {
-                for x in lo(0)..=hi(0) {
-                    if closest_on_triangle(&p, [x as f64 + 0.5, y as f64 + 0.5]).is_some_and(|(d, _)| d <= r)
-                    {
-                        mark(x, y);
-                    }
+            let d = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+            if d.abs() < 1e-18 {
+                continue; // covers nothing (see closest_on_triangle)
+            }
+            let y_lo = (p.iter().map(|c| c[1]).fold(f64::INFINITY, f64::min) - r - 0.5).ceil() as i32;
+            let y_hi = (p.iter().map(|c| c[1]).fold(f64::NEG_INFINITY, f64::max) + r - 0.5).floor() as i32;
+            for y in y_lo.max(0)..=y_hi.min(h - 1) {
+                let Some((a, b)) = near_on_row(&p, y as f64 + 0.5, r) else {
+                    continue;
+                };
+                let x0 = ((a - 0.5).ceil() as i32).max(0);
+                let x1 = ((b - 0.5).floor() as i32).min(w - 1);
+                if x0 <= x1 {
+                    bits[(y * w + x0) as usize..=(y * w + x1) as usize].fill(true);
                 }
             }
         }
-        Footprint { columns, margin }
+        // Chebyshev dilation by `grow`: along rows, then along columns
+        let (wu, hu) = (w as usize, h as usize);
+        let g = grow as usize;
+        let mut along = vec![false; wu * hu];
+        for y in 0..hu {
+            let row = &bits[y * wu..(y + 1) * wu];
+            for x in (0..wu).filter(|&x| row[x]) {
+                along[y * wu + x.saturating_sub(g)..y * wu + (x + g + 1).min(wu)].fill(true);
+            }
+        }
+        let mut grown = vec![false; wu * hu];
+        for y in 0..hu {
+            for x in (0..wu).filter(|&x| along[y * wu + x]) {
+                for yy in y.saturating_sub(g)..(y + g + 1).min(hu) {
+                    grown[yy * wu + x] = true;
+                }
+            }
+        }
+        let mut rows = Vec::with_capacity(hu);
+        let mut spans = Vec::new();
+        for y in 0..hu {
+            let first = spans.len() as u32;
+            let row = &grown[y * wu..(y + 1) * wu];
+            let mut x = 0;
+            while x < wu {
+                if row[x] {
+                    let s = x;
+                    while x < wu && row[x] {
+                        x += 1;
+                    }
+                    spans.push((s as i32, x as i32));
+                } else {
+                    x += 1;
+                }
+            }
+            rows.push((first, spans.len() as u32));
+        }
+        Footprint {
+            rows,
+            spans,
+            width: w,
+            margin,
+        }
     }
 
-    /// Where the footprint comes to rest on the skyline `sky` (per column,
-    /// the first free row): (row, column) of its bitmap's corner, the
-    /// highest resting place and the leftmost among equals, trying every
-    /// `stride`-th column; `None` if it fits nowhere in `r` rows.
-    fn rest(&self, sky: &[i32], r: i32, stride: i32) -> Option<(i32, i32)> {
-        let first = self.columns.iter().position(|e| e.is_some())? as i32;
-        let last = self.columns.iter().rposition(|e| e.is_some())? as i32;
-        let low = self.columns.iter().filter_map(|e| e.map(|(_, b)| b)).max()?;
-        let mut best: Option<(i32, i32)> = None;
-        let mut x = -first;
-        while x + last < r {
-            let mut y = i32::MIN;
-            for (cx, e) in self.columns.iter().enumerate() {
-                if let Some((a, _)) = *e {
-                    y = y.max(sky[(x + cx as i32) as usize] - a);
-                }
-            }
-            if y + low <= r && best.is_none_or(|b| (y, x) < b) {
-                best = Some((y, x));
-            }
-            x += stride;
-        }
-        best
+    /// The first and one past the last bitmap row holding a run.
+    fn used_rows(&self) -> Option<(i32, i32)> {
+        let first = self.rows.iter().position(|r| r.1 > r.0)? as i32;
+        let last = self.rows.iter().rposition(|r| r.1 > r.0)? as i32;
+        Some((first, last + 1))
     }
+
+    /// The first and one past the last bitmap column holding a run.
+    fn used_columns(&self) -> Option<(i32, i32)> {
+        let a = self.spans.iter().map(|s| s.0).min()?;
+        let b = self.spans.iter().map(|s| s.1).max()?;
+        Some((a, b))
+    }
+
+    /// Where the footprint first fits into `occupied`, scanning rows from
+    /// the top and columns from the left: (row, column) of its bitmap's
+    /// corner, so that every run lands on free texels inside `r`²; `None`
+    /// if it fits nowhere. Holes left between charts placed earlier are
+    /// tried like any free space.
+    fn first_fit(&self, occupied: &Occupied, r: i32) -> Option<(i32, i32)> {
+        let (top, bottom) = self.used_rows()?;
+        let (left, right) = self.used_columns()?;
+        // per row, its longest run; runs are tried longest first, as they
+        // are the likeliest to meet taken texels
+        let longest: Vec<i32> = (top..bottom)
+            .map(|j| {
+                let (a, b) = self.rows[j as usize];
+                self.spans[a as usize..b as usize]
+                    .iter()
+                    .map(|&(s, e)| e - s)
+                    .max()
+                    .unwrap_or(0)
+            })
+            .collect();
+        let mut runs: Vec<(i32, i32, i32)> = (top..bottom)
+            .flat_map(|j| {
+                let (a, b) = self.rows[j as usize];
+                self.spans[a as usize..b as usize]
+                    .iter()
+                    .map(move |&(s, e)| (j, s, e))
+            })
+            .collect();
+        runs.sort_by_key(|&(j, s, e)| (s - e, j, s));
+        for y in -top..=r - bottom {
+            // rows without a free stretch as long as the chart's run there
+            if (top..bottom).any(|j| occupied.widest[(y + j) as usize] < longest[(j - top) as usize]) {
+                continue;
+            }
+            let mut x = -left;
+            'place: while x + right <= r {
+                for &(j, s, e) in &runs {
+                    if let Some(end) = occupied.blocked(y + j, x + s, x + e) {
+                        // the run must start past the occupied texels
+                        x = end - s;
+                        continue 'place;
+                    }
+                }
+                return Some((y, x));
+            }
+        }
+        None
+    }
+}
+
+/// The atlas texels taken so far, as sorted disjoint runs per row.
+struct Occupied {
+    rows: Vec<Vec<(i32, i32)>>,
+    /// Per row, its longest free stretch.
+    widest: Vec<i32>,
+    r: i32,
+}
+
+impl Occupied {
+    fn new(r: usize) -> Occupied {
+        Occupied {
+            rows: vec![Vec::new(); r],
+            widest: vec![r as i32; r],
+            r: r as i32,
+        }
+    }
+
+    /// If a taken run of row `y` meets `[a, b)`, the end of the first such.
+    fn blocked(&self, y: i32, a: i32, b: i32) -> Option<i32> {
+        let row = &self.rows[y as usize];
+        let i = row.partition_point(|&(_, e)| e <= a);
+        row.get(i).filter(|&&(s, _)| s < b).map(|&(_, e)| e)
+    }
+
+    /// Marks `[a, b)` of row `y` taken (it was free).
+    fn take(&mut self, y: i32, a: i32, b: i32) {
+        let row = &mut self.rows[y as usize];
+        let i = row.partition_point(|&(_, e)| e < a);
+        // merge with touching neighbours
+        let mut run = (a, b);
+        let mut j = i;
+        while j < row.len() && row[j].0 <= b {
+            run = (run.0.min(row[j].0), run.1.max(row[j].1));
+            j += 1;
+        }
+        row.splice(i..j, [run]);
+        let mut widest = 0;
+        let mut free_from = 0;
+        for &(s, e) in row.iter() {
+            widest = widest.max(s - free_from);
+            free_from = e;
+        }
+        self.widest[y as usize] = widest.max(self.r - free_from);
+    }
+}
+
+/// The stretch of the line at height `y` within `r` of triangle `p`: the
+/// triangle grown by a disc is convex, so it is the hull of what the line
+/// keeps of the three edges grown by the disc (a slab beside each edge and
+/// a disc at each corner). `None` if the line misses it.
+fn near_on_row(p: &[[f64; 2]; 3], y: f64, r: f64) -> Option<(f64, f64)> {
+    let mut lo = f64::INFINITY;
+    let mut hi = f64::NEG_INFINITY;
+    for e in 0..3 {
+        let (a, b) = (p[e], p[(e + 1) % 3]);
+        let dy = y - a[1];
+        if dy.abs() <= r {
+            let half = (r * r - dy * dy).sqrt();
+            lo = lo.min(a[0] - half);
+            hi = hi.max(a[0] + half);
+        }
+        let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+        let len = (ex * ex + ey * ey).sqrt();
+        if len == 0.0 {
+            continue;
+        }
+        let (ux, uy) = (ex / len, ey / len);
+        // along the edge: 0 ≤ (x - ax)·ux + dy·uy ≤ len;
+        // across it: |-(x - ax)·uy + dy·ux| ≤ r
+        let mut span = (f64::NEG_INFINITY, f64::INFINITY);
+        let mut keep = |coef: f64, c0: f64, lo_v: f64, hi_v: f64| -> bool {
+            // lo_v ≤ coef·t + c0 ≤ hi_v with t = x - ax
+            if coef.abs() < 1e-300 {
+                return c0 >= lo_v && c0 <= hi_v;
+            }
+            let (t0, t1) = ((lo_v - c0) / coef, (hi_v - c0) / coef);
+            let (t0, t1) = if t0 <= t1 { (t0, t1) } else { (t1, t0) };
+            span = (span.0.max(t0), span.1.min(t1));
+            span.0 <= span.1
+        };
+        if keep(ux, dy * uy, 0.0, len) && keep(-uy, dy * ux, -r, r) {
+            lo = lo.min(a[0] + span.0);
+            hi = hi.max(a[0] + span.1);
+        }
+    }
+    (lo <= hi).then_some((lo, hi))
 }
 
 /// Barycentrics of `q` in triangle `p`, and the distance from `q` to the
@@ -229,9 +396,11 @@ pub(super) fn closest_on_triangle(p: &[[f64; 2]; 3], q: [f64; 2]) -> Option<(f64
     Some(best)
 }
 
-/// Drops the charts (in `order`) onto a skyline at `scale`: per chart the
-/// offset of its box and its turn, or `None` if one does not fit.
-fn skyline(
+/// Places the charts (in `order`) one after another at `scale`, each in
+/// the turn whose footprint fits first (topmost row, then leftmost
+/// column): per chart the offset of its box and its turn, or `None` if one
+/// does not fit.
+fn first_fit(
     shapes: &[Shape],
     order: &[usize],
     scale: f64,
@@ -242,20 +411,16 @@ fn skyline(
     // half the gutter on each chart: two footprints that do not meet leave
     // at least 2·grow ≥ gutter free texels between covered ones
     let grow = (gutter as i32 + 1) / 2;
-    // columns tried: every one up to 1024², a stride above
-    let stride = (resolution / 1024).max(1) as i32;
-    let mut sky = vec![0i32; resolution];
+    let mut occupied = Occupied::new(resolution);
     let mut offsets = vec![[0.0; 2]; shapes.len()];
     let mut turns = vec![0u8; shapes.len()];
     for &c in order {
-        // per turn: the footprint and where it comes to rest highest
-        // (lowest row, then leftmost column)
         let tries: Vec<(Footprint, Option<(i32, i32)>)> = (0..4u8)
             .into_par_iter()
             .map(|k| {
                 let f = Footprint::new(&shapes[c], scale, k, grow);
-                let rest = f.rest(&sky, r, stride);
-                (f, rest)
+                let at = f.first_fit(&occupied, r);
+                (f, at)
             })
             .collect();
         let (k, (y, x)) = tries
@@ -264,11 +429,12 @@ fn skyline(
             .filter_map(|(k, t)| t.1.map(|p| (k as u8, p)))
             .min_by_key(|&(k, p)| (p, k))?;
         let f = &tries[k as usize].0;
-        for (cx, e) in f.columns.iter().enumerate() {
-            if let Some((_, b)) = *e {
-                sky[(x + cx as i32) as usize] = y + b;
+        for (j, &(a, b)) in f.rows.iter().enumerate() {
+            for &(s, e) in &f.spans[a as usize..b as usize] {
+                occupied.take(y + j as i32, x + s, x + e);
             }
         }
+        debug_assert!(f.width > 0);
         offsets[c] = [(x + f.margin) as f64, (y + f.margin) as f64];
         turns[c] = k;
     }
@@ -316,7 +482,7 @@ pub fn pack(shapes: &[Shape], resolution: usize, gutter: usize) -> Packing {
     if hi > lo {
         for _ in 0..12 {
             let mid = 0.5 * (lo + hi);
-            match skyline(shapes, &by_area, mid, resolution, gutter) {
+            match first_fit(shapes, &by_area, mid, resolution, gutter) {
                 Some(p) => {
                     lo = mid;
                     found = Some(p);
@@ -467,6 +633,83 @@ mod tests {
                 // clockwise in (x, y-down)
                 let d = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
                 assert!(d < 0.0, "chart {c} turn {}", p.turns[c]);
+            }
+        }
+    }
+
+    #[test]
+    fn a_small_chart_fills_the_hole_of_a_large_one() {
+        // a square ring (12 units, arms 2 thick) and a 3-unit square: at the
+        // largest scale the ring spans the atlas, and the square must go
+        // into its hole
+        let grid = |w: usize, keep: &dyn Fn(usize, usize) -> bool| {
+            let id = |x: usize, y: usize| (y * (w + 1) + x) as u32;
+            let uv: Vec<[f32; 2]> = (0..=w)
+                .flat_map(|y| (0..=w).map(move |x| [x as f32, y as f32]))
+                .collect();
+            let mut tris = Vec::new();
+            for y in 0..w {
+                for x in 0..w {
+                    if keep(x, y) {
+                        tris.push([id(x, y), id(x + 1, y), id(x + 1, y + 1)]);
+                        tris.push([id(x, y), id(x + 1, y + 1), id(x, y + 1)]);
+                    }
+                }
+            }
+            (uv, tris)
+        };
+        let ring = grid(12, &|x, y| x < 2 || y < 2 || x >= 10 || y >= 10);
+        let square = grid(3, &|_, _| true);
+        let shapes = [
+            Shape {
+                uv: &ring.0,
+                triangles: &ring.1,
+                extent: [12.0, 12.0],
+            },
+            Shape {
+                uv: &square.0,
+                triangles: &square.1,
+                extent: [3.0, 3.0],
+            },
+        ];
+        let r = 128;
+        let p = pack(&shapes, r, 2);
+        let cover = covered(&shapes, &p, r);
+        let span = |c: usize, i: usize| {
+            let v = cover[c].iter().map(|t| if i == 0 { t.0 } else { t.1 });
+            (v.clone().min().unwrap(), v.max().unwrap())
+        };
+        for i in 0..2 {
+            let (ring_lo, ring_hi) = span(0, i);
+            let (sq_lo, sq_hi) = span(1, i);
+            assert!(ring_hi - ring_lo > r as i64 * 3 / 4, "the ring spans the atlas");
+            assert!(sq_lo > ring_lo && sq_hi < ring_hi, "the square sits in the hole");
+        }
+    }
+
+    #[test]
+    fn rows_near_a_triangle_match_the_closest_point_test() {
+        // thin, wide, tiny and obtuse triangles, both windings
+        let tris = [
+            [[1.3, 2.2], [9.7, 3.1], [4.4, 8.9]],
+            [[2.0, 2.0], [12.5, 2.3], [7.0, 2.6]],
+            [[5.1, 5.2], [5.4, 5.1], [5.2, 5.5]],
+            [[1.0, 6.0], [11.0, 6.0], [2.0, 7.5]],
+            [[3.0, 1.0], [3.2, 11.0], [2.9, 6.0]],
+        ];
+        let r = COVER_RADIUS;
+        for p in tris {
+            for q in [p, [p[0], p[2], p[1]]] {
+                for y in 0..16 {
+                    let yc = y as f64 + 0.5;
+                    let row = near_on_row(&q, yc, r);
+                    for x in 0..16 {
+                        let xc = x as f64 + 0.5;
+                        let near = closest_on_triangle(&q, [xc, yc]).is_some_and(|(d, _)| d <= r);
+                        let inside = row.is_some_and(|(a, b)| a <= xc && xc <= b);
+                        assert_eq!(near, inside, "{q:?} texel ({x}, {y}) row {row:?}");
+                    }
+                }
             }
         }
     }
