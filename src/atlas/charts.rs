@@ -32,6 +32,9 @@ const NORMAL_PENALTY: f64 = 4.0;
 /// Charts below this fraction of their component's area may merge into a
 /// neighbour regardless of the normal cone (the stretch limit still holds).
 const TINY_CHART: f64 = 0.01;
+/// Cosine of the dihedral angle (30°) above which border straightening
+/// treats an edge as a crease the border should keep.
+const CREASE_COS: f64 = 0.866_025_403_784_438_6;
 /// Neighbours tried when merging a chart.
 const MERGE_CANDIDATES: usize = 3;
 
@@ -385,6 +388,78 @@ impl Patch {
         verts.len() as i64 - e as i64 + self.len() as i64 == 1
     }
 
+    /// Straightens the borders between the labels of the patch's faces: a face that
+    /// meets its own region along at most one edge (the tip of a one-face-wide
+    /// spike, a notch of a saw-toothed border, a lone face) moves to a region
+    /// it meets along two edges, or, the tip of a spike between two regions,
+    /// once to the one its normal is closer to — never across a crease (see
+    /// [`CREASE_COS`]). A face meeting its own region along one edge is a leaf
+    /// of it, so no region comes apart; each move to a region met along two
+    /// edges shortens the border, so the sweeps end.
+    fn straighten(&self, ctx: &Ctx, label: &mut [u32]) {
+        let mut tipped = vec![false; label.len()];
+        loop {
+            let mut moved = false;
+            for f in 0..label.len() {
+                let own = label[f];
+                if own == NONE {
+                    continue;
+                }
+                let mut others = [NONE; 3];
+                let mut same = 0;
+                for (i, &g) in self.adj[f].iter().enumerate() {
+                    if g == NONE || label[g as usize] == NONE {
+                        continue;
+                    }
+                    let l = label[g as usize];
+                    if l == own {
+                        same += 1;
+                    } else {
+                        others[i] = l;
+                    }
+                }
+                if same > 1 {
+                    continue;
+                }
+                // the least bend (cosine) from this face to a neighbour in `l`
+                let normal = |f: u32| ctx.normal[self.faces[f as usize] as usize];
+                let n = normal(f as u32);
+                let bend = |l: u32| {
+                    self.adj[f]
+                        .iter()
+                        .filter(|&&g| g != NONE && label[g as usize] == l)
+                        .map(|&g| n.dot(normal(g)))
+                        .fold(f64::INFINITY, f64::min)
+                };
+                let met = |l: u32| others.iter().filter(|&&m| m == l).count();
+                let to = match others.iter().copied().find(|&l| l != NONE && met(l) >= 2) {
+                    Some(l) => l,
+                    None if same == 1 && !tipped[f] && others.iter().filter(|&&l| l != NONE).count() == 2 => {
+                        // a spike's tip between two regions
+                        let mut two = others.iter().copied().filter(|&l| l != NONE);
+                        let (a, b) = (two.next().unwrap_or(NONE), two.next().unwrap_or(NONE));
+                        tipped[f] = true;
+                        if bend(b) > bend(a) {
+                            b
+                        } else {
+                            a
+                        }
+                    }
+                    None => continue,
+                };
+                // not across a crease: the face bends by less than
+                // CREASE towards the region, or no more than towards its own
+                if same == 0 || bend(to) >= CREASE_COS.min(bend(own)) {
+                    label[f] = to;
+                    moved = true;
+                }
+            }
+            if !moved {
+                break;
+            }
+        }
+    }
+
     /// Splits the patch in two by growing from the two faces farthest apart.
     fn split_in_two(&self, ctx: &Ctx) -> Vec<Vec<u32>> {
         let a = self.farthest_from(ctx, 0);
@@ -392,7 +467,8 @@ impl Patch {
         if b == a {
             b = if a == 0 { 1 } else { 0 };
         }
-        let label = self.grow(ctx, &[a, b], None);
+        let mut label = self.grow(ctx, &[a, b], None);
+        self.straighten(ctx, &mut label);
         let mut parts = vec![Vec::new(), Vec::new()];
         let mut rest = Vec::new();
         for (f, &l) in label.iter().enumerate() {
@@ -456,6 +532,7 @@ fn segment(ctx: &Ctx) -> Vec<Vec<u32>> {
         centres.sort_unstable();
         seeds = centres.into_iter().map(|(_, f)| f).collect();
     }
+    whole.straighten(ctx, &mut label);
     let mut regions = vec![Vec::new(); seeds.len()];
     for (f, &l) in label.iter().enumerate() {
         regions[l as usize].push(f as u32);
