@@ -231,6 +231,10 @@ enum Command {
         /// chart's mean by more than this factor (≥ 1).
         #[arg(long, default_value_t = AtlasConfig::default().charts.max_area_distortion)]
         max_area_distortion: f32,
+        /// Split a chart while one of its triangles stretches more than this
+        /// in some direction (L∞ stretch, ≥ 1).
+        #[arg(long, default_value_t = AtlasConfig::default().charts.max_linf_stretch)]
+        max_linf_stretch: f32,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -747,6 +751,7 @@ fn run(cli: Cli) -> Result<()> {
             weld,
             max_stretch,
             max_area_distortion,
+            max_linf_stretch,
             output,
             res,
         } => {
@@ -760,6 +765,7 @@ fn run(cli: Cli) -> Result<()> {
             };
             cfg.charts.max_stretch = max_stretch;
             cfg.charts.max_area_distortion = max_area_distortion;
+            cfg.charts.max_linf_stretch = max_linf_stretch;
             cfg.validate()?;
             let report = atlas::build_gim(&mesh, &output, &cfg, &bars)?;
             say!("{}: {}", mesh.display(), report.repair);

@@ -51,6 +51,10 @@ pub struct ChartConfig {
     /// equiareal, so a round chart shrinks towards its rim and the texture
     /// quilted into it grows there). Default 1.5.
     pub max_area_distortion: f32,
+    /// A chart is split while one of its triangles stretches more than this
+    /// in some direction (L∞, the largest singular value of its uv → 3D
+    /// map at the chart's uniform density). Default 2.
+    pub max_linf_stretch: f32,
 }
 
 impl Default for ChartConfig {
@@ -59,6 +63,7 @@ impl Default for ChartConfig {
             max_normal_deviation: 70.0,
             max_stretch: 1.25,
             max_area_distortion: 1.5,
+            max_linf_stretch: 2.0,
         }
     }
 }
@@ -99,6 +104,7 @@ struct Ctx<'a> {
     cos_max: f64,
     max_stretch: f64,
     max_area_distortion: f64,
+    max_linf_stretch: f64,
 }
 
 /// Heap key for a non-negative finite f64 (bit order = numeric order).
@@ -148,6 +154,7 @@ impl<'a> Ctx<'a> {
             cos_max: (cfg.max_normal_deviation as f64).to_radians().cos(),
             max_stretch: cfg.max_stretch as f64,
             max_area_distortion: cfg.max_area_distortion as f64,
+            max_linf_stretch: cfg.max_linf_stretch as f64,
         }
     }
 }
@@ -388,21 +395,32 @@ impl Patch {
         verts.len() as i64 - e as i64 + self.len() as i64 == 1
     }
 
-    /// Straightens the borders between the labels of the patch's faces: a face that
-    /// meets its own region along at most one edge (the tip of a one-face-wide
-    /// spike, a notch of a saw-toothed border, a lone face) moves to a region
-    /// it meets along two edges, or, the tip of a spike between two regions,
-    /// once to the one its normal is closer to — never across a crease (see
-    /// [`CREASE_COS`]). A face meeting its own region along one edge is a leaf
-    /// of it, so no region comes apart; each move to a region met along two
+    /// Straightens the borders between the labels of the patch's faces: a
+    /// face that meets its own region along at most one edge (the tip of a
+    /// one-face-wide spike, a notch of a saw-toothed border, a lone face)
+    /// moves to a region it meets along two edges, or, the tip of a spike
+    /// between two regions, once to the one its normal is closer to — never
+    /// across a crease (see [`CREASE_COS`]). A face meeting its own region
+    /// along one edge is a leaf of it, so no region comes apart, and a
+    /// region keeps its last face; each move to a region met along two
     /// edges shortens the border, so the sweeps end.
     fn straighten(&self, ctx: &Ctx, label: &mut [u32]) {
         let mut tipped = vec![false; label.len()];
+        // faces per label: a region's last face stays (a split stays a split)
+        let labels = label
+            .iter()
+            .filter(|&&l| l != NONE)
+            .max()
+            .map_or(0, |&l| l as usize + 1);
+        let mut count = vec![0usize; labels];
+        for &l in label.iter().filter(|&&l| l != NONE) {
+            count[l as usize] += 1;
+        }
         loop {
             let mut moved = false;
             for f in 0..label.len() {
                 let own = label[f];
-                if own == NONE {
+                if own == NONE || count[own as usize] == 1 {
                     continue;
                 }
                 let mut others = [NONE; 3];
@@ -450,6 +468,8 @@ impl Patch {
                 // not across a crease: the face bends by less than
                 // CREASE towards the region, or no more than towards its own
                 if same == 0 || bend(to) >= CREASE_COS.min(bend(own)) {
+                    count[own as usize] -= 1;
+                    count[to as usize] += 1;
                     label[f] = to;
                     moved = true;
                 }
@@ -579,7 +599,7 @@ fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
         uv
     };
     let (l2, linf) = stretch(&positions, &triangles, &uv);
-    if faces.len() > 1 && (l2.is_nan() || l2 > ctx.max_stretch) {
+    if faces.len() > 1 && (l2.is_nan() || l2 > ctx.max_stretch || linf > ctx.max_linf_stretch) {
         return None;
     }
     if faces.len() > 1 && area_distortion_tail(&positions, &triangles, &uv) > ctx.max_area_distortion {
@@ -888,6 +908,12 @@ pub fn build_charts(mesh: &Mesh, topology: &Topology, cfg: &ChartConfig) -> Resu
             cfg.max_area_distortion
         )));
     }
+    if !(cfg.max_linf_stretch.is_finite() && cfg.max_linf_stretch >= 1.0) {
+        return Err(Error::Config(format!(
+            "--max-linf-stretch {}: must be a finite number ≥ 1",
+            cfg.max_linf_stretch
+        )));
+    }
     if nf == 0 {
         return Ok(Vec::new());
     }
@@ -1014,7 +1040,12 @@ mod tests {
         };
         let charts = build_charts(&m, &topo, &sides).unwrap();
         assert!(coverage(&m, &charts).iter().all(|&s| s == 1));
-        assert_eq!(charts.len(), 7, "six cube sides and the strip");
+        assert_eq!(
+            charts.len(),
+            7,
+            "six cube sides and the strip: {:?}",
+            charts.iter().map(|c| &c.faces).collect::<Vec<_>>()
+        );
     }
 
     /// A dome: the sphere's cap down to 80° from the pole, `n` rings.
@@ -1057,6 +1088,7 @@ mod tests {
             max_normal_deviation: 180.0,
             max_stretch: 100.0,
             max_area_distortion: 100.0,
+            max_linf_stretch: 100.0,
         };
         let one = build_charts(&m, &topo, &loose).unwrap();
         let worst = |charts: &[Chart]| {
@@ -1081,6 +1113,110 @@ mod tests {
     }
 
     #[test]
+    fn charts_keep_every_triangle_within_the_linf_limit() {
+        // with the other limits out of the way, only the L∞ limit splits
+        // the dome
+        let m = dome(12);
+        let topo = m.topology();
+        let loose = ChartConfig {
+            max_normal_deviation: 180.0,
+            max_stretch: 100.0,
+            max_area_distortion: 100.0,
+            max_linf_stretch: 100.0,
+        };
+        let worst = |charts: &[Chart]| charts.iter().map(|c| c.linf_stretch).fold(1.0f32, f32::max);
+        let one = build_charts(&m, &topo, &loose).unwrap();
+        let limit = 1.2;
+        assert!(worst(&one) > limit, "the dome in few charts: L∞ {}", worst(&one));
+        let strict = ChartConfig {
+            max_linf_stretch: limit,
+            ..loose
+        };
+        let split = build_charts(&m, &topo, &strict).unwrap();
+        assert!(coverage(&m, &split).iter().all(|&s| s == 1));
+        assert!(split.len() > one.len(), "{} vs {}", split.len(), one.len());
+        assert!(worst(&split) <= limit, "L∞ {}", worst(&split));
+    }
+
+    /// A flat `n`×`n` grid of unit squares, two triangles each.
+    fn grid(n: usize) -> Mesh {
+        let id = |x: usize, y: usize| (y * (n + 1) + x) as u32;
+        let p = (0..=n)
+            .flat_map(|y| (0..=n).map(move |x| [x as f32, y as f32, 0.0]))
+            .collect();
+        let mut t = Vec::new();
+        for y in 0..n {
+            for x in 0..n {
+                t.push([id(x, y), id(x + 1, y), id(x + 1, y + 1)]);
+                t.push([id(x, y), id(x + 1, y + 1), id(x, y + 1)]);
+            }
+        }
+        mesh(p, t)
+    }
+
+    #[test]
+    fn straightening_removes_spikes_and_teeth_and_keeps_regions_whole() {
+        let n = 16;
+        let m = grid(n);
+        let topo = m.topology();
+        let ctx = Ctx::new(&m, &topo, &ChartConfig::default());
+        let whole = Patch::whole(&ctx);
+        // left and right halves, the border zig-zagging by a column per
+        // row, a one-face-wide spike of the left reaching along row 8, a
+        // lone right face inside the left and a third region of one face
+        let mut label: Vec<u32> = (0..m.triangles.len())
+            .map(|f| {
+                let (x, y) = ((f / 2) % n, (f / 2) / n);
+                let edge = n / 2 + y % 2;
+                u32::from(x >= edge)
+            })
+            .collect();
+        for x in n / 2..n - 2 {
+            label[2 * (8 * n + x)] = 0;
+        }
+        label[2 * (3 * n + 2)] = 1;
+        label[2 * (12 * n + 12) + 1] = 2;
+        let border = |label: &[u32]| {
+            (0..label.len())
+                .flat_map(|f| ctx.adj[f].map(|g| (f, g)))
+                .filter(|&(f, g)| g != NO_FACE && label[f] != label[g as usize])
+                .count()
+                / 2
+        };
+        let before = border(&label);
+        whole.straighten(&ctx, &mut label);
+        let after = border(&label);
+        assert!(after < before / 2, "border {before} -> {after} edges");
+        // every region is still there and in one piece
+        for l in 0..3 {
+            let faces: Vec<u32> = (0..label.len() as u32)
+                .filter(|&f| label[f as usize] == l)
+                .collect();
+            assert!(!faces.is_empty(), "region {l} vanished");
+            assert_eq!(
+                Patch::new(&ctx, faces).split_components().len(),
+                1,
+                "region {l} torn"
+            );
+        }
+        // no face is left meeting another region along two edges while
+        // meeting its own along at most one (the flat grid has no crease)
+        for f in 0..label.len() {
+            let others: Vec<u32> = ctx.adj[f]
+                .iter()
+                .filter(|&&g| g != NO_FACE && label[g as usize] != label[f])
+                .map(|&g| label[g as usize])
+                .collect();
+            let same = ctx.adj[f].iter().filter(|&&g| g != NO_FACE).count() - others.len();
+            let pair = others
+                .iter()
+                .any(|&l| others.iter().filter(|&&k| k == l).count() >= 2);
+            let last = label.iter().filter(|&&l| l == label[f]).count() == 1;
+            assert!(same > 1 || !pair || last, "face {f} still a spike or notch");
+        }
+    }
+
+    #[test]
     fn bad_input() {
         let m = cube();
         let topo = m.topology();
@@ -1091,6 +1227,11 @@ mod tests {
         assert!(build_charts(&m, &topo, &bad).is_err());
         let bad = ChartConfig {
             max_area_distortion: 0.9,
+            ..ChartConfig::default()
+        };
+        assert!(build_charts(&m, &topo, &bad).is_err());
+        let bad = ChartConfig {
+            max_linf_stretch: f32::NAN,
             ..ChartConfig::default()
         };
         assert!(build_charts(&m, &topo, &bad).is_err());

@@ -351,7 +351,8 @@ pub fn signed_uv_areas(uv: &[[f64; 2]], triangles: &[[u32; 3]]) -> Vec<f64> {
 /// Texture stretch (Sander et al. 2001) of a parameterisation after scaling
 /// the uv so the total uv area equals the total 3D area: returns (L2, L∞)
 /// where per triangle Γ, γ are the singular values of the Jacobian of the map
-/// uv → 3D, L2 = sqrt(Σ A3 (Γ²+γ²)/2 / Σ A3), L∞ = max Γ. Flipped or
+/// uv → 3D, L2 = sqrt(Σ A3 (Γ²+γ²)/2 / Σ A3), L∞ = max Γ over the triangles
+/// of positive 3D area. Flipped or
 /// degenerate uv triangles give +∞ (both measures for zero uv area under
 /// positive 3D area, L∞ for a flip); triangles with zero area in both 3D and uv
 /// are ignored. The total uv area is the sum of absolute triangle areas.
@@ -387,6 +388,9 @@ pub fn stretch(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) 
             / (2.0 * auv);
         let (a, b, c) = (ss.dot(ss), ss.dot(st), st.dot(st));
         l2_num += a3 * 0.5 * (a + c);
+        if a3 == 0.0 {
+            continue; // no surface to stretch (it weighs nothing in L2 either)
+        }
         let big = (0.5 * ((a + c) + ((a - c) * (a - c) + 4.0 * b * b).sqrt())).sqrt();
         linf = linf.max(big);
     }

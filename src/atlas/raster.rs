@@ -73,7 +73,8 @@ impl AtlasConfig {
             }
         };
         at_least_one("--max-stretch", self.charts.max_stretch)?;
-        at_least_one("--max-area-distortion", self.charts.max_area_distortion)
+        at_least_one("--max-area-distortion", self.charts.max_area_distortion)?;
+        at_least_one("--max-linf-stretch", self.charts.max_linf_stretch)
     }
 }
 

@@ -281,7 +281,7 @@ fn atlas_show_and_export_a_mesh() {
         &btfquilt(&["show", s(&spot), "-o", s(&dir.path().join("y.png"))]),
         &["spot_5.8k.obj"],
     );
-    for flag in ["--max-stretch", "--max-area-distortion"] {
+    for flag in ["--max-stretch", "--max-area-distortion", "--max-linf-stretch"] {
         let out = dir.path().join("limits.gim");
         fails_clearly(
             &btfquilt(&["atlas", s(&spot), flag, "0.5", "-o", s(&out)]),

@@ -447,7 +447,8 @@ fn points_covered_twice(uv: &[[f64; 2]], triangles: &[[u32; 3]]) -> usize {
 }
 
 /// Checks the chart invariants; returns (overall L2, overall L∞).
-fn check_charts(name: &str, mesh: &Mesh, charts: &[Chart], max_l2: f64) -> (f64, f64) {
+fn check_charts(name: &str, mesh: &Mesh, charts: &[Chart], cfg: &ChartConfig) -> (f64, f64) {
+    let max_l2 = cfg.max_stretch as f64;
     let mut seen = vec![0u32; mesh.triangles.len()];
     let (mut num, mut den, mut linf) = (0.0f64, 0.0f64, 0.0f64);
     for (ci, c) in charts.iter().enumerate() {
@@ -542,6 +543,10 @@ fn check_charts(name: &str, mesh: &Mesh, charts: &[Chart], max_l2: f64) -> (f64,
             c.faces.len() == 1 || l2 <= max_l2 * 1.001,
             "{name}: chart {ci} L2 {l2}"
         );
+        assert!(
+            c.faces.len() == 1 || li <= cfg.max_linf_stretch as f64 * 1.001,
+            "{name}: chart {ci} L∞ {li}"
+        );
         num += a3 * l2 * l2;
         den += a3;
         linf = linf.max(li);
@@ -564,7 +569,7 @@ fn run_with(name: &str, mesh: &Mesh, max_charts: usize, cfg: &ChartConfig) {
     let start = Instant::now();
     let charts = build_charts(mesh, &topo, cfg).unwrap();
     let secs = start.elapsed().as_secs_f64();
-    let (l2, linf) = check_charts(name, mesh, &charts, cfg.max_stretch as f64);
+    let (l2, linf) = check_charts(name, mesh, &charts, cfg);
     let largest = charts.iter().map(|c| c.faces.len()).max().unwrap_or(0);
     let distortion = charts
         .iter()
@@ -637,11 +642,13 @@ fn limits_are_enforced() {
         max_normal_deviation: 180.0,
         max_stretch: 1.25,
         max_area_distortion: 1.5,
+        max_linf_stretch: 2.0,
     };
     let strict = ChartConfig {
         max_normal_deviation: 25.0,
         max_stretch: 1.02,
         max_area_distortion: 1.1,
+        max_linf_stretch: 1.1,
     };
     for (name, mesh) in [("icosphere", icosphere(3)), ("torus", torus(48, 16, 1.0, 0.4))] {
         run_with(&format!("{name} loose"), &mesh, 50, &loose);

@@ -304,6 +304,7 @@ fn mesh_float_flags_must_be_finite() {
         ("--weld", "NaN"),
         ("--max-stretch", "NaN"),
         ("--max-area-distortion", "inf"),
+        ("--max-linf-stretch", "NaN"),
     ] {
         refuses(
             &["atlas", s(&obj), flag, value, "-o", s(&out)],
