@@ -217,12 +217,12 @@ impl Footprint {
         Some((a, b))
     }
 
-    /// Where the footprint first fits into `occupied`, scanning rows from
-    /// the top and columns from the left: (row, column) of its bitmap's
+    /// Where the footprint first fits into `occupied`, scanning every
+    /// `stride`-th row from the top and columns from the left: (row, column) of its bitmap's
     /// corner, so that every run lands on free texels inside `r`²; `None`
     /// if it fits nowhere. Holes left between charts placed earlier are
     /// tried like any free space.
-    fn first_fit(&self, occupied: &Occupied, r: i32) -> Option<(i32, i32)> {
+    fn first_fit(&self, occupied: &Occupied, r: i32, stride: i32) -> Option<(i32, i32)> {
         let (top, bottom) = self.used_rows()?;
         let (left, right) = self.used_columns()?;
         // per row, its longest run; runs are tried longest first, as they
@@ -246,7 +246,7 @@ impl Footprint {
             })
             .collect();
         runs.sort_by_key(|&(j, s, e)| (s - e, j, s));
-        for y in -top..=r - bottom {
+        for y in (-top..=r - bottom).step_by(stride as usize) {
             // rows without a free stretch as long as the chart's run there
             if (top..bottom).any(|j| occupied.widest[(y + j) as usize] < longest[(j - top) as usize]) {
                 continue;
@@ -411,6 +411,8 @@ fn first_fit(
     // half the gutter on each chart: two footprints that do not meet leave
     // at least 2·grow ≥ gutter free texels between covered ones
     let grow = (gutter as i32 + 1) / 2;
+    // rows tried: every one up to 1024², a stride above
+    let stride = (resolution / 1024).max(1) as i32;
     let mut occupied = Occupied::new(resolution);
     let mut offsets = vec![[0.0; 2]; shapes.len()];
     let mut turns = vec![0u8; shapes.len()];
@@ -419,7 +421,7 @@ fn first_fit(
             .into_par_iter()
             .map(|k| {
                 let f = Footprint::new(&shapes[c], scale, k, grow);
-                let at = f.first_fit(&occupied, r);
+                let at = f.first_fit(&occupied, r, stride);
                 (f, at)
             })
             .collect();
