@@ -218,10 +218,10 @@ impl Footprint {
     }
 
     /// Where the footprint first fits into `occupied`, scanning every
-    /// `stride`-th row from the top and columns from the left: (row, column) of its bitmap's
-    /// corner, so that every run lands on free texels inside `r`²; `None`
-    /// if it fits nowhere. Holes left between charts placed earlier are
-    /// tried like any free space.
+    /// `stride`-th row from the top and columns from the left: (row,
+    /// column) of its bitmap's corner, so that every run lands on free
+    /// texels inside `r`²; `None` if it fits nowhere. Holes left between
+    /// charts placed earlier are tried like any free space.
     fn first_fit(&self, occupied: &Occupied, r: i32, stride: i32) -> Option<(i32, i32)> {
         let (top, bottom) = self.used_rows()?;
         let (left, right) = self.used_columns()?;
