@@ -22,7 +22,9 @@ use btfquilt::output::show::ShowWhat;
 use btfquilt::paint::PaintConfig;
 use btfquilt::progress::Progress;
 use btfquilt::quilt::{self, TileConfig};
-use btfquilt::{output::bake, output::evaluate, output::export, output::render, output::show};
+use btfquilt::{
+    output::bake, output::compare, output::evaluate, output::export, output::render, output::show,
+};
 
 /// Prints a line to stdout; a closed pipe (`btfquilt evaluate … | head`) is
 /// not an error.
@@ -359,6 +361,18 @@ enum Command {
         gim: Option<PathBuf>,
         #[arg(long)]
         sample: Option<PathBuf>,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Print how faithfully an image reproduces its sample as JSON: coherence
+    /// (output windows to their nearest sample window) and completeness
+    /// (sample windows to their nearest output window), exact nearest 5×5
+    /// windows, unrotated.
+    Compare {
+        /// The synthesized image (e.g. a baked flat square, or another tool's output).
+        image: PathBuf,
+        #[arg(long)]
+        sample: PathBuf,
         #[command(flatten)]
         res: Resources,
     },
@@ -901,6 +915,14 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let (memory, _) = res.apply()?;
             let report = evaluate::evaluate(&file, gim.as_deref(), sample.as_deref(), memory)?;
+            say!(
+                "{}",
+                serde_json::to_string_pretty(&report).context("writing the figures as JSON")?
+            );
+        }
+        Command::Compare { image, sample, res } => {
+            let (memory, _) = res.apply()?;
+            let report = compare::compare(&image, &sample, memory)?;
             say!(
                 "{}",
                 serde_json::to_string_pretty(&report).context("writing the figures as JSON")?

@@ -5,8 +5,12 @@
 //!   against those inside patches;
 //! - zippers: mean colour difference across zipper links divided by the mean
 //!   across grid links inside charts (≈ 1 means chart seams are invisible);
-//! - coherence: mean RGB distance from 5×5 output windows to their nearest
-//!   5×5 window of the sample (turned by the window's rotation);
+//! - coherence: mean and 95th percentile RGB distance from 5×5 output
+//!   windows to their nearest 5×5 window of the sample (turned by the
+//!   window's rotation);
+//! - usage: per sample, how many covered texels use each of its pixels
+//!   (through the stored sample coordinates), as a histogram and the share
+//!   of the sample never used;
 //! - scale: the size of the sample on the surface, measured from the stored
 //!   sample coordinates against the 3D positions (mesh units).
 
@@ -44,7 +48,23 @@ pub struct EvaluateReport {
     pub seam: SeamFigures,
     pub zipper: ZipperFigures,
     pub coherence: CoherenceFigures,
+    /// Per sample, how often each of its pixels appears on the surface.
+    pub usage: Vec<UsageFigures>,
     pub scale: ScaleFigures,
+}
+
+/// How the surface uses one sample: per sample pixel, the covered atlas
+/// texels whose stored sample coordinate falls in it.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct UsageFigures {
+    /// The sample's index in the quilt.
+    pub sample: usize,
+    /// Its pixels (the preview's width × height).
+    pub pixels: usize,
+    /// Share of its pixels no texel uses.
+    pub never_used: f64,
+    /// Pixels used 0, 1, 2–3, 4–7, 8–15, … times (powers of two).
+    pub histogram: Vec<usize>,
 }
 
 /// The sample's size on the surface, measured: over grid edges inside one
@@ -99,6 +119,8 @@ pub struct CoherenceFigures {
     /// Windows measured.
     pub windows: usize,
     pub mean_rgb_distance_to_nearest_sample_window: f64,
+    /// 95th percentile (nearest rank) of the same distances.
+    pub p95_rgb_distance_to_nearest_sample_window: f64,
 }
 
 /// The painting measures of a painted surface (§IV).
@@ -137,6 +159,7 @@ pub fn evaluate(
     let links = gim.zipper_links()?;
     let mut zipper = ZipperEnds::new(&links);
     let mut windows = Windows::new(r);
+    let mut usage: Vec<Vec<u32>> = previews.iter().map(|p| vec![0; p.width * p.height]).collect();
     let mut painting = Painting::open(&quilt, &samples)?;
     let mut patch_ids = std::collections::HashSet::new();
     let mut texels = 0usize;
@@ -173,6 +196,7 @@ pub fn evaluate(
         }
         zipper.gather(&b, r);
         windows.gather(&b, r);
+        count_usage(&mut usage, &previews, &b);
         if let Some(p) = painting.as_mut() {
             p.count(&quilt, &b, r)?;
         }
@@ -194,7 +218,12 @@ pub fn evaluate(
         Some(crate::container::Param::Int(v)) if *v > 0 => *v as usize,
         _ => 72,
     };
-    let coherence = windows.coherence(&previews, steps);
+    let mut coherence = windows.coherence(&previews, steps);
+    coherence.sort_by(f64::total_cmp);
+    let p95 = coherence
+        .get(((coherence.len() as f64 * 0.95).ceil() as usize).max(1) - 1)
+        .copied()
+        .unwrap_or(0.0);
     let seams_fraction = seam.len() as f64 / (seam.len() + inner_count).max(1) as f64;
     let width = previews.first().map_or(0, |p| p.width);
     let scale = scale(&quilt, &gim, width)?;
@@ -219,11 +248,53 @@ pub fn evaluate(
             ratio: zipper_ratio,
         },
         coherence: CoherenceFigures {
-            windows: coherence.1,
-            mean_rgb_distance_to_nearest_sample_window: coherence.0,
+            windows: coherence.len(),
+            mean_rgb_distance_to_nearest_sample_window: mean(&coherence),
+            p95_rgb_distance_to_nearest_sample_window: p95,
         },
+        usage: usage
+            .iter()
+            .enumerate()
+            .map(|(sample, counts)| usage_figures(sample, counts))
+            .collect(),
         scale,
     })
+}
+
+/// Adds the band's covered texels to the use counts of the sample pixels
+/// their stored coordinates fall in (wrapped into the sample).
+fn count_usage(usage: &mut [Vec<u32>], previews: &[RgbImage], b: &ColourBand) {
+    for t in 0..b.own {
+        let i = b.index[t] as usize;
+        if !b.covered[t] || b.patch[t] == NO_PATCH || i >= usage.len() {
+            continue;
+        }
+        let (w, h) = (previews[i].width as i64, previews[i].height as i64);
+        let [u, v] = b.coords[t];
+        if !(u.is_finite() && v.is_finite()) {
+            continue;
+        }
+        let (x, y) = ((u.floor() as i64).rem_euclid(w), (v.floor() as i64).rem_euclid(h));
+        usage[i][(y * w + x) as usize] += 1;
+    }
+}
+
+/// The figures of one sample's use counts.
+fn usage_figures(sample: usize, counts: &[u32]) -> UsageFigures {
+    let mut histogram = vec![0usize];
+    for &c in counts {
+        let bucket = if c == 0 { 0 } else { 1 + c.ilog2() as usize };
+        if histogram.len() <= bucket {
+            histogram.resize(bucket + 1, 0);
+        }
+        histogram[bucket] += 1;
+    }
+    UsageFigures {
+        sample,
+        pixels: counts.len(),
+        never_used: histogram[0] as f64 / counts.len().max(1) as f64,
+        histogram,
+    }
 }
 
 /// Atlas rows `y0..y1` and the row below (when there is one): preview
@@ -238,6 +309,8 @@ struct ColourBand {
     index: Vec<u8>,
     chart: Vec<u32>,
     rotation: Vec<u8>,
+    /// Stored sample coordinates (sample pixels), own rows only.
+    coords: Vec<[f32; 2]>,
 }
 
 impl ColourBand {
@@ -254,6 +327,7 @@ impl ColourBand {
             index: quilt.sample_region(0, y0, r, hi - y0)?,
             chart: gim.chart_face_region(0, y0, r, hi - y0)?.0,
             rotation: quilt.rotation_region(0, y0, r, hi - y0)?,
+            coords: quilt.coord_region(0, y0, r, y1 - y0)?,
         })
     }
 }
@@ -374,15 +448,14 @@ impl Windows {
         }
     }
 
-    /// Mean distance from the windows (inside one chart, drawn from one
+    /// The distance from each window (inside one chart, drawn from one
     /// sample) to the nearest 5×5 window of that sample's preview turned by
-    /// the window's rotation (`steps` rotations a turn); and the number of
-    /// windows.
-    fn coherence(&self, previews: &[RgbImage], steps: usize) -> (f64, usize) {
+    /// the window's rotation (`steps` rotations a turn), in window order.
+    fn coherence(&self, previews: &[RgbImage], steps: usize) -> Vec<f64> {
         let mut cache: std::collections::BTreeMap<(u8, u8), (Vec<f32>, Vec<u8>)> = Default::default();
-        let (mut total, mut count) = (0f64, 0usize);
+        let mut out = Vec::new();
         for c in 0..self.centres.len() {
-            if count >= WINDOWS {
+            if out.len() >= WINDOWS {
                 break;
             }
             let w = c * 25;
@@ -421,11 +494,10 @@ impl Windows {
                 }
             }
             if best.is_finite() {
-                total += (best / 25.0).sqrt();
-                count += 1;
+                out.push((best / 25.0).sqrt());
             }
         }
-        (total / count.max(1) as f64, count)
+        out
     }
 }
 

@@ -1,10 +1,11 @@
 //! What a finished quilt is turned into: the atlas texture ([`bake`]), a
 //! picture of the decorated mesh ([`render`]), files for other tools
-//! ([`export`]), quality figures ([`evaluate`]) and a look inside any
-//! artifact ([`show`]). Each reads `.quilt`/`.gim`/`.svd` artifacts and
+//! ([`export`]), quality figures ([`evaluate`], and [`compare`] for any
+//! image against its sample) and a look inside any artifact ([`show`]). Each reads `.quilt`/`.gim`/`.svd` artifacts and
 //! writes new files; none writes an artifact another stage reads.
 
 pub mod bake;
+pub mod compare;
 pub mod evaluate;
 pub mod export;
 pub mod render;

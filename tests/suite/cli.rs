@@ -318,6 +318,30 @@ fn tile_bake_evaluate_render_export_a_square() {
     let json = btfquilt(&["evaluate", s(&quilt)]);
     let doc = serde_json::from_slice::<serde_json::Value>(&json.stdout).unwrap();
     assert!(doc.get("zipper").is_some() && doc.get("coherence").is_some());
+    // usage: every sample pixel in one bucket, and the buckets' bounds hold
+    // the covered texels (each uses one pixel of the one sample)
+    let usage = &doc["usage"][0];
+    let hist: Vec<u64> = usage["histogram"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert_eq!(hist.iter().sum::<u64>(), usage["pixels"].as_u64().unwrap());
+    let texels = doc["texels"].as_u64().unwrap();
+    let low: u64 = hist.iter().enumerate().skip(1).map(|(k, n)| n << (k - 1)).sum();
+    let high: u64 = hist
+        .iter()
+        .enumerate()
+        .skip(1)
+        .map(|(k, n)| n * ((1u64 << k) - 1))
+        .sum();
+    assert!(low <= texels && texels <= high, "{low} ≤ {texels} ≤ {high}");
+    let never = usage["never_used"].as_f64().unwrap();
+    assert!((never - hist[0] as f64 / usage["pixels"].as_f64().unwrap()).abs() < 1e-12);
+    let c = &doc["coherence"];
+    assert!(c["p95_rgb_distance_to_nearest_sample_window"].as_f64().unwrap() >= 0.0);
+    assert!(c["windows"].as_u64().unwrap() > 0);
     let png = dir.path().join("view.png");
     assert!(btfquilt(&[
         "render",
@@ -355,6 +379,74 @@ fn tile_bake_evaluate_render_export_a_square() {
             "-o",
             s(&dir.path().join("x.quilt")),
         ]),
+        &["square.obj"],
+    );
+}
+
+/// `compare` of a baked flat square against its sample: the figures as
+/// JSON; an image against itself scores 0 both ways; an image smaller than
+/// the window, and a file that is no image, are refused by name.
+#[test]
+fn compare_an_image_with_its_sample() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("square.obj");
+    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n").unwrap();
+    let gim = dir.path().join("square.gim");
+    // a 48² crop of the brick photo as the sample
+    let full = image::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png")).unwrap();
+    let brick = dir.path().join("brick48.png");
+    full.crop_imm(100, 100, 48, 48).save(&brick).unwrap();
+    let quilt = dir.path().join("square.quilt");
+    let png = dir.path().join("square.png");
+    for args in [
+        vec!["atlas", s(&obj), "--resolution", "64", "-q", "-o", s(&gim)],
+        vec![
+            "tile",
+            "--gim",
+            s(&gim),
+            "--sample",
+            s(&brick),
+            "-q",
+            "-o",
+            s(&quilt),
+        ],
+        vec!["bake", s(&quilt), "-o", s(&png)],
+    ] {
+        let out = btfquilt(&args);
+        assert!(
+            out.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let figures = |image: &Path| {
+        let out = btfquilt(&["compare", s(image), "--sample", s(&brick)]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
+    };
+    let doc = figures(&png);
+    for way in ["coherence", "completeness"] {
+        let mean = doc[way]["mean"].as_f64().unwrap();
+        let (p95, max) = (
+            doc[way]["p95"].as_f64().unwrap(),
+            doc[way]["max"].as_f64().unwrap(),
+        );
+        assert!(
+            mean.is_finite() && mean >= 0.0 && mean <= max && p95 <= max,
+            "{doc}"
+        );
+    }
+    let same = figures(&brick);
+    assert_eq!(same["coherence"]["max"].as_f64(), Some(0.0));
+    assert_eq!(same["completeness"]["max"].as_f64(), Some(0.0));
+    let tiny = dir.path().join("tiny.png");
+    image::RgbImage::new(3, 9).save(&tiny).unwrap();
+    fails_clearly(
+        &btfquilt(&["compare", s(&tiny), "--sample", s(&brick)]),
+        &["tiny.png", "3×9"],
+    );
+    fails_clearly(
+        &btfquilt(&["compare", s(&png), "--sample", s(&obj)]),
         &["square.obj"],
     );
 }
