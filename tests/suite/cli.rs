@@ -389,8 +389,7 @@ fn tile_bake_evaluate_render_export_a_square() {
 #[test]
 fn compare_an_image_with_its_sample() {
     let dir = tempfile::tempdir().unwrap();
-    let obj = dir.path().join("square.obj");
-    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n").unwrap();
+    let obj = crate::common::square_obj(dir.path());
     let gim = dir.path().join("square.gim");
     // a 48² crop of the brick photo as the sample
     let full = image::open(Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png")).unwrap();
@@ -398,20 +397,18 @@ fn compare_an_image_with_its_sample() {
     full.crop_imm(100, 100, 48, 48).save(&brick).unwrap();
     let quilt = dir.path().join("square.quilt");
     let png = dir.path().join("square.png");
-    for args in [
-        vec!["atlas", s(&obj), "--resolution", "64", "-q", "-o", s(&gim)],
-        vec![
-            "tile",
-            "--gim",
+    let (atlas, tile, bake) = (
+        format!("atlas {} --resolution 64 -q -o {}", s(&obj), s(&gim)),
+        format!(
+            "tile -q --gim {} --sample {} -o {}",
             s(&gim),
-            "--sample",
             s(&brick),
-            "-q",
-            "-o",
-            s(&quilt),
-        ],
-        vec!["bake", s(&quilt), "-o", s(&png)],
-    ] {
+            s(&quilt)
+        ),
+        format!("bake {} -o {}", s(&quilt), s(&png)),
+    );
+    for line in [atlas, tile, bake] {
+        let args: Vec<&str> = line.split(' ').collect();
         let out = btfquilt(&args);
         assert!(
             out.status.success(),
