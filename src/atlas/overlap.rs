@@ -41,7 +41,7 @@ fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
 }
 
 /// Twice the signed area of (a, b, c).
-fn orient(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> f64 {
+pub(super) fn orient(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> f64 {
     (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
 }
 

@@ -17,6 +17,8 @@
 
 use rayon::prelude::*;
 
+use super::overlap::orient;
+
 /// Texel centres this close (in texels) to a chart triangle are covered.
 pub const COVER_RADIUS: f64 = 0.75;
 
@@ -119,7 +121,6 @@ struct Footprint {
     rows: Vec<(u32, u32)>,
     /// Runs `[start, end)` of claimed columns, row after row.
     spans: Vec<(i32, i32)>,
-    width: i32,
     margin: i32,
 }
 
@@ -141,8 +142,7 @@ impl Footprint {
                 [q[0] + m, q[1] + m]
             });
             let r = COVER_RADIUS + 1e-6;
-            let d = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
-            if d.abs() < 1e-18 {
+            if orient(p[0], p[1], p[2]).abs() < 1e-18 {
                 continue; // covers nothing (see closest_on_triangle)
             }
             let y_lo = (p.iter().map(|c| c[1]).fold(f64::INFINITY, f64::min) - r - 0.5).ceil() as i32;
@@ -195,12 +195,7 @@ impl Footprint {
             }
             rows.push((first, spans.len() as u32));
         }
-        Footprint {
-            rows,
-            spans,
-            width: w,
-            margin,
-        }
+        Footprint { rows, spans, margin }
     }
 
     /// The first and one past the last bitmap row holding a run.
@@ -436,7 +431,6 @@ fn first_fit(
                 occupied.take(y + j as i32, x + s, x + e);
             }
         }
-        debug_assert!(f.width > 0);
         offsets[c] = [(x + f.margin) as f64, (y + f.margin) as f64];
         turns[c] = k;
     }
@@ -463,7 +457,7 @@ pub fn pack(shapes: &[Shape], resolution: usize, gutter: usize) -> Packing {
         }
     }
     let shelf_scale = lo;
-    // the skyline, largest uv area first, from the shelf's scale up to what
+    // first-fit, largest uv area first, from the shelf's scale up to what
     // the charts' own area allows
     let uv_area = |s: &Shape| {
         s.triangles
@@ -515,9 +509,9 @@ pub fn pack(shapes: &[Shape], resolution: usize, gutter: usize) -> Packing {
 mod tests {
     use super::*;
 
-    /// An L-shaped chart (`w`×`h` box, arms `t` thick) as unit-square
-    /// triangles, counter-clockwise, surface units.
-    fn ell(w: usize, h: usize, t: usize) -> (Vec<[f32; 2]>, Vec<[u32; 3]>) {
+    /// The unit squares `(x, y)` of a `w`×`h` grid that `keep` keeps, as
+    /// triangles counter-clockwise in surface units.
+    fn cells(w: usize, h: usize, keep: impl Fn(usize, usize) -> bool) -> (Vec<[f32; 2]>, Vec<[u32; 3]>) {
         let id = |x: usize, y: usize| (y * (w + 1) + x) as u32;
         let uv = (0..=h)
             .flat_map(|y| (0..=w).map(move |x| [x as f32, y as f32]))
@@ -525,13 +519,18 @@ mod tests {
         let mut tris = Vec::new();
         for y in 0..h {
             for x in 0..w {
-                if x < t || y < t {
+                if keep(x, y) {
                     tris.push([id(x, y), id(x + 1, y), id(x + 1, y + 1)]);
                     tris.push([id(x, y), id(x + 1, y + 1), id(x, y + 1)]);
                 }
             }
         }
         (uv, tris)
+    }
+
+    /// An L-shaped chart (`w`×`h` box, arms `t` thick).
+    fn ell(w: usize, h: usize, t: usize) -> (Vec<[f32; 2]>, Vec<[u32; 3]>) {
+        cells(w, h, |x, y| x < t || y < t)
     }
 
     /// Texels the rasterizer covers for each chart at its packed place.
@@ -644,24 +643,8 @@ mod tests {
         // a square ring (12 units, arms 2 thick) and a 3-unit square: at the
         // largest scale the ring spans the atlas, and the square must go
         // into its hole
-        let grid = |w: usize, keep: &dyn Fn(usize, usize) -> bool| {
-            let id = |x: usize, y: usize| (y * (w + 1) + x) as u32;
-            let uv: Vec<[f32; 2]> = (0..=w)
-                .flat_map(|y| (0..=w).map(move |x| [x as f32, y as f32]))
-                .collect();
-            let mut tris = Vec::new();
-            for y in 0..w {
-                for x in 0..w {
-                    if keep(x, y) {
-                        tris.push([id(x, y), id(x + 1, y), id(x + 1, y + 1)]);
-                        tris.push([id(x, y), id(x + 1, y + 1), id(x, y + 1)]);
-                    }
-                }
-            }
-            (uv, tris)
-        };
-        let ring = grid(12, &|x, y| x < 2 || y < 2 || x >= 10 || y >= 10);
-        let square = grid(3, &|_, _| true);
+        let ring = cells(12, 12, |x, y| x < 2 || y < 2 || x >= 10 || y >= 10);
+        let square = cells(3, 3, |_, _| true);
         let shapes = [
             Shape {
                 uv: &ring.0,
