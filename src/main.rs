@@ -35,6 +35,15 @@ macro_rules! say {
     }};
 }
 
+/// Prints quality figures as pretty JSON on stdout.
+fn print_json(figures: &impl serde::Serialize) -> Result<()> {
+    say!(
+        "{}",
+        serde_json::to_string_pretty(figures).context("writing the figures as JSON")?
+    );
+    Ok(())
+}
+
 #[derive(Parser)]
 #[command(
     name = "btfquilt",
@@ -914,19 +923,16 @@ fn run(cli: Cli) -> Result<()> {
             res,
         } => {
             let (memory, _) = res.apply()?;
-            let report = evaluate::evaluate(&file, gim.as_deref(), sample.as_deref(), memory)?;
-            say!(
-                "{}",
-                serde_json::to_string_pretty(&report).context("writing the figures as JSON")?
-            );
+            print_json(&evaluate::evaluate(
+                &file,
+                gim.as_deref(),
+                sample.as_deref(),
+                memory,
+            )?)?;
         }
         Command::Compare { image, sample, res } => {
             let (memory, _) = res.apply()?;
-            let report = compare::compare(&image, &sample, memory)?;
-            say!(
-                "{}",
-                serde_json::to_string_pretty(&report).context("writing the figures as JSON")?
-            );
+            print_json(&compare::compare(&image, &sample, memory)?)?;
         }
         Command::Render {
             file,

@@ -58,19 +58,38 @@ pub struct Distances {
     pub max: f64,
 }
 
+/// The value at quantile `q` of ascending `sorted` by nearest rank (the
+/// ⌈q·n⌉-th), 0 when it is empty.
+pub(crate) fn nearest_rank(sorted: &[f64], q: f64) -> f64 {
+    let n = sorted.len();
+    if n == 0 {
+        return 0.0;
+    }
+    sorted[((q * n as f64).ceil() as usize).clamp(1, n) - 1]
+}
+
 impl Distances {
     fn of(mut d: Vec<f64>) -> Distances {
         let windows = d.len();
         let mean = d.iter().sum::<f64>() / windows.max(1) as f64;
         d.sort_by(f64::total_cmp);
-        let rank = |q: f64| d[((q * windows as f64).ceil() as usize).clamp(1, windows) - 1];
         Distances {
             windows,
             mean,
-            p95: rank(0.95),
-            max: rank(1.0),
+            p95: nearest_rank(&d, 0.95),
+            max: nearest_rank(&d, 1.0),
         }
     }
+}
+
+/// Why `img` (the `what` image) cannot be compared: smaller than a window.
+fn too_small(what: &str, img: &RgbImage) -> Option<String> {
+    (img.width < WINDOW || img.height < WINDOW).then(|| {
+        format!(
+            "the {what} image is {}×{}: smaller than the {WINDOW}×{WINDOW} window",
+            img.width, img.height
+        )
+    })
 }
 
 /// The windows of `img`, one per row of a `count × DIM` matrix (row-major
@@ -117,11 +136,8 @@ fn ssd(a: &RgbImage, (x, y): (usize, usize), b: &RgbImage, (u, v): (usize, usize
 /// `budget` together with one product block per worker.
 pub fn compare_images(output: &RgbImage, sample: &RgbImage, budget: MemoryBudget) -> Result<CompareReport> {
     for (what, img) in [("output", output), ("sample", sample)] {
-        if img.width < WINDOW || img.height < WINDOW {
-            return Err(Error::Config(format!(
-                "the {what} image is {}×{}: smaller than the {WINDOW}×{WINDOW} window",
-                img.width, img.height
-            )));
+        if let Some(reason) = too_small(what, img) {
+            return Err(Error::Config(reason));
         }
     }
     let (s_cols, s_rows) = (sample.width + 1 - WINDOW, sample.height + 1 - WINDOW);
@@ -216,19 +232,18 @@ pub fn compare_images(output: &RgbImage, sample: &RgbImage, budget: MemoryBudget
 /// [`compare_images`] on two image files (PNG, JPEG, EXR, …); an error
 /// names the file it is about.
 pub fn compare(output: &Path, sample: &Path, budget: MemoryBudget) -> Result<CompareReport> {
-    let read = |p: &Path| imageio::read_rgb_within(p, budget.0);
-    let (o, s) = (read(output)?, read(sample)?);
-    compare_images(&o, &s, budget).map_err(|e| match e {
-        Error::Config(reason) => Error::Input {
-            path: if reason.starts_with("the sample") {
-                sample.to_path_buf()
-            } else {
-                output.to_path_buf()
-            },
-            reason,
-        },
-        e => e,
-    })
+    let mut images = Vec::with_capacity(2);
+    for (what, path) in [("output", output), ("sample", sample)] {
+        let img = imageio::read_rgb_within(path, budget.0)?;
+        if let Some(reason) = too_small(what, &img) {
+            return Err(Error::Input {
+                path: path.to_path_buf(),
+                reason,
+            });
+        }
+        images.push(img);
+    }
+    compare_images(&images[0], &images[1], budget)
 }
 
 #[cfg(test)]

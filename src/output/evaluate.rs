@@ -220,10 +220,7 @@ pub fn evaluate(
     };
     let mut coherence = windows.coherence(&previews, steps);
     coherence.sort_by(f64::total_cmp);
-    let p95 = coherence
-        .get(((coherence.len() as f64 * 0.95).ceil() as usize).max(1) - 1)
-        .copied()
-        .unwrap_or(0.0);
+    let p95 = super::compare::nearest_rank(&coherence, 0.95);
     let seams_fraction = seam.len() as f64 / (seam.len() + inner_count).max(1) as f64;
     let width = previews.first().map_or(0, |p| p.width);
     let scale = scale(&quilt, &gim, width)?;

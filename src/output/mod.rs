@@ -1,7 +1,8 @@
 //! What a finished quilt is turned into: the atlas texture ([`bake`]), a
 //! picture of the decorated mesh ([`render`]), files for other tools
 //! ([`export`]), quality figures ([`evaluate`], and [`compare`] for any
-//! image against its sample) and a look inside any artifact ([`show`]). Each reads `.quilt`/`.gim`/`.svd` artifacts and
+//! image against its sample) and a look inside any artifact ([`show`]).
+//! Each reads `.quilt`/`.gim`/`.svd` artifacts (`compare` reads images) and
 //! writes new files; none writes an artifact another stage reads.
 
 pub mod bake;
