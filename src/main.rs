@@ -302,6 +302,11 @@ enum Command {
         /// longer runs).
         #[arg(long, default_value_t = TileConfig::default().refine_placements)]
         refine_placements: usize,
+        /// Penalise sample regions in proportion to how often the surface
+        /// already shows them (0 turns it off; higher: more of the sample's
+        /// variety, at some cost in seam quality).
+        #[arg(long, default_value_t = TileConfig::default().occurrence_weight)]
+        occurrence_weight: f64,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -835,6 +840,7 @@ fn run(cli: Cli) -> Result<()> {
             sample_mask,
             refine,
             refine_placements,
+            occurrence_weight,
             output,
             res,
         } => {
@@ -843,6 +849,7 @@ fn run(cli: Cli) -> Result<()> {
                 sample_mask,
                 refine: (refine != 0.0).then_some(refine),
                 refine_placements,
+                occurrence_weight,
                 ..quilting.tile_config(memory)
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;

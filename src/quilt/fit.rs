@@ -4,6 +4,7 @@
 
 use super::flatten::WorkImage;
 use super::maxflow::{Graph, Segment};
+use super::occurrence::Occurrence;
 use super::placement::PlacementChoice;
 use super::sample::{dist, Sample};
 use super::state::{State, Surface, WorkPatch, NO_FOREIGN};
@@ -267,6 +268,7 @@ pub(super) fn apply(
     patch: &WorkPatch,
     fit: &Fit,
     id: u32,
+    mut occurrence: Option<&mut Occurrence>,
     progress: &dyn Progress,
 ) {
     let mut newly = 0u64;
@@ -280,7 +282,8 @@ pub(super) fn apply(
             continue;
         }
         touched.push(grid.locate(t).0);
-        let was = state.texel_mut(t, |s, k| {
+        let (was, old) = state.texel_mut(t, |s, k| {
+            let old = (s.synthesized[k] && s.source[k] == active).then_some(s.coord[k]);
             s.coord[k] = [fit.coord[i][0] as f32, fit.coord[i][1] as f32];
             s.jacobian[k] = fit.jacobian;
             s.rotation[k] = fit.rotation as u8;
@@ -290,8 +293,17 @@ pub(super) fn apply(
             if masked {
                 s.mask[k] = fit.new_mask[i];
             }
-            std::mem::replace(&mut s.synthesized[k], true)
+            (std::mem::replace(&mut s.synthesized[k], true), old)
         });
+        if let Some(occ) = occurrence.as_deref_mut() {
+            if let Some(c) = old {
+                occ.add([c[0] as f64, c[1] as f64], -1.0);
+            }
+            // the coordinate as stored, so a later replacement takes back
+            // exactly this count
+            let c = [fit.coord[i][0] as f32 as f64, fit.coord[i][1] as f32 as f64];
+            occ.add(c, 1.0);
+        }
         if !was {
             state.remaining -= 1;
             newly += 1;

@@ -37,6 +37,7 @@ mod fit;
 mod flatten;
 pub mod matching;
 pub mod maxflow;
+mod occurrence;
 mod pager;
 mod placement;
 mod sample;
@@ -68,6 +69,12 @@ pub struct TileConfig {
     pub seam_threshold: f64,
     /// Near-minimal placements: cost ≤ (1 + tolerance) × best.
     pub tolerance: f64,
+    /// Weight of the occurrence penalty in matching: a placement costs this
+    /// × (the sample's neighbour difference)² × the mean use, relative to
+    /// the sample's mean use, of the sample pixels it covers, so work
+    /// patches spread over the sample's whole variety instead of returning
+    /// to the region that matches best (Kaspar et al. 2015). 0 turns it off.
+    pub occurrence_weight: f64,
     /// Maximum area distortion of a flattened work patch (T_d).
     pub max_distortion: f64,
     pub seed: u64,
@@ -115,6 +122,7 @@ impl Default for TileConfig {
             min_radius: 4,
             seam_threshold: 3.0,
             tolerance: 0.1,
+            occurrence_weight: 1.0,
             max_distortion: 4.0,
             seed: 1,
             memory: MemoryBudget::default(),
@@ -179,6 +187,12 @@ impl TileConfig {
             self.seam_threshold,
             self.seam_threshold > 0.0,
             "a finite number > 0 (a mean seam cost in sample neighbour differences)",
+        )?;
+        check(
+            "--occurrence-weight",
+            self.occurrence_weight,
+            self.occurrence_weight >= 0.0,
+            "a finite number ≥ 0 (0 turns the occurrence penalty off)",
         )?;
         check(
             "--constraint-weight",

@@ -3,6 +3,7 @@
 
 use super::flatten::{rotation_index, WorkImage};
 use super::matching::{Image, MatchConfig, Matcher};
+use super::occurrence::Occurrence;
 use super::sample::Sample;
 use super::{matching, TileConfig};
 use crate::Result;
@@ -19,9 +20,11 @@ pub(super) fn covering_candidates(
     work: &WorkImage,
     cfg: &TileConfig,
     reference: f64,
+    occurrence: Option<&mut Occurrence>,
 ) -> Result<(usize, Vec<matching::Placement>)> {
     let weight = (cfg.constraint_weight * reference).powi(2);
-    let (rotation, candidates) = match_candidates(sample, matcher, work, weight)?;
+    let penalty = occurrence.map(|o| (o, cfg.occurrence_weight * reference * reference));
+    let (rotation, candidates) = match_candidates(sample, matcher, work, weight, penalty)?;
     let step = (work.coords.len() / 400).max(1);
     let probe: Vec<[f64; 2]> = work.coords.iter().step_by(step).copied().collect();
     let covering = candidates
@@ -104,9 +107,10 @@ pub(super) fn place_covering(
     work: &WorkImage,
     cfg: &TileConfig,
     reference: f64,
+    occurrence: Option<&mut Occurrence>,
     counter: u64,
 ) -> Result<PlacementChoice> {
-    let (rotation, covering) = covering_candidates(sample, matcher, work, cfg, reference)?;
+    let (rotation, covering) = covering_candidates(sample, matcher, work, cfg, reference, occurrence)?;
     Ok(choose_placement(sample, work, cfg, counter, rotation, &covering))
 }
 
@@ -188,12 +192,15 @@ pub(super) fn choose_placement(
 /// The rotation for the work image's field direction and the best matches
 /// of that rotated copy (up to 64, cheapest first); jointly on features and
 /// on the constraint (m0 against the rotated foreground mask, weighted by
-/// `constraint_weight`) when the work image carries one (§IV).
+/// `constraint_weight`) when the work image carries one (§IV); with
+/// `penalty` (an occurrence map and its weight), plus the occurrence
+/// penalty of each placement ([`Occurrence::penalize`]).
 pub(super) fn match_candidates(
     sample: &mut Sample,
     matcher: &mut Matcher,
     work: &WorkImage,
     constraint_weight: f64,
+    penalty: Option<(&mut Occurrence, f64)>,
 ) -> Result<(usize, Vec<matching::Placement>)> {
     let rotations = sample.rotations;
     let rot = rotation_index(work.angle, rotations);
@@ -251,5 +258,11 @@ pub(super) fn match_candidates(
         constraint_weight,
         ..MatchConfig::default()
     };
-    Ok((rot, matcher.match_patch(&work_in, &sample_in, &mc)?))
+    let mut map = matcher.cost_map(&work_in, &sample_in, &mc)?;
+    if let Some((occurrence, weight)) = penalty {
+        let sample = &*sample;
+        let to_unrotated = |p: [f64; 2]| to_sample(sample, rot, 0.0, 0.0, p);
+        occurrence.penalize(&mut map, rot, to_unrotated, [work.width, work.height], weight);
+    }
+    Ok((rot, map.best(mc.candidates, mc.tolerance)))
 }

@@ -10,6 +10,7 @@ use super::flatten::{
     chart_work_image, flattened_work_image, rotation_index, unfolded_work_image, Flattening, WorkImage,
 };
 use super::matching::Matcher;
+use super::occurrence::Occurrence;
 use super::placement::{
     choose_placement, covering_candidates, distinct_best, place_covering, to_sample, PlacementChoice,
     REFINE_SPACING,
@@ -44,6 +45,8 @@ pub(crate) struct Synthesis {
     pub(super) state: State,
     pub(super) bfs: Bfs,
     pub(super) matcher: Matcher,
+    /// How often each sample region shows on the surface (tiling only).
+    pub(super) occurrence: Occurrence,
     /// The sample's mean neighbour difference, the unit of T_c.
     pub(super) reference: f64,
     pub(crate) report: TileReport,
@@ -94,6 +97,7 @@ impl Synthesis {
             ));
         }
         let sample = Sample::from_svd(svd, quarter)?;
+        let occurrence = Occurrence::new(sample.width, sample.height, sample.tileable, sample.rotations);
         let n = sample.n;
         let surface = Surface::open(gim, surface_budget)?;
         let reference = sample.neighbour_difference();
@@ -110,6 +114,7 @@ impl Synthesis {
             state,
             bfs: Bfs::default(),
             matcher: Matcher::with_cache_budget(quarter.bytes() as usize),
+            occurrence,
             reference,
             report: TileReport {
                 texels: total,
@@ -577,12 +582,14 @@ impl Synthesis {
         core: u16,
     ) -> Result<Fit> {
         let t = Instant::now();
+        let occurrence = (!self.painting).then_some(&mut self.occurrence);
         let placement = place_covering(
             &mut self.sample,
             &mut self.matcher,
             work,
             &self.cfg,
             self.reference,
+            occurrence,
             self.report.patches as u64,
         )?;
         self.report.matching_seconds += t.elapsed().as_secs_f64();
@@ -632,6 +639,7 @@ impl Synthesis {
             work,
             &self.cfg,
             self.reference,
+            None,
         )?;
         let mut picks: Vec<PlacementChoice> = distinct_best(&covering, count, REFINE_SPACING)
             .into_iter()
@@ -678,6 +686,7 @@ impl Synthesis {
             patch,
             fit,
             id,
+            (!self.painting).then_some(&mut self.occurrence),
             progress,
         );
         self.seam_sum += fit.seam_cost;

@@ -445,3 +445,55 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
         "the render depends on the budget"
     );
 }
+
+/// Issue-17 failure mode: a plain ground with a few dark spots. Without the
+/// occurrence penalty the choice among near-minimal placements keeps
+/// returning to the ground that matches what is already there; with it more
+/// of the sample shows on the surface.
+#[test]
+fn the_occurrence_penalty_spreads_use_over_a_sparse_feature_sample() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = dir.path().join("square.gim");
+    atlas(&square_obj(dir.path()), &g, 200);
+    let sample = dir.path().join("spots.png");
+    let spots = [
+        (20.0, 24.0),
+        (70.0, 16.0),
+        (48.0, 60.0),
+        (80.0, 78.0),
+        (14.0, 82.0),
+    ];
+    crate::common::write_rgb_png(&sample, 96, 96, |x, y| {
+        // a faint deterministic grain on a light ground
+        let h = ((x * 7919 + y * 104_729) % 97) as f32 / 97.0;
+        let v = 0.7 + 0.04 * h;
+        let dark = spots
+            .iter()
+            .any(|&(cx, cy)| (x as f32 - cx).powi(2) + (y as f32 - cy).powi(2) < 16.0);
+        if dark {
+            [0.08, 0.06, 0.05]
+        } else {
+            [v, 0.97 * v, 0.9 * v]
+        }
+    });
+    let never_used = |weight: f64| {
+        let out = dir.path().join(format!("w{weight}.quilt"));
+        let cfg = TileConfig {
+            occurrence_weight: weight,
+            ..TileConfig::default()
+        };
+        quilt::tile(&g, &sample, &out, &cfg, &Silent).unwrap();
+        btfquilt::output::evaluate::evaluate(&out, None, None, MemoryBudget::default())
+            .unwrap()
+            .usage[0]
+            .never_used
+    };
+    let (off, on) = (
+        never_used(0.0),
+        never_used(TileConfig::default().occurrence_weight),
+    );
+    assert!(
+        on < 0.8 * off,
+        "sample never used: {off:.3} without the penalty, {on:.3} with it"
+    );
+}

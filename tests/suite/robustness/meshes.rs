@@ -317,6 +317,8 @@ fn mesh_float_flags_must_be_finite() {
         ("--seam-threshold", "NaN"),
         ("--refine", "NaN"),
         ("--seam-threshold", "-1"),
+        ("--occurrence-weight", "-0.5"),
+        ("--occurrence-weight", "inf"),
     ] {
         let arg = format!("{flag}={value}");
         refuses(
