@@ -307,6 +307,10 @@ enum Command {
         /// variety, at some cost in seam quality).
         #[arg(long, default_value_t = TileConfig::default().occurrence_weight)]
         occurrence_weight: f64,
+        /// Weight of the structure channel (distance to the sample's edges) in
+        /// matching and seams, in sample neighbour differences (0: colour only).
+        #[arg(long, default_value_t = TileConfig::default().structure_weight)]
+        structure_weight: f64,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -841,6 +845,7 @@ fn run(cli: Cli) -> Result<()> {
             refine,
             refine_placements,
             occurrence_weight,
+            structure_weight,
             output,
             res,
         } => {
@@ -850,6 +855,7 @@ fn run(cli: Cli) -> Result<()> {
                 refine: (refine != 0.0).then_some(refine),
                 refine_placements,
                 occurrence_weight,
+                structure_weight,
                 ..quilting.tile_config(memory)
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;

@@ -42,6 +42,7 @@ mod pager;
 mod placement;
 mod sample;
 mod state;
+mod structure;
 mod synthesis;
 mod write;
 
@@ -75,6 +76,18 @@ pub struct TileConfig {
     /// patches spread over the sample's whole variety instead of returning
     /// to the region that matches best (Kaspar et al. 2015). 0 turns it off.
     pub occurrence_weight: f64,
+    /// Weight of the structure channel (each sample pixel's distance to the
+    /// nearest strong edge of the sample, 0..1; see `src/quilt/structure.rs`)
+    /// in matching, the cut cost and seam refinement, in sample neighbour
+    /// differences: a cut between a texel on an edge and one as far from
+    /// any edge as the sample's features are apart costs this many more.
+    /// 0 (the default) turns it off: colour only. On six 2D samples it
+    /// changed no figure for the better at 0.5, 1 or 2 (coherence's 95th
+    /// percentile 2–5 % worse), and on Spot at 1024² with the brick wall at
+    /// twice its size offset courses remained at patch seams: they come
+    /// from the field turning between patches, which a cut cost cannot
+    /// undo.
+    pub structure_weight: f64,
     /// Maximum area distortion of a flattened work patch (T_d).
     pub max_distortion: f64,
     pub seed: u64,
@@ -123,6 +136,7 @@ impl Default for TileConfig {
             seam_threshold: 3.0,
             tolerance: 0.1,
             occurrence_weight: 1.0,
+            structure_weight: 0.0,
             max_distortion: 4.0,
             seed: 1,
             memory: MemoryBudget::default(),
@@ -193,6 +207,12 @@ impl TileConfig {
             self.occurrence_weight,
             self.occurrence_weight >= 0.0,
             "a finite number ≥ 0 (0 turns the occurrence penalty off)",
+        )?;
+        check(
+            "--structure-weight",
+            self.structure_weight,
+            self.structure_weight >= 0.0,
+            "a finite number ≥ 0 (sample neighbour differences; 0 turns the structure channel off)",
         )?;
         check(
             "--constraint-weight",
@@ -317,6 +337,7 @@ pub fn tile(
     let sized = sample_at_density(sample_path, gim.texel_size, cfg.sample_size(), true, progress)?;
     let mut syn = Synthesis::open(&gim, sample_path, &sized.svd, out, cfg, true)?;
     syn.set_scale(&sized);
+    syn.set_structure(cfg.structure_weight);
     if let Some(mask) = &cfg.sample_mask {
         syn.set_mask(mask)?;
         syn.constrain_to_background();

@@ -28,6 +28,9 @@ pub(super) struct Sample {
     pub(super) mask: Option<Vec<f32>>,
     /// Rotated copies of the mask, made lazily like the maps'.
     pub(super) rotated_mask: Vec<Option<Vec<f32>>>,
+    /// The weighted structure channel (`[y][x]`), when it is on: the last of
+    /// the `n` feature channels of `maps` and of every rotated copy.
+    pub(super) structure: Option<Vec<f32>>,
 }
 
 impl Sample {
@@ -50,8 +53,24 @@ impl Sample {
             rotated: BoundedCache::new(rotated_budget),
             mask: None,
             rotated_mask: vec![None; rotations],
+            structure: None,
             svd,
         })
+    }
+
+    /// Appends the structure channel ([`super::structure`]) × `weight` to
+    /// the feature channels: matching, the cut cost and seam refinement see
+    /// it from then on. Call it before anything is matched.
+    pub(super) fn add_structure(&mut self, weight: f32) {
+        let (w, h, n) = (self.width, self.height, self.n);
+        let channel: Vec<f32> = super::structure::structure_channel(&self.maps, w, h, n)
+            .into_iter()
+            .map(|v| v * weight)
+            .collect();
+        self.maps = interleave(&self.maps, n, &channel);
+        self.n = n + 1;
+        self.structure = Some(channel);
+        self.rotated.clear();
     }
 
     /// Rotated copy `r` (maps, validity), loaded on first use.
@@ -60,6 +79,13 @@ impl Sample {
             let (maps, valid) = self.svd.rotated(r)?;
             let mut m = vec![0f32; maps.len()];
             half::slice::HalfFloatSliceExt::convert_to_f32_slice(&maps[..], &mut m);
+            if let Some(channel) = &self.structure {
+                // turned like the stored copies (factorize's rotate_maps)
+                let degrees = r as f64 * 360.0 / self.rotations as f64;
+                let (turned, _) =
+                    factorize::rotate_maps(channel, self.width, self.height, 1, degrees, self.tileable);
+                m = interleave(&m, self.n - 1, &turned);
+            }
             let bytes = ((m.len() + valid.len()) * 4) as u64;
             self.rotated
                 .insert(r, (m, valid.iter().map(|&v| v as f32).collect()), bytes);
@@ -117,6 +143,16 @@ impl Sample {
     pub(super) fn neighbour_difference(&self) -> f64 {
         neighbour_difference(&self.maps, self.width, self.height, self.n)
     }
+}
+
+/// `n`-channel pixels with one more channel from `extra` after each.
+fn interleave(maps: &[f32], n: usize, extra: &[f32]) -> Vec<f32> {
+    let mut out = Vec::with_capacity(maps.len() + extra.len());
+    for (px, &e) in maps.chunks_exact(n).zip(extra) {
+        out.extend_from_slice(px);
+        out.push(e);
+    }
+    out
 }
 
 /// Mean ‖g(x) − g(x + 1)‖ over horizontal and vertical neighbours of `n`-term

@@ -170,6 +170,16 @@ impl Synthesis {
         }
     }
 
+    /// Adds the structure channel with `weight` sample neighbour
+    /// differences to the features (tiling; 0: colour only). Call it after
+    /// [`Synthesis::set_scale`], before anything is matched.
+    pub(crate) fn set_structure(&mut self, weight: f64) {
+        if weight > 0.0 {
+            self.sample.add_structure((weight * self.reference) as f32);
+            self.state.n = self.sample.n;
+        }
+    }
+
     /// Sets m0 to the given values on a zone (`(texel, m0)`), 0 elsewhere.
     pub(crate) fn set_target_zone(&mut self, zone: &[(u32, f32)]) {
         self.state.constrain_everywhere(0.0);
@@ -297,7 +307,8 @@ impl Synthesis {
             let (svd_path, _tmp) = sample_svd(&paths[k], false, progress)?;
             let svd = SvdArtifact::open(&svd_path, self.cfg.memory)?;
             crate::artifact::svd::same_directions(&self.sample.svd, &svd)?;
-            let projection = basis_projection(&active_p, self.sample.n, &svd.appearance()?, svd.terms);
+            let projection =
+                basis_projection(&active_p, self.sample.svd.terms, &svd.appearance()?, svd.terms);
             previews[k] = Some(svd.preview()?);
             // only their unrotated maps are read: no rotated copy is cached
             others[k] = Some((Sample::from_svd(svd, MemoryBudget(0))?, projection));

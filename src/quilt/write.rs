@@ -60,7 +60,7 @@ pub(super) fn write_quilt(
             w.set_param(&format!("{}_span", sample_role(k)), Param::Float(units));
         }
     }
-    w.set_param("terms", Param::Int(sample.n as i64));
+    w.set_param("terms", Param::Int(sample.svd.terms as i64));
     w.set_param("rotations", Param::Int(sample.rotations as i64));
     w.set_param("patches", Param::Int(state.next_patch as i64));
     w.set_param("mean_seam_cost", Param::Float(report.mean_seam_cost));

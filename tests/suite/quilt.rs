@@ -497,3 +497,47 @@ fn the_occurrence_penalty_spreads_use_over_a_sparse_feature_sample() {
         "sample never used: {off:.3} without the penalty, {on:.3} with it"
     );
 }
+
+/// The structure channel joins the features of the loop only: the result is
+/// still independent of the thread count, the quilt records the sample's
+/// own term count, and the texture comes out whole.
+#[test]
+fn the_structure_channel_keeps_results_deterministic_and_the_quilt_plain() {
+    use btfquilt::container::Param;
+    let dir = tempfile::tempdir().unwrap();
+    let g = dir.path().join("square.gim");
+    atlas(&square_obj(dir.path()), &g, 128);
+    let sample = brick_crop(dir.path(), 96, Some((40, 40)));
+    let cfg = TileConfig {
+        structure_weight: 1.0,
+        ..TileConfig::default()
+    };
+    let outs: Vec<PathBuf> = [1, 2]
+        .iter()
+        .map(|&t| {
+            let out = dir.path().join(format!("s{t}.quilt"));
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+            pool.install(|| quilt::tile(&g, &sample, &out, &cfg, &Silent))
+                .unwrap();
+            out
+        })
+        .collect();
+    assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
+    let plain = dir.path().join("plain.quilt");
+    quilt::tile(&g, &sample, &plain, &TileConfig::default(), &Silent).unwrap();
+    assert_ne!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&plain).unwrap());
+    let terms = |p: &Path| {
+        Quilt::open(p, MemoryBudget::default())
+            .unwrap()
+            .container()
+            .metadata()
+            .param("terms")
+            .cloned()
+    };
+    assert!(matches!(terms(&outs[0]), Some(Param::Int(t)) if t > 0));
+    assert_eq!(terms(&outs[0]), terms(&plain));
+    let q = Quilt::open(&outs[0], MemoryBudget::default()).unwrap();
+    assert!(q.patches().unwrap().iter().any(|&p| p != NO_PATCH));
+    let e = btfquilt::output::evaluate::evaluate(&outs[0], None, None, MemoryBudget::default()).unwrap();
+    assert_eq!(e.usage.len(), 1);
+}

@@ -319,6 +319,7 @@ fn mesh_float_flags_must_be_finite() {
         ("--seam-threshold", "-1"),
         ("--occurrence-weight", "-0.5"),
         ("--occurrence-weight", "inf"),
+        ("--structure-weight", "-1"),
     ] {
         let arg = format!("{flag}={value}");
         refuses(
