@@ -187,6 +187,93 @@ pub fn face_field(mesh: &Mesh, topology: &Topology, keys: &[FieldKey]) -> Vec<[f
     field
 }
 
+/// A singular vertex of a face field: where the field turns by
+/// `index` × 360° around the vertex (`index` ≠ 0). On a closed surface the
+/// indices sum to its Euler characteristic (Poincaré–Hopf: 2 for a sphere,
+/// 0 for a torus); there a sample's lines meet at an angle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Singularity {
+    pub vertex: u32,
+    pub index: i32,
+    pub position: [f32; 3],
+}
+
+/// The singular interior vertices of `field` (one unit tangent per face),
+/// in vertex order: the field's turning around each vertex, measured
+/// relative to the discrete Levi-Civita transport between neighbouring
+/// faces, plus the vertex's angle defect (Knöppel et al. 2013, section 4).
+/// Boundary and non-manifold vertices are skipped.
+pub fn singularities(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> Vec<Singularity> {
+    use std::f64::consts::{PI, TAU};
+    let nf = mesh.triangles.len();
+    let normals: Vec<Vec3> = (0..nf).map(|f| Vec3::from(mesh.face_normal(f))).collect();
+    let frames: Vec<_> = (0..nf).map(|f| face_frame(mesh, f, normals[f])).collect();
+    // one face (and its corner) per vertex to start the walk from
+    let mut start = vec![(NO_FACE, 0usize); mesh.positions.len()];
+    for (f, t) in mesh.triangles.iter().enumerate() {
+        for (k, &v) in t.iter().enumerate() {
+            if start[v as usize].0 == NO_FACE {
+                start[v as usize] = (f as u32, k);
+            }
+        }
+    }
+    let wrap = |a: f64| a - TAU * ((a + PI) / TAU).floor();
+    let corner_angle = |f: usize, k: usize| {
+        let c = mesh.corners(f).map(|p| Vec3::from(p).as_dvec3());
+        let (a, b) = (c[(k + 1) % 3] - c[k], c[(k + 2) % 3] - c[k]);
+        a.angle_between(b)
+    };
+    let mut out = Vec::new();
+    for (v, &(f0, k0)) in start.iter().enumerate() {
+        if f0 == NO_FACE {
+            continue;
+        }
+        // counter-clockwise around v: from face f (v at corner k) across its
+        // edge from corner k + 2 to corner k
+        let (mut f, mut k) = (f0 as usize, k0);
+        let (mut turning, mut angles) = (0f64, 0f64);
+        let mut closed = false;
+        for _ in 0..=nf.min(64) {
+            angles += corner_angle(f, k);
+            let g = topology.face_adjacency[f][(k + 2) % 3];
+            if g == NO_FACE {
+                break;
+            }
+            let g = g as usize;
+            let Some(kg) = mesh.triangles[g].iter().position(|&w| w as usize == v) else {
+                break;
+            };
+            let t = mesh.triangles[f];
+            let edge = Vec3::from(mesh.positions[t[k] as usize])
+                - Vec3::from(mesh.positions[t[(k + 2) % 3] as usize]);
+            // carries f's angles into g's frame
+            let rho = frame_angle(edge, frames[g]) - frame_angle(edge, frames[f]);
+            let (a, b) = (
+                frame_angle(field[f].into(), frames[f]),
+                frame_angle(field[g].into(), frames[g]),
+            );
+            turning += wrap(b - (a + rho));
+            (f, k) = (g, kg);
+            if f == f0 as usize {
+                closed = true;
+                break;
+            }
+        }
+        if !closed {
+            continue;
+        }
+        let index = ((turning + (TAU - angles)) / TAU).round() as i32;
+        if index != 0 {
+            out.push(Singularity {
+                vertex: v as u32,
+                index,
+                position: mesh.positions[v],
+            });
+        }
+    }
+    out
+}
+
 /// The shift ε of L + εM in the inverse iteration, in units of
 /// 1 / (bounding-box diagonal)²: small against the eigenvalues of a curved
 /// surface's smoothest fields, large enough to keep a flat one's (zero)
@@ -657,5 +744,43 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_vortex_and_a_saddle_on_a_flat_grid_have_index_plus_and_minus_one() {
+        let m = grid(10);
+        let topo = m.topology();
+        let centre = Vec3::new(5.0, 5.0, 0.0);
+        for (sign, want) in [(1.0f32, 1), (-1.0, -1)] {
+            // the direction at angle ±φ around the centre vertex
+            let field: Vec<[f32; 3]> = (0..m.triangles.len())
+                .map(|f| {
+                    let d = face_center(&m, f) - centre;
+                    let phi = sign * d.y.atan2(d.x);
+                    [phi.cos(), phi.sin(), 0.0]
+                })
+                .collect();
+            let s = singularities(&m, &topo, &field);
+            assert_eq!(s.len(), 1, "{s:?}");
+            assert_eq!((s[0].index, s[0].position), (want, [5.0, 5.0, 0.0]));
+        }
+        // a constant field has none
+        let flat = vec![[1.0, 0.0, 0.0]; m.triangles.len()];
+        assert!(singularities(&m, &topo, &flat).is_empty());
+    }
+
+    #[test]
+    fn indices_sum_to_the_euler_characteristic() {
+        // Poincaré–Hopf: the torus 0, Spot (a sphere) 2
+        let t = torus(24, 12, 3.0, 1.0);
+        let topo = t.topology();
+        let s = singularities(&t, &topo, &face_field(&t, &topo, &[]));
+        assert_eq!(s.iter().map(|s| s.index).sum::<i32>(), 0, "{s:?}");
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj");
+        let (spot, _) = crate::mesh::io::load(&path, &Default::default()).unwrap();
+        let topo = spot.topology();
+        let field = face_field(&spot, &topo, &[]);
+        let s = singularities(&spot, &topo, &field);
+        assert_eq!(s.iter().map(|s| s.index).sum::<i32>(), 2, "{s:?}");
     }
 }

@@ -95,6 +95,10 @@ pub struct AtlasReport {
     pub overlapping_texels: usize,
     pub zipper_links: usize,
     pub zipper_triangles: usize,
+    /// The vector field's singular vertices (indices into the repaired
+    /// mesh, positions in the mesh's units): there the sample's lines meet
+    /// at an angle ([`field::singularities`]).
+    pub singularities: Vec<field::Singularity>,
     /// Surface length of one texel.
     pub texel_size: f64,
     pub seconds: f64,
@@ -106,7 +110,7 @@ impl std::fmt::Display for AtlasReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} charts, stretch L2 {:.3} L∞ {:.3}, utilization {:.1}%, {} dense vertices ({} covered twice), {} zipper links, {} zipper triangles, texel {:.3e} units, {:.2} s (",
+            "{} charts, stretch L2 {:.3} L∞ {:.3}, utilization {:.1}%, {} dense vertices ({} covered twice), {} zipper links, {} zipper triangles, {} field singularities ({} of index +1, {} of −1{}), texel {:.3e} units, {:.2} s (",
             self.charts,
             self.l2_stretch,
             self.linf_stretch,
@@ -115,6 +119,14 @@ impl std::fmt::Display for AtlasReport {
             self.overlapping_texels,
             self.zipper_links,
             self.zipper_triangles,
+            self.singularities.len(),
+            self.singularities.iter().filter(|s| s.index == 1).count(),
+            self.singularities.iter().filter(|s| s.index == -1).count(),
+            if self.singularities.iter().any(|s| s.index.abs() > 1) {
+                ", others higher"
+            } else {
+                ""
+            },
             self.texel_size,
             self.seconds
         )?;
@@ -417,6 +429,13 @@ pub fn build_gim(
         )));
     }
     let field = field::face_field(&mesh, &topology, &keys);
+    let mut singularities = field::singularities(&mesh, &topology, &field);
+    for s in &mut singularities {
+        // in the user's units (see `FaceRaster::unscale`)
+        if unscale != 1.0 {
+            s.position = s.position.map(|x| (x as f64 * unscale) as f32);
+        }
+    }
     lap("pack+field", &mut stages);
 
     let fr = FaceRaster {
@@ -555,6 +574,7 @@ pub fn build_gim(
         texels: covered,
         overlapping_texels: overlapping,
         zipper_links: links.len(),
+        singularities,
         zipper_triangles: zip_tris.len(),
         texel_size,
         seconds: start.elapsed().as_secs_f64(),
