@@ -31,6 +31,30 @@ fn spot_atlas(dir: &Path, r: usize) -> PathBuf {
     g
 }
 
+/// Tiles with 1 and 2 worker threads into `dir/PREFIX1.quilt` and
+/// `dir/PREFIX2.quilt`, checking each report.
+fn tile_with_threads(
+    g: &Path,
+    sample: &Path,
+    cfg: &TileConfig,
+    dir: &Path,
+    prefix: &str,
+    check: impl Fn(&quilt::TileReport),
+) -> Vec<PathBuf> {
+    [1, 2]
+        .iter()
+        .map(|&t| {
+            let out = dir.join(format!("{prefix}{t}.quilt"));
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+            let report = pool
+                .install(|| quilt::tile(g, sample, &out, cfg, &Silent))
+                .unwrap();
+            check(&report);
+            out
+        })
+        .collect()
+}
+
 #[test]
 fn flat_square_is_covered_seamlessly_and_deterministically() {
     let dir = tempfile::tempdir().unwrap();
@@ -41,18 +65,9 @@ fn flat_square_is_covered_seamlessly_and_deterministically() {
         seed: 3,
         ..TileConfig::default()
     };
-    let outs: Vec<PathBuf> = [1, 2]
-        .iter()
-        .map(|&t| {
-            let out = dir.path().join(format!("t{t}.quilt"));
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
-            let report = pool
-                .install(|| quilt::tile(&g, &sample, &out, &cfg, &Silent))
-                .unwrap();
-            assert!(report.patches > 3, "{report}");
-            out
-        })
-        .collect();
+    let outs = tile_with_threads(&g, &sample, &cfg, dir.path(), "t", |report| {
+        assert!(report.patches > 3, "{report}")
+    });
     assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
 
     // every dense vertex got a patch and a sample coordinate on the sample
@@ -446,7 +461,7 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
     );
 }
 
-/// Issue-17 failure mode: a plain ground with a few dark spots. Without the
+/// A sample with sparse features: a plain ground with a few dark spots. Without the
 /// occurrence penalty the choice among near-minimal placements keeps
 /// returning to the ground that matches what is already there; with it more
 /// of the sample shows on the surface.
@@ -512,16 +527,7 @@ fn the_structure_channel_keeps_results_deterministic_and_the_quilt_plain() {
         structure_weight: 1.0,
         ..TileConfig::default()
     };
-    let outs: Vec<PathBuf> = [1, 2]
-        .iter()
-        .map(|&t| {
-            let out = dir.path().join(format!("s{t}.quilt"));
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
-            pool.install(|| quilt::tile(&g, &sample, &out, &cfg, &Silent))
-                .unwrap();
-            out
-        })
-        .collect();
+    let outs = tile_with_threads(&g, &sample, &cfg, dir.path(), "s", |_| ());
     assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
     let plain = dir.path().join("plain.quilt");
     quilt::tile(&g, &sample, &plain, &TileConfig::default(), &Silent).unwrap();
