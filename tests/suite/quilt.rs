@@ -269,7 +269,7 @@ fn bad_tiling_inputs_are_refused() {
     assert!(!out.exists());
 }
 
-/// Issue 15's world size: with `sample_width` the sample spans the same mesh
+/// The sample's size in the world: with `sample_width` the sample spans the same mesh
 /// units at any atlas resolution (measured from the stored coordinates by
 /// `evaluate`), and a bad width is refused with the figures it implies.
 #[test]
