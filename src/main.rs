@@ -311,6 +311,10 @@ enum Command {
         /// matching and seams, in sample neighbour differences (0: colour only).
         #[arg(long, default_value_t = TileConfig::default().structure_weight)]
         structure_weight: f64,
+        /// Let matching turn the sample up to this many rotation steps (5°) off the
+        /// field's mean direction where the field turns inside a work patch (0: never).
+        #[arg(long, default_value_t = TileConfig::default().field_turn)]
+        field_turn: usize,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -846,6 +850,7 @@ fn run(cli: Cli) -> Result<()> {
             refine_placements,
             occurrence_weight,
             structure_weight,
+            field_turn,
             output,
             res,
         } => {
@@ -856,6 +861,7 @@ fn run(cli: Cli) -> Result<()> {
                 refine_placements,
                 occurrence_weight,
                 structure_weight,
+                field_turn,
                 ..quilting.tile_config(memory)
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;

@@ -21,6 +21,10 @@ pub(super) struct WorkImage {
     pub(super) coords: Vec<[f64; 2]>,
     /// Mean field direction in the work image (radians, y down).
     pub(super) angle: f64,
+    /// How far the field's direction varies over the patch (radians, a
+    /// circular standard deviation; 0 for a constant field): matching may
+    /// turn the sample this far from `angle`.
+    pub(super) field_spread: f64,
     /// Local linear map from atlas steps (+x, +y) to work-image offsets, for
     /// in-chart work images (identity) — used for the Jacobian.
     pub(super) atlas_to_work: Option<[f64; 4]>,
@@ -45,6 +49,7 @@ impl WorkImage {
             known: vec![0f32; width * height],
             coords,
             angle,
+            field_spread: 0.0,
             atlas_to_work: None,
             constraint: vec![0f32; if state.constrained { width * height } else { 0 }],
         }

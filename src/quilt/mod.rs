@@ -88,6 +88,15 @@ pub struct TileConfig {
     /// from the field turning between patches, which a cut cost cannot
     /// undo.
     pub structure_weight: f64,
+    /// Matching may turn the sample up to this many rotation steps (5° for
+    /// 72 rotated copies) away from the work patch's mean field direction,
+    /// but no further than the field itself turns inside the patch (its
+    /// circular standard deviation): the copy whose best placement costs
+    /// least is taken. 0 keeps the field's nearest copy. A constant field
+    /// (a flat square) is unaffected. Default 1: on Spot and Bob at 1024²
+    /// the seam ratio fell by 1–5 % with the brick wall and weave (9 % with
+    /// the wall at twice its size) for 10–40 % more time.
+    pub field_turn: usize,
     /// Maximum area distortion of a flattened work patch (T_d).
     pub max_distortion: f64,
     pub seed: u64,
@@ -137,6 +146,7 @@ impl Default for TileConfig {
             tolerance: 0.1,
             occurrence_weight: 1.0,
             structure_weight: 0.0,
+            field_turn: 1,
             max_distortion: 4.0,
             seed: 1,
             memory: MemoryBudget::default(),

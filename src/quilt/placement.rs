@@ -24,7 +24,7 @@ pub(super) fn covering_candidates(
 ) -> Result<(usize, Vec<matching::Placement>)> {
     let weight = (cfg.constraint_weight * reference).powi(2);
     let penalty = occurrence.map(|o| (o, cfg.occurrence_weight * reference * reference));
-    let (rotation, candidates) = match_candidates(sample, matcher, work, weight, penalty)?;
+    let (rotation, candidates) = match_candidates(sample, matcher, work, weight, penalty, cfg.field_turn)?;
     let step = (work.coords.len() / 400).max(1);
     let probe: Vec<[f64; 2]> = work.coords.iter().step_by(step).copied().collect();
     let covering = candidates
@@ -194,21 +194,54 @@ pub(super) fn choose_placement(
 /// on the constraint (m0 against the rotated foreground mask, weighted by
 /// `constraint_weight`) when the work image carries one (§IV); with
 /// `penalty` (an occurrence map and its weight), plus the occurrence
-/// penalty of each placement ([`Occurrence::penalize`]).
+/// penalty of each placement ([`Occurrence::penalize`]). Where the field
+/// turns inside the patch ([`WorkImage::field_spread`]), the copies up to
+/// `field_turn` steps either side are matched too, and the one whose best
+/// placement costs least is taken (the field's own first among equals): a
+/// patch may then follow its neighbours' courses rather than the field's
+/// mean direction.
 pub(super) fn match_candidates(
     sample: &mut Sample,
     matcher: &mut Matcher,
     work: &WorkImage,
     constraint_weight: f64,
-    penalty: Option<(&mut Occurrence, f64)>,
+    mut penalty: Option<(&mut Occurrence, f64)>,
+    field_turn: usize,
 ) -> Result<(usize, Vec<matching::Placement>)> {
     let rotations = sample.rotations;
     let rot = rotation_index(work.angle, rotations);
-    let (sw, sh, n) = (sample.width, sample.height, sample.n);
     let known_count: f64 = work.known.iter().map(|&k| k as f64).sum();
     if known_count == 0.0 {
         return Ok((rot, Vec::new()));
     }
+    // turned copies where the field itself turns inside the patch
+    let step = std::f64::consts::TAU / rotations as f64;
+    let span = (work.field_spread / step).floor().min(field_turn as f64) as i64;
+    let mut best: Option<(f64, usize, Vec<matching::Placement>)> = None;
+    for d in [0].into_iter().chain((1..=span).flat_map(|k| [-k, k])) {
+        let r = (rot as i64 + d).rem_euclid(rotations as i64) as usize;
+        let p = penalty.as_mut().map(|(o, w)| (&mut **o, *w));
+        let c = match_at_rotation(sample, matcher, work, constraint_weight, p, r, known_count)?;
+        let cost = c.first().map_or(f64::INFINITY, |p| p.cost);
+        if best.as_ref().is_none_or(|b| cost < b.0) {
+            best = Some((cost, r, c));
+        }
+    }
+    let (_, r, c) = best.expect("one rotation at least");
+    Ok((r, c))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn match_at_rotation(
+    sample: &mut Sample,
+    matcher: &mut Matcher,
+    work: &WorkImage,
+    constraint_weight: f64,
+    penalty: Option<(&mut Occurrence, f64)>,
+    rot: usize,
+    known_count: f64,
+) -> Result<Vec<matching::Placement>> {
+    let (sw, sh, n) = (sample.width, sample.height, sample.n);
     let constrained = !work.constraint.is_empty() && sample.mask.is_some();
     if constrained {
         sample.rotation_mask(rot);
@@ -264,5 +297,5 @@ pub(super) fn match_candidates(
         let to_unrotated = |p: [f64; 2]| to_sample(sample, rot, 0.0, 0.0, p);
         occurrence.penalize(&mut map, rot, to_unrotated, [work.width, work.height], weight);
     }
-    Ok((rot, map.best(mc.candidates, mc.tolerance)))
+    Ok(map.best(mc.candidates, mc.tolerance))
 }

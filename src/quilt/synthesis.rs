@@ -714,6 +714,14 @@ impl Synthesis {
         patch: &WorkPatch,
         flattening: &mut Option<Flattening>,
     ) -> (WorkImage, bool) {
+        let (mut work, unfolded) = self.work_image_of(patch, flattening);
+        if !self.painting {
+            work.field_spread = field_spread(&self.surface, patch);
+        }
+        (work, unfolded)
+    }
+
+    fn work_image_of(&self, patch: &WorkPatch, flattening: &mut Option<Flattening>) -> (WorkImage, bool) {
         let (surface, state, bfs, zt) = (&self.surface, &self.state, &self.bfs, &self.zipper_triangles);
         if !patch.crosses_charts {
             return (chart_work_image(surface, &self.sample, state, patch), false);
@@ -881,4 +889,29 @@ pub(crate) fn sample_role(k: usize) -> String {
     } else {
         format!("sample_{k}")
     }
+}
+
+/// How far the field turns inside a work patch: the circular standard
+/// deviation √(−2 ln R) of the texels' field directions, R the mean
+/// resultant length pooled over the patch's charts (each chart's
+/// directions against its own mean: atlas angles compare only within a
+/// chart). 0 where the field is constant.
+fn field_spread(surface: &Surface, patch: &WorkPatch) -> f64 {
+    // (chart, Σ cos, Σ sin) per chart met
+    let mut sums: Vec<(u32, f64, f64)> = Vec::new();
+    for &t in &patch.texels {
+        let (c, a) = (surface.chart(t), surface.texel_angle(t));
+        let k = match sums.iter().position(|e| e.0 == c) {
+            Some(k) => k,
+            None => {
+                sums.push((c, 0.0, 0.0));
+                sums.len() - 1
+            }
+        };
+        sums[k].1 += a.cos();
+        sums[k].2 += a.sin();
+    }
+    let n = patch.texels.len().max(1) as f64;
+    let r: f64 = sums.iter().map(|e| e.1.hypot(e.2)).sum::<f64>() / n;
+    (-2.0 * r.clamp(1e-12, 1.0).ln()).sqrt()
 }

@@ -547,3 +547,29 @@ fn the_structure_channel_keeps_results_deterministic_and_the_quilt_plain() {
     let e = btfquilt::output::evaluate::evaluate(&outs[0], None, None, MemoryBudget::default()).unwrap();
     assert_eq!(e.usage.len(), 1);
 }
+
+/// Turning the sample off the field's mean direction is allowed only as far
+/// as the field turns inside a work patch: on a flat square (a constant
+/// field) it changes nothing; on Spot, whose field turns, it does.
+#[test]
+fn the_field_turn_acts_only_where_the_field_turns() {
+    let dir = tempfile::tempdir().unwrap();
+    let tile = |g: &Path, sample: &Path, turn: usize, name: &str| {
+        let out = dir.path().join(name);
+        let cfg = TileConfig {
+            field_turn: turn,
+            ..TileConfig::default()
+        };
+        quilt::tile(g, sample, &out, &cfg, &Silent).unwrap();
+        std::fs::read(out).unwrap()
+    };
+    let g = dir.path().join("square.gim");
+    atlas(&square_obj(dir.path()), &g, 128);
+    let sample = brick_crop(dir.path(), 96, Some((40, 40)));
+    assert_eq!(tile(&g, &sample, 0, "f0.quilt"), tile(&g, &sample, 2, "f2.quilt"));
+    let spot = spot_atlas(dir.path(), 256);
+    assert_ne!(
+        tile(&spot, &sample, 0, "s0.quilt"),
+        tile(&spot, &sample, 1, "s1.quilt")
+    );
+}

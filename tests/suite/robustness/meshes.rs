@@ -320,6 +320,7 @@ fn mesh_float_flags_must_be_finite() {
         ("--occurrence-weight", "-0.5"),
         ("--occurrence-weight", "inf"),
         ("--structure-weight", "-1"),
+        ("--field-turn", "-1"),
     ] {
         let arg = format!("{flag}={value}");
         refuses(
