@@ -762,7 +762,7 @@ fn zipper_links(mesh: &Mesh, boundary: &[BoundaryTexel], texel: f64, r: usize) -
                             if d > MAX_LINK * texel || ring.binary_search(&b.face).is_err() {
                                 continue;
                             }
-                            if best.is_none_or(|(bd, bt)| d < bd || (d == bd && b.texel < bt)) {
+                            if best.map_or(true, |(bd, bt)| d < bd || (d == bd && b.texel < bt)) {
                                 best = Some((d, b.texel));
                             }
                         }

@@ -768,7 +768,7 @@ impl Container {
             if let Some(e) = entries.iter().find(|e| {
                 e.offset
                     .checked_add(e.stored_len)
-                    .is_none_or(|end| end > header.meta_offset)
+                    .map_or(true, |end| end > header.meta_offset)
             }) {
                 return Err(bad_index(format!(
                     "array '{}' has a chunk at {}+{} outside the data region",
@@ -917,7 +917,11 @@ impl Container {
         let nd = spec.shape.len();
         if origin.len() != nd
             || extent.len() != nd
-            || (0..nd).any(|d| origin[d].checked_add(extent[d]).is_none_or(|e| e > spec.shape[d]))
+            || (0..nd).any(|d| {
+                origin[d]
+                    .checked_add(extent[d])
+                    .map_or(true, |e| e > spec.shape[d])
+            })
         {
             return Err(Error::Config(format!(
                 "{}: region {origin:?}+{extent:?} is outside array '{}' of shape {:?}",

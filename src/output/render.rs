@@ -1201,7 +1201,7 @@ fn nearest_covered(
                 }
                 let (dx, dy) = (xa - x as f32, ya - y as f32);
                 let d = dx * dx + dy * dy;
-                if best.is_none_or(|b| d < b.0) {
+                if best.map_or(true, |b| d < b.0) {
                     best = Some((d, t, dx, dy));
                 }
             }

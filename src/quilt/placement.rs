@@ -223,7 +223,7 @@ pub(super) fn match_candidates(
         let p = penalty.as_mut().map(|(o, w)| (&mut **o, *w));
         let c = match_at_rotation(sample, matcher, work, constraint_weight, p, r, known_count)?;
         let cost = c.first().map_or(f64::INFINITY, |p| p.cost);
-        if best.as_ref().is_none_or(|b| cost < b.0) {
+        if best.as_ref().map_or(true, |b| cost < b.0) {
             best = Some((cost, r, c));
         }
     }

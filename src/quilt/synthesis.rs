@@ -464,7 +464,7 @@ impl Synthesis {
             let (mut patch, mut fit, mut unfolded) = (patch, fit, unfolded);
             if !painting && mean > cfg.seam_threshold * self.reference && fit.taken_new_synth > 0 {
                 if radius > cfg.min_radius {
-                    if best.as_ref().is_none_or(|b| mean < b.0) {
+                    if best.as_ref().map_or(true, |b| mean < b.0) {
                         best = Some((mean, patch, fit, unfolded));
                     }
                     radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
@@ -678,7 +678,7 @@ impl Synthesis {
         let mut best: Option<Fit> = None;
         for placement in picks {
             let fit = self.fit_placement(patch, work, &placement, false, core);
-            if best.as_ref().is_none_or(|b| fit.flow < b.flow) {
+            if best.as_ref().map_or(true, |b| fit.flow < b.flow) {
                 best = Some(fit);
             }
         }
