@@ -201,7 +201,7 @@ pub struct Singularity {
 /// The singular interior vertices of `field` (one unit tangent per face),
 /// in vertex order: the field's turning around each vertex, measured
 /// relative to the discrete Levi-Civita transport between neighbouring
-/// faces, plus the vertex's angle defect (Knöppel et al. 2013, section 4).
+/// faces, plus the vertex's angle defect.
 /// Boundary and non-manifold vertices are skipped.
 pub fn singularities(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> Vec<Singularity> {
     use std::f64::consts::{PI, TAU};

@@ -1,7 +1,7 @@
 //! The occurrence map: how often each region of the sample shows on the
 //! surface, and the matching penalty that steers work patches towards the
 //! regions used least (the occurrence term of Kaspar et al. 2015, "Self
-//! tuning texture optimization", §4; in the spirit of the completeness term
+//! tuning texture optimization"; in the spirit of the completeness term
 //! of Simakov et al. 2008). Without it the seeded choice among near-minimal
 //! placements keeps returning to the region that best matches what is
 //! already synthesized, and a sample with sparse large features shows one

@@ -1,7 +1,7 @@
 //! The structure channel: a feature channel that sees structure, not only
 //! colour, for matching, the graphcut's cut cost and seam refinement (the
 //! feature distance of Lefebvre & Hoppe 2006, "Appearance-space texture
-//! synthesis", §4; the feature maps of Wu & Yu 2004). Two brick bodies
+//! synthesis"; the feature maps of Wu & Yu 2004). Two brick bodies
 //! offset by part of a brick are grey against grey, so a colour-only cut
 //! runs through them; their distances to the nearest mortar line differ, so
 //! a cut there costs.
