@@ -206,8 +206,7 @@ pub struct Singularity {
 pub fn singularities(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> Vec<Singularity> {
     use std::f64::consts::{PI, TAU};
     let nf = mesh.triangles.len();
-    let normals: Vec<Vec3> = (0..nf).map(|f| Vec3::from(mesh.face_normal(f))).collect();
-    let frames: Vec<_> = (0..nf).map(|f| face_frame(mesh, f, normals[f])).collect();
+    let frames = face_frames(mesh);
     // one face (and its corner) per vertex to start the walk from
     let mut start = vec![(NO_FACE, 0usize); mesh.positions.len()];
     for (f, t) in mesh.triangles.iter().enumerate() {
@@ -291,6 +290,13 @@ fn face_frame(mesh: &Mesh, f: usize, n: Vec3) -> (DVec3, DVec3) {
     (e1.as_dvec3(), e2.as_dvec3())
 }
 
+/// Every face's tangent frame ([`face_frame`]) about its own normal.
+fn face_frames(mesh: &Mesh) -> Vec<(DVec3, DVec3)> {
+    (0..mesh.triangles.len())
+        .map(|f| face_frame(mesh, f, mesh.face_normal(f).into()))
+        .collect()
+}
+
 /// The coordinates of 3D vector `d` in frame `(e1, e2)`.
 fn frame_coords(d: Vec3, (e1, e2): (DVec3, DVec3)) -> (f64, f64) {
     let d = d.as_dvec3();
@@ -332,10 +338,7 @@ fn connection(mesh: &Mesh, topology: &Topology, frames: &[(DVec3, DVec3)]) -> Ve
 /// tangent field (the quadratic form whose smallest eigenvector, relative to
 /// the area mass, `smoothest_field` finds).
 pub fn field_energy(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> f64 {
-    let normals: Vec<[f32; 3]> = (0..mesh.triangles.len()).map(|f| mesh.face_normal(f)).collect();
-    let frames: Vec<_> = (0..normals.len())
-        .map(|f| face_frame(mesh, f, normals[f].into()))
-        .collect();
+    let frames = face_frames(mesh);
     connection(mesh, topology, &frames)
         .into_iter()
         .map(|(f, g, w, rho)| {

@@ -282,9 +282,10 @@ pub(super) fn apply(
             continue;
         }
         touched.push(grid.locate(t).0);
+        let stored = [fit.coord[i][0] as f32, fit.coord[i][1] as f32];
         let (was, old) = state.texel_mut(t, |s, k| {
             let old = (s.synthesized[k] && s.source[k] == active).then_some(s.coord[k]);
-            s.coord[k] = [fit.coord[i][0] as f32, fit.coord[i][1] as f32];
+            s.coord[k] = stored;
             s.jacobian[k] = fit.jacobian;
             s.rotation[k] = fit.rotation as u8;
             s.patch[k] = id;
@@ -301,8 +302,7 @@ pub(super) fn apply(
             }
             // the coordinate as stored, so a later replacement takes back
             // exactly this count
-            let c = [fit.coord[i][0] as f32 as f64, fit.coord[i][1] as f32 as f64];
-            occ.add(c, 1.0);
+            occ.add([stored[0] as f64, stored[1] as f64], 1.0);
         }
         if !was {
             state.remaining -= 1;

@@ -250,7 +250,9 @@ impl CostMap {
     }
 }
 
-fn near_limit(best: f64, tolerance: f64) -> f64 {
+/// The near-minimal bound: cost ≤ best + tolerance · |best| (all when the
+/// tolerance is infinite).
+pub(super) fn near_limit(best: f64, tolerance: f64) -> f64 {
     if tolerance == f64::INFINITY {
         f64::INFINITY
     } else {

@@ -12,7 +12,7 @@
 //! copy: a region reused a few degrees turned is still the same features to
 //! the eye.
 
-use super::matching::CostMap;
+use super::matching::{near_limit, CostMap};
 
 /// Cells along the sample's longer side.
 pub(super) const CELLS: usize = 64;
@@ -151,7 +151,7 @@ impl Occurrence {
             .copied()
             .filter(|c| c.is_finite())
             .fold(f64::INFINITY, f64::min);
-        let limit = best + SLACK * best.abs();
+        let limit = near_limit(best, SLACK);
         let sat = &self.tables[slot].1;
         let at = |x: usize, y: usize| sat[y * (cols + 1) + x];
         let [ww, wh] = work_size;
@@ -233,7 +233,7 @@ mod tests {
         for dy in -48..=0 {
             for dx in -48..=0 {
                 let mut s = 0.0;
-                for y in 0..16 {
+                for _row in 0..16 {
                     for x in 0..16 {
                         s += if x - dx < 32 { 2.0 } else { 0.0 };
                     }

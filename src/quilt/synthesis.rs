@@ -715,7 +715,8 @@ impl Synthesis {
         flattening: &mut Option<Flattening>,
     ) -> (WorkImage, bool) {
         let (mut work, unfolded) = self.work_image_of(patch, flattening);
-        if !self.painting {
+        // only matching that may turn the sample reads it
+        if !self.painting && self.cfg.field_turn > 0 {
             work.field_spread = field_spread(&self.surface, patch);
         }
         (work, unfolded)
