@@ -20,6 +20,13 @@ fn atlas(mesh: &Path, out: &Path, r: usize) {
     atlas::build_gim(mesh, out, &cfg, &Silent).unwrap();
 }
 
+/// A flat square (a 2D target) atlased at `r`² into `dir/square.gim`.
+fn square_atlas(dir: &Path, r: usize) -> PathBuf {
+    let g = dir.join("square.gim");
+    atlas(&square_obj(dir), &g, r);
+    g
+}
+
 /// The shipped Spot atlased at `r`² into `dir/spot.gim`.
 fn spot_atlas(dir: &Path, r: usize) -> PathBuf {
     let g = dir.join("spot.gim");
@@ -58,8 +65,7 @@ fn tile_with_threads(
 #[test]
 fn flat_square_is_covered_seamlessly_and_deterministically() {
     let dir = tempfile::tempdir().unwrap();
-    let g = dir.path().join("square.gim");
-    atlas(&square_obj(dir.path()), &g, 160);
+    let g = square_atlas(dir.path(), 160);
     let sample = brick_crop(dir.path(), 160, Some((100, 100)));
     let cfg = TileConfig {
         seed: 3,
@@ -240,8 +246,7 @@ fn spot_is_covered_and_baked_and_rendered() {
 #[test]
 fn bad_tiling_inputs_are_refused() {
     let dir = tempfile::tempdir().unwrap();
-    let g = dir.path().join("square.gim");
-    atlas(&square_obj(dir.path()), &g, 64);
+    let g = square_atlas(dir.path(), 64);
     let out = dir.path().join("o.quilt");
     let missing = dir.path().join("nope.png");
     let e = quilt::tile(&g, &missing, &out, &TileConfig::default(), &Silent)
@@ -326,8 +331,7 @@ fn sample_width_is_the_same_on_the_surface_at_any_resolution() {
 fn a_budget_that_forces_eviction_changes_no_byte() {
     // 256² = 16 atlas tiles; 1 MiB leaves the loop a few of them resident
     let dir = tempfile::tempdir().unwrap();
-    let g = dir.path().join("square.gim");
-    atlas(&square_obj(dir.path()), &g, 256);
+    let g = square_atlas(dir.path(), 256);
     let sample = brick_crop(dir.path(), 64, None);
     let run = |memory: u64, threads: usize| {
         let out = dir.path().join(format!("m{memory}-t{threads}.quilt"));
@@ -468,8 +472,7 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
 #[test]
 fn the_occurrence_penalty_spreads_use_over_a_sparse_feature_sample() {
     let dir = tempfile::tempdir().unwrap();
-    let g = dir.path().join("square.gim");
-    atlas(&square_obj(dir.path()), &g, 200);
+    let g = square_atlas(dir.path(), 200);
     let sample = dir.path().join("spots.png");
     let spots = [
         (20.0, 24.0),
@@ -520,8 +523,7 @@ fn the_occurrence_penalty_spreads_use_over_a_sparse_feature_sample() {
 fn the_structure_channel_keeps_results_deterministic_and_the_quilt_plain() {
     use btfquilt::container::Param;
     let dir = tempfile::tempdir().unwrap();
-    let g = dir.path().join("square.gim");
-    atlas(&square_obj(dir.path()), &g, 128);
+    let g = square_atlas(dir.path(), 128);
     let sample = brick_crop(dir.path(), 96, Some((40, 40)));
     let cfg = TileConfig {
         structure_weight: 1.0,
@@ -563,8 +565,7 @@ fn the_field_turn_acts_only_where_the_field_turns() {
         quilt::tile(g, sample, &out, &cfg, &Silent).unwrap();
         std::fs::read(out).unwrap()
     };
-    let g = dir.path().join("square.gim");
-    atlas(&square_obj(dir.path()), &g, 128);
+    let g = square_atlas(dir.path(), 128);
     let sample = brick_crop(dir.path(), 96, Some((40, 40)));
     assert_eq!(tile(&g, &sample, 0, "f0.quilt"), tile(&g, &sample, 2, "f2.quilt"));
     let spot = spot_atlas(dir.path(), 256);
