@@ -68,6 +68,7 @@ pub mod output;
 pub mod paint;
 pub mod progress;
 pub mod quilt;
+pub mod studio;
 mod rng;
 
 pub use error::{Error, Result};

@@ -22,6 +22,7 @@ use btfquilt::output::show::ShowWhat;
 use btfquilt::paint::PaintConfig;
 use btfquilt::progress::Progress;
 use btfquilt::quilt::{self, TileConfig};
+use btfquilt::studio::ServeConfig;
 use btfquilt::{
     output::bake, output::compare, output::evaluate, output::export, output::render, output::show,
 };
@@ -354,6 +355,29 @@ enum Command {
         quilting: Quilting,
         #[arg(short, long)]
         output: Option<PathBuf>,
+        #[command(flatten)]
+        res: Resources,
+    },
+    /// Open a local web studio: view the surface (a BTF relit in real time), paint on it,
+    /// undo, save and export glTF.
+    Serve {
+        /// The decorated surface (.quilt); it is never written.
+        file: PathBuf,
+        /// Port to listen on (0: any free port).
+        #[arg(long, default_value_t = ServeConfig::default().port)]
+        port: u16,
+        /// Address to listen on; only the address and (for loopback) localhost are answered.
+        #[arg(long, default_value_t = ServeConfig::default().bind)]
+        bind: std::net::IpAddr,
+        /// Threads answering requests.
+        #[arg(long, default_value_t = ServeConfig::default().workers)]
+        workers: usize,
+        /// A further sample to paint with (repeatable).
+        #[arg(long)]
+        sample: Vec<PathBuf>,
+        /// The foreground mask of each --sample, in the same order (all or none).
+        #[arg(long)]
+        sample_mask: Vec<PathBuf>,
         #[command(flatten)]
         res: Resources,
     },
@@ -866,6 +890,39 @@ fn run(cli: Cli) -> Result<()> {
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;
             say!("wrote {}: {report}", output.display());
+        }
+        Command::Serve {
+            file,
+            port,
+            bind,
+            workers,
+            sample,
+            sample_mask,
+            res,
+        } => {
+            let (memory, _) = res.apply()?;
+            if !sample_mask.is_empty() && sample_mask.len() != sample.len() {
+                anyhow::bail!(
+                    "{} --sample-mask for {} --sample: give one mask per sample, or none",
+                    sample_mask.len(),
+                    sample.len()
+                );
+            }
+            let mut masks = sample_mask.into_iter().map(Some);
+            let samples = sample
+                .into_iter()
+                .map(|s| (s, masks.next().flatten()))
+                .collect();
+            let cfg = ServeConfig {
+                bind,
+                port,
+                workers,
+                memory,
+                samples,
+            };
+            let server = btfquilt::studio::Studio::start(&file, &cfg)?;
+            println!("studio for {} at {}", file.display(), server.url());
+            server.wait();
         }
         Command::Paint {
             file,

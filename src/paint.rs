@@ -29,6 +29,7 @@ use std::time::Instant;
 use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::Param;
 use crate::progress::Progress;
+pub use crate::quilt::Projection;
 use crate::quilt::{same_file, sample_at_density, sample_role, Quilt, SizedSample, Synthesis, TileConfig};
 use crate::{Error, Result};
 
@@ -190,11 +191,21 @@ impl PreviewSession {
     /// atlas box of the work patch, foreground pasted over the surface's
     /// colours) to `out`; returns the foreground texels it covers.
     pub fn preview(&mut self, v: Verbatim, out: &Path, progress: &dyn Progress) -> Result<usize> {
+        let (taken, projection) = self.project(v, progress)?;
+        crate::io::imageio::write_png(out, &projection.image, crate::io::imageio::PngDepth::Eight)?;
+        Ok(taken)
+    }
+
+    /// The direct projection of the foreground placed as `v`, in memory:
+    /// the foreground texels it covers and the atlas box ([`Projection`]).
+    pub fn project(&mut self, v: Verbatim, progress: &dyn Progress) -> Result<(usize, Projection)> {
         let (centre, extent) = foreground_extent(&self.syn);
         let vertex = verbatim_vertex(&self.syn, &v)?;
         let radius = (extent * 1.15).ceil() as usize + 4;
-        self.syn
-            .verbatim(vertex, radius, v.angle.to_radians(), centre, Some(out), progress)
+        let (taken, projection) =
+            self.syn
+                .verbatim(vertex, radius, v.angle.to_radians(), centre, true, progress)?;
+        Ok((taken, projection.expect("a preview returns its projection")))
     }
 }
 
@@ -673,7 +684,7 @@ fn apply_stroke(
         let (centre, extent) = foreground_extent(&syn);
         let vertex = verbatim_vertex(&syn, &v)?;
         let radius = (extent * 1.15).ceil() as usize + 4;
-        let taken = syn.verbatim(vertex, radius, v.angle.to_radians(), centre, None, progress)?;
+        let (taken, _) = syn.verbatim(vertex, radius, v.angle.to_radians(), centre, false, progress)?;
         report.repainted = taken;
         report.patches = 1;
         (report.region_texels, report.zone_texels) = syn.target_summary();

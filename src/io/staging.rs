@@ -42,7 +42,7 @@ pub fn take_removed_partials() -> Vec<RemovedPartial> {
 }
 
 /// The folder a destination lives in (`.` for a bare file name).
-fn parent_dir(dest: &Path) -> &Path {
+pub fn parent_dir(dest: &Path) -> &Path {
     match dest.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),

@@ -11,7 +11,7 @@ pub mod evaluate;
 pub mod export;
 pub mod render;
 pub mod show;
-mod texels;
+pub(crate) mod texels;
 
 use std::path::{Path, PathBuf};
 

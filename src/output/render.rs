@@ -459,9 +459,9 @@ pub fn render_frames(
 
 /// Measured directions of one kind (views or lights) as unit vectors in
 /// sample axes, for nearest-direction interpolation.
-struct Directions {
-    dirs: Vec<Vec3>,
-    cos_max: f32,
+pub(crate) struct Directions {
+    pub(crate) dirs: Vec<Vec3>,
+    pub(crate) cos_max: f32,
     sin_max: f32,
 }
 
@@ -557,35 +557,35 @@ impl Directions {
 /// One sample's factorization as the shading needs it. Its g vectors are
 /// only ever dotted with its own p (a texel's value is Σ_i g_i p_i in its
 /// own sample's basis).
-struct Basis {
-    width: usize,
-    height: usize,
-    terms: usize,
+pub(crate) struct Basis {
+    pub(crate) width: usize,
+    pub(crate) height: usize,
+    pub(crate) terms: usize,
     /// Where this sample's terms start in the per-pixel scratch buffer.
     offset: usize,
     /// `[y][x][i]`.
-    geometry: Vec<f32>,
+    pub(crate) geometry: Vec<f32>,
     /// `[pair][rgb][i]`, the pairs shared by every sample.
-    appearance: Vec<f32>,
+    pub(crate) appearance: Vec<f32>,
 }
 
 /// The BTF data a pixel needs.
-struct BtfShading {
+pub(crate) struct BtfShading {
     /// Every sample the surface draws from, in [`Quilt::samples`] order.
-    samples: Vec<Basis>,
+    pub(crate) samples: Vec<Basis>,
     /// Σ terms over the samples: the scratch buffer's length.
     total_terms: usize,
-    views: Directions,
-    lights: Directions,
+    pub(crate) views: Directions,
+    pub(crate) lights: Directions,
     n_lights: usize,
     /// Per texel: sample coordinate, Jacobian, sample index, covered.
-    tiles: AtlasTiles<BtfTile>,
+    pub(crate) tiles: AtlasTiles<BtfTile>,
     /// Per corner: ∂P/∂X, ∂P/∂Y (3D per atlas texel) averaged over its
     /// wedge ([`corner_maps`]), `None` if degenerate.
-    corner_maps: Vec<Option<[[f32; 3]; 2]>>,
+    pub(crate) corner_maps: Vec<Option<[[f32; 3]; 2]>>,
 }
 
-enum Shading {
+pub(crate) enum Shading {
     /// Dilated atlas colour texture.
     Colour(AtlasTiles<ColourTile>),
     Btf(Box<BtfShading>),
@@ -594,16 +594,16 @@ enum Shading {
 /// A decorated mesh loaded for rendering: mesh, atlas uv, normals and the
 /// samples' shading data. Open once, render many frames.
 pub struct Scene {
-    mesh: Mesh,
-    corner_uv: Vec<[f32; 2]>,
-    normals: Vec<[f32; 3]>,
-    resolution: usize,
+    pub(crate) mesh: Mesh,
+    pub(crate) corner_uv: Vec<[f32; 2]>,
+    pub(crate) normals: Vec<[f32; 3]>,
+    pub(crate) resolution: usize,
     centre: [f32; 3],
-    shading: Shading,
+    pub(crate) shading: Shading,
     /// The power of two the mesh's positions are multiplied by (1 but for a
     /// mesh of extreme size, which f32 shading would overflow or underflow);
     /// cameras and point lights given in the user's units are scaled alike.
-    unit: f32,
+    pub(crate) unit: f32,
 }
 
 /// Per corner: the atlas→3D derivatives ∂P/∂X, ∂P/∂Y averaged over the

@@ -51,6 +51,7 @@ pub use crate::artifact::quilt::{
 };
 pub(crate) use sample::*;
 pub(crate) use synthesis::*;
+pub use synthesis::Projection;
 use write::write_quilt;
 
 /// Options of [`tile`].

@@ -759,19 +759,20 @@ impl Synthesis {
     /// Verbatim copy (§IV): the sample's foreground, its point `centre`
     /// (unrotated sample pixels) put on dense vertex `v`, turned by `angle`
     /// (radians) from the field direction, over a work patch of `radius`.
-    /// With `preview`, only writes the direct projection (no graphcut: the
+    /// With `preview`, only computes the direct projection (no graphcut: the
     /// foreground pasted over the old colours in the patch's atlas box) and
-    /// returns; otherwise merges it with a graphcut seam: foreground texels
-    /// are forced to the copy, the rest chooses by the smoothness term.
+    /// returns it; otherwise merges it with a graphcut seam: foreground
+    /// texels are forced to the copy, the rest chooses by the smoothness
+    /// term. Returns the foreground texels the copy covers.
     pub(crate) fn verbatim(
         &mut self,
         v: u32,
         radius: usize,
         angle: f64,
         centre: [f64; 2],
-        preview: Option<&Path>,
+        preview: bool,
         progress: &dyn Progress,
-    ) -> Result<usize> {
+    ) -> Result<(usize, Option<Projection>)> {
         let t0 = Instant::now();
         let trace = |what: &str| crate::progress::trace(progress, t0, &format!("verbatim {what}"));
         let patch = self.bfs.patch(&self.surface, v, radius);
@@ -801,11 +802,13 @@ impl Synthesis {
             .collect();
         let fg: Vec<f32> = placed.iter().map(|&c| self.sample.mask_at(c)).collect();
         trace("placed");
-        if let Some(out) = preview {
+        let taken = fg.iter().filter(|&&m| m >= 0.5).count();
+        if preview {
             let colours = self.sample.svd.preview()?;
             let r = self.surface.r;
             let (x0, y0, w, h) = patch.atlas_box(r);
             let mut data = vec![0f32; w * h * 3];
+            let mut covered = vec![false; w * h];
             for y in 0..h {
                 for x in 0..w {
                     let t = ((y0 + y) * r + x0 + x) as u32;
@@ -818,6 +821,7 @@ impl Synthesis {
                             c[1],
                         );
                         data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
+                        covered[y * w + x] = true;
                     }
                 }
             }
@@ -827,17 +831,16 @@ impl Synthesis {
                     let col =
                         crate::io::imageio::bilinear(&colours, placed[i][0] as f32, placed[i][1] as f32);
                     data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
+                    covered[y * w + x] = true;
                 }
             }
-            let img = crate::io::imageio::RgbImage {
+            trace("projected");
+            let image = crate::io::imageio::RgbImage {
                 width: w,
                 height: h,
                 data,
             };
-            trace("projected");
-            crate::io::imageio::write_png(out, &img, crate::io::imageio::PngDepth::Eight)?;
-            trace("written");
-            return Ok(fg.iter().filter(|&&m| m >= 0.5).count());
+            return Ok((taken, Some(Projection { x0, y0, image, covered })));
         }
         // m0 = the placed foreground on the patch, 0 elsewhere
         self.state.constrain_everywhere(0.0);
@@ -858,7 +861,7 @@ impl Synthesis {
         );
         self.report.graphcut_seconds += t.elapsed().as_secs_f64();
         self.accept(&patch, &fit, progress);
-        Ok(fit.taken)
+        Ok((fit.taken, None))
     }
 
     /// The first error met paging the atlas in or out, if any.
@@ -880,6 +883,17 @@ impl Synthesis {
         self.report.tiles_read = self.surface.tiles_read() + self.state.tiles_read();
         self.report.scratch_bytes = self.state.scratch_bytes();
     }
+}
+
+/// A verbatim copy's direct projection (§IV's fast preview): the work
+/// patch's atlas box from texel `(x0, y0)`, the foreground pasted over the
+/// surface's preview colours (linear RGB), and which of its texels hold a
+/// colour (the rest lie outside every chart).
+pub struct Projection {
+    pub x0: usize,
+    pub y0: usize,
+    pub image: crate::io::imageio::RgbImage,
+    pub covered: Vec<bool>,
 }
 
 /// The role under which a quilt records sample `k`: `sample` for the
