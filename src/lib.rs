@@ -68,8 +68,8 @@ pub mod output;
 pub mod paint;
 pub mod progress;
 pub mod quilt;
-pub mod studio;
 mod rng;
+pub mod studio;
 
 pub use error::{Error, Result};
 

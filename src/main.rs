@@ -909,10 +909,7 @@ fn run(cli: Cli) -> Result<()> {
                 );
             }
             let mut masks = sample_mask.into_iter().map(Some);
-            let samples = sample
-                .into_iter()
-                .map(|s| (s, masks.next().flatten()))
-                .collect();
+            let samples = sample.into_iter().map(|s| (s, masks.next().flatten())).collect();
             let cfg = ServeConfig {
                 bind,
                 port,

@@ -50,8 +50,8 @@ pub use crate::artifact::quilt::{
     Dependency, Quilt, KIND, MAX_SAMPLES, NO_PATCH, SEAM_X, SEAM_Y, SEAM_ZIPPER,
 };
 pub(crate) use sample::*;
-pub(crate) use synthesis::*;
 pub use synthesis::Projection;
+pub(crate) use synthesis::*;
 use write::write_quilt;
 
 /// Options of [`tile`].

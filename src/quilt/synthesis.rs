@@ -840,7 +840,15 @@ impl Synthesis {
                 height: h,
                 data,
             };
-            return Ok((taken, Some(Projection { x0, y0, image, covered })));
+            return Ok((
+                taken,
+                Some(Projection {
+                    x0,
+                    y0,
+                    image,
+                    covered,
+                }),
+            ));
         }
         // m0 = the placed foreground on the patch, 0 elsewhere
         self.state.constrain_everywhere(0.0);

@@ -15,7 +15,7 @@
 //! | `POST /api/save` | `{name}`: write `NAME.quilt` beside the base |
 //! | `POST /api/export` | `{name}`: write glTF into the folder `NAME` beside the base |
 
-use std::io::Read;
+use std::io::{Read, Write};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
@@ -47,7 +47,11 @@ impl Guard {
             SocketAddr::V6(a) => format!("[{}]:{port}", a.ip()),
         }];
         if addr.ip().is_loopback() {
-            hosts.extend([format!("localhost:{port}"), format!("127.0.0.1:{port}"), format!("[::1]:{port}")]);
+            hosts.extend([
+                format!("localhost:{port}"),
+                format!("127.0.0.1:{port}"),
+                format!("[::1]:{port}"),
+            ]);
         }
         hosts.dedup();
         Guard { hosts }
@@ -269,7 +273,11 @@ impl Studio {
     fn sample_names(&self) -> Vec<String> {
         self.samples
             .iter()
-            .map(|(s, _)| s.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default())
+            .map(|(s, _)| {
+                s.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            })
             .collect()
     }
 
@@ -289,11 +297,17 @@ impl Studio {
     /// point on the dense mesh.
     fn pick(&self, uv: [f64; 2]) -> std::result::Result<(u32, [f32; 3]), Refusal> {
         if !uv.iter().all(|c| c.is_finite() && (0.0..=1.0).contains(c)) {
-            return Err(Refusal(400, format!("uv [{}, {}] must lie in 0..1", uv[0], uv[1])));
+            return Err(Refusal(
+                400,
+                format!("uv [{}, {}] must lie in 0..1", uv[0], uv[1]),
+            ));
         }
         let gim = Gim::open(&self.gim, self.cfg.memory)?;
         let r = gim.resolution;
-        let (x, y) = (((uv[0] * r as f64) as usize).min(r - 1), ((uv[1] * r as f64) as usize).min(r - 1));
+        let (x, y) = (
+            ((uv[0] * r as f64) as usize).min(r - 1),
+            ((uv[1] * r as f64) as usize).min(r - 1),
+        );
         let ring = 3;
         let (x0, y0) = (x.saturating_sub(ring), y.saturating_sub(ring));
         let (w, h) = ((x + ring + 1).min(r) - x0, (y + ring + 1).min(r) - y0);
@@ -310,9 +324,12 @@ impl Studio {
     }
 
     fn sample(&self, k: usize) -> std::result::Result<&(PathBuf, Option<PathBuf>), Refusal> {
-        self.samples
-            .get(k)
-            .ok_or_else(|| Refusal(400, format!("no sample {k}: the studio offers {}", self.samples.len())))
+        self.samples.get(k).ok_or_else(|| {
+            Refusal(
+                400,
+                format!("no sample {k}: the studio offers {}", self.samples.len()),
+            )
+        })
     }
 
     /// Runs `work` as the one change of the current version at a time,
@@ -328,7 +345,10 @@ impl Studio {
         let (current, n) = {
             let mut h = lock(&self.history);
             if h.versions.len() >= MAX_VERSIONS && h.current + 1 >= MAX_VERSIONS {
-                return Err(Refusal(409, format!("{MAX_VERSIONS} versions: save and restart the studio")));
+                return Err(Refusal(
+                    409,
+                    format!("{MAX_VERSIONS} versions: save and restart the studio"),
+                ));
             }
             h.next += 1;
             (h.versions[h.current].clone(), h.next - 1)
@@ -387,12 +407,18 @@ impl Studio {
 
     fn paint(&self, r: PaintRequest) -> Answer {
         if r.strokes.is_empty() || r.strokes.len() > MAX_STROKE_POINTS {
-            return Err(Refusal(400, format!("give 1..={MAX_STROKE_POINTS} stroke points")));
+            return Err(Refusal(
+                400,
+                format!("give 1..={MAX_STROKE_POINTS} stroke points"),
+            ));
         }
         let mut strokes = Vec::with_capacity(r.strokes.len());
         for (k, s) in r.strokes.iter().enumerate() {
             if !(s.radius.is_finite() && s.radius > 0.0) {
-                return Err(Refusal(400, format!("stroke point {k}: radius {} must be > 0", s.radius)));
+                return Err(Refusal(
+                    400,
+                    format!("stroke point {k}: radius {} must be > 0", s.radius),
+                ));
             }
             let (_, p) = self.pick(s.uv)?;
             strokes.push(StrokeSpec {
@@ -405,20 +431,37 @@ impl Studio {
             cfg.transition = t;
         }
         cfg.validate()?;
-        self.change("paint", |current, out, n| {
-            let file = self.work_file(n, "json");
-            let text = serde_json::to_vec(&strokes).map_err(|e| crate::Error::Config(e.to_string()))?;
-            std::fs::write(&file, text).map_err(|e| crate::Error::io(&file, e))?;
-            cfg.region = Some(file.clone());
-            let report = crate::paint::paint(current, out, &cfg, &JobProgress(&self.status));
-            let _ = std::fs::remove_file(&file);
-            Ok(report?.to_string())
+        self.change("paint", |current, out, _| {
+            cfg.region = Some(self.stroke_file(&strokes)?);
+            Ok(crate::paint::paint(current, out, &cfg, &JobProgress(&self.status))?.to_string())
         })
+    }
+
+    /// The strokes as a file beside the base, named by its content
+    /// (`STEM.stroke-HASH.json`): painted quilts' paint logs refer to it, so
+    /// it stays when the studio stops, and the same stroke gives the same
+    /// log, hence the same bytes.
+    fn stroke_file(&self, strokes: &[StrokeSpec]) -> crate::Result<PathBuf> {
+        let text = serde_json::to_vec(strokes).map_err(|e| crate::Error::Config(e.to_string()))?;
+        let hash = xxhash_rust::xxh3::xxh3_64(&text);
+        let file = self.folder.join(format!("{}.stroke-{hash:016x}.json", self.stem));
+        if std::fs::read(&file).is_ok_and(|old| old == text) {
+            return Ok(file);
+        }
+        let mut staged = crate::io::staging::staged_file(&file)?;
+        staged.write_all(&text).map_err(|e| crate::Error::io(&file, e))?;
+        staged
+            .persist(&file)
+            .map_err(|e| crate::Error::io(&file, e.error))?;
+        Ok(file)
     }
 
     fn verbatim_config(&self, r: &VerbatimRequest) -> std::result::Result<(PaintConfig, Verbatim), Refusal> {
         if !r.angle.is_finite() {
-            return Err(Refusal(400, "the angle must be a finite number of degrees".into()));
+            return Err(Refusal(
+                400,
+                "the angle must be a finite number of degrees".into(),
+            ));
         }
         let (_, at) = self.pick(r.uv)?;
         let v = Verbatim { at, angle: r.angle };
@@ -472,7 +515,10 @@ impl Studio {
             let h = lock(&self.history);
             let t = h.current as isize + by;
             if t < 0 || t as usize >= h.versions.len() {
-                return Err(Refusal(409, format!("nothing to {}", if by < 0 { "undo" } else { "redo" })));
+                return Err(Refusal(
+                    409,
+                    format!("nothing to {}", if by < 0 { "undo" } else { "redo" }),
+                ));
             }
             t as usize
         };
@@ -487,7 +533,9 @@ impl Studio {
         let ok = !name.is_empty()
             && name.len() <= 100
             && !name.starts_with('.')
-            && name.chars().all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
+            && name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
         if !ok {
             return Err(Refusal(
                 400,
@@ -503,7 +551,10 @@ impl Studio {
     fn save(&self, name: &str) -> Answer {
         let out = self.output_name(name, ".quilt")?;
         if crate::io::staging::same_file(&out, &self.base) || out.exists() {
-            return Err(Refusal(409, format!("{} exists: choose another name", out.display())));
+            return Err(Refusal(
+                409,
+                format!("{} exists: choose another name", out.display()),
+            ));
         }
         let current = self.current();
         let staged = crate::io::staging::staged_file(&out)?;
@@ -519,7 +570,10 @@ impl Studio {
     fn export(&self, name: &str) -> Answer {
         let dir = self.output_name(name, "")?;
         if dir.exists() {
-            return Err(Refusal(409, format!("{} exists: choose another name", dir.display())));
+            return Err(Refusal(
+                409,
+                format!("{} exists: choose another name", dir.display()),
+            ));
         }
         let opts = crate::output::export::ExportOptions {
             mesh: Some((crate::output::export::MeshFormat::Gltf, dir)),

@@ -13,7 +13,9 @@
 //! name; bodies are bounded ([`MAX_BODY`]). Every painted version is a
 //! `.quilt` beside the base (hidden, removed when the studio stops, and by
 //! the next studio on that base if the process died); the base is never
-//! written.
+//! written. A brush stroke is kept beside the base as
+//! `STEM.stroke-HASH.json`: the paint log of every quilt painted with it
+//! refers to it, as to any region file.
 
 mod api;
 pub mod scene;
@@ -68,7 +70,10 @@ impl ServeConfig {
     /// Checks the numbers and that every offered sample and mask exists.
     pub fn validate(&self) -> Result<()> {
         if !(1..=64).contains(&self.workers) {
-            return Err(Error::Config(format!("--workers {}: expected 1..=64", self.workers)));
+            return Err(Error::Config(format!(
+                "--workers {}: expected 1..=64",
+                self.workers
+            )));
         }
         for (s, m) in &self.samples {
             for p in std::iter::once(s).chain(m) {
@@ -213,7 +218,14 @@ impl Studio {
             .samples
             .iter()
             .enumerate()
-            .map(|(k, s)| (s.clone(), (k + 1 == q.samples.len()).then(|| q.sample_mask.clone()).flatten()))
+            .map(|(k, s)| {
+                (
+                    s.clone(),
+                    (k + 1 == q.samples.len())
+                        .then(|| q.sample_mask.clone())
+                        .flatten(),
+                )
+            })
             .collect();
         samples.extend(cfg.samples.iter().cloned());
         let folder = crate::io::staging::parent_dir(quilt).to_path_buf();
@@ -242,9 +254,8 @@ impl Studio {
             texel_size: gim.texel_size,
         });
         studio.remove_stale_work_files();
-        let http = tiny_http::Server::http(SocketAddr::new(cfg.bind, cfg.port)).map_err(|e| {
-            Error::Config(format!("cannot listen on {}:{}: {e}", cfg.bind, cfg.port))
-        })?;
+        let http = tiny_http::Server::http(SocketAddr::new(cfg.bind, cfg.port))
+            .map_err(|e| Error::Config(format!("cannot listen on {}:{}: {e}", cfg.bind, cfg.port)))?;
         let addr = http
             .server_addr()
             .to_ip()
@@ -318,8 +329,7 @@ impl Studio {
         };
         for e in entries.flatten() {
             let name = e.file_name().to_string_lossy().into_owned();
-            let ours = name.ends_with(".quilt") || name.ends_with(".json");
-            if ours && doomed(&name) {
+            if name.ends_with(".quilt") && doomed(&name) {
                 let _ = std::fs::remove_file(e.path());
             }
         }

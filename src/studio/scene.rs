@@ -151,7 +151,9 @@ impl Payload {
                 let mut jac = Vec::with_capacity(r * r * 16);
                 for t in 0..r * r {
                     let (c, j, s, cov) = view
-                        .with(t, |tile, i| (tile.coord[i], tile.jacobian[i], tile.sample[i], tile.covered[i]))
+                        .with(t, |tile, i| {
+                            (tile.coord[i], tile.jacobian[i], tile.sample[i], tile.covered[i])
+                        })
                         .unwrap_or(([0.0; 2], [1.0, 0.0, 0.0, 1.0], 0, false));
                     for x in [c[0], c[1], s as f32, if cov { 1.0 } else { 0.0 }] {
                         push(&mut texels, x);
@@ -161,7 +163,10 @@ impl Payload {
                     }
                 }
                 texels.extend_from_slice(&jac);
-                let (w, h) = btf.samples.iter().fold((0, 0), |(w, h), b| (w.max(b.width), h.max(b.height)));
+                let (w, h) = btf
+                    .samples
+                    .iter()
+                    .fold((0, 0), |(w, h), b| (w.max(b.width), h.max(b.height)));
                 let mut layer = 0;
                 let mut texel = 0;
                 for b in &btf.samples {

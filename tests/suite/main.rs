@@ -22,3 +22,4 @@ mod paint;
 mod quilt;
 mod render;
 mod robustness;
+mod studio;

@@ -8,7 +8,7 @@ const $ = (id) => document.getElementById(id);
 const hash = new URLSearchParams(location.hash.slice(1));
 const studio = (window.studio = {
   ready: false, error: null, frames: 0, version: -1,
-  lastApplyMs: null, lastPreviewMs: null, busy: false,
+  lastApplyMs: null, lastPreviewMs: null, busy: false, changes: 0,
 });
 
 // ---------------------------------------------------------------- vectors
@@ -595,6 +595,7 @@ async function change(path, body) {
     clearInterval(timer);
     studio.busy = false;
     await pollStatus();
+    studio.changes++;
   }
 }
 

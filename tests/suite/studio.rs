@@ -1,0 +1,814 @@
+//! The web studio (`serve`): its request guard (Host/Origin, body size,
+//! routes, names), bad and concurrent requests, painting, undo/redo, save
+//! and export over its JSON API, and — in headless Chromium driven over the
+//! DevTools protocol, skipped with a message when no Chromium is installed —
+//! the WebGL2 viewer against the CPU renderer and a brush stroke painted by
+//! synthetic pointer events.
+
+use std::io::{BufRead, Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use btfquilt::artifact::btf;
+use btfquilt::atlas::{self, AtlasConfig};
+use btfquilt::container::MemoryBudget;
+use btfquilt::factorize::{self, FactorizeConfig};
+use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
+use btfquilt::io::imageio::{self, RgbImage};
+use btfquilt::output::render::{self, Camera, Light, RenderConfig};
+use btfquilt::progress::Silent;
+use btfquilt::quilt::{self, TileConfig};
+use btfquilt::studio::{ServeConfig, Server, Studio, MAX_BODY};
+use serde_json::{json, Value};
+
+use crate::common::{self, write_mask_png};
+
+/// A decorated flat square to paint on: a brick crop whose foreground is a
+/// disk in one corner, kept out of the tiling (as in `paint`'s tests).
+struct PaintScene {
+    _dir: tempfile::TempDir,
+    dir: PathBuf,
+    base: PathBuf,
+}
+
+fn paint_scene() -> PaintScene {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_path_buf();
+    let g = d.join("square.gim");
+    let cfg = AtlasConfig {
+        resolution: 128,
+        ..AtlasConfig::default()
+    };
+    atlas::build_gim(&common::square_obj(&d), &g, &cfg, &Silent).unwrap();
+    let sample = common::brick_crop(&d, 96, Some((100, 100)));
+    let mask = d.join("mask.png");
+    let disk = |x: usize, y: usize| (x as f32 - 22.0).powi(2) + (y as f32 - 22.0).powi(2) < 16.0f32.powi(2);
+    write_mask_png(&mask, 96, 96, disk);
+    let base = d.join("base.quilt");
+    let tc = TileConfig {
+        sample_mask: Some(mask),
+        patch_radius: Some(12),
+        ..TileConfig::default()
+    };
+    quilt::tile(&g, &sample, &base, &tc, &Silent).unwrap();
+    PaintScene {
+        _dir: dir,
+        dir: d,
+        base,
+    }
+}
+
+fn start(quilt: &Path) -> Server {
+    let cfg = ServeConfig {
+        port: 0,
+        ..ServeConfig::default()
+    };
+    Studio::start(quilt, &cfg).unwrap()
+}
+
+/// One raw HTTP/1.1 exchange: (status, body).
+fn raw(addr: SocketAddr, request: &[u8]) -> (u16, Vec<u8>) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+    // the server may answer (and close) before a huge body is all sent
+    let _ = s.write_all(request);
+    let mut out = Vec::new();
+    let _ = s.read_to_end(&mut out);
+    let text = String::from_utf8_lossy(&out);
+    let status = text
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or_else(|| panic!("no HTTP status in {:?}", &text[..text.len().min(200)]));
+    let body = match out.windows(4).position(|w| w == b"\r\n\r\n") {
+        Some(i) => out[i + 4..].to_vec(),
+        None => Vec::new(),
+    };
+    (status, body)
+}
+
+fn request(addr: SocketAddr, method: &str, path: &str, extra: &str, body: &str) -> Vec<u8> {
+    format!(
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n{extra}Content-Length: {}\r\n\r\n{body}",
+        body.len()
+    )
+    .into_bytes()
+}
+
+fn get(addr: SocketAddr, path: &str) -> (u16, Vec<u8>) {
+    raw(addr, &request(addr, "GET", path, "", ""))
+}
+
+fn post(addr: SocketAddr, path: &str, body: &Value) -> (u16, Value) {
+    let (code, bytes) = raw(addr, &request(addr, "POST", path, "", &body.to_string()));
+    (code, serde_json::from_slice(&bytes).unwrap_or(Value::Null))
+}
+
+fn error_of(body: &[u8]) -> String {
+    let v: Value = serde_json::from_slice(body).unwrap_or(Value::Null);
+    v["error"].as_str().unwrap_or_default().to_string()
+}
+
+/// The atlas uv of the centre of the square's chart.
+fn chart_centre(quilt: &Path) -> [f64; 2] {
+    let q = btfquilt::quilt::Quilt::open(quilt, MemoryBudget::default()).unwrap();
+    let gim = q.open_gim(None, MemoryBudget::default()).unwrap();
+    let chart: Vec<u32> = gim.read("chart").unwrap();
+    let r = gim.resolution;
+    let covered: Vec<usize> = (0..r * r).filter(|&t| chart[t] != u32::MAX).collect();
+    let mean =
+        |f: &dyn Fn(usize) -> usize| covered.iter().map(|&t| f(t) as f64).sum::<f64>() / covered.len() as f64;
+    [
+        (mean(&|t| t % r) + 0.5) / r as f64,
+        (mean(&|t| t / r) + 0.5) / r as f64,
+    ]
+}
+
+/// The atlas uv of a texel with no chart within 3 texels, if there is one.
+fn off_surface(quilt: &Path) -> Option<[f64; 2]> {
+    let q = btfquilt::quilt::Quilt::open(quilt, MemoryBudget::default()).unwrap();
+    let gim = q.open_gim(None, MemoryBudget::default()).unwrap();
+    let chart: Vec<u32> = gim.read("chart").unwrap();
+    let r = gim.resolution as isize;
+    let empty =
+        |x: isize, y: isize| x < 0 || y < 0 || x >= r || y >= r || chart[(y * r + x) as usize] == u32::MAX;
+    let t = (0..r * r).find(|&t| {
+        let (x, y) = (t % r, t / r);
+        (-3..=3).all(|dy| (-3..=3).all(|dx| empty(x + dx, y + dy)))
+    })?;
+    Some([
+        ((t % r) as f64 + 0.5) / r as f64,
+        ((t / r) as f64 + 0.5) / r as f64,
+    ])
+}
+
+fn painting_figures(q: &Path) -> (f64, f64) {
+    let report = btfquilt::output::evaluate::evaluate(q, None, None, MemoryBudget::default()).unwrap();
+    let p = report.painting.expect("painting figures of a painted surface");
+    (
+        p.region_covered_by_foreground,
+        p.foreground_outside_region_and_transition,
+    )
+}
+
+#[test]
+fn the_studio_refuses_foreign_hosts_and_origins_big_bodies_and_bad_requests() {
+    let s = paint_scene();
+    let base_bytes = std::fs::read(&s.base).unwrap();
+    let server = start(&s.base);
+    let addr = server.addr();
+    assert!(addr.ip().is_loopback(), "binds loopback by default: {addr}");
+
+    let (code, body) = get(addr, "/api/scene");
+    assert_eq!(code, 200);
+    let scene: Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(scene["scene"]["resolution"], 128);
+    assert_eq!(scene["scene"]["btf"], false);
+    let (code, page) = get(addr, "/");
+    assert_eq!(code, 200);
+    assert!(String::from_utf8_lossy(&page).contains("studio.js"));
+    // localhost names the same loopback address
+    let port = addr.port();
+    let local = format!("GET /api/status HTTP/1.1\r\nHost: localhost:{port}\r\nConnection: close\r\n\r\n");
+    assert_eq!(raw(addr, local.as_bytes()).0, 200);
+
+    // DNS rebinding: a foreign Host or Origin is refused
+    let foreign =
+        format!("GET /api/scene HTTP/1.1\r\nHost: evil.example:{port}\r\nConnection: close\r\n\r\n");
+    let (code, body) = raw(addr, foreign.as_bytes());
+    assert_eq!(code, 403);
+    assert!(error_of(&body).contains("evil.example"), "{}", error_of(&body));
+    let origin = request(addr, "POST", "/api/undo", "Origin: http://evil.example\r\n", "{}");
+    let (code, body) = raw(addr, &origin);
+    assert_eq!(code, 403);
+    assert!(error_of(&body).contains("Origin"), "{}", error_of(&body));
+    let no_host = b"GET /api/scene HTTP/1.0\r\n\r\n";
+    assert_eq!(raw(addr, no_host).0, 400);
+    let own = request(
+        addr,
+        "GET",
+        "/api/status",
+        &format!("Origin: http://{addr}\r\n"),
+        "",
+    );
+    assert_eq!(raw(addr, &own).0, 200);
+
+    // bodies over the bound, by their length or their bytes
+    let big = format!(
+        "POST /api/paint HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Length: {}\r\n\r\n",
+        MAX_BODY + 1
+    );
+    let (code, body) = raw(addr, big.as_bytes());
+    assert_eq!(code, 413, "{}", error_of(&body));
+    let huge = format!("{{\"strokes\": [], \"pad\": \"{}\"}}", "x".repeat(MAX_BODY));
+    assert_eq!(raw(addr, &request(addr, "POST", "/api/paint", "", &huge)).0, 413);
+
+    // no file by name: traversal and unknown routes are 404
+    for path in [
+        "/../base.quilt",
+        "/base.quilt",
+        "/api/../../etc/passwd",
+        "/api/nothing",
+        "/%2e%2e/base.quilt",
+    ] {
+        assert_eq!(get(addr, path).0, 404, "{path}");
+    }
+    assert_eq!(raw(addr, &request(addr, "DELETE", "/api/scene", "", "")).0, 404);
+
+    // malformed and out-of-range bodies: 400 with the reason
+    let centre = chart_centre(&s.base);
+    for (path, body, needle) in [
+        ("/api/paint", "{", "JSON"),
+        ("/api/paint", "{\"strokes\": [], \"extra\": 1}", "unknown field"),
+        ("/api/paint", "{\"strokes\": []}", "stroke points"),
+        (
+            "/api/paint",
+            "{\"strokes\": [{\"uv\": [2, 0.5], \"radius\": 0.1}]}",
+            "0..1",
+        ),
+        (
+            "/api/paint",
+            "{\"strokes\": [{\"uv\": [0.5, 0.5], \"radius\": -1}]}",
+            "radius",
+        ),
+        (
+            "/api/paint",
+            "{\"strokes\": [{\"uv\": [0.5, 0.5], \"radius\": 0.1}], \"sample\": 7}",
+            "no sample 7",
+        ),
+        ("/api/pick", "{\"uv\": [0.5]}", "JSON"),
+        ("/api/preview", "{\"uv\": [0.5, 0.5], \"angle\": 1e999}", "JSON"),
+        ("/api/save", "{\"name\": \"../x\"}", "name"),
+        ("/api/save", "{\"name\": \".hidden\"}", "name"),
+        ("/api/export", "{\"name\": \"a/b\"}", "name"),
+    ] {
+        let (code, reply) = raw(addr, &request(addr, "POST", path, "", body));
+        assert_eq!(code, 400, "{path} {body}: {}", error_of(&reply));
+        assert!(
+            error_of(&reply).contains(needle),
+            "{path} {body}: {}",
+            error_of(&reply)
+        );
+    }
+    if let Some(uv) = off_surface(&s.base) {
+        let (code, reply) = post(addr, "/api/pick", &json!({ "uv": uv }));
+        assert_eq!(code, 422, "{uv:?} is off the surface: {reply}");
+        assert!(reply["error"].as_str().unwrap().contains("no surface"), "{reply}");
+    }
+    let (code, reply) = post(addr, "/api/pick", &json!({ "uv": centre }));
+    assert_eq!(code, 200, "{reply}");
+    let p = reply["point"].as_array().unwrap();
+    assert!(p
+        .iter()
+        .all(|c| c.as_f64().unwrap() > 0.2 && c.as_f64().unwrap() < 0.8 || c == 0.0));
+    // the base is never written: saving over it, or over any file, is refused
+    let (code, reply) = post(addr, "/api/save", &json!({ "name": "base" }));
+    assert_eq!(code, 409, "{reply}");
+    let (code, _) = post(addr, "/api/undo", &json!({}));
+    assert_eq!(code, 409, "nothing to undo yet");
+
+    // 100 concurrent requests, good and bad: every one answered, nothing lost
+    let threads: Vec<_> = (0..100)
+        .map(|k| {
+            std::thread::spawn(move || match k % 4 {
+                0 => get(addr, "/api/scene").0,
+                1 => get(addr, "/api/texels").0,
+                2 => raw(addr, &request(addr, "POST", "/api/paint", "", "{\"strokes\": 5}")).0,
+                _ => raw(addr, b"GARBAGE\r\n\r\n").0,
+            })
+        })
+        .collect();
+    let codes: Vec<u16> = threads.into_iter().map(|t| t.join().unwrap()).collect();
+    for (k, &c) in codes.iter().enumerate() {
+        let want: &[u16] = match k % 4 {
+            0 | 1 => &[200],
+            2 => &[400],
+            _ => &[400, 404, 405, 505],
+        };
+        assert!(want.contains(&c), "request {k} answered {c}");
+    }
+    assert_eq!(get(addr, "/api/scene").0, 200, "still answering");
+    server.stop();
+    assert_eq!(
+        std::fs::read(&s.base).unwrap(),
+        base_bytes,
+        "the base is unchanged"
+    );
+}
+
+#[test]
+fn the_studio_paints_undoes_redoes_saves_and_exports() {
+    let s = paint_scene();
+    let base_bytes = std::fs::read(&s.base).unwrap();
+    let server = start(&s.base);
+    let addr = server.addr();
+    let centre = chart_centre(&s.base);
+    let strokes: Vec<Value> = (0..5)
+        .map(|k| json!({ "uv": [centre[0] - 0.04 + 0.02 * k as f64, centre[1]], "radius": 0.08 }))
+        .collect();
+    let (code, reply) = post(
+        addr,
+        "/api/paint",
+        &json!({ "strokes": strokes, "transition": 5 }),
+    );
+    assert_eq!(code, 200, "{reply}");
+    assert_eq!(reply["status"]["step"], 1);
+    let painted = server.current();
+    assert_ne!(painted, s.base);
+    let (coverage, spill) = painting_figures(&painted);
+    assert!(coverage >= 0.95, "F covered by foreground: {coverage}");
+    assert!(
+        spill <= 0.05,
+        "foreground outside F and the transition zone: {spill}"
+    );
+    let painted_bytes = std::fs::read(&painted).unwrap();
+
+    // undo shows the base again, redo the painted version
+    let (code, reply) = post(addr, "/api/undo", &json!({}));
+    assert_eq!(code, 200, "{reply}");
+    assert_eq!(server.current(), s.base);
+    assert_eq!(reply["can_redo"], true);
+    let (_, texels_base) = get(addr, "/api/texels");
+    let (code, _) = post(addr, "/api/redo", &json!({}));
+    assert_eq!(code, 200);
+    assert_eq!(server.current(), painted);
+    let (_, texels_painted) = get(addr, "/api/texels");
+    assert_ne!(
+        texels_base, texels_painted,
+        "the viewer's texture follows the version"
+    );
+
+    // a verbatim preview and copy at the centre
+    let (code, preview) = raw(
+        addr,
+        &request(
+            addr,
+            "POST",
+            "/api/preview",
+            "",
+            &json!({ "uv": centre, "angle": 30 }).to_string(),
+        ),
+    );
+    assert_eq!(code, 200, "{}", error_of(&preview));
+    let word = |k: usize| u32::from_le_bytes(preview[k * 4..k * 4 + 4].try_into().unwrap()) as usize;
+    let (w, h) = (word(2), word(3));
+    assert!(w > 0 && h > 0 && word(0) + w <= 128 && word(1) + h <= 128);
+    assert_eq!(preview.len(), 16 + w * h * 4);
+    let (code, reply) = post(addr, "/api/verbatim", &json!({ "uv": centre, "angle": 30 }));
+    assert_eq!(code, 200, "{reply}");
+    assert_eq!(reply["status"]["step"], 2);
+
+    // save and export land beside the base, never over a file
+    let (code, reply) = post(addr, "/api/save", &json!({ "name": "mine" }));
+    assert_eq!(code, 200, "{reply}");
+    let saved = s.dir.join("mine.quilt");
+    assert_eq!(
+        std::fs::read(&saved).unwrap(),
+        std::fs::read(server.current()).unwrap()
+    );
+    let (code, _) = post(addr, "/api/save", &json!({ "name": "mine.quilt" }));
+    assert_eq!(code, 409, "an existing file is not overwritten");
+    let (code, reply) = post(addr, "/api/export", &json!({ "name": "mine_gltf" }));
+    assert_eq!(code, 200, "{reply}");
+    assert!(s.dir.join("mine_gltf/mesh.glb").is_file(), "{reply}");
+    // the saved quilt stands alone: it replays from the base to the same bytes
+    let again = s.dir.join("again.quilt");
+    btfquilt::paint::replay(&saved, &again, &Silent).unwrap();
+    assert_eq!(std::fs::read(&again).unwrap(), std::fs::read(&saved).unwrap());
+
+    // undo twice, paint again: the redo branch is dropped
+    for _ in 0..2 {
+        assert_eq!(post(addr, "/api/undo", &json!({})).0, 200);
+    }
+    assert_eq!(server.current(), s.base);
+    let (code, reply) = post(
+        addr,
+        "/api/paint",
+        &json!({ "strokes": strokes, "transition": 5 }),
+    );
+    assert_eq!(code, 200, "{reply}");
+    assert_eq!(reply["status"]["can_redo"], false);
+    assert_eq!(
+        std::fs::read(server.current()).unwrap(),
+        painted_bytes,
+        "the same stroke, the same bytes"
+    );
+
+    server.stop();
+    assert_eq!(std::fs::read(&s.base).unwrap(), base_bytes);
+    let left: Vec<String> = common::listing(&s.dir)
+        .into_iter()
+        .filter(|n| n.contains(".studio-"))
+        .collect();
+    assert!(left.is_empty(), "work files left behind: {left:?}");
+}
+
+// ------------------------------------------------------------------ browser
+
+/// Headless Chromium driven over the DevTools protocol.
+struct Browser {
+    child: std::process::Child,
+    ws: tungstenite::WebSocket<TcpStream>,
+    next: u64,
+    _profile: tempfile::TempDir,
+}
+
+/// The Chromium binary, if one is installed.
+fn chromium() -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    for dir in std::env::split_paths(&path) {
+        for name in ["chromium", "chromium-browser", "google-chrome", "chrome"] {
+            let p = dir.join(name);
+            if p.is_file() {
+                return Some(p);
+            }
+        }
+    }
+    None
+}
+
+fn base64(text: &str) -> Vec<u8> {
+    let value = |c: u8| match c {
+        b'A'..=b'Z' => c - b'A',
+        b'a'..=b'z' => c - b'a' + 26,
+        b'0'..=b'9' => c - b'0' + 52,
+        b'+' => 62,
+        b'/' => 63,
+        _ => panic!("not base64: {c}"),
+    };
+    let digits: Vec<u8> = text
+        .bytes()
+        .filter(|&c| c != b'=' && !c.is_ascii_whitespace())
+        .map(value)
+        .collect();
+    let mut out = Vec::with_capacity(digits.len() * 3 / 4);
+    for chunk in digits.chunks(4) {
+        let mut acc = 0u32;
+        for (i, &d) in chunk.iter().enumerate() {
+            acc |= (d as u32) << (18 - 6 * i);
+        }
+        out.extend_from_slice(&acc.to_be_bytes()[1..chunk.len()]);
+    }
+    out
+}
+
+impl Browser {
+    /// Opens `url` in a `w`×`h` window; `None` (with a message) when there
+    /// is no Chromium.
+    fn open(url: &str, w: usize, h: usize) -> Option<Browser> {
+        let Some(bin) = chromium() else {
+            eprintln!("skipped: no Chromium on PATH (Debian: apt-get install chromium)");
+            return None;
+        };
+        let profile = tempfile::tempdir().unwrap();
+        let mut child = std::process::Command::new(bin)
+            .args([
+                "--headless",
+                "--no-sandbox",
+                "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader",
+                "--hide-scrollbars",
+                "--force-device-scale-factor=1",
+                "--remote-debugging-port=0",
+                &format!("--window-size={w},{h}"),
+                &format!("--user-data-dir={}", profile.path().display()),
+                url,
+            ])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
+        let port: u16 = loop {
+            let line = lines
+                .next()
+                .expect("Chromium ended before DevTools listened")
+                .unwrap();
+            if let Some(rest) = line.split("ws://127.0.0.1:").nth(1) {
+                break rest.split('/').next().unwrap().parse().unwrap();
+            }
+        };
+        std::thread::spawn(move || for _ in lines {});
+        let addr: SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let ws_url = loop {
+            let (_, body) = get(addr, "/json/list");
+            let pages: Value = serde_json::from_slice(&body).unwrap_or(Value::Null);
+            let page = pages.as_array().and_then(|p| {
+                p.iter()
+                    .find(|t| t["type"] == "page" && t["url"].as_str().is_some_and(|u| u.starts_with(url)))
+            });
+            if let Some(p) = page {
+                break p["webSocketDebuggerUrl"].as_str().unwrap().to_string();
+            }
+            assert!(Instant::now() < deadline, "the page never opened: {pages}");
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        let stream = TcpStream::connect(addr).unwrap();
+        let (ws, _) = tungstenite::client(ws_url.as_str(), stream).unwrap();
+        let mut b = Browser {
+            child,
+            ws,
+            next: 1,
+            _profile: profile,
+        };
+        // the viewport exactly w×h, whatever the window's decorations
+        b.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({ "width": w, "height": h, "deviceScaleFactor": 1, "mobile": false }),
+        );
+        Some(b)
+    }
+
+    fn call(&mut self, method: &str, params: Value) -> Value {
+        let id = self.next;
+        self.next += 1;
+        let msg = json!({ "id": id, "method": method, "params": params }).to_string();
+        self.ws.send(tungstenite::Message::text(msg)).unwrap();
+        loop {
+            let m = self.ws.read().unwrap();
+            let Ok(text) = m.to_text() else { continue };
+            let v: Value = serde_json::from_str(text).unwrap_or(Value::Null);
+            if v["id"] == id {
+                assert!(v.get("error").is_none(), "{method}: {}", v["error"]);
+                return v["result"].clone();
+            }
+        }
+    }
+
+    /// The value of a JavaScript expression (promises awaited).
+    fn eval(&mut self, expr: &str) -> Value {
+        let r = self.call(
+            "Runtime.evaluate",
+            json!({ "expression": expr, "awaitPromise": true, "returnByValue": true }),
+        );
+        assert!(
+            r.get("exceptionDetails").is_none(),
+            "{expr}: {}",
+            r["exceptionDetails"]
+        );
+        r["result"]["value"].clone()
+    }
+
+    /// Waits until `expr` is true; fails with the page's error if it has one.
+    fn wait(&mut self, expr: &str, secs: u64) {
+        let deadline = Instant::now() + Duration::from_secs(secs);
+        loop {
+            if self.eval(expr) == Value::Bool(true) {
+                return;
+            }
+            let err = self.eval("window.studio && window.studio.error");
+            assert!(err.is_null(), "the studio reports: {err}");
+            assert!(Instant::now() < deadline, "timed out waiting for {expr}");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    fn screenshot(&mut self, w: usize, h: usize) -> RgbImage {
+        let r = self.call(
+            "Page.captureScreenshot",
+            json!({ "format": "png", "clip": { "x": 0, "y": 0, "width": w, "height": h, "scale": 1 } }),
+        );
+        let png = base64(r["data"].as_str().unwrap());
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("shot.png");
+        std::fs::write(&p, png).unwrap();
+        imageio::read_rgb(&p).unwrap()
+    }
+
+    fn mouse(&mut self, kind: &str, x: f64, y: f64, buttons: u32) {
+        let button = if buttons == 0 && kind == "mouseMoved" {
+            "none"
+        } else {
+            "left"
+        };
+        self.call(
+            "Input.dispatchMouseEvent",
+            json!({ "type": kind, "x": x, "y": y, "button": button, "buttons": buttons, "clickCount": 1 }),
+        );
+    }
+
+    fn click(&mut self, id: &str) {
+        let r = self.eval(&format!(
+            "(() => {{ const b = document.getElementById('{id}').getBoundingClientRect(); return [b.x + b.width / 2, b.y + b.height / 2]; }})()"
+        ));
+        let (x, y) = (r[0].as_f64().unwrap(), r[1].as_f64().unwrap());
+        self.mouse("mousePressed", x, y, 1);
+        self.mouse("mouseReleased", x, y, 0);
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// PSNR in dB of two 8-bit sRGB pictures (as decoded: linear floats).
+fn psnr(a: &RgbImage, b: &RgbImage) -> f64 {
+    assert_eq!((a.width, a.height), (b.width, b.height));
+    let code = |v: f32| (imageio::linear_to_srgb(v).clamp(0.0, 1.0) * 255.0).round() as f64;
+    let mse = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(&x, &y)| (code(x) - code(y)).powi(2))
+        .sum::<f64>()
+        / a.data.len() as f64;
+    10.0 * (255.0f64.powi(2) / mse.max(1e-12)).log10()
+}
+
+fn crop(img: &RgbImage, x0: usize, y0: usize, w: usize, h: usize) -> RgbImage {
+    let mut data = Vec::with_capacity(w * h * 3);
+    for y in y0..y0 + h {
+        data.extend_from_slice(&img.data[(y * img.width + x0) * 3..(y * img.width + x0 + w) * 3]);
+    }
+    RgbImage {
+        width: w,
+        height: h,
+        data,
+    }
+}
+
+/// Share of pixels that differ from the background by more than a few codes.
+fn drawn(img: &RgbImage) -> f64 {
+    let bg = render::BACKGROUND.map(|v| (imageio::linear_to_srgb(v) * 255.0).round());
+    let n = img
+        .data
+        .chunks_exact(3)
+        .filter(|p| (0..3).any(|k| ((imageio::linear_to_srgb(p[k]) * 255.0).round() - bg[k]).abs() > 4.0))
+        .count();
+    n as f64 / (img.width * img.height) as f64
+}
+
+/// Spot (the shipped mesh) on a 128² atlas tiled with a 32² generated
+/// bricks BTF (4×3 views × 4×3 lights, 12 terms).
+fn btf_spot(dir: &Path) -> PathBuf {
+    let g = dir.join("spot.gim");
+    let cfg = AtlasConfig {
+        resolution: 128,
+        ..AtlasConfig::default()
+    };
+    let mesh = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj");
+    atlas::build_gim(&mesh, &g, &cfg, &Silent).unwrap();
+    let b = dir.join("bricks.btf");
+    let grid = btf::grid(4, 3, 75.0);
+    let gen = GenerateConfig {
+        family: Family::Bricks,
+        imperfection: Imperfection::None,
+        width: 32,
+        height: 32,
+        views: grid.clone(),
+        lights: grid,
+        seed: 2,
+        block: 32,
+        ..GenerateConfig::default()
+    };
+    generate::generate_btf(&gen, &b, &Silent).unwrap();
+    let svd = dir.join("bricks.svd");
+    let f = FactorizeConfig {
+        terms: Some(12),
+        ..FactorizeConfig::default()
+    };
+    factorize::factorize(&b, &svd, &f, &Silent).unwrap();
+    let q = dir.join("spot.quilt");
+    quilt::tile(&g, &svd, &q, &TileConfig::default(), &Silent).unwrap();
+    q
+}
+
+#[test]
+fn in_chromium_the_viewer_matches_render_and_relights_a_btf() {
+    if chromium().is_none() {
+        eprintln!("skipped: no Chromium on PATH (Debian: apt-get install chromium)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let q = btf_spot(dir.path());
+    let server = start(&q);
+    let (w, h) = (480, 320);
+    let camera = Camera::parse("1.9,0.9,2.2,0.0,0.15,0.1,0,1,0,35").unwrap();
+    let c = |v: [f32; 3]| format!("{},{},{}", v[0], v[1], v[2]);
+    let url = |light: [f32; 3]| {
+        format!(
+            "{}#bare=1&w={w}&h={h}&camera={},{},{},{}&light={}",
+            server.url(),
+            c(camera.eye),
+            c(camera.target),
+            c(camera.up),
+            camera.fov,
+            c(light)
+        )
+    };
+    let cpu = |light: [f32; 3]| {
+        let cfg = RenderConfig {
+            camera: Some(camera),
+            lights: vec![Light::directional(light)],
+            width: w,
+            height: h,
+            exposure: 0.0,
+        };
+        let scene = render::Scene::open(&q, MemoryBudget::default()).unwrap();
+        scene.render_image(&cfg).unwrap()
+    };
+    let lights = [[0.4, 0.8, 0.6], [-0.7, 0.3, 0.5]];
+    let mut shots = Vec::new();
+    for light in lights {
+        let Some(mut b) = Browser::open(&url(light), w, h) else {
+            return;
+        };
+        b.wait("window.studio && window.studio.ready", 120);
+        let shot = b.screenshot(w, h);
+        let want = cpu(light);
+        assert!(
+            drawn(&shot) > 0.15,
+            "the canvas is (nearly) blank: {}",
+            drawn(&shot)
+        );
+        if let Some(d) = std::env::var_os("STUDIO_DUMP") {
+            let d = PathBuf::from(d);
+            imageio::write_png(
+                &d.join(format!("gpu{}.png", shots.len())),
+                &shot,
+                imageio::PngDepth::Eight,
+            )
+            .unwrap();
+            imageio::write_png(
+                &d.join(format!("cpu{}.png", shots.len())),
+                &want,
+                imageio::PngDepth::Eight,
+            )
+            .unwrap();
+        }
+        let db = psnr(&shot, &want);
+        assert!(db >= 30.0, "browser vs render under light {light:?}: {db:.1} dB");
+        shots.push(shot);
+    }
+    // the light matters: the two pictures differ more than each from render
+    let between = psnr(&shots[0], &shots[1]);
+    assert!(between < 25.0, "relighting changed little: {between:.1} dB apart");
+    server.stop();
+}
+
+#[test]
+fn in_chromium_a_brush_stroke_paints_the_region_and_undo_walks_back() {
+    if chromium().is_none() {
+        eprintln!("skipped: no Chromium on PATH (Debian: apt-get install chromium)");
+        return;
+    }
+    let s = paint_scene();
+    let server = start(&s.base);
+    let (w, h) = (800, 520);
+    // looking straight down on the square, its centre at the canvas centre
+    let url = format!(
+        "{}#w={w}&h={h}&camera=0.5,0.5,1.6,0.5,0.5,0,0,1,0,40",
+        server.url()
+    );
+    let Some(mut b) = Browser::open(&url, w, h) else {
+        return;
+    };
+    b.wait("window.studio && window.studio.ready", 120);
+    let shot = b.screenshot(w, h);
+    assert!(
+        drawn(&shot) > 0.3,
+        "the canvas is (nearly) blank: {}",
+        drawn(&shot)
+    );
+    b.click("mode-brush");
+    b.eval("studio.setRadius(0.08); document.getElementById('transition').value = 5; true");
+    // a short horizontal stroke right of the panel, released: applied
+    let (x0, y) = (w as f64 / 2.0 + 40.0, h as f64 / 2.0);
+    b.mouse("mouseMoved", x0, y, 0);
+    b.mouse("mousePressed", x0, y, 1);
+    for k in 1..=8 {
+        b.mouse("mouseMoved", x0 + 5.0 * k as f64, y, 1);
+    }
+    b.mouse("mouseReleased", x0 + 40.0, y, 0);
+    b.wait("studio.changes >= 1", 120);
+    b.click("mode-view");
+    let painted = server.current();
+    assert_ne!(painted, s.base, "the stroke made a new version");
+    let (coverage, spill) = painting_figures(&painted);
+    assert!(coverage >= 0.95, "F covered by foreground: {coverage}");
+    assert!(
+        spill <= 0.05,
+        "foreground outside F and the transition zone: {spill}"
+    );
+    // the square's middle, clear of the panel, the light widget and the status line
+    let view = |img: &RgbImage| crop(img, 300, 40, 300, 400);
+    let after = b.screenshot(w, h);
+    assert!(
+        psnr(&view(&shot), &view(&after)) < 40.0,
+        "the texture was not refreshed"
+    );
+    b.click("undo");
+    b.wait("studio.changes >= 2", 60);
+    assert_eq!(server.current(), s.base);
+    let undone = b.screenshot(w, h);
+    assert!(
+        psnr(&view(&shot), &view(&undone)) > 50.0,
+        "undo shows the base again"
+    );
+    server.stop();
+}
