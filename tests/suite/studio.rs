@@ -73,8 +73,26 @@ fn raw(addr: SocketAddr, request: &[u8]) -> (u16, Vec<u8>) {
     s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
     // the server may answer (and close) before a huge body is all sent
     let _ = s.write_all(request);
+    // read to the end of the body Content-Length announces (a server may
+    // keep the connection open), or to the end of the stream
     let mut out = Vec::new();
-    let _ = s.read_to_end(&mut out);
+    let mut buf = [0u8; 65536];
+    loop {
+        if let Some(i) = out.windows(4).position(|w| w == b"\r\n\r\n") {
+            let head = String::from_utf8_lossy(&out[..i]).to_ascii_lowercase();
+            let length = head
+                .lines()
+                .find_map(|l| l.strip_prefix("content-length:"))
+                .and_then(|v| v.trim().parse::<usize>().ok());
+            if length.is_some_and(|n| out.len() >= i + 4 + n) {
+                break;
+            }
+        }
+        match s.read(&mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(n) => out.extend_from_slice(&buf[..n]),
+        }
+    }
     let text = String::from_utf8_lossy(&out);
     let status = text
         .split_whitespace()
