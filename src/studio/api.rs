@@ -337,11 +337,13 @@ impl Studio {
     fn change(
         &self,
         what: &str,
-        work: impl FnOnce(&std::path::Path, &std::path::Path, usize) -> crate::Result<String>,
+        work: impl FnOnce(&std::path::Path, &std::path::Path, usize) -> crate::Result<String> + Send,
     ) -> Answer {
         let Ok(_busy) = self.painting.try_lock() else {
             return Err(Refusal(409, "a paint is running: wait for it".into()));
         };
+        // the preview session's memory goes to the paint
+        *lock(&self.preview) = None;
         let (current, n) = {
             let mut h = lock(&self.history);
             if h.versions.len() >= MAX_VERSIONS && h.current + 1 >= MAX_VERSIONS {
@@ -360,13 +362,30 @@ impl Studio {
         };
         let start = Instant::now();
         let out = self.work_file(n, "quilt");
-        let result = work(&current, &out, n).and_then(|report| {
-            self.show(&out)?;
-            Ok(report)
+        let mut painted = 0.0;
+        // on a thread of its own, one after the other: the allocator then
+        // reuses one arena for every paint instead of keeping one per
+        // request thread
+        let result = std::thread::scope(|scope| {
+            scope
+                .spawn(|| {
+                    work(&current, &out, n).and_then(|report| {
+                        painted = start.elapsed().as_secs_f64();
+                        self.show(&out)?;
+                        Ok(report)
+                    })
+                })
+                .join()
+                .unwrap_or_else(|_| {
+                    Err(crate::Error::Config(
+                        "the paint stopped on an internal error".into(),
+                    ))
+                })
         });
         let mut status = lock(&self.status);
         status.running = false;
         status.seconds = start.elapsed().as_secs_f64();
+        status.paint_seconds = painted;
         match result {
             Ok(report) => {
                 status.error = None;
@@ -398,7 +417,7 @@ impl Studio {
             sample_mask: m,
             tile: TileConfig {
                 seed: seed.unwrap_or(defaults.seed),
-                memory: self.cfg.memory,
+                memory: self.work_budget(),
                 ..defaults
             },
             ..PaintConfig::default()
@@ -482,6 +501,12 @@ impl Studio {
     /// (sRGB; alpha 0 off the surface).
     fn preview(&self, r: VerbatimRequest) -> Answer {
         let (cfg, v) = self.verbatim_config(&r)?;
+        let Ok(_busy) = self.painting.try_lock() else {
+            return Err(Refusal(
+                409,
+                "a paint is running: no preview until it ends".into(),
+            ));
+        };
         let current = self.current();
         let mut slot = lock(&self.preview);
         let fresh = !matches!(&*slot, Some((p, k, _)) if *p == current && *k == r.sample);
@@ -577,7 +602,7 @@ impl Studio {
         }
         let opts = crate::output::export::ExportOptions {
             mesh: Some((crate::output::export::MeshFormat::Gltf, dir)),
-            budget: self.cfg.memory,
+            budget: self.work_budget(),
             ..Default::default()
         };
         let written = crate::output::export::export(&self.current(), &opts)?;

@@ -10,7 +10,10 @@
 //! requests whose `Host` (and `Origin`, when sent) name the address it
 //! listens on, so a page elsewhere cannot reach it through DNS rebinding. It
 //! serves its own page and the current surface's data, nothing from disk by
-//! name; bodies are bounded ([`MAX_BODY`]). Every painted version is a
+//! name; bodies are bounded ([`MAX_BODY`]). `--memory` is shared out: a
+//! quarter for opening a version for the viewer, the rest, less the
+//! viewer's data it holds (32 bytes an atlas texel for a BTF, 16 for
+//! colour), for painting or the preview session, which never run at once. Every painted version is a
 //! `.quilt` beside the base (hidden, removed when the studio stops, and by
 //! the next studio on that base if the process died); the base is never
 //! written. A brush stroke is kept beside the base as
@@ -96,7 +99,17 @@ pub struct JobStatus {
     pub note: String,
     /// The last paint's error, if it failed.
     pub error: Option<String>,
+    /// The last change's time in the server: all of it, and the paint
+    /// alone (the rest rebuilds the viewer's data).
     pub seconds: f64,
+    pub paint_seconds: f64,
+}
+
+/// What opening a version for the viewer may use: a quarter of `--memory`
+/// (the rest is for painting; see `Studio::work_budget`).
+fn scene_budget(memory: MemoryBudget) -> MemoryBudget {
+    let [scene, _] = memory.split([1, 3]);
+    scene
 }
 
 /// A [`Progress`] that keeps the last stage and count for the page.
@@ -233,7 +246,7 @@ impl Studio {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "surface".into());
-        let payload = Payload::build(quilt, cfg.memory)?;
+        let payload = Payload::build(quilt, scene_budget(cfg.memory))?;
         let studio = Arc::new(Studio {
             base: quilt.to_path_buf(),
             folder,
@@ -335,10 +348,23 @@ impl Studio {
         }
     }
 
+    /// What a paint, a preview session or an export may use: three
+    /// quarters of `--memory`, less twice the viewer's data (the current
+    /// version's and, while it is rebuilt, the next one's), but at least an
+    /// eighth.
+    fn work_budget(&self) -> MemoryBudget {
+        let total = self.cfg.memory.bytes();
+        let held = {
+            let p = self.payload.read().unwrap_or_else(|p| p.into_inner());
+            (p.mesh.len() + p.texels.len() + p.basis.len()) as u64
+        };
+        MemoryBudget((total / 4 * 3).saturating_sub(2 * held).max(total / 8))
+    }
+
     /// Makes `path` (a version in the history) current and rebuilds the
     /// viewer's data.
     fn show(&self, path: &Path) -> Result<()> {
-        let payload = Payload::build(path, self.cfg.memory)?;
+        let payload = Payload::build(path, scene_budget(self.cfg.memory))?;
         *self.payload.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(payload);
         self.version.fetch_add(1, Ordering::SeqCst);
         Ok(())

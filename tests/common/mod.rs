@@ -5,6 +5,8 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
+
+pub mod cdp;
 use std::process::{Command, Output};
 
 use btfquilt::io::imageio::{self, PngDepth, RgbImage};

@@ -458,6 +458,13 @@ function setUniforms(p, w, h, pick) {
   }
 }
 
+// Waits until the GPU has drawn: reads one pixel back (gl.finish does not
+// wait in every browser).
+function sync() {
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(4));
+}
+
 const BACKGROUND = [0.02, 0.02, 0.025];
 const toSrgb = (v) => (v <= 0.0031308 ? v * 12.92 : 1.055 * Math.pow(v, 1 / 2.4) - 0.055);
 
@@ -585,7 +592,7 @@ async function change(path, body) {
     const r = await api(path, body || {});
     await loadSurface();
     draw();
-    gl.finish();
+    sync();
     studio.lastApplyMs = performance.now() - t0;
     setStatus(`${r.report || 'done'} (${(studio.lastApplyMs / 1000).toFixed(2)} s)`, 1);
   } catch (e) {
@@ -616,6 +623,7 @@ async function preview(hit) {
   const t0 = performance.now();
   try {
     const buf = await api('/api/preview', { uv: hit.uv, angle: Number($('angle').value), sample: Number($('sample').value) });
+    studio.lastPreviewFetchMs = performance.now() - t0;
     const head = new Uint32Array(buf, 0, 4);
     const [x0, y0, w, h] = head;
     const r = S.info.resolution;
@@ -632,7 +640,7 @@ async function preview(hit) {
       S.overlayOn = true;
     }
     draw();
-    gl.finish();
+    sync();
     studio.lastPreviewMs = performance.now() - t0;
     setStatus(`preview ${studio.lastPreviewMs.toFixed(0)} ms`, 0);
   } catch (e) {
@@ -799,7 +807,7 @@ function resize() {
 // Frames per second over `n` frames drawn back to back.
 studio.measureFps = (n) => {
   const t0 = performance.now();
-  for (let i = 0; i < n; i++) { draw(); gl.finish(); }
+  for (let i = 0; i < n; i++) { draw(); sync(); }
   return (n * 1000) / (performance.now() - t0);
 };
 studio.pick = (x, y) => pickAt(x, y);
@@ -828,7 +836,7 @@ async function main() {
   addEventListener('resize', resize);
   resize();
   draw();
-  gl.finish();
+  sync();
   drawLight();
   await pollStatus();
   setStatus('ready: drag to orbit, shift-drag to pan, wheel to zoom', 0);
