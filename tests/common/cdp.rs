@@ -2,6 +2,9 @@
 //! through `tungstenite`), for the studio's browser tests and measurements,
 //! and a raw HTTP/1.1 exchange.
 
+// each user (the tests, the studio bench) takes only part of it
+#![allow(dead_code)]
+
 use std::io::{BufRead, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::path::PathBuf;
