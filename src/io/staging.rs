@@ -56,7 +56,7 @@ fn file_name(dest: &Path) -> Result<String> {
 }
 
 /// Whether process `pid` is running, if this system can tell.
-fn process_alive(pid: u32) -> Option<bool> {
+pub(crate) fn process_alive(pid: u32) -> Option<bool> {
     let proc = Path::new("/proc");
     if !proc.join("self").exists() {
         return None;

@@ -1170,7 +1170,7 @@ fn dot_n(a: &[f32], b: &[f32]) -> f32 {
 /// The covered texel nearest to the continuous texel position `(xa, ya)`
 /// (texel centres at integers): the texel under it, else the nearest in up to
 /// [`TEXEL_SEARCH`] rings around it; with the offset from its centre.
-fn nearest_covered(
+pub(crate) fn nearest_covered(
     mut covered: impl FnMut(usize) -> bool,
     r: usize,
     xa: f32,

@@ -802,7 +802,6 @@ impl Synthesis {
             .collect();
         let fg: Vec<f32> = placed.iter().map(|&c| self.sample.mask_at(c)).collect();
         trace("placed");
-        let taken = fg.iter().filter(|&&m| m >= 0.5).count();
         if preview {
             let colours = self.sample.svd.preview()?;
             let r = self.surface.r;
@@ -840,6 +839,7 @@ impl Synthesis {
                 height: h,
                 data,
             };
+            let taken = fg.iter().filter(|&&m| m >= 0.5).count();
             return Ok((
                 taken,
                 Some(Projection {

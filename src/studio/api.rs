@@ -27,6 +27,7 @@ use tiny_http::{Header, Method, Request, Response, StatusCode};
 
 use super::{lock, JobProgress, JobStatus, Studio, MAX_BODY, MAX_VERSIONS};
 use crate::artifact::gim::{Gim, EMPTY};
+use crate::output::render::nearest_covered;
 use crate::paint::{PaintConfig, Verbatim};
 use crate::quilt::TileConfig;
 
@@ -188,7 +189,7 @@ fn route(studio: &Studio, req: &mut Request) -> Answer {
         (Method::Get, "/api/status") => json(&studio.status_json()),
         (Method::Post, "/api/pick") => {
             let r: At = body(req)?;
-            let (texel, point) = studio.pick(r.uv)?;
+            let (texel, point) = studio.pick(&studio.open_gim()?, r.uv)?;
             json(&serde_json::json!({ "texel": texel, "point": point }))
         }
         (Method::Post, "/api/paint") => {
@@ -293,34 +294,38 @@ impl Studio {
         })
     }
 
-    /// The covered texel nearest atlas position `uv` (0..1, v down) and its
-    /// point on the dense mesh.
-    fn pick(&self, uv: [f64; 2]) -> std::result::Result<(u32, [f32; 3]), Refusal> {
+    /// The surface's geometry image, opened for [`Studio::pick`].
+    fn open_gim(&self) -> crate::Result<Gim> {
+        Gim::open(&self.gim, self.work_budget())
+    }
+
+    /// The covered texel at atlas position `uv` (0..1, v down) as the
+    /// viewer draws it ([`nearest_covered`], within 3 texels) and its point
+    /// on the dense mesh.
+    fn pick(&self, gim: &Gim, uv: [f64; 2]) -> std::result::Result<(u32, [f32; 3]), Refusal> {
         if !uv.iter().all(|c| c.is_finite() && (0.0..=1.0).contains(c)) {
             return Err(Refusal(
                 400,
                 format!("uv [{}, {}] must lie in 0..1", uv[0], uv[1]),
             ));
         }
-        let gim = Gim::open(&self.gim, self.cfg.memory)?;
         let r = gim.resolution;
-        let (x, y) = (
-            ((uv[0] * r as f64) as usize).min(r - 1),
-            ((uv[1] * r as f64) as usize).min(r - 1),
-        );
-        let ring = 3;
-        let (x0, y0) = (x.saturating_sub(ring), y.saturating_sub(ring));
-        let (w, h) = ((x + ring + 1).min(r) - x0, (y + ring + 1).min(r) - y0);
+        let (xa, ya) = ((uv[0] * r as f64 - 0.5) as f32, (uv[1] * r as f64 - 0.5) as f32);
+        // the window nearest_covered searches: 3 rings round the texel under uv
+        let centre = |a: f32| a.round().clamp(0.0, (r - 1) as f32) as usize;
+        let (x0, y0) = (centre(xa).saturating_sub(3), centre(ya).saturating_sub(3));
+        let (w, h) = ((centre(xa) + 4).min(r) - x0, (centre(ya) + 4).min(r) - y0);
         let region = gim.texel_region(x0, y0, w, h)?;
-        let best = (0..w * h)
-            .filter(|&i| region.chart[i] != EMPTY)
-            .min_by_key(|&i| {
-                let (dx, dy) = ((x0 + i % w) as i64 - x as i64, (y0 + i / w) as i64 - y as i64);
-                (dx * dx + dy * dy, i)
-            })
+        let local = |t: usize| {
+            let (x, y) = (t % r, t / r);
+            (x >= x0 && y >= y0 && x < x0 + w && y < y0 + h).then(|| (y - y0) * w + x - x0)
+        };
+        let covered = |t: usize| local(t).is_some_and(|i| region.chart[i] != EMPTY);
+        let (t, _, _) = nearest_covered(covered, r, xa, ya)
             .ok_or_else(|| Refusal(422, "no surface under that point".into()))?;
-        let p = &region.position[best * 3..best * 3 + 3];
-        Ok((((y0 + best / w) * r + x0 + best % w) as u32, [p[0], p[1], p[2]]))
+        let i = local(t).expect("a covered texel lies in the window");
+        let p = &region.position[i * 3..i * 3 + 3];
+        Ok((t as u32, [p[0], p[1], p[2]]))
     }
 
     fn sample(&self, k: usize) -> std::result::Result<&(PathBuf, Option<PathBuf>), Refusal> {
@@ -431,6 +436,7 @@ impl Studio {
                 format!("give 1..={MAX_STROKE_POINTS} stroke points"),
             ));
         }
+        let gim = self.open_gim()?;
         let mut strokes = Vec::with_capacity(r.strokes.len());
         for (k, s) in r.strokes.iter().enumerate() {
             if !(s.radius.is_finite() && s.radius > 0.0) {
@@ -439,7 +445,7 @@ impl Studio {
                     format!("stroke point {k}: radius {} must be > 0", s.radius),
                 ));
             }
-            let (_, p) = self.pick(s.uv)?;
+            let (_, p) = self.pick(&gim, s.uv)?;
             strokes.push(StrokeSpec {
                 point: p.map(f64::from),
                 radius: s.radius,
@@ -482,7 +488,7 @@ impl Studio {
                 "the angle must be a finite number of degrees".into(),
             ));
         }
-        let (_, at) = self.pick(r.uv)?;
+        let (_, at) = self.pick(&self.open_gim()?, r.uv)?;
         let v = Verbatim { at, angle: r.angle };
         let mut cfg = self.paint_config(r.sample, None)?;
         cfg.verbatim = Some(v);

@@ -321,18 +321,17 @@ impl Studio {
     }
 
     /// Removes the work files of studios on this base whose process is
-    /// gone (where the system tells: on Linux, `/proc`).
+    /// gone (where the system tells: [`crate::io::staging::process_alive`]).
     fn remove_stale_work_files(&self) {
-        if !Path::new("/proc/self").exists() {
-            return;
-        }
         let prefix = format!(".{}.studio-", self.stem);
         self.remove_matching(|name| {
             let Some(rest) = name.strip_prefix(&prefix) else {
                 return false;
             };
             let pid = rest.split('-').next().and_then(|p| p.parse::<u32>().ok());
-            pid.is_some_and(|p| p != std::process::id() && !Path::new(&format!("/proc/{p}")).exists())
+            pid.is_some_and(|p| {
+                p != std::process::id() && crate::io::staging::process_alive(p) == Some(false)
+            })
         });
     }
 

@@ -39,16 +39,16 @@ fn square_ply(dir: &Path) -> PathBuf {
 /// A decorated flat square: (gim, sample, its foreground mask, base quilt).
 /// The sample is a brick crop; its foreground a disk in one corner, which
 /// the background tiling keeps out.
-struct Scene {
+pub(crate) struct Scene {
     _dir: tempfile::TempDir,
-    dir: PathBuf,
+    pub(crate) dir: PathBuf,
     gim: PathBuf,
     sample: PathBuf,
     mask: PathBuf,
-    base: PathBuf,
+    pub(crate) base: PathBuf,
 }
 
-fn scene() -> Scene {
+pub(crate) fn scene() -> Scene {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path().to_path_buf();
     let g = d.join("square.gim");

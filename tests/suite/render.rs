@@ -5,7 +5,7 @@
 //! Inputs are tiny: a flat 8×8-quad square on a 64² atlas tiled with a 32²
 //! generated bricks BTF on a 4φ×3θ grid of views and lights (144 pairs).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use btfquilt::artifact::btf::{self, Angles};
 use btfquilt::artifact::gim::Gim;
@@ -32,17 +32,10 @@ struct Fixture {
     quilt: PathBuf,
 }
 
-/// Square + 64² atlas + 32² bricks BTF (4×3 views × 4×3 lights) + its
-/// factorization + a quilt, all in a fresh temporary folder.
-fn fixture() -> Fixture {
-    let dir = tempfile::tempdir().unwrap();
-    let gim_path = dir.path().join("square.gim");
-    let cfg = AtlasConfig {
-        resolution: ATLAS,
-        ..AtlasConfig::default()
-    };
-    atlas::build_gim(&common::square_obj(dir.path()), &gim_path, &cfg, &Silent).unwrap();
-    let btf_path = dir.path().join("bricks.btf");
+/// A 32² generated bricks BTF (4×3 views × 4×3 lights) factorized into 12
+/// terms: `dir/bricks.svd` (beside `dir/bricks.btf`).
+pub(crate) fn bricks_svd(dir: &Path) -> PathBuf {
+    let btf_path = dir.join("bricks.btf");
     let grid = btf::grid(4, 3, 75.0);
     let g = GenerateConfig {
         family: Family::Bricks,
@@ -56,12 +49,26 @@ fn fixture() -> Fixture {
         ..GenerateConfig::default()
     };
     generate::generate_btf(&g, &btf_path, &Silent).unwrap();
-    let svd = dir.path().join("bricks.svd");
+    let svd = dir.join("bricks.svd");
     let f = FactorizeConfig {
         terms: Some(12),
         ..FactorizeConfig::default()
     };
     factorize::factorize(&btf_path, &svd, &f, &Silent).unwrap();
+    svd
+}
+
+/// Square + 64² atlas + 32² bricks BTF (4×3 views × 4×3 lights) + its
+/// factorization + a quilt, all in a fresh temporary folder.
+fn fixture() -> Fixture {
+    let dir = tempfile::tempdir().unwrap();
+    let gim_path = dir.path().join("square.gim");
+    let cfg = AtlasConfig {
+        resolution: ATLAS,
+        ..AtlasConfig::default()
+    };
+    atlas::build_gim(&common::square_obj(dir.path()), &gim_path, &cfg, &Silent).unwrap();
+    let svd = bricks_svd(dir.path());
     let quilt_path = dir.path().join("square.quilt");
     let t = TileConfig {
         patch_radius: Some(12),

@@ -8,11 +8,8 @@
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
-use btfquilt::artifact::btf;
 use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::container::MemoryBudget;
-use btfquilt::factorize::{self, FactorizeConfig};
-use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::io::imageio::{self, RgbImage};
 use btfquilt::output::render::{self, Camera, Light, RenderConfig};
 use btfquilt::progress::Silent;
@@ -20,43 +17,8 @@ use btfquilt::quilt::{self, TileConfig};
 use btfquilt::studio::{ServeConfig, Server, Studio, MAX_BODY};
 use serde_json::{json, Value};
 
+use crate::common;
 use crate::common::cdp::{chromium, get, raw, Browser};
-use crate::common::{self, write_mask_png};
-
-/// A decorated flat square to paint on: a brick crop whose foreground is a
-/// disk in one corner, kept out of the tiling (as in `paint`'s tests).
-struct PaintScene {
-    _dir: tempfile::TempDir,
-    dir: PathBuf,
-    base: PathBuf,
-}
-
-fn paint_scene() -> PaintScene {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path().to_path_buf();
-    let g = d.join("square.gim");
-    let cfg = AtlasConfig {
-        resolution: 128,
-        ..AtlasConfig::default()
-    };
-    atlas::build_gim(&common::square_obj(&d), &g, &cfg, &Silent).unwrap();
-    let sample = common::brick_crop(&d, 96, Some((100, 100)));
-    let mask = d.join("mask.png");
-    let disk = |x: usize, y: usize| (x as f32 - 22.0).powi(2) + (y as f32 - 22.0).powi(2) < 16.0f32.powi(2);
-    write_mask_png(&mask, 96, 96, disk);
-    let base = d.join("base.quilt");
-    let tc = TileConfig {
-        sample_mask: Some(mask),
-        patch_radius: Some(12),
-        ..TileConfig::default()
-    };
-    quilt::tile(&g, &sample, &base, &tc, &Silent).unwrap();
-    PaintScene {
-        _dir: dir,
-        dir: d,
-        base,
-    }
-}
 
 fn start(quilt: &Path) -> Server {
     let cfg = ServeConfig {
@@ -128,7 +90,7 @@ fn painting_figures(q: &Path) -> (f64, f64) {
 
 #[test]
 fn the_studio_refuses_foreign_hosts_and_origins_big_bodies_and_bad_requests() {
-    let s = paint_scene();
+    let s = crate::paint::scene();
     let base_bytes = std::fs::read(&s.base).unwrap();
     let server = start(&s.base);
     let addr = server.addr();
@@ -273,7 +235,7 @@ fn the_studio_refuses_foreign_hosts_and_origins_big_bodies_and_bad_requests() {
 
 #[test]
 fn the_studio_paints_undoes_redoes_saves_and_exports() {
-    let s = paint_scene();
+    let s = crate::paint::scene();
     let base_bytes = std::fs::read(&s.base).unwrap();
     let server = start(&s.base);
     let addr = server.addr();
@@ -415,8 +377,8 @@ fn drawn(img: &RgbImage) -> f64 {
     n as f64 / (img.width * img.height) as f64
 }
 
-/// Spot (the shipped mesh) on a 128² atlas tiled with a 32² generated
-/// bricks BTF (4×3 views × 4×3 lights, 12 terms).
+/// Spot (the shipped mesh) on a 128² atlas tiled with render's 32²
+/// generated bricks BTF ([`crate::render::bricks_svd`]).
 fn btf_spot(dir: &Path) -> PathBuf {
     let g = dir.join("spot.gim");
     let cfg = AtlasConfig {
@@ -425,26 +387,7 @@ fn btf_spot(dir: &Path) -> PathBuf {
     };
     let mesh = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj");
     atlas::build_gim(&mesh, &g, &cfg, &Silent).unwrap();
-    let b = dir.join("bricks.btf");
-    let grid = btf::grid(4, 3, 75.0);
-    let gen = GenerateConfig {
-        family: Family::Bricks,
-        imperfection: Imperfection::None,
-        width: 32,
-        height: 32,
-        views: grid.clone(),
-        lights: grid,
-        seed: 2,
-        block: 32,
-        ..GenerateConfig::default()
-    };
-    generate::generate_btf(&gen, &b, &Silent).unwrap();
-    let svd = dir.join("bricks.svd");
-    let f = FactorizeConfig {
-        terms: Some(12),
-        ..FactorizeConfig::default()
-    };
-    factorize::factorize(&b, &svd, &f, &Silent).unwrap();
+    let svd = crate::render::bricks_svd(dir);
     let q = dir.join("spot.quilt");
     quilt::tile(&g, &svd, &q, &TileConfig::default(), &Silent).unwrap();
     q
@@ -529,7 +472,7 @@ fn in_chromium_a_brush_stroke_paints_the_region_and_undo_walks_back() {
         eprintln!("skipped: no Chromium on PATH (Debian: apt-get install chromium)");
         return;
     }
-    let s = paint_scene();
+    let s = crate::paint::scene();
     let server = start(&s.base);
     let (w, h) = (800, 520);
     // looking straight down on the square, its centre at the canvas centre
