@@ -585,8 +585,11 @@ fn write_svd(
     let mut c = ContainerWriter::create(out, KIND)?;
     c.set_level(cfg.level);
     c.set_seed(cfg.seed);
-    c.add_input(&input.display().to_string(), btf.container().content_hash());
-    c.set_param("source", Param::Text(input.display().to_string()));
+    // the source is named relative to the factorization's folder, so its
+    // bytes do not depend on the working directory it was made from
+    let source = crate::io::staging::relative_to_folder_of(out, input);
+    c.add_input(&source, btf.container().content_hash());
+    c.set_param("source", Param::Text(source));
     c.set_param("source_kind", Param::Text(source_kind.into()));
     c.set_param("width", Param::Int(w as i64));
     c.set_param("height", Param::Int(h as i64));

@@ -53,6 +53,7 @@
 
 pub mod artifact;
 pub mod atlas;
+pub mod batch;
 
 pub mod container;
 pub mod demo;

@@ -11,6 +11,7 @@ use btfquilt::artifact::btf::{self, Angles, Btf};
 use btfquilt::artifact::gim::Gim;
 use btfquilt::artifact::svd::SvdArtifact;
 use btfquilt::atlas::{self, AtlasConfig};
+use btfquilt::batch;
 use btfquilt::container::{Container, MemoryBudget};
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
@@ -381,6 +382,37 @@ enum Command {
         #[command(flatten)]
         res: Resources,
     },
+    /// Run a batch plan (meshes × samples × seeds × sample widths, renders and
+    /// exports) as content-addressed jobs: finished jobs are skipped, shared
+    /// atlases and factorizations made once.
+    Batch {
+        /// The plan (TOML; see docs/batch.md).
+        plan: PathBuf,
+        /// Output folder: inputs/, shared/, jobs/KEY/, manifest.jsonl.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Run shard I of N (0-based): a deterministic contiguous 1/N of the jobs.
+        #[arg(long, value_parser = parse_shard, default_value = "0/1")]
+        shard: batch::Shard,
+        /// Run only this job (its 32-digit key, as --list prints it); repeatable.
+        #[arg(long, value_parser = parse_key)]
+        job: Vec<batch::Key>,
+        /// What to run: the jobs (with the shared artifacts they need) or only the
+        /// shard's part of the shared stages.
+        #[arg(long, value_enum, default_value_t = batch::BatchConfig::default().stages)]
+        stages: batch::Stages,
+        /// Print the shard's jobs (key, done or todo, what) instead of running them.
+        #[arg(long)]
+        list: bool,
+        /// With --list: one JSON object a line (key, status, folder, what).
+        #[arg(long, requires = "list")]
+        json: bool,
+        /// Append the manifest lines here instead of OUTPUT/manifest.jsonl.
+        #[arg(long)]
+        manifest: Option<PathBuf>,
+        #[command(flatten)]
+        res: Resources,
+    },
     /// Replay a painted surface's paint log onto its base quilt.
     Replay {
         file: PathBuf,
@@ -520,6 +552,17 @@ fn bare(e: impl std::fmt::Display, flag: &str, s: &str) -> String {
         Some(rest) => rest.to_string(),
         None => m,
     }
+}
+
+/// `--shard I/N`.
+fn parse_shard(s: &str) -> std::result::Result<batch::Shard, String> {
+    batch::Shard::parse(s).map_err(|e| bare(e, "--shard", s))
+}
+
+/// `--job KEY`: 32 hexadecimal digits.
+fn parse_key(s: &str) -> std::result::Result<batch::Key, String> {
+    batch::Key::parse(s)
+        .ok_or_else(|| "expected a job key: 32 hexadecimal digits, as `batch --list` prints".into())
 }
 
 /// `--memory`: a size like 512MiB or 2GiB.
@@ -890,6 +933,59 @@ fn run(cli: Cli) -> Result<()> {
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;
             say!("wrote {}: {report}", output.display());
+        }
+        Command::Batch {
+            plan,
+            output,
+            shard,
+            job,
+            stages,
+            list,
+            json,
+            manifest,
+            res,
+        } => {
+            let (memory, bars) = res.apply()?;
+            let plan = batch::Plan::load(&plan)?;
+            let cfg = batch::BatchConfig {
+                shard,
+                jobs: job,
+                stages,
+                manifest,
+                memory,
+            };
+            if list {
+                for (job, status) in batch::selected_jobs(&plan, &output, &cfg)? {
+                    let what = job.describe(&plan);
+                    if json {
+                        let line = serde_json::json!({
+                            "job": job.key.to_string(),
+                            "status": status,
+                            "folder": job.dir(),
+                            "what": what,
+                        });
+                        say!("{line}");
+                    } else {
+                        let status = serde_json::to_value(status)?;
+                        say!("{}  {:4}  {what}", job.key, status.as_str().unwrap_or_default());
+                    }
+                }
+                return Ok(());
+            }
+            let report = batch::run(&plan, &output, &cfg, &bars)?;
+            say!("{}: {report}", output.display());
+            if !report.failed.is_empty() {
+                for (key, why) in &report.failed {
+                    eprintln!("failed: {key}: {why}");
+                }
+                bail!(
+                    "{} of the batch's jobs or shared stages failed (see {})",
+                    report.failed.len(),
+                    cfg.manifest
+                        .unwrap_or_else(|| output.join("manifest.jsonl"))
+                        .display()
+                );
+            }
         }
         Command::Serve {
             file,

@@ -4,7 +4,7 @@
 //! direction pairs, the view and light directions, and a preview image. The
 //! writer is [`crate::factorize::factorize`].
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use half::f16;
 
@@ -179,7 +179,10 @@ impl SvdArtifact {
         let recorded = meta.inputs.first().map(|i| i.hash);
         let source = match (original, meta.param("source")) {
             (Some(p), _) => p.to_path_buf(),
-            (None, Some(Param::Text(s))) => PathBuf::from(s),
+            (None, Some(Param::Text(s))) => {
+                // recorded relative to the factorization's folder
+                crate::io::staging::resolve_in_folder_of(self.container.path(), Path::new(s))
+            }
             _ => return Ok(None),
         };
         if !source.exists() {

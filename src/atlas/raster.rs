@@ -541,11 +541,14 @@ pub fn build_gim(
     // report speak the user's
     let texel_size = texel_size * unscale;
     write_mesh_arrays(&mut w, &mesh, &fr, &charts, &links, &zip_tris)?;
-    w.add_input(&mesh_path.display().to_string(), hash_file(mesh_path)?);
+    // inputs are named relative to the geometry image's folder, so its bytes
+    // do not depend on the working directory it was made from
+    let source = crate::io::staging::relative_to_folder_of(out, mesh_path);
+    w.add_input(&source, hash_file(mesh_path)?);
     if let Some(p) = &cfg.field_keys {
-        w.add_input(&p.display().to_string(), hash_file(p)?);
+        w.add_input(&crate::io::staging::relative_to_folder_of(out, p), hash_file(p)?);
     }
-    w.set_param("source", Param::Text(mesh_path.display().to_string()));
+    w.set_param("source", Param::Text(source));
     w.set_param("resolution", Param::Int(r as i64));
     w.set_param("gutter", Param::Int(cfg.gutter as i64));
     w.set_param("charts", Param::Int(charts.len() as i64));

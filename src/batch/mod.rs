@@ -1,0 +1,547 @@
+//! `btfquilt batch PLAN -o OUT`: content-addressed batch jobs for dataset
+//! generation.
+//!
+//! A plan ([`plan`]) expands into jobs, one decorated surface each. The
+//! output folder holds:
+//!
+//! | path | what |
+//! |---|---|
+//! | `inputs/HASH.EXT` | a copy of each input, named by its content hash |
+//! | `shared/atlas-KEY.gim` | one geometry image per mesh and resolution |
+//! | `shared/sample-KEY.svd` | one factorization per sample |
+//! | `jobs/KEY/` | a job's outputs and its `job.json` |
+//! | `manifest.jsonl` | a line per job run or skipped: inputs, hashes, timings, outputs |
+//!
+//! Every artifact refers to the copies in `inputs/` and `shared/` by paths
+//! relative to itself, so the folder's bytes depend only on the plan's
+//! content, never on where its inputs or the folder lie; the folder can be
+//! moved or merged with another run's. A job folder is built under a
+//! hidden name and renamed into place when complete, so a folder that
+//! exists is finished: a job whose folder exists is skipped, and a run
+//! killed part-way leaves only a hidden partial folder, removed by the next
+//! run. Shared artifacts are staged the same way; two processes that make
+//! the same one write the same bytes.
+//!
+//! [`Shard`] splits the jobs (or, with [`Stages::Shared`], the shared
+//! stages) into deterministic contiguous parts, so N processes or machines
+//! given `--shard 0/N` … `--shard N-1/N` together run every job exactly
+//! once and never write the same job folder.
+
+pub mod plan;
+
+use std::collections::HashMap;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+
+pub use plan::{Job, Key, Plan, Shard, SharedStage};
+
+use crate::atlas::{self, AtlasConfig};
+use crate::container::MemoryBudget;
+use crate::factorize::{self, FactorizeConfig};
+use crate::io::staging::{self, StagedDir};
+use crate::output::export::{self, ExportOptions, MeshFormat};
+use crate::output::{bake, render};
+use crate::progress::Progress;
+use crate::quilt;
+use crate::{Error, Result};
+
+/// The name of a job's decorated surface in its folder.
+pub const QUILT: &str = "decorated.quilt";
+/// The job's description, written last into its folder.
+pub const JOB_JSON: &str = "job.json";
+
+/// Which stages [`run`] runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Stages {
+    /// The shard's jobs, with the shared artifacts they need.
+    #[default]
+    All,
+    /// Only the shard's part of the shared stages (geometry images and
+    /// factorizations), for a cluster to make them once before the jobs.
+    Shared,
+}
+
+/// Options of [`run`].
+#[derive(Clone, Debug)]
+pub struct BatchConfig {
+    pub shard: Shard,
+    /// Run only these jobs (all of them must be in the plan).
+    pub jobs: Vec<Key>,
+    pub stages: Stages,
+    /// Where the manifest lines go (default `OUT/manifest.jsonl`).
+    pub manifest: Option<PathBuf>,
+    /// Budget of each stage.
+    pub memory: MemoryBudget,
+}
+
+impl Default for BatchConfig {
+    fn default() -> Self {
+        BatchConfig {
+            shard: Shard::ALL,
+            jobs: Vec::new(),
+            stages: Stages::All,
+            manifest: None,
+            memory: MemoryBudget::default(),
+        }
+    }
+}
+
+/// What [`run`] did.
+#[derive(Clone, Debug, Default)]
+pub struct BatchReport {
+    pub done: usize,
+    pub skipped: usize,
+    pub failed: Vec<(Key, String)>,
+    /// Shared artifacts made by this run.
+    pub shared_made: usize,
+    pub seconds: f64,
+}
+
+impl std::fmt::Display for BatchReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} jobs done, {} already done, {} failed, {} shared artifacts made, {:.1} s",
+            self.done,
+            self.skipped,
+            self.failed.len(),
+            self.shared_made,
+            self.seconds
+        )
+    }
+}
+
+/// A job's state in the output folder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JobStatus {
+    Done,
+    Todo,
+}
+
+/// The jobs [`run`] would take with `cfg`, each with whether its folder
+/// under `out` is complete.
+pub fn selected_jobs(plan: &Plan, out: &Path, cfg: &BatchConfig) -> Result<Vec<(Job, JobStatus)>> {
+    let all = plan.jobs();
+    let chosen: Vec<Job> = if cfg.jobs.is_empty() {
+        all[cfg.shard.range(all.len())].to_vec()
+    } else {
+        let mut by_key: HashMap<Key, &Job> = all.iter().map(|j| (j.key, j)).collect();
+        cfg.jobs
+            .iter()
+            .map(|k| {
+                by_key.remove(k).cloned().ok_or_else(|| {
+                    Error::input(&plan.path, format!("has no job {k} (or it was named twice)"))
+                })
+            })
+            .collect::<Result<_>>()?
+    };
+    Ok(chosen
+        .into_iter()
+        .map(|j| {
+            let status = if out.join(j.dir()).is_dir() {
+                JobStatus::Done
+            } else {
+                JobStatus::Todo
+            };
+            (j, status)
+        })
+        .collect())
+}
+
+/// Runs the plan's jobs selected by `cfg` into the folder `out`. A job that
+/// fails is reported (and in the manifest) and the others go on; an error
+/// is returned only when the batch cannot run at all.
+pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) -> Result<BatchReport> {
+    let start = Instant::now();
+    for (role, p) in input_paths(plan) {
+        if p.starts_with(out) || staging::same_file(p, out) {
+            return Err(Error::input(
+                out,
+                format!(
+                    "holds the plan's {role} {}: give an output folder apart from the inputs",
+                    p.display()
+                ),
+            ));
+        }
+    }
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let mut runner = Runner {
+        plan,
+        out,
+        cfg,
+        progress,
+        failed_shared: HashMap::new(),
+        manifest: Manifest::open(&cfg.manifest.clone().unwrap_or_else(|| out.join("manifest.jsonl")))?,
+        report: BatchReport::default(),
+    };
+    match cfg.stages {
+        Stages::Shared => {
+            let stages = plan.shared_stages();
+            let mine = &stages[cfg.shard.range(stages.len())];
+            for (i, stage) in mine.iter().enumerate() {
+                progress.note(&format!("shared {}/{}: {}", i + 1, mine.len(), stage.file()));
+                if let Err(e) = runner.shared(stage) {
+                    runner.report.failed.push((stage.key(), e.to_string()));
+                }
+            }
+        }
+        Stages::All => {
+            let jobs = selected_jobs(plan, out, cfg)?;
+            let n = jobs.len();
+            for (i, (job, status)) in jobs.into_iter().enumerate() {
+                let what = format!("job {}/{n} {} ({})", i + 1, job.key, job.describe(plan));
+                if status == JobStatus::Done {
+                    progress.note(&format!("{what}: already done"));
+                    runner.report.skipped += 1;
+                    runner.record(&job, "skipped", &Timings::default(), None)?;
+                    continue;
+                }
+                let mut t = Timings::default();
+                let result = runner.job(&job, &mut t);
+                t.total = t.start.map_or(0.0, |s| s.elapsed().as_secs_f64());
+                match result {
+                    Ok(()) => {
+                        progress.note(&format!("{what}: done in {:.1} s", t.total));
+                        runner.report.done += 1;
+                        runner.record(&job, "done", &t, None)?;
+                    }
+                    Err(e) => {
+                        progress.note(&format!("{what}: failed: {e}"));
+                        let msg = e.to_string();
+                        runner.record(&job, "failed", &t, Some(&msg))?;
+                        runner.report.failed.push((job.key, msg));
+                    }
+                }
+            }
+        }
+    }
+    runner.report.seconds = start.elapsed().as_secs_f64();
+    Ok(runner.report)
+}
+
+/// Every input file of the plan with its role.
+fn input_paths(plan: &Plan) -> Vec<(&'static str, &Path)> {
+    let mut v: Vec<(&'static str, &Path)> = plan.meshes.iter().map(|m| ("mesh", m.path.as_path())).collect();
+    for s in &plan.samples {
+        v.push(("sample", &s.input.path));
+        if let Some(m) = &s.mask {
+            v.push(("mask", &m.path));
+        }
+    }
+    v.push(("plan", &plan.path));
+    v
+}
+
+/// Seconds spent per stage on one job.
+#[derive(Clone, Debug, Default, Serialize)]
+struct Timings {
+    #[serde(skip)]
+    start: Option<Instant>,
+    /// Shared artifacts this job had to make (0 when another job had).
+    shared: f64,
+    tile: f64,
+    bake: f64,
+    render: f64,
+    export: f64,
+    total: f64,
+}
+
+/// A manifest: JSON lines appended with one write each, so processes
+/// sharing it on one machine do not interleave their lines.
+struct Manifest {
+    path: PathBuf,
+    file: std::fs::File,
+}
+
+impl Manifest {
+    fn open(path: &Path) -> Result<Manifest> {
+        std::fs::create_dir_all(staging::parent_dir(path)).map_err(|e| Error::io(path, e))?;
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(path)
+            .map_err(|e| Error::io(path, e))?;
+        Ok(Manifest {
+            path: path.to_path_buf(),
+            file,
+        })
+    }
+
+    fn append<T: Serialize>(&mut self, line: &T) -> Result<()> {
+        let mut text = serde_json::to_vec(line).map_err(|e| Error::io(&self.path, e.into()))?;
+        text.push(b'\n');
+        self.file.write_all(&text).map_err(|e| Error::io(&self.path, e))
+    }
+}
+
+/// An input as the manifest records it: where it was read from and what it is.
+#[derive(Serialize)]
+struct ManifestInput<'a> {
+    path: String,
+    #[serde(flatten)]
+    id: &'a plan::InputId,
+}
+
+/// An output file of a job.
+#[derive(Serialize)]
+struct ManifestOutput {
+    file: String,
+    bytes: u64,
+}
+
+#[derive(Serialize)]
+struct ManifestLine<'a> {
+    job: Key,
+    status: &'a str,
+    folder: String,
+    shard: String,
+    host: String,
+    pid: u32,
+    mesh: ManifestInput<'a>,
+    sample: ManifestInput<'a>,
+    mask: Option<ManifestInput<'a>>,
+    resolution: usize,
+    seed: u64,
+    sample_width: Option<f64>,
+    seconds: &'a Timings,
+    outputs: Vec<ManifestOutput>,
+    error: Option<&'a str>,
+}
+
+/// This machine's name (for the manifest), or "" where it cannot be read.
+fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .or_else(|_| std::fs::read_to_string("/etc/hostname"))
+        .map(|s| s.trim().to_string())
+        .unwrap_or_default()
+}
+
+/// Files under `dir` (relative, sorted) with their sizes.
+fn files_under(dir: &Path) -> Vec<ManifestOutput> {
+    fn walk(root: &Path, dir: &Path, out: &mut Vec<ManifestOutput>) {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                walk(root, &p, out);
+            } else if let Ok(m) = e.metadata() {
+                let rel = p.strip_prefix(root).unwrap_or(&p);
+                out.push(ManifestOutput {
+                    file: rel.to_string_lossy().replace('\\', "/"),
+                    bytes: m.len(),
+                });
+            }
+        }
+    }
+    let mut v = Vec::new();
+    walk(dir, dir, &mut v);
+    v.sort_by(|a, b| a.file.cmp(&b.file));
+    v
+}
+
+/// An input's manifest entry.
+fn input(i: &plan::Input) -> ManifestInput<'_> {
+    ManifestInput {
+        path: i.path.display().to_string(),
+        id: &i.id,
+    }
+}
+
+/// What [`run`] carries from job to job.
+struct Runner<'a> {
+    plan: &'a Plan,
+    out: &'a Path,
+    cfg: &'a BatchConfig,
+    progress: &'a dyn Progress,
+    /// Shared stages that failed in this run, with their error (not tried again).
+    failed_shared: HashMap<Key, String>,
+    manifest: Manifest,
+    report: BatchReport,
+}
+
+impl Runner<'_> {
+    fn record(&mut self, job: &Job, status: &str, t: &Timings, error: Option<&str>) -> Result<()> {
+        let plan = self.plan;
+        let sample = &plan.samples[job.sample];
+        let folder = self.out.join(job.dir());
+        let outputs = if status == "failed" {
+            Vec::new()
+        } else {
+            files_under(&folder)
+        };
+        let line = ManifestLine {
+            job: job.key,
+            status,
+            folder: job.dir(),
+            shard: self.cfg.shard.to_string(),
+            host: host_name(),
+            pid: std::process::id(),
+            mesh: input(&plan.meshes[job.mesh]),
+            sample: input(&sample.input),
+            mask: sample.mask.as_ref().map(input),
+            resolution: job.resolution,
+            seed: job.seed,
+            sample_width: job.sample_width,
+            seconds: t,
+            outputs,
+            error,
+        };
+        self.manifest.append(&line)
+    }
+
+    /// Copies an input into `inputs/` under its content name, unless there.
+    fn stage_input(&self, input: &plan::Input) -> Result<PathBuf> {
+        let dest = self.out.join(&input.id.file);
+        let present = std::fs::metadata(&dest).is_ok_and(|m| m.len() == input.id.bytes);
+        if !present {
+            let dir = staging::parent_dir(&dest);
+            std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+            let tmp = staging::staged_file(&dest)?;
+            std::fs::copy(&input.path, tmp.path()).map_err(|e| Error::io(&input.path, e))?;
+            let (bytes, hash) = crate::container::file_identity(tmp.path())?;
+            if bytes != input.id.bytes || format!("{hash:016x}") != input.id.hash {
+                return Err(Error::input(
+                    &input.path,
+                    "changed while the batch ran: run the batch again",
+                ));
+            }
+            tmp.persist(&dest).map_err(|e| Error::io(&dest, e.error))?;
+        }
+        Ok(dest)
+    }
+
+    /// Makes a shared artifact unless it exists; whether it was made.
+    fn shared(&mut self, stage: &SharedStage) -> Result<bool> {
+        let dest = self.out.join(stage.file());
+        if dest.is_file() {
+            return Ok(false);
+        }
+        if let Some(e) = self.failed_shared.get(&stage.key()) {
+            return Err(Error::Config(e.clone()));
+        }
+        let made = self.make_shared(stage, &dest);
+        match made {
+            Ok(()) => {
+                self.report.shared_made += 1;
+                Ok(true)
+            }
+            Err(e) => {
+                self.failed_shared.insert(stage.key(), e.to_string());
+                Err(e)
+            }
+        }
+    }
+
+    fn make_shared(&self, stage: &SharedStage, dest: &Path) -> Result<()> {
+        let dir = staging::parent_dir(dest);
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        match *stage {
+            SharedStage::Atlas { mesh, resolution, .. } => {
+                let mesh_file = self.stage_input(&self.plan.meshes[mesh])?;
+                let cfg = AtlasConfig {
+                    resolution,
+                    gutter: self.plan.gutter,
+                    ..AtlasConfig::default()
+                };
+                atlas::build_gim(&mesh_file, dest, &cfg, self.progress)?;
+            }
+            SharedStage::Factorize { sample, .. } => {
+                let sample_file = self.stage_input(&self.plan.samples[sample].input)?;
+                let cfg = FactorizeConfig {
+                    terms: self.plan.terms,
+                    memory: self.cfg.memory,
+                    ..FactorizeConfig::default()
+                };
+                factorize::factorize(&sample_file, dest, &cfg, self.progress)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Runs one job into its staged folder and renames it into place.
+    fn job(&mut self, job: &Job, t: &mut Timings) -> Result<()> {
+        let plan = self.plan;
+        let budget = self.cfg.memory;
+        t.start = Some(Instant::now());
+        let lap = Instant::now();
+        self.shared(&job.atlas)?;
+        let sample_file = match &job.factorization {
+            Some(f) => {
+                self.shared(f)?;
+                self.out.join(f.file())
+            }
+            None => self.stage_input(&plan.samples[job.sample].input)?,
+        };
+        let mask = match &plan.samples[job.sample].mask {
+            Some(m) => Some(self.stage_input(m)?),
+            None => None,
+        };
+        t.shared = lap.elapsed().as_secs_f64();
+
+        let dest = self.out.join(job.dir());
+        let stage = StagedDir::new(&dest, None)?;
+        let dir = stage.path().to_path_buf();
+        let quilt_path = dir.join(QUILT);
+
+        let lap = Instant::now();
+        let cfg = quilt::TileConfig {
+            memory: budget,
+            sample_mask: mask,
+            ..plan::tile_config(&plan.tile, job.seed, job.sample_width)
+        };
+        quilt::tile(
+            &self.out.join(job.atlas.file()),
+            &sample_file,
+            &quilt_path,
+            &cfg,
+            self.progress,
+        )?;
+        t.tile = lap.elapsed().as_secs_f64();
+
+        if plan.outputs.bake {
+            let lap = Instant::now();
+            bake::bake(&quilt_path, None, &dir.join("baked.png"), budget)?;
+            t.bake = lap.elapsed().as_secs_f64();
+        }
+        let lap = Instant::now();
+        for r in &plan.renders {
+            render::render(&quilt_path, &r.config(plan), &dir.join(&r.file), budget)?;
+        }
+        t.render = lap.elapsed().as_secs_f64();
+        if plan.outputs.gltf || plan.outputs.btf {
+            let lap = Instant::now();
+            let opts = ExportOptions {
+                mesh: plan.outputs.gltf.then(|| (MeshFormat::Gltf, dir.join("gltf"))),
+                btf: plan.outputs.btf.then(|| dir.join("surface-btf")),
+                sample: None,
+                budget,
+            };
+            export::export(&quilt_path, &opts)?;
+            t.export = lap.elapsed().as_secs_f64();
+        }
+        #[derive(Serialize)]
+        struct JobJson<'a> {
+            job: Key,
+            atlas: String,
+            sample_file: String,
+            #[serde(flatten)]
+            spec: &'a plan::JobSpec,
+        }
+        let text = serde_json::to_string_pretty(&JobJson {
+            job: job.key,
+            atlas: job.atlas.file(),
+            sample_file: job.sample_file(),
+            spec: &job.spec,
+        })
+        .map_err(|e| Error::io(dir.join(JOB_JSON), e.into()))?;
+        std::fs::write(dir.join(JOB_JSON), text + "\n").map_err(|e| Error::io(dir.join(JOB_JSON), e))?;
+        stage.commit()?;
+        Ok(())
+    }
+}
