@@ -1,0 +1,410 @@
+//! `btfquilt batch`: content-addressed jobs, shards, resuming, the manifest
+//! and bad plans.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use crate::common::{self, btfquilt, fails_clearly, ok, s};
+
+/// A plan over the flat square at two resolutions, two samples (crops of
+/// the brick photo) and two seeds: 8 jobs, each with two renders and a glTF.
+fn plan_dir() -> (tempfile::TempDir, PathBuf) {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path().join("in");
+    std::fs::create_dir(&dir).unwrap();
+    common::square_obj(&dir);
+    let a = common::brick_crop(&dir, 40, Some((100, 100)));
+    std::fs::rename(a, dir.join("a.png")).unwrap();
+    let b = common::brick_crop(&dir, 40, Some((300, 200)));
+    std::fs::rename(b, dir.join("b.png")).unwrap();
+    let plan = dir.join("plan.toml");
+    std::fs::write(
+        &plan,
+        r#"
+[[mesh]]
+path = "square.obj"
+[[sample]]
+path = "a.png"
+[[sample]]
+path = "b.png"
+name = "other"
+[atlas]
+resolutions = [64, 80]
+[tile]
+seeds = [1, 2]
+[render]
+width = 64
+height = 48
+lights = ["0.4,0.8,0.6", "-0.6,0.3,0.7,2"]
+[outputs]
+gltf = true
+"#,
+    )
+    .unwrap();
+    (d, plan)
+}
+
+/// Every file under `dir` but the manifests, with its bytes, by relative path.
+fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            let rel = p.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+            if p.is_dir() {
+                walk(root, &p, out);
+            } else if !rel.ends_with(".jsonl") {
+                out.insert(rel, std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    let mut m = BTreeMap::new();
+    walk(dir, dir, &mut m);
+    m
+}
+
+/// Asserts two output trees hold the same files with the same bytes.
+fn assert_same_tree(a: &Path, b: &Path) {
+    let (ta, tb) = (tree(a), tree(b));
+    assert_eq!(
+        ta.keys().collect::<Vec<_>>(),
+        tb.keys().collect::<Vec<_>>(),
+        "different files"
+    );
+    for (k, v) in &ta {
+        assert!(
+            v == &tb[k],
+            "{k} differs between {} and {}",
+            a.display(),
+            b.display()
+        );
+    }
+}
+
+/// The jobs `--list --json` prints: (key, status).
+fn list(plan: &Path, out: &Path, extra: &[&str]) -> Vec<(String, String)> {
+    let mut args = vec!["batch", s(plan), "-o", s(out), "--list", "--json"];
+    args.extend_from_slice(extra);
+    ok(&args)
+        .lines()
+        .map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            (
+                v["job"].as_str().unwrap().to_string(),
+                v["status"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect()
+}
+
+fn manifest(out: &Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(out.join("manifest.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+/// Hidden entries (partial outputs) anywhere under `dir`.
+fn hidden(dir: &Path) -> Vec<PathBuf> {
+    let mut v = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.file_name().unwrap().to_string_lossy().starts_with('.') {
+                v.push(p.clone());
+            }
+            if p.is_dir() {
+                stack.push(p);
+            }
+        }
+    }
+    v
+}
+
+#[test]
+fn shards_as_separate_processes_equal_one_run_byte_for_byte() {
+    let (d, plan) = plan_dir();
+    let one = d.path().join("one");
+    ok(&["batch", s(&plan), "-o", s(&one), "-q"]);
+    let jobs = list(&plan, &one, &[]);
+    assert_eq!(jobs.len(), 8);
+    assert!(jobs.iter().all(|(_, st)| st == "done"));
+    // 3 shards at once, one thread each, into another folder
+    let sharded = d.path().join("sharded");
+    let children: Vec<_> = (0..3)
+        .map(|i| {
+            Command::new(env!("CARGO_BIN_EXE_btfquilt"))
+                .args(["batch", s(&plan), "-o", s(&sharded), "-q", "--threads", "1"])
+                .args(["--shard", &format!("{i}/3")])
+                .output_async()
+        })
+        .collect();
+    let mut union = Vec::new();
+    for (i, c) in children.into_iter().enumerate() {
+        let out = c.wait_with_output().unwrap();
+        assert!(
+            out.status.success(),
+            "shard {i}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        union.extend(list(&plan, &sharded, &["--shard", &format!("{i}/3")]));
+    }
+    // the shards partition the jobs
+    let mut keys: Vec<_> = union.iter().map(|(k, _)| k.clone()).collect();
+    keys.sort();
+    let mut all: Vec<_> = jobs.iter().map(|(k, _)| k.clone()).collect();
+    all.sort();
+    assert_eq!(keys, all);
+    assert_same_tree(&one, &sharded);
+    // the folder's bytes do not depend on where it or the plan lie
+    let moved = d.path().join("deeper/still");
+    std::fs::create_dir_all(&moved).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_btfquilt"))
+        .current_dir(&moved)
+        .args(["batch", "../../in/plan.toml", "-o", "here", "-q"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_same_tree(&one, &moved.join("here"));
+    // every job's outputs are there and the manifest says what they are
+    let lines = manifest(&one);
+    assert_eq!(lines.len(), 8);
+    for l in &lines {
+        assert_eq!(l["status"], "done");
+        let folder = one.join(l["folder"].as_str().unwrap());
+        let files: Vec<&str> = l["outputs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["file"].as_str().unwrap())
+            .collect();
+        for f in [
+            "decorated.quilt",
+            "baked.png",
+            "render-c0-l0.png",
+            "render-c0-l1.png",
+            "gltf/mesh.glb",
+            "job.json",
+        ] {
+            assert!(files.contains(&f), "{f} missing from {files:?}");
+            assert!(folder.join(f).is_file());
+        }
+        for o in l["outputs"].as_array().unwrap() {
+            let len = std::fs::metadata(folder.join(o["file"].as_str().unwrap()))
+                .unwrap()
+                .len();
+            assert_eq!(o["bytes"].as_u64().unwrap(), len);
+        }
+        let hash = l["mesh"]["hash"].as_str().unwrap();
+        assert!(one.join(l["mesh"]["file"].as_str().unwrap()).is_file());
+        assert_eq!(l["mesh"]["file"].as_str().unwrap(), format!("inputs/{hash}.obj"));
+        assert!(l["seconds"]["tile"].as_f64().unwrap() > 0.0);
+    }
+    // one geometry image per resolution, one factorization per sample
+    let shared = common::listing(&one.join("shared"));
+    assert_eq!(
+        shared.iter().filter(|f| f.ends_with(".gim")).count(),
+        2,
+        "{shared:?}"
+    );
+    assert_eq!(
+        shared.iter().filter(|f| f.ends_with(".svd")).count(),
+        2,
+        "{shared:?}"
+    );
+    // the quilt reads its geometry image and sample from the folder
+    let job = one.join(lines[0]["folder"].as_str().unwrap());
+    ok(&[
+        "bake",
+        s(&job.join("decorated.quilt")),
+        "-o",
+        s(&d.path().join("again.png")),
+    ]);
+}
+
+/// `Command::spawn` with captured output.
+trait SpawnCaptured {
+    fn output_async(&mut self) -> std::process::Child;
+}
+
+impl SpawnCaptured for Command {
+    fn output_async(&mut self) -> std::process::Child {
+        self.stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    }
+}
+
+#[test]
+fn finished_jobs_are_skipped_and_a_changed_input_reruns_exactly_its_jobs() {
+    let (d, plan) = plan_dir();
+    let out = d.path().join("out");
+    ok(&["batch", s(&plan), "-o", s(&out), "-q"]);
+    let before = tree(&out);
+    let again = ok(&["batch", s(&plan), "-o", s(&out), "-q"]);
+    assert!(again.contains("0 jobs done, 8 already done"), "{again}");
+    assert_eq!(before, tree(&out), "a second run changed files");
+    let lines = manifest(&out);
+    assert_eq!(lines.iter().filter(|l| l["status"] == "skipped").count(), 8);
+
+    // change sample b: its 4 jobs are new, sample a's 4 are still done
+    let old = list(&plan, &out, &[]);
+    let b = plan.parent().unwrap().join("b.png");
+    common::brick_crop(plan.parent().unwrap(), 40, Some((310, 200)));
+    std::fs::rename(plan.parent().unwrap().join("brick40.png"), &b).unwrap();
+    let new = list(&plan, &out, &[]);
+    let kept: Vec<_> = new.iter().filter(|j| old.contains(j)).collect();
+    let todo: Vec<_> = new.iter().filter(|(_, st)| st == "todo").collect();
+    assert_eq!((kept.len(), todo.len()), (4, 4), "{old:?} → {new:?}");
+    let run = ok(&["batch", s(&plan), "-o", s(&out), "-q"]);
+    assert!(run.contains("4 jobs done, 4 already done"), "{run}");
+    // one more factorization, no more geometry images
+    let shared = common::listing(&out.join("shared"));
+    assert_eq!(shared.iter().filter(|f| f.ends_with(".gim")).count(), 2);
+    assert_eq!(shared.iter().filter(|f| f.ends_with(".svd")).count(), 3);
+    // the old jobs' files are untouched
+    for (k, v) in &before {
+        if k.starts_with("jobs/") {
+            assert_eq!(&std::fs::read(out.join(k)).unwrap(), v, "{k}");
+        }
+    }
+
+    // --job runs exactly the named job; an unknown key is refused
+    let other = d.path().join("other");
+    let key = &new[0].0;
+    ok(&["batch", s(&plan), "-o", s(&other), "-q", "--job", key]);
+    assert_eq!(common::listing(&other.join("jobs")), vec![key.clone()]);
+    let r = btfquilt(&["batch", s(&plan), "-o", s(&other), "--job", &"0".repeat(32)]);
+    fails_clearly(&r, &["plan.toml", "has no job 00000000000000000000000000000000"]);
+}
+
+#[test]
+fn a_killed_run_resumes_with_no_duplicate_or_partial_output() {
+    let (d, plan) = plan_dir();
+    let reference = d.path().join("reference");
+    ok(&["batch", s(&plan), "-o", s(&reference), "-q"]);
+    let out = d.path().join("out");
+    // kill the run while a job is staged (its folder under a hidden name)
+    let mut child = Command::new(env!("CARGO_BIN_EXE_btfquilt"))
+        .args(["batch", s(&plan), "-o", s(&out), "-q", "--threads", "1"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    let mut killed_mid_job = false;
+    while start.elapsed().as_secs() < 60 {
+        let staged = common::listing(&out.join("jobs"))
+            .iter()
+            .any(|n| n.ends_with(".partial.d"));
+        if staged {
+            child.kill().unwrap();
+            killed_mid_job = child.wait().unwrap().code().is_none();
+            break;
+        }
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    assert!(killed_mid_job, "the run was not caught in a job");
+    assert!(!hidden(&out).is_empty(), "a killed job leaves its partial folder");
+    let finished_before = common::listing(&out.join("jobs"))
+        .iter()
+        .filter(|n| !n.starts_with('.'))
+        .count();
+    assert!(finished_before < 8);
+    let run = btfquilt(&["batch", s(&plan), "-o", s(&out)]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("a partial output left by process"), "{stderr}");
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        stdout.contains(&format!(
+            "{} jobs done, {finished_before} already done",
+            8 - finished_before
+        )),
+        "{stdout}"
+    );
+    assert_eq!(hidden(&out), Vec::<PathBuf>::new());
+    assert_same_tree(&reference, &out);
+}
+
+#[test]
+fn bad_plans_are_refused_naming_the_plan_and_the_fault_with_nothing_written() {
+    let (d, plan) = plan_dir();
+    let text = std::fs::read_to_string(&plan).unwrap();
+    let out = d.path().join("out");
+    let cases: Vec<(String, Vec<&str>)> = vec![
+        (
+            text.replace("square.obj", "gone.obj"),
+            vec!["mesh 1 'gone.obj'", "is not a file"],
+        ),
+        (
+            text.replace("seeds = [1, 2]", "seeds = []"),
+            vec!["[tile] seeds is empty"],
+        ),
+        (
+            text.replace("seeds = [1, 2]", "seds = [1]"),
+            vec!["not a valid plan", "seds"],
+        ),
+        (
+            text.replace("[64, 80]", "[8]"),
+            vec!["[atlas] resolutions", "--resolution 8"],
+        ),
+        (
+            text.replace("seeds = [1, 2]", "seeds = [1]\nsample_widths = [-1.0]"),
+            vec!["[tile]", "--sample-width -1"],
+        ),
+        (
+            text.replace("lights = [", "cameras = [\"1,2\"]\nlights = ["),
+            vec!["[render] cameras", "10 numbers"],
+        ),
+        (text.replace("0.4,0.8,0.6", "0,0,0"), vec!["[render] lights"]),
+        (
+            text.replace("[[mesh]]\npath = \"square.obj\"", ""),
+            vec!["names no mesh"],
+        ),
+        ("this is = = not toml".into(), vec!["not a valid plan"]),
+    ];
+    for (body, needles) in cases {
+        std::fs::write(&plan, &body).unwrap();
+        let mut all = vec!["plan.toml"];
+        all.extend(needles);
+        fails_clearly(&btfquilt(&["batch", s(&plan), "-o", s(&out)]), &all);
+        assert!(!out.exists(), "a refused plan wrote {}", out.display());
+    }
+    std::fs::write(&plan, &text).unwrap();
+    for bad in ["3/3", "1", "a/2", "0/0"] {
+        fails_clearly(
+            &btfquilt(&["batch", s(&plan), "-o", s(&out), "--shard", bad]),
+            &["--shard"],
+        );
+    }
+    // an output folder holding the inputs is refused (nothing written there)
+    let inside = plan.parent().unwrap().to_path_buf();
+    let before = common::listing(&inside);
+    fails_clearly(
+        &btfquilt(&["batch", s(&plan), "-o", s(&inside)]),
+        &["give an output folder apart from the inputs"],
+    );
+    assert_eq!(common::listing(&inside), before);
+    // a job that fails is reported, the others are done, and the exit is non-zero
+    std::fs::write(plan.parent().unwrap().join("b.png"), b"not a png").unwrap();
+    let r = btfquilt(&["batch", s(&plan), "-o", s(&out), "-q"]);
+    let stderr = fails_clearly(
+        &r,
+        &["4 of the batch's jobs or shared stages failed", "manifest.jsonl"],
+    );
+    assert!(stderr.contains("b.png") || stderr.contains(".png"), "{stderr}");
+    let lines = manifest(&out);
+    assert_eq!(lines.iter().filter(|l| l["status"] == "done").count(), 4);
+    assert_eq!(lines.iter().filter(|l| l["status"] == "failed").count(), 4);
+    assert!(lines
+        .iter()
+        .all(|l| l["status"] != "failed" || l["error"].is_string()));
+    assert_eq!(hidden(&out), Vec::<PathBuf>::new());
+}
