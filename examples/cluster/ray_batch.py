@@ -79,8 +79,8 @@ def run_btfquilt(argv, out=None, kill_once=None):
         se.seek(0)
         stdout, stderr = so.read().decode(errors="replace"), se.read().decode(errors="replace")
     if code != 0:
-        tail = "\n".join(stderr.strip().splitlines()[-10:])
-        raise RuntimeError(f"{' '.join(argv)}: exit code {code}\n{tail}")
+        tail = " | ".join(stderr.strip().splitlines()[-3:])
+        raise RuntimeError(f"btfquilt exit code {code}: {tail}")
     return stdout
 
 
@@ -127,7 +127,8 @@ def run_tasks(tasks, opts, kill_once=None, out=None):
             print(f"  [{len(refs) - len(left)}/{len(refs)}] {name}: {summary[-1] if summary else 'ok'}")
         except ray.exceptions.RayError as e:
             failed.append(name)
-            print(f"  [{len(refs) - len(left)}/{len(refs)}] {name}: FAILED after retries: {e}", file=sys.stderr)
+            why = getattr(e, "cause", None) or type(e).__name__  # btfquilt's error, or a lost worker
+            print(f"  [{len(refs) - len(left)}/{len(refs)}] {name}: FAILED after retries: {why}", file=sys.stderr)
     return failed
 
 

@@ -131,12 +131,22 @@ fn shards_as_separate_processes_equal_one_run_byte_for_byte() {
     let jobs = list(&plan, &one, &[]);
     assert_eq!(jobs.len(), 8);
     assert!(jobs.iter().all(|(_, st)| st == "done"));
-    // 3 shards at once, one thread each, into another folder
+    // 3 shards at once, one thread each, a small budget, into another folder
     let sharded = d.path().join("sharded");
     let children: Vec<_> = (0..3)
         .map(|i| {
             Command::new(env!("CARGO_BIN_EXE_btfquilt"))
-                .args(["batch", s(&plan), "-o", s(&sharded), "-q", "--threads", "1"])
+                .args([
+                    "batch",
+                    s(&plan),
+                    "-o",
+                    s(&sharded),
+                    "-q",
+                    "--threads",
+                    "1",
+                    "--memory",
+                    "16MiB",
+                ])
                 .args(["--shard", &format!("{i}/3")])
                 .output_async()
         })
