@@ -401,7 +401,8 @@ enum Command {
         /// shard's part of the shared stages.
         #[arg(long, value_enum, default_value_t = batch::BatchConfig::default().stages)]
         stages: batch::Stages,
-        /// Print the shard's jobs (key, done or todo, what) instead of running them.
+        /// Print the shard's jobs (key, done or todo, what), or with --stages shared its
+        /// shared artifacts, instead of running them.
         #[arg(long)]
         list: bool,
         /// With --list: one JSON object a line (key, status, folder, what).
@@ -954,6 +955,23 @@ fn run(cli: Cli) -> Result<()> {
                 manifest,
                 memory,
             };
+            if list && stages == batch::Stages::Shared {
+                for (stage, status) in batch::selected_shared(&plan, &output, &cfg) {
+                    let status = serde_json::to_value(status)?;
+                    let status = status.as_str().unwrap_or_default();
+                    if json {
+                        let line = serde_json::json!({
+                            "shared": stage.key().to_string(),
+                            "status": status,
+                            "file": stage.file(),
+                        });
+                        say!("{line}");
+                    } else {
+                        say!("{}  {status:4}  {}", stage.key(), stage.file());
+                    }
+                }
+                return Ok(());
+            }
             if list {
                 for (job, status) in batch::selected_jobs(&plan, &output, &cfg)? {
                     let what = job.describe(&plan);

@@ -55,7 +55,7 @@ def parse_bytes(text):
     """'512MiB', '2GiB', '3G', '65536' -> bytes (as btfquilt's --memory reads them)."""
     m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([A-Za-z]*)\s*", text)
     if not m or m.group(2).lower() not in UNITS:
-        raise argparse.ArgumentTypeError(f"expected a size like 512MiB or 2GiB, not {text!r}")
+        raise ValueError(f"--memory: expected a size like 512MiB or 2GiB, not {text!r}")
     return int(float(m.group(1)) * UNITS[m.group(2).lower()])
 
 
@@ -145,7 +145,10 @@ def main():
     p.add_argument("--shards", type=int, help="tasks in --mode shards (default: task slots of the cluster)")
     p.add_argument("--max-retries", type=int, default=3)
     a = p.parse_args()
-    mem = parse_bytes(a.memory)
+    try:
+        mem = parse_bytes(a.memory)
+    except ValueError as e:
+        p.error(str(e))
     binary = os.path.abspath(a.btfquilt) if os.sep in a.btfquilt else a.btfquilt
     plan, out = os.path.abspath(a.plan), os.path.abspath(a.output)
     run_id = time.strftime("ray-%Y%m%dT%H%M%S-") + str(os.getpid())
@@ -156,7 +159,9 @@ def main():
     if a.address:
         ray.init(address=a.address, **quiet)
     else:
-        ray.init(num_cpus=a.num_cpus, include_dashboard=False, **quiet)
+        # "local": always a new instance on this machine, never one found
+        # through a stale /tmp/ray/ray_current_cluster
+        ray.init(address="local", num_cpus=a.num_cpus, include_dashboard=False, **quiet)
     t_init = time.monotonic() - t0
 
     nodes = [n["Resources"] for n in ray.nodes() if n["Alive"]]
@@ -200,9 +205,9 @@ def main():
     made = sum(1 for k in todo if after.get(k) == "done")
     missing = [k for k, s in after.items() if s != "done"]
     bad_lines = sum(1 for l in lines if l.get("status") == "failed")
-    print(f"{out}: {made} jobs done, {len(before) - len(todo)} already done, {len(missing)} not done "
-          f"({bad_lines} failed attempts in the manifest), {len(failed)} tasks failed, "
-          f"{time.monotonic() - t0:.1f} s")
+    print(f"{out}: {made} jobs done, {len(before) - len(todo)} skipped (already done), "
+          f"{len(missing)} failed or not done ({bad_lines} failed attempts in the manifest), "
+          f"{len(failed)} tasks failed; {time.monotonic() - t0:.1f} s")
     for key in missing:
         print(f"not done: {key}", file=sys.stderr)
     sys.exit(1 if failed or missing else 0)

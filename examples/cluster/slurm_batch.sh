@@ -11,11 +11,14 @@
 # binary (default: `btfquilt` on PATH). Change --array to change the shard
 # count: COUNT is read from Slurm, so nothing else needs editing.
 #
-# Optional first step: make the shared artifacts (geometry images,
-# factorizations) once, with a small array, and start the jobs after it.
-# Without it every shard makes the shared artifacts its jobs need, so shards
-# on different nodes may make the same one at the same time (same bytes,
-# wasted time):
+# Optional (recommended on several nodes) first step: make the shared
+# artifacts (geometry images, factorizations) once, with a small array, and
+# start the jobs after it. Without it every shard makes the shared artifacts
+# its jobs need, so shards on different nodes may make the same one at the
+# same time: wasted time, and since btfquilt judges another writer's partial
+# file by its PID on the local machine, a shard may remove a partial file a
+# shard on another node is still writing, failing that shard's jobs (a
+# re-run of the shard fixes it):
 #
 #   shared=$(sbatch --parsable --array=0-3 --export=ALL,PLAN=…,OUT=…,STAGES=shared \
 #            examples/cluster/slurm_batch.sh)
@@ -23,8 +26,8 @@
 #          examples/cluster/slurm_batch.sh
 #
 # (afterok waits for every shared task to succeed; with afterany the jobs
-# start anyway and make a missing shared artifact themselves. The shared
-# step writes no manifest lines, so the two arrays may share manifest names.)
+# start anyway and make a missing shared artifact themselves. Both arrays
+# append to $OUT/manifests/slurm-INDEX.jsonl, one after the other.)
 #
 # A preempted, killed or failed task can simply be run again (`scontrol
 # requeue JOBID_INDEX`, or resubmit the array): finished jobs are skipped

@@ -152,6 +152,23 @@ pub fn selected_jobs(plan: &Plan, out: &Path, cfg: &BatchConfig) -> Result<Vec<(
         .collect())
 }
 
+/// The shared stages `--stages shared` would take with `cfg`'s shard, each
+/// with whether its artifact under `out` exists.
+pub fn selected_shared(plan: &Plan, out: &Path, cfg: &BatchConfig) -> Vec<(SharedStage, JobStatus)> {
+    let stages = plan.shared_stages();
+    stages[cfg.shard.range(stages.len())]
+        .iter()
+        .map(|s| {
+            let status = if out.join(s.file()).is_file() {
+                JobStatus::Done
+            } else {
+                JobStatus::Todo
+            };
+            (s.clone(), status)
+        })
+        .collect()
+}
+
 /// Runs the plan's jobs selected by `cfg` into the folder `out`. A job that
 /// fails is reported (and in the manifest) and the others go on; an error
 /// is returned only when the batch cannot run at all.
@@ -180,12 +197,23 @@ pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) 
     };
     match cfg.stages {
         Stages::Shared => {
-            let stages = plan.shared_stages();
-            let mine = &stages[cfg.shard.range(stages.len())];
+            let mine: Vec<SharedStage> = selected_shared(plan, out, cfg)
+                .into_iter()
+                .map(|(s, _)| s)
+                .collect();
             for (i, stage) in mine.iter().enumerate() {
                 progress.note(&format!("shared {}/{}: {}", i + 1, mine.len(), stage.file()));
-                if let Err(e) = runner.shared(stage) {
-                    runner.report.failed.push((stage.key(), e.to_string()));
+                let lap = Instant::now();
+                let result = runner.shared(stage);
+                let seconds = lap.elapsed().as_secs_f64();
+                let (status, error) = match &result {
+                    Ok(true) => ("done", None),
+                    Ok(false) => ("skipped", None),
+                    Err(e) => ("failed", Some(e.to_string())),
+                };
+                runner.record_shared(stage, status, seconds, error.as_deref())?;
+                if let Some(e) = error {
+                    runner.report.failed.push((stage.key(), e));
                 }
             }
         }
@@ -390,6 +418,49 @@ impl Runner<'_> {
             sample_width: job.sample_width,
             seconds: t,
             outputs,
+            error,
+        };
+        self.manifest.append(&line)
+    }
+
+    fn record_shared(
+        &mut self,
+        stage: &SharedStage,
+        status: &str,
+        seconds: f64,
+        error: Option<&str>,
+    ) -> Result<()> {
+        #[derive(Serialize)]
+        struct SharedLine<'a> {
+            shared: Key,
+            status: &'a str,
+            file: String,
+            shard: String,
+            host: String,
+            pid: u32,
+            input: ManifestInput<'a>,
+            resolution: Option<usize>,
+            seconds: f64,
+            bytes: Option<u64>,
+            error: Option<&'a str>,
+        }
+        let (source, resolution) = match *stage {
+            SharedStage::Atlas { mesh, resolution, .. } => (&self.plan.meshes[mesh], Some(resolution)),
+            SharedStage::Factorize { sample, .. } => (&self.plan.samples[sample].input, None),
+        };
+        let line = SharedLine {
+            shared: stage.key(),
+            status,
+            file: stage.file(),
+            shard: self.cfg.shard.to_string(),
+            host: host_name(),
+            pid: std::process::id(),
+            input: input(source),
+            resolution,
+            seconds,
+            bytes: std::fs::metadata(self.out.join(stage.file()))
+                .ok()
+                .map(|m| m.len()),
             error,
         };
         self.manifest.append(&line)

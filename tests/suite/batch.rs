@@ -418,3 +418,136 @@ fn bad_plans_are_refused_naming_the_plan_and_the_fault_with_nothing_written() {
         .all(|l| l["status"] != "failed" || l["error"].is_string()));
     assert_eq!(hidden(&out), Vec::<PathBuf>::new());
 }
+
+/// `examples/cluster/NAME`.
+fn cluster_file(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("examples/cluster")
+        .join(name)
+}
+
+#[test]
+fn the_slurm_array_and_the_kubernetes_indexed_job_map_their_index_to_shards() {
+    let (d, plan) = plan_dir();
+    let reference = d.path().join("reference");
+    ok(&["batch", s(&plan), "-o", s(&reference), "-q"]);
+    let bin = env!("CARGO_BIN_EXE_btfquilt");
+    // a Slurm array --array=1-4: task ids 1..4, one after another
+    let slurm = d.path().join("slurm");
+    for id in 1..=4 {
+        let out = Command::new("bash")
+            .arg(cluster_file("slurm_batch.sh"))
+            .env("SLURM_ARRAY_TASK_ID", id.to_string())
+            .env("SLURM_ARRAY_TASK_MIN", "1")
+            .env("SLURM_ARRAY_TASK_COUNT", "4")
+            .env("SLURM_CPUS_PER_TASK", "1")
+            .env("PLAN", &plan)
+            .env("OUT", &slurm)
+            .env("BTFQUILT", bin)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "task {id}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains(&format!("shard {}/4", id - 1)), "{stderr}");
+    }
+    assert_same_tree(&reference, &slurm);
+    assert_eq!(common::listing(&slurm.join("manifests")).len(), 4);
+
+    // the Indexed Job's command, with 5 completions (more than some shards' jobs)
+    let yaml = std::fs::read_to_string(cluster_file("k8s_indexed_job.yaml")).unwrap();
+    let mut lines = yaml.lines();
+    lines
+        .find(|l| l.trim() == "# shard-command:")
+        .expect("a '# shard-command:' line");
+    let command = lines.next().unwrap().trim();
+    let command = command
+        .strip_prefix("- '")
+        .and_then(|c| c.strip_suffix('\''))
+        .unwrap();
+    let k8s = d.path().join("k8s");
+    let children: Vec<_> = (0..5)
+        .map(|index| {
+            Command::new("sh")
+                .args(["-c", command])
+                .env("JOB_COMPLETION_INDEX", index.to_string())
+                .env("SHARDS", "5")
+                .env("PLAN", &plan)
+                .env("OUT", &k8s)
+                .env("BTFQUILT", bin)
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::piped())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    for c in children {
+        let out = c.wait_with_output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    }
+    assert_same_tree(&reference, &k8s);
+    assert_eq!(hidden(&k8s), Vec::<PathBuf>::new());
+}
+
+#[test]
+fn ray_runs_the_plan_as_tasks_retries_a_killed_worker_and_matches_one_run() {
+    let has_ray = Command::new("python3")
+        .args(["-c", "import ray"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !has_ray {
+        eprintln!("skipped: Ray for Python is not installed (python3 -m pip install ray)");
+        return;
+    }
+    let (d, plan) = plan_dir();
+    let reference = d.path().join("reference");
+    ok(&["batch", s(&plan), "-o", s(&reference), "-q"]);
+    let out = d.path().join("ray");
+    let flag = d.path().join("killed");
+    let run = Command::new("python3")
+        .arg(cluster_file("ray_batch.py"))
+        .args([
+            s(&plan),
+            "-o",
+            s(&out),
+            "--num-cpus",
+            "3",
+            "--threads",
+            "1",
+            "--memory",
+            "256MiB",
+        ])
+        .args(["--btfquilt", env!("CARGO_BIN_EXE_btfquilt")])
+        .env("BTFQUILT_RAY_KILL_ONCE", &flag)
+        .env("RAY_USAGE_STATS_ENABLED", "0")
+        .output()
+        .unwrap();
+    let log = format!(
+        "{}\n{}",
+        String::from_utf8_lossy(&run.stdout),
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(run.status.success(), "{log}");
+    // a worker was killed in the middle of a job, and the retry finished it
+    let partial = std::fs::read_to_string(&flag).unwrap();
+    assert!(partial.trim().ends_with(".partial.d"), "{partial}");
+    assert!(!Path::new(partial.trim()).exists(), "{partial} is still there");
+    assert_eq!(hidden(&out), Vec::<PathBuf>::new());
+    assert_same_tree(&reference, &out);
+    // the gathered manifest has a line for every job
+    let lines = manifest(&out);
+    let mut done: Vec<&str> = lines
+        .iter()
+        .filter(|l| l["status"] == "done")
+        .filter_map(|l| l["job"].as_str())
+        .collect();
+    done.sort();
+    done.dedup();
+    assert_eq!(done.len(), 8, "{log}");
+    // and a line for each shared artifact its first phase made
+    let shared = lines.iter().filter(|l| l["shared"].is_string()).count();
+    assert!(shared >= 4, "{shared} shared lines: {log}");
+}
