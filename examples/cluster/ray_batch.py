@@ -22,13 +22,14 @@ shared filesystem); relative paths are made absolute here.
 A task that fails (non-zero exit) or whose worker dies is retried by Ray up
 to --max-retries times. That is safe: a finished job's folder exists only
 when complete and is skipped, and a killed job leaves only a hidden
-`.KEY.PID.RAND.partial.d` that the next run of that job removes. Outputs are
-byte-identical whatever the mode, shard count or thread count.
+`.KEY.PID-HOST-BOOT.RAND.partial.d` that the next run of that job on the
+same host removes. Outputs are byte-identical whatever the mode, shard
+count or thread count.
 
 For tests only: if the environment variable BTFQUILT_RAY_KILL_ONCE=PATH is
 set, the first job task (step 3) to find PATH absent creates it, starts
 btfquilt, waits until btfquilt's `.partial.d` folder appears under OUT/jobs
-(at most ~2 s), writes that folder's path into PATH, kills btfquilt and
+(at most 30 s), writes that folder's path into PATH, kills btfquilt and
 then its own Ray worker (os._exit), so Ray sees a dead worker and retries
 the task (which must remove the partial folder and finish the job).
 """
@@ -65,8 +66,9 @@ def run_btfquilt(argv, out=None, kill_once=None):
     with tempfile.TemporaryFile() as so, tempfile.TemporaryFile() as se:
         proc = subprocess.Popen(argv, stdout=so, stderr=se)
         if kill_once and claim(kill_once):  # test hook: see the docstring
-            mine = os.path.join(out, "jobs", f".*.{proc.pid}.*.partial.d")
-            deadline = time.monotonic() + 2.0
+            # .KEY.PID-HOST-BOOT.RANDOM.partial.d of this btfquilt process
+            mine = os.path.join(out, "jobs", f".*.{proc.pid}-*.partial.d")
+            deadline = time.monotonic() + 30.0
             while time.monotonic() < deadline and not glob.glob(mine) and proc.poll() is None:
                 time.sleep(0.01)
             with open(kill_once, "w") as f:  # what was left behind, for the test to check

@@ -15,10 +15,8 @@
 # artifacts (geometry images, factorizations) once, with a small array, and
 # start the jobs after it. Without it every shard makes the shared artifacts
 # its jobs need, so shards on different nodes may make the same one at the
-# same time: wasted time, and since btfquilt judges another writer's partial
-# file by its PID on the local machine, a shard may remove a partial file a
-# shard on another node is still writing, failing that shard's jobs (a
-# re-run of the shard fixes it):
+# same time: wasted time, not wrong results (both write the same bytes, and
+# a process never removes a partial file written on another host):
 #
 #   shared=$(sbatch --parsable --array=0-3 --export=ALL,PLAN=…,OUT=…,STAGES=shared \
 #            examples/cluster/slurm_batch.sh)

@@ -1,6 +1,6 @@
 //! A scratch store beside an output: evicted atlas tiles written back
 //! compressed (zstd) while a long run pages its working set. It is named
-//! after the output and the process (`.NAME.PID.scratch`), removed when
+//! after the output and the process (`.NAME.PID-HOST-BOOT.scratch`), removed when
 //! dropped, and removed by the next run beside the same output if the
 //! process that made it died (on Linux, where a dead process is seen in
 //! `/proc`; elsewhere only a file of the same process id is replaced).
@@ -36,7 +36,11 @@ pub struct Scratch {
 impl Scratch {
     /// The scratch path of an output for process `pid`.
     pub fn path_for(output: &Path, pid: u32) -> PathBuf {
-        output.with_file_name(format!(".{}.{pid}.scratch", Self::name_of(output)))
+        let writer = crate::io::staging::Writer {
+            pid,
+            machine: Some(crate::io::staging::this_machine()),
+        };
+        output.with_file_name(format!(".{}.{writer}.scratch", Self::name_of(output)))
     }
 
     fn name_of(output: &Path) -> String {
@@ -56,18 +60,20 @@ impl Scratch {
         let Ok(entries) = std::fs::read_dir(&dir) else {
             return;
         };
-        let proc_seen = Path::new("/proc/self").exists();
+        let me = crate::io::staging::Writer::me();
         for e in entries.flatten() {
             let name = e.file_name().to_string_lossy().into_owned();
-            let Some(pid) = name
+            let Some(writer) = name
                 .strip_prefix(&prefix)
                 .and_then(|r| r.strip_suffix(suffix))
-                .and_then(|p| p.parse::<u32>().ok())
+                .and_then(crate::io::staging::Writer::parse)
             else {
                 continue;
             };
-            let gone = proc_seen && !Path::new(&format!("/proc/{pid}")).exists();
-            if gone || pid == std::process::id() {
+            // this process's own (left by an earlier store of the same
+            // output), or a writer known to be gone
+            let mine = writer.pid == me.pid && writer.machine.map_or(true, |m| Some(m) == me.machine);
+            if mine || writer.is_gone() {
                 let _ = std::fs::remove_file(e.path());
             }
         }

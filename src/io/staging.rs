@@ -3,12 +3,16 @@
 //! complete, so a failed or killed run never leaves a file that looks
 //! finished and never replaces a good one with half of a new one.
 //!
-//! A staged file is named `.NAME.PID.RANDOM.partial` (a folder
-//! `.NAME.PID.RANDOM.partial.d`), where PID is the writing process. Before a
-//! new output is staged, partial files of the same destination left by a
-//! process that no longer runs (a killed run) are removed; what was removed
-//! is kept for the caller to report ([`take_removed_partials`]). Liveness is
-//! read from `/proc`: where it is absent, nothing is removed.
+//! A staged file is named `.NAME.WRITER.RANDOM.partial` (a folder
+//! `.NAME.WRITER.RANDOM.partial.d`), where WRITER is `PID-HOST-BOOT`: the
+//! writing process and hashes of its machine's host name and boot id
+//! ([`Writer`]). Before a new output is staged, partial files of the same
+//! destination left by a process that no longer runs (a killed run) are
+//! removed; what was removed is kept for the caller to report
+//! ([`take_removed_partials`]). Liveness is read from `/proc`: where it is
+//! absent, nothing is removed. A partial written on another host (a
+//! filesystem several machines share) is never removed: its process cannot
+//! be seen from here.
 //!
 //! [`check_output`] refuses an output that is one of the command's inputs (or
 //! a file an input depends on), after resolving links: writing it would
@@ -64,16 +68,101 @@ pub(crate) fn process_alive(pid: u32) -> Option<bool> {
     Some(proc.join(pid.to_string()).exists())
 }
 
-/// The writer of a partial name `.NAME.PID.RANDOM<suffix>` for destination
-/// `NAME`, if the name is one.
-fn partial_writer(entry: &str, name: &str, suffix: &str) -> Option<u32> {
+/// The writer of a partial file: a process on a machine.
+///
+/// Partial names carry `PID-HOST-BOOT`: HOST and BOOT are 8 hexadecimal
+/// digits hashing this machine's host name and its kernel's boot id, so on
+/// a filesystem several machines share, a process judges only its own
+/// machine's partials by process id, and never removes one that a process
+/// elsewhere may still be writing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Writer {
+    pub(crate) pid: u32,
+    /// `None` in names without a machine (taken as this machine's).
+    pub(crate) machine: Option<Machine>,
+}
+
+/// A machine's identity in partial names.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Machine {
+    host: u32,
+    boot: u32,
+}
+
+/// This machine: hashes of its host name and boot id (0 where unreadable).
+pub(crate) fn this_machine() -> Machine {
+    static MACHINE: std::sync::OnceLock<Machine> = std::sync::OnceLock::new();
+    *MACHINE.get_or_init(|| {
+        let hash = |file: &str| {
+            std::fs::read_to_string(file)
+                .map(|s| xxhash_rust::xxh3::xxh3_64(s.trim().as_bytes()) as u32)
+                .unwrap_or(0)
+        };
+        Machine {
+            host: hash("/proc/sys/kernel/hostname"),
+            boot: hash("/proc/sys/kernel/random/boot_id"),
+        }
+    })
+}
+
+impl Writer {
+    /// This process on this machine.
+    pub(crate) fn me() -> Writer {
+        Writer {
+            pid: std::process::id(),
+            machine: Some(this_machine()),
+        }
+    }
+
+    /// Parses `PID` or `PID-HOST-BOOT`.
+    pub(crate) fn parse(s: &str) -> Option<Writer> {
+        let mut parts = s.split('-');
+        let pid = parts.next()?.parse().ok()?;
+        let machine = match (parts.next(), parts.next(), parts.next()) {
+            (None, ..) => None,
+            (Some(h), Some(b), None) if h.len() == 8 && b.len() == 8 => Some(Machine {
+                host: u32::from_str_radix(h, 16).ok()?,
+                boot: u32::from_str_radix(b, 16).ok()?,
+            }),
+            _ => return None,
+        };
+        Some(Writer { pid, machine })
+    }
+
+    /// Whether the writer is known to be gone: a process of this machine
+    /// that no longer runs (as `/proc` tells), or any process of this
+    /// host before its last boot. A writer on another host is never known
+    /// to be gone.
+    pub(crate) fn is_gone(&self) -> bool {
+        let here = this_machine();
+        match self.machine {
+            Some(m) if m.host != here.host => false,
+            Some(m) if m.boot != here.boot => true,
+            _ => self.pid != std::process::id() && process_alive(self.pid) == Some(false),
+        }
+    }
+}
+
+impl std::fmt::Display for Writer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.pid)?;
+        if let Some(m) = self.machine {
+            write!(f, "-{:08x}-{:08x}", m.host, m.boot)?;
+        }
+        Ok(())
+    }
+}
+
+/// The writer of a partial name `.NAME.WRITER.RANDOM<suffix>` for
+/// destination `NAME`, if the name is one.
+fn partial_writer(entry: &str, name: &str, suffix: &str) -> Option<Writer> {
     let rest = entry.strip_prefix('.')?.strip_prefix(name)?.strip_prefix('.')?;
     let rest = rest.strip_suffix(suffix)?;
-    let (pid, random) = rest.split_once('.')?;
+    let (writer, random) = rest.split_once('.')?;
     if random.is_empty() || random.contains('.') {
         return None;
     }
-    pid.parse().ok()
+    Writer::parse(writer)
 }
 
 /// Removes partial outputs of `dest` whose writing process is gone.
@@ -83,20 +172,20 @@ fn remove_stale(dest: &Path) {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
-    let me = std::process::id();
     for entry in entries.flatten() {
         let entry_name = entry.file_name().to_string_lossy().into_owned();
-        let (pid, is_dir) = match (
+        let (writer, is_dir) = match (
             partial_writer(&entry_name, &name, SUFFIX),
             partial_writer(&entry_name, &name, DIR_SUFFIX),
         ) {
-            (Some(pid), _) => (pid, false),
-            (None, Some(pid)) => (pid, true),
+            (Some(w), _) => (w, false),
+            (None, Some(w)) => (w, true),
             (None, None) => continue,
         };
-        if pid == me || process_alive(pid) != Some(false) {
+        if !writer.is_gone() {
             continue;
         }
+        let pid = writer.pid;
         let path = entry.path();
         let bytes = if is_dir {
             0
@@ -123,7 +212,7 @@ fn remove_stale(dest: &Path) {
 pub fn staged_file(dest: &Path) -> Result<tempfile::NamedTempFile> {
     let name = file_name(dest)?;
     remove_stale(dest);
-    let prefix = format!(".{name}.{}.", std::process::id());
+    let prefix = format!(".{name}.{}.", Writer::me());
     let mut b = tempfile::Builder::new();
     b.prefix(&prefix).suffix(SUFFIX).rand_bytes(8);
     #[cfg(unix)]
@@ -169,7 +258,7 @@ impl StagedDir {
         let dir = parent_dir(dest);
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         remove_stale(dest);
-        let prefix = format!(".{name}.{}.", std::process::id());
+        let prefix = format!(".{name}.{}.", Writer::me());
         let tmp = tempfile::Builder::new()
             .prefix(&prefix)
             .suffix(DIR_SUFFIX)
@@ -204,7 +293,7 @@ impl StagedDir {
         };
         if dest.exists() {
             let name = file_name(&dest)?;
-            let aside = parent_dir(&dest).join(format!(".{name}.{}.old{DIR_SUFFIX}", std::process::id()));
+            let aside = parent_dir(&dest).join(format!(".{name}.{}.old{DIR_SUFFIX}", Writer::me()));
             std::fs::rename(&dest, &aside).map_err(fail)?;
             if let Err(e) = std::fs::rename(&staged, &dest) {
                 let _ = std::fs::rename(&aside, &dest);
@@ -320,7 +409,7 @@ pub fn check_output_dir(dir: &Path, names: &[&str], inputs: &[(&str, &Path)]) ->
 pub fn staging_dir_in(dir: &Path, name: &str) -> Result<tempfile::TempDir> {
     remove_stale(&dir.join(name));
     tempfile::Builder::new()
-        .prefix(&format!(".{name}.{}.", std::process::id()))
+        .prefix(&format!(".{name}.{}.", Writer::me()))
         .suffix(DIR_SUFFIX)
         .rand_bytes(8)
         .tempdir_in(dir)
@@ -331,19 +420,36 @@ pub fn staging_dir_in(dir: &Path, name: &str) -> Result<tempfile::TempDir> {
 mod tests {
     use super::*;
 
+    fn pid(pid: u32) -> Option<Writer> {
+        Some(Writer { pid, machine: None })
+    }
+
     #[test]
     fn partial_names_parse_only_for_their_destination() {
         assert_eq!(
             partial_writer(".a.gim.123.Xy7Qz0aB.partial", "a.gim", SUFFIX),
-            Some(123)
+            pid(123)
         );
+        let me = Writer::me();
+        let name = format!(".a.gim.{me}.Xy7Qz0aB.partial");
+        assert_eq!(partial_writer(&name, "a.gim", SUFFIX), Some(me));
+        assert_eq!(Writer::parse(&me.to_string()), Some(me));
+        for bad in [
+            "12-abc-def",
+            "12-0000000g-00000000",
+            "12-00000000",
+            "12-00000000-00000000-0",
+            "-1",
+        ] {
+            assert_eq!(Writer::parse(bad), None, "{bad}");
+        }
         assert_eq!(
             partial_writer(".a.gim.123.Xy7Qz0aB.partial", "b.gim", SUFFIX),
             None
         );
         assert_eq!(partial_writer(".a.gim.x.Xy7Qz0aB.partial", "a.gim", SUFFIX), None);
         assert_eq!(partial_writer("a.gim.123.Xy.partial", "a.gim", SUFFIX), None);
-        assert_eq!(partial_writer(".d.7.abc.partial.d", "d", DIR_SUFFIX), Some(7));
+        assert_eq!(partial_writer(".d.7.abc.partial.d", "d", DIR_SUFFIX), pid(7));
     }
 
     #[test]
@@ -360,12 +466,40 @@ mod tests {
             .path()
             .join(format!(".x.quilt.{}.abcdefgh.partial", std::process::id()));
         let other = dir.path().join(".y.quilt.4294967.abcdefgh.partial");
-        for p in [&dead, &live, &other] {
+        // the same with this machine named: removed; with another host
+        // (a shared filesystem): kept whatever its pid; with this host
+        // before its last boot: removed whatever its pid
+        let here = this_machine();
+        let named = |pid: u32, m: Machine| {
+            let w = Writer {
+                pid,
+                machine: Some(m),
+            };
+            dir.path().join(format!(".x.quilt.{w}.abcdefgh.partial"))
+        };
+        let dead_here = named(4294967, here);
+        let elsewhere = named(
+            4294967,
+            Machine {
+                host: here.host ^ 1,
+                ..here
+            },
+        );
+        let rebooted = named(
+            std::process::id(),
+            Machine {
+                boot: here.boot ^ 1,
+                ..here
+            },
+        );
+        for p in [&dead, &live, &other, &dead_here, &elsewhere, &rebooted] {
             std::fs::write(p, b"partial").unwrap();
         }
         let tmp = staged_file(&dest).unwrap();
         assert!(!dead.exists(), "the dead writer's partial stays");
-        assert!(live.exists() && other.exists());
+        assert!(!dead_here.exists() && !rebooted.exists());
+        assert!(live.exists() && other.exists() && elsewhere.exists());
+        assert!(tmp.path().to_string_lossy().contains(&Writer::me().to_string()));
         let removed = take_removed_partials();
         assert!(removed
             .iter()
