@@ -551,3 +551,87 @@ fn ray_runs_the_plan_as_tasks_retries_a_killed_worker_and_matches_one_run() {
     let shared = lines.iter().filter(|l| l["shared"].is_string()).count();
     assert!(shared >= 4, "{shared} shared lines: {log}");
 }
+
+#[test]
+fn btf_and_factorized_samples_give_renders_and_surface_btfs() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    common::square_obj(dir);
+    let btf = dir.join("small.btf");
+    ok(&[
+        "generate-btf",
+        "--family",
+        "bricks",
+        "--size",
+        "32",
+        "--views",
+        "4x2",
+        "--lights",
+        "4x2",
+    ]
+    .into_iter()
+    .chain(["-q", "-o", s(&btf)])
+    .collect::<Vec<_>>());
+    ok(&[
+        "factorize",
+        s(&btf),
+        "--terms",
+        "8",
+        "-q",
+        "-o",
+        s(&dir.join("small.svd")),
+    ]);
+    let plan = dir.join("plan.toml");
+    std::fs::write(
+        &plan,
+        "[[mesh]]\npath = \"square.obj\"\n[[sample]]\npath = \"small.btf\"\n[[sample]]\npath = \"small.svd\"\n\
+         [factorize]\nterms = 8\n[atlas]\nresolutions = [64]\n[render]\nwidth = 64\nheight = 48\n\
+         [outputs]\nbtf = true\n",
+    )
+    .unwrap();
+    let out = dir.join("out");
+    ok(&["batch", s(&plan), "-o", s(&out), "-q"]);
+    // the .btf is factorized once into shared/, the .svd used as it is
+    let shared = common::listing(&out.join("shared"));
+    assert_eq!(
+        shared.iter().filter(|f| f.ends_with(".svd")).count(),
+        1,
+        "{shared:?}"
+    );
+    let jobs = common::listing(&out.join("jobs"));
+    assert_eq!(jobs.len(), 2);
+    for j in &jobs {
+        let job = out.join("jobs").join(j);
+        for f in [
+            "decorated.quilt",
+            "baked.png",
+            "render-c0-l0.png",
+            "surface-btf/synthesis.exr",
+            "job.json",
+        ] {
+            assert!(job.join(f).is_file(), "{f} missing in {j}");
+        }
+        let spec: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(job.join("job.json")).unwrap()).unwrap();
+        let sample = spec["sample_file"].as_str().unwrap();
+        assert!(out.join(sample).is_file(), "{sample}");
+        assert!(sample.ends_with(".svd"), "{sample}");
+        // the decorated surface renders again from any working directory,
+        // finding its geometry image and sample through the folder
+        let again = dir.join(format!("{j}.png"));
+        ok(&[
+            "render",
+            s(&job.join("decorated.quilt")),
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "-o",
+            s(&again),
+        ]);
+        assert_eq!(
+            std::fs::read(&again).unwrap(),
+            std::fs::read(job.join("render-c0-l0.png")).unwrap()
+        );
+    }
+}
