@@ -581,8 +581,13 @@ impl Runner<'_> {
             t.bake = lap.elapsed().as_secs_f64();
         }
         let lap = Instant::now();
-        for r in &plan.renders {
-            render::render(&quilt_path, &r.config(plan), &dir.join(&r.file), budget)?;
+        let views: Vec<_> = plan
+            .renders
+            .iter()
+            .map(|r| (r.config(plan), dir.join(&r.file)))
+            .collect();
+        if !views.is_empty() {
+            render::render_views(&quilt_path, &views, budget)?;
         }
         t.render = lap.elapsed().as_secs_f64();
         if plan.outputs.gltf || plan.outputs.btf {

@@ -397,6 +397,34 @@ pub fn render(quilt_path: &Path, cfg: &RenderConfig, out: &Path, budget: MemoryB
     write(out, &img)
 }
 
+/// Renders the decorated mesh of `quilt_path` once per `(config, output)`
+/// pair, opening it once: the same files as [`render`] for each pair. All
+/// configurations and outputs are checked before anything is drawn; on an
+/// error the pictures already written are removed.
+pub fn render_views(
+    quilt_path: &Path,
+    views: &[(RenderConfig, PathBuf)],
+    budget: MemoryBudget,
+) -> Result<()> {
+    let quilt = Quilt::open(quilt_path, budget)?;
+    for (cfg, out) in views {
+        cfg.validate()?;
+        check_output(out)?;
+        quilt.check_output(out)?;
+    }
+    drop(quilt);
+    let scene = Scene::open(quilt_path, budget)?;
+    for (k, (cfg, out)) in views.iter().enumerate() {
+        if let Err(e) = scene.render_image(cfg).and_then(|img| write(out, &img)) {
+            for (_, p) in &views[..k] {
+                let _ = std::fs::remove_file(p);
+            }
+            return Err(e);
+        }
+    }
+    Ok(())
+}
+
 /// The paths [`render_frames`] writes: `STEM_000.EXT … STEM_{N-1}.EXT`
 /// beside `out` (more digits when N > 1000, so the names sort).
 pub fn frame_paths(out: &Path, frames: usize) -> Vec<PathBuf> {
