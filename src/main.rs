@@ -395,7 +395,7 @@ enum Command {
         #[arg(long, value_parser = parse_shard, default_value = "0/1")]
         shard: batch::Shard,
         /// Run only this job (its 32-digit key, as --list prints it); repeatable.
-        #[arg(long, value_parser = parse_key)]
+        #[arg(long, value_parser = parse_key, conflicts_with_all = ["shard", "stages"])]
         job: Vec<batch::Key>,
         /// What to run: the jobs (with the shared artifacts they need) or only the
         /// shard's part of the shared stages.

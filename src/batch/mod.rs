@@ -6,7 +6,7 @@
 //!
 //! | path | what |
 //! |---|---|
-//! | `inputs/HASH.EXT` | a copy of each input, named by its content hash |
+//! | `inputs/HASH-BYTES.EXT` | a copy of each input, named by its content hash and length |
 //! | `shared/atlas-KEY.gim` | one geometry image per mesh and resolution |
 //! | `shared/sample-KEY.svd` | one factorization per sample |
 //! | `jobs/KEY/` | a job's outputs and its `job.json` |
@@ -16,8 +16,8 @@
 //! relative to itself, so the folder's bytes depend only on the plan's
 //! content, never on where its inputs or the folder lie; the folder can be
 //! moved or merged with another run's. A job folder is built under a
-//! hidden name and renamed into place when complete, so a folder that
-//! exists is finished: a job whose folder exists is skipped, and a run
+//! hidden name, `job.json` last, and renamed into place when complete, so a
+//! job whose folder holds `job.json` is finished and skipped, and a run
 //! killed part-way leaves only a hidden partial folder, removed by the next
 //! run. Shared artifacts are staged the same way; two processes that make
 //! the same one write the same bytes.
@@ -142,7 +142,7 @@ pub fn selected_jobs(plan: &Plan, out: &Path, cfg: &BatchConfig) -> Result<Vec<(
     Ok(chosen
         .into_iter()
         .map(|j| {
-            let status = if out.join(j.dir()).is_dir() {
+            let status = if job_done(out, &j) {
                 JobStatus::Done
             } else {
                 JobStatus::Todo
@@ -152,6 +152,19 @@ pub fn selected_jobs(plan: &Plan, out: &Path, cfg: &BatchConfig) -> Result<Vec<(
         .collect())
 }
 
+/// Whether a job is finished: its folder holds its `job.json`, written last
+/// inside the staged folder that was renamed into place whole.
+pub fn job_done(out: &Path, job: &Job) -> bool {
+    out.join(job.dir()).join(JOB_JSON).is_file()
+}
+
+/// Whether a shared artifact is complete: it opens as a container (whose
+/// header promises its length).
+fn shared_done(out: &Path, stage: &SharedStage) -> bool {
+    let path = out.join(stage.file());
+    path.is_file() && crate::container::Container::open(&path, MemoryBudget(1 << 20)).is_ok()
+}
+
 /// The shared stages `--stages shared` would take with `cfg`'s shard, each
 /// with whether its artifact under `out` exists.
 pub fn selected_shared(plan: &Plan, out: &Path, cfg: &BatchConfig) -> Vec<(SharedStage, JobStatus)> {
@@ -159,7 +172,7 @@ pub fn selected_shared(plan: &Plan, out: &Path, cfg: &BatchConfig) -> Vec<(Share
     stages[cfg.shard.range(stages.len())]
         .iter()
         .map(|s| {
-            let status = if out.join(s.file()).is_file() {
+            let status = if shared_done(out, s) {
                 JobStatus::Done
             } else {
                 JobStatus::Todo
@@ -174,8 +187,9 @@ pub fn selected_shared(plan: &Plan, out: &Path, cfg: &BatchConfig) -> Vec<(Share
 /// is returned only when the batch cannot run at all.
 pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) -> Result<BatchReport> {
     let start = Instant::now();
+    let out_resolved = resolved(out);
     for (role, p) in input_paths(plan) {
-        if p.starts_with(out) || staging::same_file(p, out) {
+        if resolved(p).starts_with(&out_resolved) {
             return Err(Error::input(
                 out,
                 format!(
@@ -185,6 +199,9 @@ pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) 
             ));
         }
     }
+    let manifest_path = cfg.manifest.clone().unwrap_or_else(|| out.join("manifest.jsonl"));
+    let inputs = input_paths(plan);
+    crate::io::staging::check_output(&manifest_path, &inputs)?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let mut runner = Runner {
         plan,
@@ -192,7 +209,7 @@ pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) 
         cfg,
         progress,
         failed_shared: HashMap::new(),
-        manifest: Manifest::open(&cfg.manifest.clone().unwrap_or_else(|| out.join("manifest.jsonl")))?,
+        manifest: Manifest::open(&manifest_path)?,
         report: BatchReport::default(),
     };
     match cfg.stages {
@@ -232,10 +249,15 @@ pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) 
                 let result = runner.job(&job, &mut t);
                 t.total = t.start.map_or(0.0, |s| s.elapsed().as_secs_f64());
                 match result {
-                    Ok(()) => {
+                    Ok(JobRun::Done) => {
                         progress.note(&format!("{what}: done in {:.1} s", t.total));
                         runner.report.done += 1;
                         runner.record(&job, "done", &t, None)?;
+                    }
+                    Ok(JobRun::DoneElsewhere) => {
+                        progress.note(&format!("{what}: done meanwhile by another process"));
+                        runner.report.skipped += 1;
+                        runner.record(&job, "skipped", &t, None)?;
                     }
                     Err(e) => {
                         progress.note(&format!("{what}: failed: {e}"));
@@ -249,6 +271,28 @@ pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) 
     }
     runner.report.seconds = start.elapsed().as_secs_f64();
     Ok(runner.report)
+}
+
+/// `path` made absolute with links resolved, as far as it exists (the rest
+/// appended as given), for comparing where things lie.
+fn resolved(path: &Path) -> PathBuf {
+    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let mut existing = absolute.as_path();
+    let mut rest = Vec::new();
+    loop {
+        if let Ok(c) = std::fs::canonicalize(existing) {
+            let mut p = c;
+            p.extend(rest.iter().rev());
+            return p;
+        }
+        match (existing.parent(), existing.file_name()) {
+            (Some(parent), Some(name)) => {
+                rest.push(name.to_os_string());
+                existing = parent;
+            }
+            _ => return absolute,
+        }
+    }
 }
 
 /// Every input file of the plan with its role.
@@ -381,6 +425,14 @@ fn input(i: &plan::Input) -> ManifestInput<'_> {
     }
 }
 
+/// How a job ended.
+enum JobRun {
+    Done,
+    /// Another process committed the same job first; this one's copy was
+    /// dropped.
+    DoneElsewhere,
+}
+
 /// What [`run`] carries from job to job.
 struct Runner<'a> {
     plan: &'a Plan,
@@ -490,7 +542,8 @@ impl Runner<'_> {
     /// Makes a shared artifact unless it exists; whether it was made.
     fn shared(&mut self, stage: &SharedStage) -> Result<bool> {
         let dest = self.out.join(stage.file());
-        if dest.is_file() {
+        // an incomplete one (a copy cut short) is made again, in its place
+        if shared_done(self.out, stage) {
             return Ok(false);
         }
         if let Some(e) = self.failed_shared.get(&stage.key()) {
@@ -536,7 +589,7 @@ impl Runner<'_> {
     }
 
     /// Runs one job into its staged folder and renames it into place.
-    fn job(&mut self, job: &Job, t: &mut Timings) -> Result<()> {
+    fn job(&mut self, job: &Job, t: &mut Timings) -> Result<JobRun> {
         let plan = self.plan;
         let budget = self.cfg.memory;
         t.start = Some(Instant::now());
@@ -556,6 +609,16 @@ impl Runner<'_> {
         t.shared = lap.elapsed().as_secs_f64();
 
         let dest = self.out.join(job.dir());
+        if job_done(self.out, job) {
+            // another process finished it since this run listed the jobs
+            return Ok(JobRun::DoneElsewhere);
+        }
+        if dest.exists() {
+            return Err(Error::input(
+                &dest,
+                format!("exists but holds no {JOB_JSON}: an incomplete copy of a job folder? Remove it to run the job again"),
+            ));
+        }
         let stage = StagedDir::new(&dest, None)?;
         let dir = stage.path().to_path_buf();
         let quilt_path = dir.join(QUILT);
@@ -617,7 +680,12 @@ impl Runner<'_> {
         })
         .map_err(|e| Error::io(dir.join(JOB_JSON), e.into()))?;
         std::fs::write(dir.join(JOB_JSON), text + "\n").map_err(|e| Error::io(dir.join(JOB_JSON), e))?;
-        stage.commit()?;
-        Ok(())
+        // never replace a folder another process committed meanwhile: the
+        // keys are content addresses, so it holds the same bytes
+        Ok(if stage.commit_unless_present()? {
+            JobRun::Done
+        } else {
+            JobRun::DoneElsewhere
+        })
     }
 }

@@ -188,9 +188,9 @@ struct RenderSection {
     /// ten numbers.
     #[serde(default = "default_cameras")]
     cameras: Vec<String>,
-    /// `render --light`'s x,y,z[,intensity]: one render per light.
-    #[serde(default)]
-    lights: Vec<String>,
+    /// `render --light`'s x,y,z[,intensity]: one render per light; absent:
+    /// `render`'s default light.
+    lights: Option<Vec<String>>,
 }
 
 fn default_cameras() -> Vec<String> {
@@ -204,7 +204,7 @@ impl Default for RenderSection {
             height: None,
             exposure: None,
             cameras: default_cameras(),
-            lights: Vec::new(),
+            lights: None,
         }
     }
 }
@@ -261,7 +261,7 @@ pub struct Input {
 /// output folder's `inputs/`.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize)]
 pub struct InputId {
-    /// `inputs/HASH.EXT`, the copy every artifact of the batch refers to.
+    /// `inputs/HASH-BYTES.EXT`, the copy every artifact of the batch refers to.
     pub file: String,
     pub bytes: u64,
     pub hash: String,
@@ -485,7 +485,7 @@ fn input(plan: &Path, what: &str, path: &Path, name: Option<String>) -> Result<I
         name,
         path: resolved,
         id: InputId {
-            file: format!("inputs/{hash:016x}{ext}"),
+            file: format!("inputs/{hash:016x}-{bytes}{ext}"),
             bytes,
             hash: format!("{hash:016x}"),
         },
@@ -532,6 +532,10 @@ impl Plan {
             ("[atlas] resolutions", file.atlas.resolutions.is_empty()),
             ("[tile] seeds", file.tile.seeds.is_empty()),
             ("[render] cameras", file.render.cameras.is_empty()),
+            (
+                "[render] lights",
+                file.render.lights.as_ref().is_some_and(|l| l.is_empty()),
+            ),
         ] {
             if list_empty {
                 return Err(bad(format!("{what} is empty: give at least one value")));
@@ -603,13 +607,14 @@ impl Plan {
             });
         }
         let mut lights = Vec::new();
-        let light_texts = if r.lights.is_empty() {
-            let Light::Directional { direction: d, .. } = Light::default() else {
-                unreachable!("the default light is directional")
-            };
-            vec![format!("{},{},{}", d[0], d[1], d[2])]
-        } else {
-            r.lights.clone()
+        let light_texts = match &r.lights {
+            Some(l) => l.clone(),
+            None => {
+                let Light::Directional { direction: d, .. } = Light::default() else {
+                    unreachable!("the default light is directional")
+                };
+                vec![format!("{},{},{}", d[0], d[1], d[2])]
+            }
         };
         for l in &light_texts {
             match Light::parse_directional(l).map_err(|e| bad(format!("[render] lights: {e}")))? {

@@ -6,13 +6,14 @@
 //! A staged file is named `.NAME.WRITER.RANDOM.partial` (a folder
 //! `.NAME.WRITER.RANDOM.partial.d`), where WRITER is `PID-HOST-BOOT`: the
 //! writing process and hashes of its machine's host name and boot id
-//! ([`Writer`]). Before a new output is staged, partial files of the same
-//! destination left by a process that no longer runs (a killed run) are
-//! removed; what was removed is kept for the caller to report
-//! ([`take_removed_partials`]). Liveness is read from `/proc`: where it is
-//! absent, nothing is removed. A partial written on another host (a
-//! filesystem several machines share) is never removed: its process cannot
-//! be seen from here.
+//! ([`Writer`]; HOST also covers the process-id namespace, so containers
+//! sharing a host name differ). Before a new output is staged, partial files
+//! of the same destination left by a process of this machine that no longer
+//! runs (a killed run) are removed; what was removed is kept for the caller
+//! to report ([`take_removed_partials`]). Liveness is read from `/proc`:
+//! where it is absent, nothing is removed. A partial written on another
+//! machine (a filesystem several share), or before a reboot, is never
+//! removed: its process cannot be seen from here.
 //!
 //! [`check_output`] refuses an output that is one of the command's inputs (or
 //! a file an input depends on), after resolving links: writing it would
@@ -89,18 +90,26 @@ pub(crate) struct Machine {
     boot: u32,
 }
 
-/// This machine: hashes of its host name and boot id (0 where unreadable).
+/// This machine: hashes of its host name with its process-id namespace, and
+/// of its boot id; 0 where they cannot be read (then nothing of it is ever
+/// judged gone).
 pub(crate) fn this_machine() -> Machine {
     static MACHINE: std::sync::OnceLock<Machine> = std::sync::OnceLock::new();
     *MACHINE.get_or_init(|| {
-        let hash = |file: &str| {
-            std::fs::read_to_string(file)
-                .map(|s| xxhash_rust::xxh3::xxh3_64(s.trim().as_bytes()) as u32)
+        let hash = |text: Option<String>| {
+            text.map(|s| (xxhash_rust::xxh3::xxh3_64(s.trim().as_bytes()) as u32).max(1))
                 .unwrap_or(0)
         };
+        let hostname = std::fs::read_to_string("/proc/sys/kernel/hostname").ok();
+        // containers sharing a host name but not their process ids differ
+        let pid_ns = std::fs::read_link("/proc/self/ns/pid").ok();
+        let host = match (hostname, pid_ns) {
+            (Some(h), Some(ns)) => Some(format!("{}\n{}", h.trim(), ns.display())),
+            _ => None,
+        };
         Machine {
-            host: hash("/proc/sys/kernel/hostname"),
-            boot: hash("/proc/sys/kernel/random/boot_id"),
+            host: hash(host),
+            boot: hash(std::fs::read_to_string("/proc/sys/kernel/random/boot_id").ok()),
         }
     })
 }
@@ -130,16 +139,16 @@ impl Writer {
     }
 
     /// Whether the writer is known to be gone: a process of this machine
-    /// that no longer runs (as `/proc` tells), or any process of this
-    /// host before its last boot. A writer on another host is never known
-    /// to be gone.
+    /// (same host name, process-id namespace and boot) that no longer runs,
+    /// as `/proc` tells. A writer elsewhere, or on a machine that cannot
+    /// name itself, is never known to be gone.
     pub(crate) fn is_gone(&self) -> bool {
         let here = this_machine();
-        match self.machine {
-            Some(m) if m.host != here.host => false,
-            Some(m) if m.boot != here.boot => true,
-            _ => self.pid != std::process::id() && process_alive(self.pid) == Some(false),
-        }
+        let same_machine = match self.machine {
+            None => true,
+            Some(m) => m == here && m.host != 0 && m.boot != 0,
+        };
+        same_machine && self.pid != std::process::id() && process_alive(self.pid) == Some(false)
     }
 }
 
@@ -279,6 +288,27 @@ impl StagedDir {
     /// The destination folder.
     pub fn dest(&self) -> &Path {
         &self.dest
+    }
+
+    /// Renames the staged folder onto the destination unless a folder with
+    /// content is there already (another writer's): then the staged folder
+    /// is removed and `false` returned. An empty folder there is replaced.
+    pub fn commit_unless_present(mut self) -> Result<bool> {
+        let tmp = self.tmp.take().expect("commit runs once");
+        let staged = tmp.keep();
+        let dest = self.dest.clone();
+        match std::fs::rename(&staged, &dest) {
+            Ok(()) => Ok(true),
+            Err(e) => {
+                let _ = std::fs::remove_dir_all(&staged);
+                let occupied = std::fs::read_dir(&dest).is_ok_and(|mut d| d.next().is_some());
+                if occupied {
+                    Ok(false)
+                } else {
+                    Err(Error::io(&dest, e))
+                }
+            }
+        }
     }
 
     /// Renames the staged folder onto the destination, replacing a previous
@@ -467,8 +497,8 @@ mod tests {
             .join(format!(".x.quilt.{}.abcdefgh.partial", std::process::id()));
         let other = dir.path().join(".y.quilt.4294967.abcdefgh.partial");
         // the same with this machine named: removed; with another host
-        // (a shared filesystem): kept whatever its pid; with this host
-        // before its last boot: removed whatever its pid
+        // (a shared filesystem) or another boot of this one: kept whatever
+        // its pid, since no process there can be seen from here
         let here = this_machine();
         let named = |pid: u32, m: Machine| {
             let w = Writer {
@@ -486,7 +516,7 @@ mod tests {
             },
         );
         let rebooted = named(
-            std::process::id(),
+            4294967,
             Machine {
                 boot: here.boot ^ 1,
                 ..here
@@ -497,8 +527,8 @@ mod tests {
         }
         let tmp = staged_file(&dest).unwrap();
         assert!(!dead.exists(), "the dead writer's partial stays");
-        assert!(!dead_here.exists() && !rebooted.exists());
-        assert!(live.exists() && other.exists() && elsewhere.exists());
+        assert!(!dead_here.exists());
+        assert!(live.exists() && other.exists() && elsewhere.exists() && rebooted.exists());
         assert!(tmp.path().to_string_lossy().contains(&Writer::me().to_string()));
         let removed = take_removed_partials();
         assert!(removed

@@ -207,9 +207,15 @@ fn shards_as_separate_processes_equal_one_run_byte_for_byte() {
                 .len();
             assert_eq!(o["bytes"].as_u64().unwrap(), len);
         }
-        let hash = l["mesh"]["hash"].as_str().unwrap();
+        let (hash, bytes) = (
+            l["mesh"]["hash"].as_str().unwrap(),
+            l["mesh"]["bytes"].as_u64().unwrap(),
+        );
         assert!(one.join(l["mesh"]["file"].as_str().unwrap()).is_file());
-        assert_eq!(l["mesh"]["file"].as_str().unwrap(), format!("inputs/{hash}.obj"));
+        assert_eq!(
+            l["mesh"]["file"].as_str().unwrap(),
+            format!("inputs/{hash}-{bytes}.obj")
+        );
         assert!(l["seconds"]["tile"].as_f64().unwrap() > 0.0);
     }
     // one geometry image per resolution, one factorization per sample
@@ -375,6 +381,10 @@ fn bad_plans_are_refused_naming_the_plan_and_the_fault_with_nothing_written() {
         ),
         (text.replace("0.4,0.8,0.6", "0,0,0"), vec!["[render] lights"]),
         (
+            text.replace("lights = [\"0.4,0.8,0.6\", \"-0.6,0.3,0.7,2\"]", "lights = []"),
+            vec!["[render] lights is empty"],
+        ),
+        (
             text.replace("[[mesh]]\npath = \"square.obj\"", ""),
             vec!["names no mesh"],
         ),
@@ -388,6 +398,25 @@ fn bad_plans_are_refused_naming_the_plan_and_the_fault_with_nothing_written() {
         assert!(!out.exists(), "a refused plan wrote {}", out.display());
     }
     std::fs::write(&plan, &text).unwrap();
+    // the manifest may not be an input, --job goes alone
+    fails_clearly(
+        &btfquilt(&["batch", s(&plan), "-o", s(&out), "--manifest", s(&plan)]),
+        &["plan.toml", "would destroy it"],
+    );
+    assert!(!out.exists());
+    fails_clearly(
+        &btfquilt(&[
+            "batch",
+            s(&plan),
+            "-o",
+            s(&out),
+            "--job",
+            &"0".repeat(32),
+            "--shard",
+            "0/2",
+        ]),
+        &["--job", "--shard"],
+    );
     for bad in ["3/3", "1", "a/2", "0/0"] {
         fails_clearly(
             &btfquilt(&["batch", s(&plan), "-o", s(&out), "--shard", bad]),
@@ -634,4 +663,51 @@ fn btf_and_factorized_samples_give_renders_and_surface_btfs() {
             std::fs::read(job.join("render-c0-l0.png")).unwrap()
         );
     }
+}
+
+#[test]
+fn the_same_plan_run_twice_at_once_and_incomplete_copies_are_handled() {
+    let (d, plan) = plan_dir();
+    let reference = d.path().join("reference");
+    ok(&["batch", s(&plan), "-o", s(&reference), "-q"]);
+    // two unsharded runs at once: every job is run by one or both, none fails
+    let out = d.path().join("twice");
+    let runs: Vec<_> = (0..2)
+        .map(|_| {
+            Command::new(env!("CARGO_BIN_EXE_btfquilt"))
+                .args(["batch", s(&plan), "-o", s(&out), "-q", "--threads", "1"])
+                .output_async()
+        })
+        .collect();
+    for r in runs {
+        let o = r.wait_with_output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    assert_same_tree(&reference, &out);
+    assert_eq!(hidden(&out), Vec::<PathBuf>::new());
+
+    // a job folder without its job.json (a copy cut short) is not taken as
+    // done, nor replaced: the run names it and leaves it
+    let jobs = list(&plan, &out, &[]);
+    let cut = out.join("jobs").join(&jobs[0].0);
+    std::fs::remove_file(cut.join("job.json")).unwrap();
+    assert_eq!(list(&plan, &out, &[])[0].1, "todo");
+    let r = btfquilt(&["batch", s(&plan), "-o", s(&out), "-q"]);
+    fails_clearly(&r, &[&jobs[0].0, "holds no job.json", "Remove it"]);
+    assert!(
+        cut.join("decorated.quilt").is_file(),
+        "the incomplete folder was touched"
+    );
+    std::fs::remove_dir_all(&cut).unwrap();
+
+    // a shared artifact cut short is made again in its place
+    let shared = out.join("shared");
+    let gim = common::listing(&shared)
+        .into_iter()
+        .find(|f| f.ends_with(".gim"))
+        .unwrap();
+    let bytes = std::fs::read(shared.join(&gim)).unwrap();
+    std::fs::write(shared.join(&gim), &bytes[..bytes.len() / 2]).unwrap();
+    ok(&["batch", s(&plan), "-o", s(&out), "-q"]);
+    assert_same_tree(&reference, &out);
 }
