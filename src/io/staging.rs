@@ -6,7 +6,7 @@
 //! A staged file is named `.NAME.WRITER.RANDOM.partial` (a folder
 //! `.NAME.WRITER.RANDOM.partial.d`), where WRITER is `PID-HOST-BOOT`: the
 //! writing process and hashes of its machine's host name and boot id
-//! ([`Writer`]; HOST also covers the process-id namespace, so containers
+//! (`Writer`; HOST also covers the process-id namespace, so containers
 //! sharing a host name differ). Before a new output is staged, partial files
 //! of the same destination left by a process of this machine that no longer
 //! runs (a killed run) are removed; what was removed is kept for the caller
