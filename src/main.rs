@@ -411,6 +411,10 @@ enum Command {
         /// Append the manifest lines here instead of OUTPUT/manifest.jsonl.
         #[arg(long)]
         manifest: Option<PathBuf>,
+        /// Jobs run at once in this process (the quilting loop uses one core: give
+        /// the number of cores); --memory is shared among them. Same outputs for any number.
+        #[arg(long, default_value_t = batch::BatchConfig::default().workers)]
+        workers: usize,
         #[command(flatten)]
         res: Resources,
     },
@@ -944,9 +948,15 @@ fn run(cli: Cli) -> Result<()> {
             list,
             json,
             manifest,
+            workers,
             res,
         } => {
             let (memory, bars) = res.apply()?;
+            if workers == 0 {
+                bail!("--workers must be at least 1");
+            }
+            // one progress bar cannot follow several jobs: their lines only
+            let bars = if workers > 1 { Bars::new(true) } else { bars };
             let plan = batch::Plan::load(&plan)?;
             let cfg = batch::BatchConfig {
                 shard,
@@ -954,6 +964,7 @@ fn run(cli: Cli) -> Result<()> {
                 stages,
                 manifest,
                 memory,
+                workers,
             };
             if list && stages == batch::Stages::Shared {
                 for (stage, status) in batch::selected_shared(&plan, &output, &cfg) {

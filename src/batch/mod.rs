@@ -32,6 +32,7 @@ pub mod plan;
 use std::collections::HashMap;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use serde::Serialize;
@@ -73,8 +74,13 @@ pub struct BatchConfig {
     pub stages: Stages,
     /// Where the manifest lines go (default `OUT/manifest.jsonl`).
     pub manifest: Option<PathBuf>,
-    /// Budget of each stage.
+    /// The budget of the whole run, shared evenly by the workers.
     pub memory: MemoryBudget,
+    /// Jobs run at once, each on a thread of its own (its stages use the
+    /// thread pool too). The quilting loop runs on one core, so on a
+    /// machine of C cores C workers finish about C times as many jobs a
+    /// minute as one; outputs are the same bytes for any number.
+    pub workers: usize,
 }
 
 impl Default for BatchConfig {
@@ -85,6 +91,7 @@ impl Default for BatchConfig {
             stages: Stages::All,
             manifest: None,
             memory: MemoryBudget::default(),
+            workers: 1,
         }
     }
 }
@@ -203,14 +210,17 @@ pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) 
     let inputs = input_paths(plan);
     crate::io::staging::check_output(&manifest_path, &inputs)?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
-    let mut runner = Runner {
+    let workers = cfg.workers.max(1);
+    let runner = Runner {
         plan,
         out,
         cfg,
         progress,
-        failed_shared: HashMap::new(),
-        manifest: Manifest::open(&manifest_path)?,
-        report: BatchReport::default(),
+        budget: MemoryBudget(cfg.memory.0 / workers as u64),
+        failed_shared: Mutex::new(HashMap::new()),
+        shared_locks: Mutex::new(HashMap::new()),
+        manifest: Mutex::new(Manifest::open(&manifest_path)?),
+        report: Mutex::new(BatchReport::default()),
     };
     match cfg.stages {
         Stages::Shared => {
@@ -230,47 +240,44 @@ pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) 
                 };
                 runner.record_shared(stage, status, seconds, error.as_deref())?;
                 if let Some(e) = error {
-                    runner.report.failed.push((stage.key(), e));
+                    lock(&runner.report).failed.push((stage.key(), e));
                 }
             }
         }
         Stages::All => {
             let jobs = selected_jobs(plan, out, cfg)?;
-            let n = jobs.len();
-            for (i, (job, status)) in jobs.into_iter().enumerate() {
-                let what = format!("job {}/{n} {} ({})", i + 1, job.key, job.describe(plan));
-                if status == JobStatus::Done {
-                    progress.note(&format!("{what}: already done"));
-                    runner.report.skipped += 1;
-                    runner.record(&job, "skipped", &Timings::default(), None)?;
-                    continue;
-                }
-                let mut t = Timings::default();
-                let result = runner.job(&job, &mut t);
-                t.total = t.start.map_or(0.0, |s| s.elapsed().as_secs_f64());
-                match result {
-                    Ok(JobRun::Done) => {
-                        progress.note(&format!("{what}: done in {:.1} s", t.total));
-                        runner.report.done += 1;
-                        runner.record(&job, "done", &t, None)?;
-                    }
-                    Ok(JobRun::DoneElsewhere) => {
-                        progress.note(&format!("{what}: done meanwhile by another process"));
-                        runner.report.skipped += 1;
-                        runner.record(&job, "skipped", &t, None)?;
-                    }
-                    Err(e) => {
-                        progress.note(&format!("{what}: failed: {e}"));
-                        let msg = e.to_string();
-                        runner.record(&job, "failed", &t, Some(&msg))?;
-                        runner.report.failed.push((job.key, msg));
-                    }
-                }
-            }
+            // workers take the jobs in order; each job's bytes depend on it alone
+            let next = std::sync::atomic::AtomicUsize::new(0);
+            let results: Vec<Result<()>> = std::thread::scope(|scope| {
+                let handles: Vec<_> = (0..workers.min(jobs.len()).max(1))
+                    .map(|_| {
+                        scope.spawn(|| -> Result<()> {
+                            loop {
+                                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                                let Some((job, status)) = jobs.get(i) else {
+                                    return Ok(());
+                                };
+                                runner.take(i, jobs.len(), job, *status)?;
+                            }
+                        })
+                    })
+                    .collect();
+                handles
+                    .into_iter()
+                    .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+                    .collect()
+            });
+            results.into_iter().collect::<Result<()>>()?;
         }
     }
-    runner.report.seconds = start.elapsed().as_secs_f64();
-    Ok(runner.report)
+    let mut report = runner.report.into_inner().unwrap_or_else(|e| e.into_inner());
+    report.seconds = start.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// Locks a mutex, whatever a panicking holder left.
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// `path` made absolute with links resolved, as far as it exists (the rest
@@ -433,20 +440,57 @@ enum JobRun {
     DoneElsewhere,
 }
 
-/// What [`run`] carries from job to job.
+/// What [`run`]'s workers share.
 struct Runner<'a> {
     plan: &'a Plan,
     out: &'a Path,
     cfg: &'a BatchConfig,
     progress: &'a dyn Progress,
+    /// Each worker's share of `--memory`.
+    budget: MemoryBudget,
     /// Shared stages that failed in this run, with their error (not tried again).
-    failed_shared: HashMap<Key, String>,
-    manifest: Manifest,
-    report: BatchReport,
+    failed_shared: Mutex<HashMap<Key, String>>,
+    /// One lock per shared artifact: one worker makes it, the others wait.
+    shared_locks: Mutex<HashMap<Key, Arc<Mutex<()>>>>,
+    manifest: Mutex<Manifest>,
+    report: Mutex<BatchReport>,
 }
 
 impl Runner<'_> {
-    fn record(&mut self, job: &Job, status: &str, t: &Timings, error: Option<&str>) -> Result<()> {
+    /// Takes job `i` of `n`: skips it if done, else runs it; records it.
+    fn take(&self, i: usize, n: usize, job: &Job, status: JobStatus) -> Result<()> {
+        let what = format!("job {}/{n} {} ({})", i + 1, job.key, job.describe(self.plan));
+        if status == JobStatus::Done {
+            self.progress.note(&format!("{what}: already done"));
+            lock(&self.report).skipped += 1;
+            return self.record(job, "skipped", &Timings::default(), None);
+        }
+        let mut t = Timings::default();
+        let result = self.job(job, &mut t);
+        t.total = t.start.map_or(0.0, |s| s.elapsed().as_secs_f64());
+        match result {
+            Ok(JobRun::Done) => {
+                self.progress.note(&format!("{what}: done in {:.1} s", t.total));
+                lock(&self.report).done += 1;
+                self.record(job, "done", &t, None)
+            }
+            Ok(JobRun::DoneElsewhere) => {
+                self.progress
+                    .note(&format!("{what}: done meanwhile by another process"));
+                lock(&self.report).skipped += 1;
+                self.record(job, "skipped", &t, None)
+            }
+            Err(e) => {
+                self.progress.note(&format!("{what}: failed: {e}"));
+                let msg = e.to_string();
+                self.record(job, "failed", &t, Some(&msg))?;
+                lock(&self.report).failed.push((job.key, msg));
+                Ok(())
+            }
+        }
+    }
+
+    fn record(&self, job: &Job, status: &str, t: &Timings, error: Option<&str>) -> Result<()> {
         let plan = self.plan;
         let sample = &plan.samples[job.sample];
         let folder = self.out.join(job.dir());
@@ -472,11 +516,11 @@ impl Runner<'_> {
             outputs,
             error,
         };
-        self.manifest.append(&line)
+        lock(&self.manifest).append(&line)
     }
 
     fn record_shared(
-        &mut self,
+        &self,
         stage: &SharedStage,
         status: &str,
         seconds: f64,
@@ -515,7 +559,7 @@ impl Runner<'_> {
                 .map(|m| m.len()),
             error,
         };
-        self.manifest.append(&line)
+        lock(&self.manifest).append(&line)
     }
 
     /// Copies an input into `inputs/` under its content name, unless there.
@@ -540,23 +584,25 @@ impl Runner<'_> {
     }
 
     /// Makes a shared artifact unless it exists; whether it was made.
-    fn shared(&mut self, stage: &SharedStage) -> Result<bool> {
+    fn shared(&self, stage: &SharedStage) -> Result<bool> {
         let dest = self.out.join(stage.file());
+        let key_lock = lock(&self.shared_locks).entry(stage.key()).or_default().clone();
+        let _making = lock(&key_lock);
         // an incomplete one (a copy cut short) is made again, in its place
         if shared_done(self.out, stage) {
             return Ok(false);
         }
-        if let Some(e) = self.failed_shared.get(&stage.key()) {
+        if let Some(e) = lock(&self.failed_shared).get(&stage.key()) {
             return Err(Error::Config(e.clone()));
         }
         let made = self.make_shared(stage, &dest);
         match made {
             Ok(()) => {
-                self.report.shared_made += 1;
+                lock(&self.report).shared_made += 1;
                 Ok(true)
             }
             Err(e) => {
-                self.failed_shared.insert(stage.key(), e.to_string());
+                lock(&self.failed_shared).insert(stage.key(), e.to_string());
                 Err(e)
             }
         }
@@ -579,7 +625,7 @@ impl Runner<'_> {
                 let sample_file = self.stage_input(&self.plan.samples[sample].input)?;
                 let cfg = FactorizeConfig {
                     terms: self.plan.terms,
-                    memory: self.cfg.memory,
+                    memory: self.budget,
                     ..FactorizeConfig::default()
                 };
                 factorize::factorize(&sample_file, dest, &cfg, self.progress)?;
@@ -589,9 +635,9 @@ impl Runner<'_> {
     }
 
     /// Runs one job into its staged folder and renames it into place.
-    fn job(&mut self, job: &Job, t: &mut Timings) -> Result<JobRun> {
+    fn job(&self, job: &Job, t: &mut Timings) -> Result<JobRun> {
         let plan = self.plan;
-        let budget = self.cfg.memory;
+        let budget = self.budget;
         t.start = Some(Instant::now());
         let lap = Instant::now();
         self.shared(&job.atlas)?;

@@ -168,6 +168,20 @@ fn shards_as_separate_processes_equal_one_run_byte_for_byte() {
     all.sort();
     assert_eq!(keys, all);
     assert_same_tree(&one, &sharded);
+    // nor on jobs run side by side in one process
+    let workers = d.path().join("workers");
+    ok(&[
+        "batch",
+        s(&plan),
+        "-o",
+        s(&workers),
+        "-q",
+        "--workers",
+        "3",
+        "--memory",
+        "48MiB",
+    ]);
+    assert_same_tree(&one, &workers);
     // the folder's bytes do not depend on where it or the plan lie
     let moved = d.path().join("deeper/still");
     std::fs::create_dir_all(&moved).unwrap();
