@@ -209,6 +209,12 @@ pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) 
     let manifest_path = cfg.manifest.clone().unwrap_or_else(|| out.join("manifest.jsonl"));
     let inputs = input_paths(plan);
     crate::io::staging::check_output(&manifest_path, &inputs)?;
+    if out.exists() && !out.is_dir() {
+        return Err(Error::input(
+            out,
+            "exists and is not a folder: give a folder for the batch's outputs",
+        ));
+    }
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let workers = cfg.workers.max(1);
     let runner = Runner {
@@ -424,6 +430,16 @@ fn files_under(dir: &Path) -> Vec<ManifestOutput> {
     v
 }
 
+/// An error about the copy `copy` of a plan's input, told of the input
+/// itself (the file the user named), with the copy in parentheses.
+fn naming_the_input(e: Error, copy: &Path, input: &plan::Input) -> Error {
+    let text = e.to_string();
+    match text.strip_prefix(&format!("{}: ", copy.display())) {
+        Some(reason) => Error::input(&input.path, format!("{reason} (in its copy {})", copy.display())),
+        None => e,
+    }
+}
+
 /// An input's manifest entry.
 fn input(i: &plan::Input) -> ManifestInput<'_> {
     ManifestInput {
@@ -613,22 +629,26 @@ impl Runner<'_> {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         match *stage {
             SharedStage::Atlas { mesh, resolution, .. } => {
-                let mesh_file = self.stage_input(&self.plan.meshes[mesh])?;
+                let input = &self.plan.meshes[mesh];
+                let mesh_file = self.stage_input(input)?;
                 let cfg = AtlasConfig {
                     resolution,
                     gutter: self.plan.gutter,
                     ..AtlasConfig::default()
                 };
-                atlas::build_gim(&mesh_file, dest, &cfg, self.progress)?;
+                atlas::build_gim(&mesh_file, dest, &cfg, self.progress)
+                    .map_err(|e| naming_the_input(e, &mesh_file, input))?;
             }
             SharedStage::Factorize { sample, .. } => {
-                let sample_file = self.stage_input(&self.plan.samples[sample].input)?;
+                let input = &self.plan.samples[sample].input;
+                let sample_file = self.stage_input(input)?;
                 let cfg = FactorizeConfig {
                     terms: self.plan.terms,
                     memory: self.budget,
                     ..FactorizeConfig::default()
                 };
-                factorize::factorize(&sample_file, dest, &cfg, self.progress)?;
+                factorize::factorize(&sample_file, dest, &cfg, self.progress)
+                    .map_err(|e| naming_the_input(e, &sample_file, input))?;
             }
         }
         Ok(())

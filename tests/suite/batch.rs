@@ -452,7 +452,19 @@ fn bad_plans_are_refused_naming_the_plan_and_the_fault_with_nothing_written() {
         &r,
         &["4 of the batch's jobs or shared stages failed", "manifest.jsonl"],
     );
-    assert!(stderr.contains("b.png") || stderr.contains(".png"), "{stderr}");
+    // the error names the user's file, not only its copy in inputs/
+    assert!(
+        stderr.contains("in/b.png") && stderr.contains("in its copy"),
+        "{stderr}"
+    );
+    // an output that is a file is refused
+    let file = d.path().join("a-file");
+    std::fs::write(&file, b"mine").unwrap();
+    fails_clearly(
+        &btfquilt(&["batch", s(&plan), "-o", s(&file)]),
+        &["a-file", "not a folder"],
+    );
+    assert_eq!(std::fs::read(&file).unwrap(), b"mine");
     let lines = manifest(&out);
     assert_eq!(lines.iter().filter(|l| l["status"] == "done").count(), 4);
     assert_eq!(lines.iter().filter(|l| l["status"] == "failed").count(), 4);
