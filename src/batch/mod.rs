@@ -675,17 +675,22 @@ impl Runner<'_> {
         t.shared = lap.elapsed().as_secs_f64();
 
         let dest = self.out.join(job.dir());
-        if job_done(self.out, job) {
-            // another process finished it since this run listed the jobs
-            return Ok(JobRun::DoneElsewhere);
-        }
+        // a job folder appears whole, with its job.json, by one rename
         if dest.exists() {
+            if job_done(self.out, job) {
+                // another process finished it since this run listed the jobs
+                return Ok(JobRun::DoneElsewhere);
+            }
             return Err(Error::input(
                 &dest,
                 format!("exists but holds no {JOB_JSON}: an incomplete copy of a job folder? Remove it to run the job again"),
             ));
         }
-        let stage = StagedDir::new(&dest, None)?;
+        let stage = match StagedDir::new(&dest, None) {
+            Ok(stage) => stage,
+            Err(_) if job_done(self.out, job) => return Ok(JobRun::DoneElsewhere),
+            Err(e) => return Err(e),
+        };
         let dir = stage.path().to_path_buf();
         let quilt_path = dir.join(QUILT);
 

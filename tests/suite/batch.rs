@@ -341,7 +341,9 @@ fn a_killed_run_resumes_with_no_duplicate_or_partial_output() {
         std::thread::sleep(std::time::Duration::from_millis(5));
     }
     assert!(killed_mid_job, "the run was not caught in a job");
-    assert!(!hidden(&out).is_empty(), "a killed job leaves its partial folder");
+    // almost always a job's partial folder is left (unless the kill fell
+    // just after a job's folder was renamed into place)
+    let left_partial = !hidden(&out).is_empty();
     let finished_before = common::listing(&out.join("jobs"))
         .iter()
         .filter(|n| !n.starts_with('.'))
@@ -350,7 +352,9 @@ fn a_killed_run_resumes_with_no_duplicate_or_partial_output() {
     let run = btfquilt(&["batch", s(&plan), "-o", s(&out)]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let stderr = String::from_utf8_lossy(&run.stderr);
-    assert!(stderr.contains("a partial output left by process"), "{stderr}");
+    if left_partial {
+        assert!(stderr.contains("a partial output left by process"), "{stderr}");
+    }
     let stdout = String::from_utf8_lossy(&run.stdout);
     assert!(
         stdout.contains(&format!(
