@@ -11,8 +11,9 @@ count). PLAN, OUT and --btfquilt must name the same files on every node (a
 shared filesystem); relative paths are made absolute here.
 
   1. The jobs still to do are read from `btfquilt batch PLAN -o OUT --list --json`.
-  2. The shared stages (geometry images, factorizations) are made once, by K
-     tasks `--stages shared --shard i/K`.
+  2. The shared artifacts still to make (geometry images, factorizations;
+     `--list --json --stages shared`) are made once, by K tasks
+     `--stages shared --shard i/K`, K at most their number.
   3. The jobs run: one task per job (`--job KEY`, --mode jobs) or N tasks
      `--shard i/N` (--mode shards). Each task runs btfquilt with
      `--threads T --memory M -q`, asks Ray for num_cpus=T and memory=M, and
@@ -117,6 +118,12 @@ def list_jobs(base):
     return {j["job"]: j["status"] for j in map(json.loads, text.splitlines()) if j}
 
 
+def shared_to_make(base):
+    """How many shared artifacts (geometry images, factorizations) are still to make."""
+    text = ray.get(run_btfquilt.remote(base + ["--list", "--json", "--stages", "shared"]))
+    return sum(1 for s in map(json.loads, text.splitlines()) if s and s["status"] == "todo")
+
+
 def run_tasks(tasks, opts, kill_once=None, out=None):
     """Runs [(name, argv)] as Ray tasks; the names of those that finally failed."""
     refs = {run_btfquilt.options(name=n, **opts).remote(a, out, kill_once): n for n, a in tasks}
@@ -190,10 +197,12 @@ def main():
 
     failed = []
     if todo:
-        k = max(1, min(len(todo), slots))
-        print(f"shared stages: {k} tasks")
-        failed += run_tasks([task(f"shared-{i}-of-{k}", ["--stages", "shared", "--shard", f"{i}/{k}"])
-                             for i in range(k)], opts)
+        shared = shared_to_make(base)
+        if shared:
+            k = min(shared, slots)
+            print(f"shared stages: {shared} to make, {k} tasks")
+            failed += run_tasks([task(f"shared-{i}-of-{k}", ["--stages", "shared", "--shard", f"{i}/{k}"])
+                                 for i in range(k)], opts)
         if a.mode == "jobs":
             tasks = [task(f"job-{key}", ["--job", key]) for key in todo]
         else:
