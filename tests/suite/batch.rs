@@ -741,3 +741,81 @@ fn the_same_plan_run_twice_at_once_and_incomplete_copies_are_handled() {
     ok(&["batch", s(&plan), "-o", s(&out), "-q"]);
     assert_same_tree(&reference, &out);
 }
+
+#[test]
+fn shards_partition_any_list_into_contiguous_runs() {
+    for len in [0usize, 1, 2, 7, 8, 100] {
+        for count in 1..=12 {
+            let mut next = 0;
+            for index in 0..count {
+                let r = btfquilt::batch::Shard { index, count }.range(len);
+                assert_eq!(r.start, next, "len {len}, {index}/{count}");
+                // sizes differ by at most one
+                assert!(r.len() == len / count || r.len() == len / count + 1);
+                next = r.end;
+            }
+            assert_eq!(next, len);
+        }
+    }
+}
+
+#[test]
+fn shard_and_key_parse_what_they_print() {
+    let s = btfquilt::batch::Shard::parse("3/8").unwrap();
+    assert_eq!((s.index, s.count), (3, 8));
+    assert_eq!(btfquilt::batch::Shard::parse(&s.to_string()).unwrap(), s);
+    for bad in ["8/8", "-1/3", "1", "1/0", "x/2", ""] {
+        assert!(btfquilt::batch::Shard::parse(bad).is_err(), "{bad}");
+    }
+    let k = btfquilt::batch::Key(0x0123_4567_89ab_cdef_0011_2233_4455_6677);
+    assert_eq!(k.to_string(), "0123456789abcdef0011223344556677");
+    assert_eq!(btfquilt::batch::Key::parse(&k.to_string()), Some(k));
+    assert_eq!(btfquilt::batch::Key::parse("0123"), None);
+    assert_eq!(btfquilt::batch::Key::parse(&"g".repeat(32)), None);
+}
+
+#[test]
+fn every_parameter_reaching_an_output_changes_the_key() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("m.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    std::fs::write(d.path().join("s.png"), b"any bytes: only hashed here").unwrap();
+    let base = "[[mesh]]\npath = \"m.obj\"\n[[sample]]\npath = \"s.png\"\n";
+    let key = |extra: &str| {
+        let plan =
+            btfquilt::batch::Plan::parse(&d.path().join("plan.toml"), &format!("{base}{extra}")).unwrap();
+        let jobs = plan.jobs();
+        assert_eq!(jobs.len(), 1);
+        jobs[0].key
+    };
+    let k0 = key("");
+    // the defaults written out are the same job
+    assert_eq!(k0, key("[atlas]\nresolutions = [1024]\n[tile]\nseeds = [1]\n"));
+    let variants = [
+        "[atlas]\nresolutions = [512]\n",
+        "[atlas]\ngutter = 3\n",
+        "[tile]\nseeds = [2]\n",
+        "[tile]\nsample_widths = [0.5]\n",
+        "[tile]\nrefine = 0\n",
+        "[tile]\noccurrence_weight = 0.5\n",
+        "[factorize]\nterms = 8\n",
+        "[render]\nwidth = 320\n",
+        "[render]\nlights = [\"0,1,0\"]\n",
+        "[render]\ncameras = [\"0,0,3,0,0,0,0,1,0,40\"]\n",
+        "[outputs]\ngltf = true\n",
+    ];
+    let mut keys = vec![k0];
+    for v in variants {
+        let k = key(v);
+        assert!(!keys.contains(&k), "{v} gave a key already seen");
+        keys.push(k);
+    }
+    // a renamed input is the same job; changed content is another
+    let renamed = btfquilt::batch::Plan::parse(
+        &d.path().join("plan.toml"),
+        &base.replace("path = \"s.png\"", "path = \"s.png\"\nname = \"other\""),
+    )
+    .unwrap();
+    assert_eq!(renamed.jobs()[0].key, k0);
+    std::fs::write(d.path().join("s.png"), b"other bytes").unwrap();
+    assert_ne!(key(""), k0);
+}
