@@ -74,6 +74,11 @@ pub mod studio;
 
 pub use error::{Error, Result};
 
+/// Locks a mutex; a holder that panicked does not poison it for good.
+pub(crate) fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
 /// The README's code, compiled as doc tests.
 #[cfg(doctest)]
 #[doc = include_str!("../README.md")]

@@ -47,7 +47,7 @@ use crate::output::export::{self, ExportOptions, MeshFormat};
 use crate::output::{bake, render};
 use crate::progress::Progress;
 use crate::quilt;
-use crate::{Error, Result};
+use crate::{lock, Error, Result};
 
 /// The name of a job's decorated surface in its folder.
 pub const QUILT: &str = "decorated.quilt";
@@ -194,8 +194,9 @@ pub fn selected_shared(plan: &Plan, out: &Path, cfg: &BatchConfig) -> Vec<(Share
 /// is returned only when the batch cannot run at all.
 pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) -> Result<BatchReport> {
     let start = Instant::now();
+    let inputs = input_paths(plan);
     let out_resolved = resolved(out);
-    for (role, p) in input_paths(plan) {
+    for &(role, p) in &inputs {
         if resolved(p).starts_with(&out_resolved) {
             return Err(Error::input(
                 out,
@@ -207,7 +208,6 @@ pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) 
         }
     }
     let manifest_path = cfg.manifest.clone().unwrap_or_else(|| out.join("manifest.jsonl"));
-    let inputs = input_paths(plan);
     crate::io::staging::check_output(&manifest_path, &inputs)?;
     if out.exists() && !out.is_dir() {
         return Err(Error::input(
@@ -281,11 +281,6 @@ pub fn run(plan: &Plan, out: &Path, cfg: &BatchConfig, progress: &dyn Progress) 
     Ok(report)
 }
 
-/// Locks a mutex, whatever a panicking holder left.
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|e| e.into_inner())
-}
-
 /// `path` made absolute with links resolved, as far as it exists (the rest
 /// appended as given), for comparing where things lie.
 fn resolved(path: &Path) -> PathBuf {
@@ -324,8 +319,6 @@ fn input_paths(plan: &Plan) -> Vec<(&'static str, &Path)> {
 /// Seconds spent per stage on one job.
 #[derive(Clone, Debug, Default, Serialize)]
 struct Timings {
-    #[serde(skip)]
-    start: Option<Instant>,
     /// Shared artifacts this job had to make (0 when another job had).
     shared: f64,
     tile: f64,
@@ -395,14 +388,6 @@ struct ManifestLine<'a> {
     seconds: &'a Timings,
     outputs: Vec<ManifestOutput>,
     error: Option<&'a str>,
-}
-
-/// This machine's name (for the manifest), or "" where it cannot be read.
-fn host_name() -> String {
-    std::fs::read_to_string("/proc/sys/kernel/hostname")
-        .or_else(|_| std::fs::read_to_string("/etc/hostname"))
-        .map(|s| s.trim().to_string())
-        .unwrap_or_default()
 }
 
 /// Files under `dir` (relative, sorted) with their sizes.
@@ -482,8 +467,9 @@ impl Runner<'_> {
             return self.record(job, "skipped", &Timings::default(), None);
         }
         let mut t = Timings::default();
+        let start = Instant::now();
         let result = self.job(job, &mut t);
-        t.total = t.start.map_or(0.0, |s| s.elapsed().as_secs_f64());
+        t.total = start.elapsed().as_secs_f64();
         match result {
             Ok(JobRun::Done) => {
                 self.progress.note(&format!("{what}: done in {:.1} s", t.total));
@@ -520,7 +506,7 @@ impl Runner<'_> {
             status,
             folder: job.dir(),
             shard: self.cfg.shard.to_string(),
-            host: host_name(),
+            host: staging::host_name().unwrap_or_default(),
             pid: std::process::id(),
             mesh: input(&plan.meshes[job.mesh]),
             sample: input(&sample.input),
@@ -565,7 +551,7 @@ impl Runner<'_> {
             status,
             file: stage.file(),
             shard: self.cfg.shard.to_string(),
-            host: host_name(),
+            host: staging::host_name().unwrap_or_default(),
             pid: std::process::id(),
             input: input(source),
             resolution,
@@ -658,7 +644,6 @@ impl Runner<'_> {
     fn job(&self, job: &Job, t: &mut Timings) -> Result<JobRun> {
         let plan = self.plan;
         let budget = self.budget;
-        t.start = Some(Instant::now());
         let lap = Instant::now();
         self.shared(&job.atlas)?;
         let sample_file = match &job.factorization {

@@ -453,12 +453,7 @@ fn has_ext(path: &Path, ext: &str) -> bool {
 
 /// The identity of an input named in the plan.
 fn input(plan: &Path, what: &str, path: &Path, name: Option<String>) -> Result<Input> {
-    let folder = crate::io::staging::parent_dir(plan);
-    let resolved = if path.is_absolute() {
-        path.to_path_buf()
-    } else {
-        folder.join(path)
-    };
+    let resolved = crate::io::staging::resolve_in_folder_of(plan, path);
     if !resolved.is_file() {
         return Err(Error::input(
             plan,

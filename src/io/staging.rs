@@ -90,6 +90,18 @@ pub(crate) struct Machine {
     boot: u32,
 }
 
+/// This machine's host name, where the system tells it.
+pub(crate) fn host_name() -> Option<String> {
+    static NAME: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    NAME.get_or_init(|| {
+        std::fs::read_to_string("/proc/sys/kernel/hostname")
+            .or_else(|_| std::fs::read_to_string("/etc/hostname"))
+            .ok()
+            .map(|s| s.trim().to_string())
+    })
+    .clone()
+}
+
 /// This machine: hashes of its host name with its process-id namespace, and
 /// of its boot id; 0 where they cannot be read (then nothing of it is ever
 /// judged gone).
@@ -100,11 +112,10 @@ pub(crate) fn this_machine() -> Machine {
             text.map(|s| (xxhash_rust::xxh3::xxh3_64(s.trim().as_bytes()) as u32).max(1))
                 .unwrap_or(0)
         };
-        let hostname = std::fs::read_to_string("/proc/sys/kernel/hostname").ok();
         // containers sharing a host name but not their process ids differ
         let pid_ns = std::fs::read_link("/proc/self/ns/pid").ok();
-        let host = match (hostname, pid_ns) {
-            (Some(h), Some(ns)) => Some(format!("{}\n{}", h.trim(), ns.display())),
+        let host = match (host_name(), pid_ns) {
+            (Some(h), Some(ns)) => Some(format!("{h}\n{}", ns.display())),
             _ => None,
         };
         Machine {

@@ -389,12 +389,7 @@ fn write(out: &Path, img: &RgbImage) -> Result<()> {
 
 /// Renders the decorated mesh of `quilt_path` to `out` (`.png` or `.exr`).
 pub fn render(quilt_path: &Path, cfg: &RenderConfig, out: &Path, budget: MemoryBudget) -> Result<()> {
-    cfg.validate()?;
-    check_output(out)?;
-    Quilt::open(quilt_path, budget)?.check_output(out)?;
-    let scene = Scene::open(quilt_path, budget)?;
-    let img = scene.render_image(cfg)?;
-    write(out, &img)
+    render_views(quilt_path, &[(cfg.clone(), out.to_path_buf())], budget)
 }
 
 /// Renders the decorated mesh of `quilt_path` once per `(config, output)`
@@ -406,10 +401,12 @@ pub fn render_views(
     views: &[(RenderConfig, PathBuf)],
     budget: MemoryBudget,
 ) -> Result<()> {
-    let quilt = Quilt::open(quilt_path, budget)?;
     for (cfg, out) in views {
         cfg.validate()?;
         check_output(out)?;
+    }
+    let quilt = Quilt::open(quilt_path, budget)?;
+    for (_, out) in views {
         quilt.check_output(out)?;
     }
     drop(quilt);

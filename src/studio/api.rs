@@ -25,8 +25,9 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 use tiny_http::{Header, Method, Request, Response, StatusCode};
 
-use super::{lock, JobProgress, JobStatus, Studio, MAX_BODY, MAX_VERSIONS};
+use super::{JobProgress, JobStatus, Studio, MAX_BODY, MAX_VERSIONS};
 use crate::artifact::gim::{Gim, EMPTY};
+use crate::lock;
 use crate::output::render::nearest_covered;
 use crate::paint::{PaintConfig, Verbatim};
 use crate::quilt::TileConfig;

@@ -30,6 +30,7 @@ use std::sync::{Arc, Mutex, RwLock};
 use std::thread::JoinHandle;
 
 use crate::container::MemoryBudget;
+use crate::lock;
 use crate::progress::Progress;
 use crate::quilt::Quilt;
 use crate::{Error, Result};
@@ -128,11 +129,6 @@ impl Progress for JobProgress<'_> {
     fn note(&self, line: &str) {
         lock(self.0).note = line.to_string();
     }
-}
-
-/// A lock that a panicked holder does not poison for good.
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 /// The paint log as the studio walks it: the base, then each painted

@@ -151,14 +151,9 @@ fn shards_as_separate_processes_equal_one_run_byte_for_byte() {
                 .output_async()
         })
         .collect();
+    all_succeed(children);
     let mut union = Vec::new();
-    for (i, c) in children.into_iter().enumerate() {
-        let out = c.wait_with_output().unwrap();
-        assert!(
-            out.status.success(),
-            "shard {i}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+    for i in 0..3 {
         union.extend(list(&plan, &sharded, &["--shard", &format!("{i}/3")]));
     }
     // the shards partition the jobs
@@ -265,6 +260,18 @@ impl SpawnCaptured for Command {
             .stderr(std::process::Stdio::piped())
             .spawn()
             .unwrap()
+    }
+}
+
+/// Waits for every child process and asserts each succeeded.
+fn all_succeed(children: Vec<std::process::Child>) {
+    for (i, c) in children.into_iter().enumerate() {
+        let out = c.wait_with_output().unwrap();
+        assert!(
+            out.status.success(),
+            "process {i}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
 }
 
@@ -537,16 +544,10 @@ fn the_slurm_array_and_the_kubernetes_indexed_job_map_their_index_to_shards() {
                 .env("PLAN", &plan)
                 .env("OUT", &k8s)
                 .env("BTFQUILT", bin)
-                .stdout(std::process::Stdio::null())
-                .stderr(std::process::Stdio::piped())
-                .spawn()
-                .unwrap()
+                .output_async()
         })
         .collect();
-    for c in children {
-        let out = c.wait_with_output().unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    }
+    all_succeed(children);
     assert_same_tree(&reference, &k8s);
     assert_eq!(hidden(&k8s), Vec::<PathBuf>::new());
 }
@@ -709,10 +710,7 @@ fn the_same_plan_run_twice_at_once_and_incomplete_copies_are_handled() {
                 .output_async()
         })
         .collect();
-    for r in runs {
-        let o = r.wait_with_output().unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    }
+    all_succeed(runs);
     assert_same_tree(&reference, &out);
     assert_eq!(hidden(&out), Vec::<PathBuf>::new());
 
