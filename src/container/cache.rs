@@ -185,12 +185,12 @@ impl<K: Hash + Eq + Clone, V: Weighed> SharedCache<K, V> {
 
     /// The cached value, or `load()`'s result (cached if it fits the budget).
     pub fn get_or_load(&self, key: K, load: impl FnOnce() -> Result<V>) -> Result<Arc<V>> {
-        if let Some(data) = self.inner.lock().unwrap_or_else(|p| p.into_inner()).get(&key) {
+        if let Some(data) = crate::lock(&self.inner).get(&key) {
             return Ok(data.clone());
         }
         let data = Arc::new(load()?);
         let size = data.weight();
-        let mut cache = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        let mut cache = crate::lock(&self.inner);
         // too large to be worth caching under this budget
         if size * 4 > cache.budget() || cache.contains(&key) {
             return Ok(data);

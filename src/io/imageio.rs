@@ -819,7 +819,7 @@ macro_rules! write_exr_layer {
         let image = x::Image::from_layer(layer);
         write_atomic($path, |out| {
             image.write().to_buffered(out).map_err(|e| exr_err($path, e))?;
-            match $failed.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            match crate::lock(&$failed).take() {
                 Some(e) => Err(e),
                 None => Ok(()),
             }
@@ -851,7 +851,7 @@ where
     let failed = std::sync::Mutex::new(None::<Error>);
     let channels = x::SpecificChannels::rgb(|p: x::Vec2<usize>| {
         let [r, g, b] = pixel(p.0, p.1).unwrap_or_else(|e| {
-            failed.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+            crate::lock(&failed).get_or_insert(e);
             [0.0; 3]
         });
         (f16::from_f32(r), f16::from_f32(g), f16::from_f32(b))
@@ -877,7 +877,7 @@ where
     let failed = std::sync::Mutex::new(None::<Error>);
     let at = |p: x::Vec2<usize>| {
         pixel(p.0, p.1).unwrap_or_else(|e| {
-            failed.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+            crate::lock(&failed).get_or_insert(e);
             [f32::NAN; N]
         })
     };

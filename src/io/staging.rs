@@ -43,7 +43,7 @@ static REMOVED: Mutex<Vec<RemovedPartial>> = Mutex::new(Vec::new());
 /// The stale partial outputs removed so far by this process (and forgets
 /// them), for the command line to say what it cleaned up.
 pub fn take_removed_partials() -> Vec<RemovedPartial> {
-    std::mem::take(&mut *REMOVED.lock().unwrap_or_else(|e| e.into_inner()))
+    std::mem::take(&mut *crate::lock(&REMOVED))
 }
 
 /// The folder a destination lives in (`.` for a bare file name).
@@ -218,10 +218,7 @@ fn remove_stale(dest: &Path) {
             std::fs::remove_file(&path)
         };
         if removed.is_ok() {
-            REMOVED
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .push(RemovedPartial { path, pid, bytes });
+            crate::lock(&REMOVED).push(RemovedPartial { path, pid, bytes });
         }
     }
 }

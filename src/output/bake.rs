@@ -54,7 +54,7 @@ pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: Memory
         let budget = MemoryBudget((4 * BAND_ROWS * r * 12) as u64);
         let held: Mutex<BoundedCache<usize, Vec<f32>>> = Mutex::new(BoundedCache::new(budget));
         imageio::write_exr_rgb_fn(out, r, r, |x, y| {
-            let mut cache = held.lock().unwrap_or_else(|p| p.into_inner());
+            let mut cache = crate::lock(&held);
             let b = y / BAND_ROWS;
             if !cache.contains(&b) {
                 let band = dilated_band(&quilt, &previews, fill, b * BAND_ROWS)?;

@@ -928,7 +928,7 @@ fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names: [&str; N])
         (4 * BAND_ROWS * r * N * 4) as u64,
     )));
     imageio::write_exr_f32_fn(path, r, r, names, |x, y| {
-        let mut cache = held.lock().unwrap_or_else(|p| p.into_inner());
+        let mut cache = crate::lock(&held);
         let b = y / BAND_ROWS;
         if !cache.contains(&b) {
             let values = band(b * BAND_ROWS)?;

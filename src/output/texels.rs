@@ -69,7 +69,7 @@ impl<T: Weighed> AtlasTiles<T> {
         match self.cache.get_or_load(k, || (self.load)(x0, y0, w, h)) {
             Ok(t) => Some(t),
             Err(e) => {
-                let mut slot = self.error.lock().unwrap_or_else(|p| p.into_inner());
+                let mut slot = crate::lock(&self.error);
                 slot.get_or_insert(e);
                 None
             }
@@ -85,7 +85,7 @@ impl<T: Weighed> AtlasTiles<T> {
 
     /// The first error a tile load met (taken: the next check is clean).
     pub fn check(&self) -> Result<()> {
-        match self.error.lock().unwrap_or_else(|p| p.into_inner()).take() {
+        match crate::lock(&self.error).take() {
             Some(e) => Err(e),
             None => Ok(()),
         }
