@@ -43,7 +43,7 @@
 //! parallel steps are element- or row-wise independent, so results do not
 //! depend on the thread count.
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
@@ -616,7 +616,8 @@ pub struct Matcher {
     acc: Vec<C64>,
     out: Vec<C64>,
     energy: Vec<f64>,
-    cache: BoundedCache<CacheKey, SampleSpectra>,
+    /// Shared with the matchers of [`Matcher::sibling`].
+    cache: Arc<Mutex<BoundedCache<CacheKey, Arc<SampleSpectra>>>>,
     computed: u64,
     reused: u64,
 }
@@ -644,9 +645,19 @@ impl Matcher {
             acc: Vec::new(),
             out: Vec::new(),
             energy: Vec::new(),
-            cache: BoundedCache::new(MemoryBudget(bytes as u64)),
+            cache: Arc::new(Mutex::new(BoundedCache::new(MemoryBudget(bytes as u64)))),
             computed: 0,
             reused: 0,
+        }
+    }
+
+    /// A matcher of its own (planner and buffers) sharing this one's
+    /// spectrum cache, for a work patch computed on another thread (two
+    /// matchers may compute the same spectra; they are equal).
+    pub fn sibling(&self) -> Matcher {
+        Matcher {
+            cache: Arc::clone(&self.cache),
+            ..Matcher::with_cache_budget(0)
         }
     }
 
@@ -662,12 +673,12 @@ impl Matcher {
 
     /// Bytes held by the spectrum cache.
     pub fn cache_bytes(&self) -> usize {
-        self.cache.bytes() as usize
+        crate::lock(&self.cache).bytes() as usize
     }
 
     /// Drops every cached sample spectrum.
     pub fn clear_cache(&mut self) {
-        self.cache.clear();
+        crate::lock(&self.cache).clear();
     }
 
     /// The k best near-minimal placements, in (cost, dy, dx) order (see
@@ -700,14 +711,19 @@ impl Matcher {
         ] {
             buf.resize(len, ZERO);
         }
-        if self.cache.get(&lay.key).is_some() {
-            self.reused += 1;
-        } else {
-            let e = self.sample_spectra(&plans, sample, &lay);
-            let bytes = e.bytes() as u64;
-            self.cache.insert(lay.key, e, bytes);
-        }
-        let entry = self.cache.peek(&lay.key).expect("just cached");
+        let cached = crate::lock(&self.cache).get(&lay.key).cloned();
+        let entry = match cached {
+            Some(e) => {
+                self.reused += 1;
+                e
+            }
+            None => {
+                let e = Arc::new(self.sample_spectra(&plans, sample, &lay));
+                let bytes = e.bytes() as u64;
+                crate::lock(&self.cache).insert(lay.key, Arc::clone(&e), bytes);
+                e
+            }
+        };
 
         // work side: Σ_j Z_j conj(Y_j), keeping the pair that holds M
         let w = if work.constraint.is_some() {

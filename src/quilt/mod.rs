@@ -44,6 +44,7 @@ mod sample;
 mod state;
 mod structure;
 mod synthesis;
+mod worker;
 mod write;
 
 pub use crate::artifact::quilt::{

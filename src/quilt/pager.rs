@@ -4,8 +4,13 @@
 //! when changed). Reads go through `&self` and fault a missing tile in, so
 //! every step of the loop sees the whole atlas while only its working set is
 //! held; the outcome never depends on which tiles are resident.
+//!
+//! A [`Pager::view`] shares some resident tiles read-only with a work patch
+//! computed on another thread (tiles are reference-counted; a write after
+//! the views are gone changes the tile in place).
 
 use std::cell::RefCell;
+use std::sync::Arc;
 
 use crate::artifact::gim::TILE;
 use crate::{Error, Result};
@@ -77,12 +82,17 @@ pub(super) trait TileSource<T> {
 }
 
 struct Inner<T, S> {
-    resident: Vec<Option<(Box<T>, bool)>>,
+    resident: Vec<Option<(Arc<T>, bool)>>,
     used: Vec<u64>,
     tick: u64,
     count: usize,
     capacity: usize,
-    source: S,
+    /// Where tiles come from; `None` in a view, which holds only what it
+    /// was given.
+    source: Option<S>,
+    /// A view's stand-in for a tile it was not given (`missed` is then set).
+    blank: Option<Arc<T>>,
+    missed: bool,
     error: Option<Error>,
     faults: u64,
 }
@@ -93,7 +103,7 @@ pub(super) struct Pager<T, S> {
     inner: RefCell<Inner<T, S>>,
 }
 
-impl<T, S: TileSource<T>> Pager<T, S> {
+impl<T: Clone, S: TileSource<T>> Pager<T, S> {
     /// A pager over an `r`×`r` atlas holding at most `budget` bytes of
     /// tiles of `tile_bytes` each (at least `min_tiles`).
     pub(super) fn new(r: usize, source: S, budget: u64, tile_bytes: u64, min_tiles: usize) -> Self {
@@ -111,11 +121,48 @@ impl<T, S: TileSource<T>> Pager<T, S> {
                 tick: 0,
                 count: 0,
                 capacity,
-                source,
+                source: Some(source),
+                blank: None,
+                missed: false,
                 error: None,
                 faults: 0,
             }),
         }
+    }
+
+    /// A read-only pager holding only `tiles` (faulted in here first),
+    /// shared with this one: a read elsewhere in the view sees a blank tile
+    /// and sets [`Pager::missed`]. Write to this pager only once its views
+    /// are dropped (a write then changes the tile in place).
+    pub(super) fn view(&self, tiles: &[usize]) -> Self {
+        let mut inner = self.inner.borrow_mut();
+        let mut resident: Vec<Option<(Arc<T>, bool)>> = (0..self.grid.tiles()).map(|_| None).collect();
+        for &k in tiles {
+            inner.fetch(k);
+            let tile = &inner.resident[k].as_ref().expect("fetched").0;
+            resident[k] = Some((Arc::clone(tile), false));
+        }
+        let blank = inner.source.as_ref().map(|s| Arc::new(s.blank()));
+        Pager {
+            grid: self.grid,
+            inner: RefCell::new(Inner {
+                count: tiles.len(),
+                resident,
+                used: Vec::new(),
+                tick: 0,
+                capacity: usize::MAX,
+                source: None,
+                blank,
+                missed: false,
+                error: None,
+                faults: 0,
+            }),
+        }
+    }
+
+    /// Whether a view was read outside the tiles it was given.
+    pub(super) fn missed(&self) -> bool {
+        self.inner.borrow().missed
     }
 
     /// Reads texel `t` of its tile.
@@ -146,14 +193,14 @@ impl<T, S: TileSource<T>> Pager<T, S> {
         inner.fetch(k);
         let (tile, dirty) = inner.resident[k].as_mut().expect("fetched");
         *dirty = true;
-        f(tile)
+        f(Arc::make_mut(tile))
     }
 
     /// Whether tile `k` is resident or was ever written back (else its
     /// source makes it afresh).
     pub(super) fn made(&self, k: usize) -> bool {
         let inner = self.inner.borrow();
-        inner.resident[k].is_some() || inner.source.holds(k)
+        inner.resident[k].is_some() || inner.source.as_ref().is_some_and(|s| s.holds(k))
     }
 
     /// The first error a fault met (reads carry on with blank tiles, so
@@ -165,12 +212,14 @@ impl<T, S: TileSource<T>> Pager<T, S> {
         }
     }
 
+    /// The source (not of a view).
     pub(super) fn source_mut(&mut self) -> &mut S {
-        &mut self.inner.get_mut().source
+        self.inner.get_mut().source.as_mut().expect("not a view")
     }
 
+    /// Reads the source (not of a view).
     pub(super) fn with_source<R>(&self, f: impl FnOnce(&S) -> R) -> R {
-        f(&self.inner.borrow().source)
+        f(self.inner.borrow().source.as_ref().expect("not a view"))
     }
 
     /// How many tiles were read in so far.
@@ -188,9 +237,12 @@ impl<T, S: TileSource<T>> Pager<T, S> {
 impl<T, S: TileSource<T>> Inner<T, S> {
     #[inline]
     fn fetch(&mut self, k: usize) -> &T {
-        self.tick += 1;
-        self.used[k] = self.tick;
-        if self.resident[k].is_none() {
+        if self.resident[k].is_some() {
+            if let Some(u) = self.used.get_mut(k) {
+                self.tick += 1;
+                *u = self.tick;
+            }
+        } else {
             self.fault(k);
         }
         &self.resident[k].as_ref().expect("fetched").0
@@ -198,6 +250,14 @@ impl<T, S: TileSource<T>> Inner<T, S> {
 
     #[cold]
     fn fault(&mut self, k: usize) {
+        let Some(source) = self.source.as_mut() else {
+            // a view: only what it was given
+            self.missed = true;
+            self.resident[k] = self.blank.clone().map(|b| (b, false));
+            return;
+        };
+        self.tick += 1;
+        self.used[k] = self.tick;
         self.faults += 1;
         if self.count >= self.capacity {
             let oldest = (0..self.resident.len())
@@ -207,20 +267,20 @@ impl<T, S: TileSource<T>> Inner<T, S> {
                 let (tile, dirty) = self.resident[j].take().expect("resident");
                 self.count -= 1;
                 if dirty {
-                    if let Err(e) = self.source.store(j, &tile) {
+                    if let Err(e) = source.store(j, &tile) {
                         self.error.get_or_insert(e);
                     }
                 }
             }
         }
-        let tile = match self.source.load(k) {
+        let tile = match source.load(k) {
             Ok(t) => t,
             Err(e) => {
                 self.error.get_or_insert(e);
-                self.source.blank()
+                source.blank()
             }
         };
-        self.resident[k] = Some((Box::new(tile), false));
+        self.resident[k] = Some((Arc::new(tile), false));
         self.count += 1;
     }
 }

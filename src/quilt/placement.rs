@@ -15,7 +15,7 @@ pub(super) const REFINE_SPACING: i32 = 4;
 /// rotation whose placement puts the seed and 95 % of the work image on
 /// the sample.
 pub(super) fn covering_candidates(
-    sample: &mut Sample,
+    sample: &Sample,
     matcher: &mut Matcher,
     work: &WorkImage,
     cfg: &TileConfig,
@@ -102,7 +102,7 @@ pub(super) fn inside_sample(sample: &Sample, c: [f64; 2]) -> bool {
 /// and at least 95 % of the patch's vertices on the sample; a seeded choice
 /// among the near-minimal ones; the sample centred on the seed if none does.
 pub(super) fn place_covering(
-    sample: &mut Sample,
+    sample: &Sample,
     matcher: &mut Matcher,
     work: &WorkImage,
     cfg: &TileConfig,
@@ -201,7 +201,7 @@ pub(super) fn choose_placement(
 /// patch may then follow its neighbours' courses rather than the field's
 /// mean direction.
 pub(super) fn match_candidates(
-    sample: &mut Sample,
+    sample: &Sample,
     matcher: &mut Matcher,
     work: &WorkImage,
     constraint_weight: f64,
@@ -233,7 +233,7 @@ pub(super) fn match_candidates(
 
 #[allow(clippy::too_many_arguments)]
 fn match_at_rotation(
-    sample: &mut Sample,
+    sample: &Sample,
     matcher: &mut Matcher,
     work: &WorkImage,
     constraint_weight: f64,
@@ -243,16 +243,14 @@ fn match_at_rotation(
 ) -> Result<Vec<matching::Placement>> {
     let (sw, sh, n) = (sample.width, sample.height, sample.n);
     let constrained = !work.constraint.is_empty() && sample.mask.is_some();
-    if constrained {
-        sample.rotation_mask(rot);
-    }
-    sample.rotation(rot)?;
-    let (maps, valid) = sample.rotated.peek(&rot).expect("just loaded");
     let mask = if constrained {
-        sample.rotated_mask[rot].as_deref()
+        sample.rotation_mask(rot)
     } else {
         None
     };
+    let mask = mask.as_deref().map(|m| &m[..]);
+    let copy = sample.rotation(rot)?;
+    let (maps, valid) = (&copy.0, &copy.1);
     let work_in = matching::Work {
         image: Image {
             width: work.width,

@@ -3,12 +3,16 @@
 //! on the fly.
 
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
 use crate::artifact::svd::SvdArtifact;
 use crate::container::{BoundedCache, MemoryBudget};
 use crate::factorize::FactorizeConfig;
 use crate::progress::Progress;
 use crate::{factorize, Error, Result};
+
+/// A rotated copy of the sample: its maps and validity as f32.
+pub(super) type RotatedCopy = (Vec<f32>, Vec<f32>);
 
 /// The sample: unrotated geometry maps, and rotated copies on demand.
 pub(super) struct Sample {
@@ -21,13 +25,14 @@ pub(super) struct Sample {
     /// How many rotated copies there are (5° steps for 72).
     pub(super) rotations: usize,
     /// Rotated copies as f32 (maps, validity), loaded lazily into a cache
-    /// bounded by the budget given in [`Sample::from_svd`].
-    pub(super) rotated: BoundedCache<usize, (Vec<f32>, Vec<f32>)>,
+    /// bounded by the budget given in [`Sample::from_svd`] (shared by the
+    /// work patches computed at once).
+    rotated: Mutex<BoundedCache<usize, Arc<RotatedCopy>>>,
     /// The foreground mask m_P (`[y][x]`, 0..1), if painting or keeping the
     /// foreground out.
     pub(super) mask: Option<Vec<f32>>,
     /// Rotated copies of the mask, made lazily like the maps'.
-    pub(super) rotated_mask: Vec<Option<Vec<f32>>>,
+    rotated_mask: Mutex<Vec<Option<Arc<Vec<f32>>>>>,
     /// The weighted structure channel (`[y][x]`), when it is on: the last of
     /// the `n` feature channels of `maps` and of every rotated copy.
     pub(super) structure: Option<Vec<f32>>,
@@ -50,9 +55,9 @@ impl Sample {
             maps: svd.geometry_maps()?,
             tileable,
             rotations,
-            rotated: BoundedCache::new(rotated_budget),
+            rotated: Mutex::new(BoundedCache::new(rotated_budget)),
             mask: None,
-            rotated_mask: vec![None; rotations],
+            rotated_mask: Mutex::new(vec![None; rotations]),
             structure: None,
             svd,
         })
@@ -70,12 +75,16 @@ impl Sample {
         self.maps = interleave(&self.maps, n, &channel);
         self.n = n + 1;
         self.structure = Some(channel);
-        self.rotated.clear();
+        crate::lock(&self.rotated).clear();
     }
 
-    /// Rotated copy `r` (maps, validity), loaded on first use.
-    pub(super) fn rotation(&mut self, r: usize) -> Result<&(Vec<f32>, Vec<f32>)> {
-        if !self.rotated.contains(&r) {
+    /// Rotated copy `r` (maps, validity), loaded on first use (two threads
+    /// may both load it; they get equal copies).
+    pub(super) fn rotation(&self, r: usize) -> Result<Arc<RotatedCopy>> {
+        if let Some(copy) = crate::lock(&self.rotated).get(&r) {
+            return Ok(Arc::clone(copy));
+        }
+        let copy = {
             let (maps, valid) = self.svd.rotated(r)?;
             let mut m = vec![0f32; maps.len()];
             half::slice::HalfFloatSliceExt::convert_to_f32_slice(&maps[..], &mut m);
@@ -86,22 +95,24 @@ impl Sample {
                     factorize::rotate_maps(channel, self.width, self.height, 1, degrees, self.tileable);
                 m = interleave(&m, self.n - 1, &turned);
             }
-            let bytes = ((m.len() + valid.len()) * 4) as u64;
-            self.rotated
-                .insert(r, (m, valid.iter().map(|&v| v as f32).collect()), bytes);
-        }
-        Ok(self.rotated.get(&r).expect("just loaded"))
+            Arc::new((m, valid.iter().map(|&v| v as f32).collect::<Vec<f32>>()))
+        };
+        let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
+        crate::lock(&self.rotated).insert(r, Arc::clone(&copy), bytes);
+        Ok(copy)
     }
 
     /// Rotated copy `r` of the foreground mask (turned like the maps).
-    pub(super) fn rotation_mask(&mut self, r: usize) -> Option<&[f32]> {
+    pub(super) fn rotation_mask(&self, r: usize) -> Option<Arc<Vec<f32>>> {
         let mask = self.mask.as_ref()?;
-        if self.rotated_mask[r].is_none() {
-            let degrees = r as f64 * 360.0 / self.rotations as f64;
-            let (m, _) = factorize::rotate_maps(mask, self.width, self.height, 1, degrees, self.tileable);
-            self.rotated_mask[r] = Some(m);
+        if let Some(m) = &crate::lock(&self.rotated_mask)[r] {
+            return Some(Arc::clone(m));
         }
-        self.rotated_mask[r].as_deref()
+        let degrees = r as f64 * 360.0 / self.rotations as f64;
+        let (m, _) = factorize::rotate_maps(mask, self.width, self.height, 1, degrees, self.tileable);
+        let m = Arc::new(m);
+        crate::lock(&self.rotated_mask)[r] = Some(Arc::clone(&m));
+        Some(m)
     }
 
     /// Bilinear foreground mask at unrotated sample coordinates (0 where

@@ -8,6 +8,7 @@
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 use std::path::Path;
+use std::sync::Arc;
 
 use super::pager::{Pager, TileGrid, TileSource, TILE_TEXELS};
 use super::sample::Sample;
@@ -205,6 +206,31 @@ impl State {
         })
     }
 
+    /// The state of `tiles` only, for a work patch computed on another
+    /// thread ([`Pager::view`]; no frontier).
+    pub(super) fn view(&self, tiles: &[usize]) -> State {
+        State {
+            r: self.r,
+            n: self.n,
+            tiles: self.tiles.view(tiles),
+            active: self.active,
+            foreign_features: self.foreign_features.clone(),
+            constrained: self.constrained,
+            next_patch: self.next_patch,
+            remaining: self.remaining,
+            frontier: Frontier {
+                count: Vec::new(),
+                first: Vec::new(),
+                total: [0; BUCKETS],
+            },
+        }
+    }
+
+    /// Whether a view was read outside its tiles.
+    pub(super) fn missed(&self) -> bool {
+        self.tiles.missed()
+    }
+
     /// Sets m0 = `value` everywhere.
     pub(super) fn constrain_everywhere(&mut self, value: f32) {
         // unconstrained, every tile holds the default m0 still
@@ -328,6 +354,7 @@ impl State {
 }
 
 /// The per-texel surface of one tile, from the `.gim`.
+#[derive(Clone)]
 pub(super) struct SurfaceTile {
     pub(super) chart: Vec<u32>,
     pub(super) face: Vec<u32>,
@@ -385,14 +412,14 @@ impl TileSource<SurfaceTile> for GimTiles {
 pub(super) struct Surface {
     pub(super) r: usize,
     tiles: Pager<SurfaceTile, GimTiles>,
-    zippers: ZipperLinks,
+    zippers: Arc<ZipperLinks>,
     /// Dense positions are multiplied by `unit` (exactly: a power of two, 1
     /// but for a mesh of extreme size, see [`crate::mesh::extreme_scale`]).
     pub(super) unit: f32,
-    pub(super) face_angle: Vec<f64>,
+    pub(super) face_angle: Arc<Vec<f64>>,
     /// Per tile, its dense vertices and the lowest id among them.
-    covered: Vec<u32>,
-    first_covered: Vec<u32>,
+    covered: Arc<Vec<u32>>,
+    first_covered: Arc<Vec<u32>>,
 }
 
 impl Surface {
@@ -419,14 +446,33 @@ impl Surface {
         }
         let source = GimTiles { gim: own, grid, unit };
         Ok(Surface {
-            covered,
-            first_covered,
+            covered: Arc::new(covered),
+            first_covered: Arc::new(first_covered),
             r,
             tiles: Pager::new(r, source, budget.bytes(), SURFACE_TILE_BYTES as u64, MIN_TILES),
-            zippers: ZipperLinks::new(&gim.zipper_links()?),
+            zippers: Arc::new(ZipperLinks::new(&gim.zipper_links()?)),
             unit,
-            face_angle: face_angles(gim)?,
+            face_angle: Arc::new(face_angles(gim)?),
         })
+    }
+
+    /// The surface of `tiles` only, for a work patch computed on another
+    /// thread ([`Pager::view`]).
+    pub(super) fn view(&self, tiles: &[usize]) -> Surface {
+        Surface {
+            r: self.r,
+            tiles: self.tiles.view(tiles),
+            zippers: Arc::clone(&self.zippers),
+            unit: self.unit,
+            face_angle: Arc::clone(&self.face_angle),
+            covered: Arc::clone(&self.covered),
+            first_covered: Arc::clone(&self.first_covered),
+        }
+    }
+
+    /// Whether a view was read outside its tiles.
+    pub(super) fn missed(&self) -> bool {
+        self.tiles.missed()
     }
 
     pub(super) fn grid(&self) -> TileGrid {

@@ -6,17 +6,13 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::fit::{apply, fit_patch, Fit, INFINITE};
-use super::flatten::{
-    chart_work_image, flattened_work_image, rotation_index, unfolded_work_image, Flattening, WorkImage,
-};
+use super::flatten::rotation_index;
 use super::matching::Matcher;
 use super::occurrence::Occurrence;
-use super::placement::{
-    choose_placement, covering_candidates, distinct_best, place_covering, to_sample, PlacementChoice,
-    REFINE_SPACING,
-};
+use super::placement::{to_sample, PlacementChoice};
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
 use super::state::{Bfs, State, Surface, WorkPatch, NO_FOREIGN};
+use super::worker::{Outcome, StepStats, Worker};
 use super::write::write_quilt;
 use super::{TileConfig, TileReport};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
@@ -434,79 +430,47 @@ impl Synthesis {
             .max(cfg.min_radius)
     }
 
-    /// One step of the quilting loop (the paper's Fig. 4) at vertex `v`:
-    /// work patch P(v) of radius r_w, work image I(v), patch matching,
-    /// graphcut fitting, and the hierarchical search that shrinks r_w by 0.8
-    /// (down to the minimum) while the seam cost exceeds T_c. Returns the
-    /// vertices of the accepted work patch.
-    pub(crate) fn step(&mut self, v: u32, radius0: usize, progress: &dyn Progress) -> Result<WorkPatch> {
-        let cfg = self.cfg.clone();
-        let cfg = &cfg;
-        let mut radius = radius0;
-        let mut flattening: Option<Flattening> = None;
-        let painting = self.painting;
-        // the rejected fitting with the lowest mean seam cost: if no radius
-        // passes T_c, it is taken instead of the smallest patch (fewer,
-        // larger pieces than always ending at r_w = 4)
-        let mut best: Option<(f64, WorkPatch, Fit, bool)> = None;
-        loop {
-            let patch = self.bfs.patch(&self.surface, v, radius);
-            let (work, unfolded) = self.work_image(&patch, &mut flattening);
-            let fit = self.match_and_fit(&patch, &work, painting, 0)?;
-            let mean = if fit.seam_edges > 0 {
-                fit.seam_cost / fit.seam_edges as f64
-            } else {
-                0.0
-            };
-            // (painting takes its one min-cut per fitting: its seams must
-            // cross the foreground's border where m0 demands it, which T_c
-            // would read as a bad fit)
-            let (mut patch, mut fit, mut unfolded) = (patch, fit, unfolded);
-            if !painting && mean > cfg.seam_threshold * self.reference && fit.taken_new_synth > 0 {
-                if radius > cfg.min_radius {
-                    if best.as_ref().map_or(true, |b| mean < b.0) {
-                        best = Some((mean, patch, fit, unfolded));
-                    }
-                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
-                    self.report.shrinks += 1;
-                    continue;
-                }
-                if let Some(b) = best.take().filter(|b| b.0 < mean) {
-                    if std::env::var_os("BTFQUILT_TRACE").is_some() {
-                        progress.note(&format!("best of the radii: {:.3} instead of {mean:.3}", b.0));
-                    }
-                    (patch, fit, unfolded) = (b.1, b.2, b.3);
-                }
-            }
-            if fit.taken == 0 && !painting {
-                // nothing could be placed (sample too small for the work
-                // image): shrink, or give up on this vertex at the minimum
-                if radius > cfg.min_radius {
-                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
-                    self.report.shrinks += 1;
-                    continue;
-                }
-                let (sw, sh) = (self.sample.width, self.sample.height);
-                return Err(Error::input(
-                    &self.sample_path,
-                    format!("is too small ({sw}×{sh}) to cover a work patch of radius {radius}"),
-                ));
-            }
-            if std::env::var_os("BTFQUILT_TRACE").is_some() {
-                progress.note(&format!(
-                    "patch {} v {v} radius {radius} texels {} taken {} remaining {} cross {}",
-                    self.report.patches,
-                    patch.texels.len(),
-                    fit.taken,
-                    self.state.remaining,
-                    patch.crosses_charts
-                ));
-            }
-            self.report.cross_chart_patches += patch.crosses_charts as usize;
-            self.report.unfolded_patches += unfolded as usize;
-            self.accept(&patch, &fit, progress);
-            return Ok(patch);
+    /// A worker over the whole surface and state, counting from the
+    /// patches accepted so far.
+    pub(super) fn worker(&mut self) -> Worker<'_> {
+        Worker {
+            surface: &self.surface,
+            state: &self.state,
+            sample: &self.sample,
+            zipper_triangles: &self.zipper_triangles,
+            cfg: &self.cfg,
+            sample_path: &self.sample_path,
+            reference: self.reference,
+            painting: self.painting,
+            occurrence: Some(&mut self.occurrence),
+            bfs: &mut self.bfs,
+            matcher: &mut self.matcher,
+            counter: self.report.patches as u64,
+            stats: StepStats::default(),
         }
+    }
+
+    /// One step of the quilting loop at vertex `v` ([`Worker::step`]),
+    /// accepted. Returns the vertices of the accepted work patch.
+    pub(crate) fn step(&mut self, v: u32, radius0: usize, progress: &dyn Progress) -> Result<WorkPatch> {
+        let outcome = self.worker().step(v, radius0, progress)?;
+        self.accept_outcome(&outcome, progress);
+        Ok(outcome.patch)
+    }
+
+    /// Accepts a computed work patch: its stats into the report, its
+    /// fitting into the state.
+    pub(super) fn accept_outcome(&mut self, outcome: &Outcome, progress: &dyn Progress) {
+        self.add_stats(&outcome.stats);
+        self.report.cross_chart_patches += outcome.patch.crosses_charts as usize;
+        self.report.unfolded_patches += outcome.unfolded as usize;
+        self.accept(&outcome.patch, &outcome.fit, progress);
+    }
+
+    pub(super) fn add_stats(&mut self, stats: &StepStats) {
+        self.report.shrinks += stats.shrinks;
+        self.report.matching_seconds += stats.matching_seconds;
+        self.report.graphcut_seconds += stats.graphcut_seconds;
     }
 
     /// Seam refinement (Kwatra et al. 2003, §3.3, "patch placement on
@@ -563,9 +527,11 @@ impl Synthesis {
             if visited[v as usize / 64] >> (v % 64) & 1 == 1 {
                 continue;
             }
-            let patch = self.bfs.patch(&self.surface, v, radius);
-            let (work, _) = self.work_image(&patch, &mut None);
-            let fit = self.best_of_placements(&patch, &work, self.cfg.refine_placements, 3)?;
+            let placements = self.cfg.refine_placements;
+            let Outcome {
+                patch, fit, stats, ..
+            } = self.worker().refinement(v, radius, placements, 3)?;
+            self.add_stats(&stats);
             let rim = patch.depth.iter().copied().max().unwrap_or(0);
             for (&t, &d) in patch.texels.iter().zip(&patch.depth) {
                 if d + 2 < rim {
@@ -580,110 +546,6 @@ impl Synthesis {
             self.check_paging()?;
         }
         Ok(kept)
-    }
-
-    /// Patch matching of the work image against the sample, then the
-    /// graphcut fitting of the chosen placement ([`fit_patch`], which says
-    /// what `keep_outside_target` and `core` do), timed into the report.
-    pub(super) fn match_and_fit(
-        &mut self,
-        patch: &WorkPatch,
-        work: &WorkImage,
-        keep_outside_target: bool,
-        core: u16,
-    ) -> Result<Fit> {
-        let t = Instant::now();
-        let occurrence = (!self.painting).then_some(&mut self.occurrence);
-        let placement = place_covering(
-            &mut self.sample,
-            &mut self.matcher,
-            work,
-            &self.cfg,
-            self.reference,
-            occurrence,
-            self.report.patches as u64,
-        )?;
-        self.report.matching_seconds += t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let fit = self.fit_placement(patch, work, &placement, keep_outside_target, core);
-        self.report.graphcut_seconds += t.elapsed().as_secs_f64();
-        Ok(fit)
-    }
-
-    /// The graphcut fitting of one placement ([`fit_patch`]).
-    pub(super) fn fit_placement(
-        &self,
-        patch: &WorkPatch,
-        work: &WorkImage,
-        placement: &PlacementChoice,
-        keep_outside_target: bool,
-        core: u16,
-    ) -> Fit {
-        fit_patch(
-            &self.sample,
-            &self.state,
-            &self.surface,
-            patch,
-            work,
-            placement,
-            self.cfg.constraint_weight * self.reference,
-            keep_outside_target,
-            core,
-        )
-    }
-
-    /// Seam refinement's fitting: the graphcut of each of the `count` best
-    /// covering placements ([`distinct_best`]), the one with the cheapest cut
-    /// kept. A refinement has to beat the seams already there, and the
-    /// cheapest match is not always the cheapest cut.
-    pub(super) fn best_of_placements(
-        &mut self,
-        patch: &WorkPatch,
-        work: &WorkImage,
-        count: usize,
-        core: u16,
-    ) -> Result<Fit> {
-        let t = Instant::now();
-        let (rotation, covering) = covering_candidates(
-            &mut self.sample,
-            &mut self.matcher,
-            work,
-            &self.cfg,
-            self.reference,
-            None,
-        )?;
-        let mut picks: Vec<PlacementChoice> = distinct_best(&covering, count, REFINE_SPACING)
-            .into_iter()
-            .map(|p| PlacementChoice {
-                rotation,
-                dx: p.dx as f64,
-                dy: p.dy as f64,
-            })
-            .collect();
-        if picks.is_empty() {
-            // no match covers the patch: the seeded spot the quilting step
-            // would take
-            let counter = self.report.patches as u64;
-            picks.push(choose_placement(
-                &self.sample,
-                work,
-                &self.cfg,
-                counter,
-                rotation,
-                &covering,
-            ));
-        }
-        self.report.matching_seconds += t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let mut best: Option<Fit> = None;
-        for placement in picks {
-            let fit = self.fit_placement(patch, work, &placement, false, core);
-            if best.as_ref().map_or(true, |b| fit.flow < b.flow) {
-                best = Some(fit);
-            }
-        }
-        self.report.graphcut_seconds += t.elapsed().as_secs_f64();
-        Ok(best.expect("picks is not empty"))
     }
 
     /// Records an accepted fitting under the next patch id.
@@ -703,57 +565,6 @@ impl Synthesis {
         self.seam_sum += fit.seam_cost;
         self.seam_cnt += fit.seam_edges;
         self.report.patches += 1;
-    }
-
-    /// The work image I(v) of a work patch: the chart image inside a chart;
-    /// across charts the flattening (reused from `flattening` when the same
-    /// seed's patch shrinks), or the rigid unfolding where that fails — and
-    /// whether it is that unfolding.
-    pub(super) fn work_image(
-        &self,
-        patch: &WorkPatch,
-        flattening: &mut Option<Flattening>,
-    ) -> (WorkImage, bool) {
-        let (mut work, unfolded) = self.work_image_of(patch, flattening);
-        // only matching that may turn the sample reads it
-        if !self.painting && self.cfg.field_turn > 0 {
-            work.field_spread = field_spread(&self.surface, patch);
-        }
-        (work, unfolded)
-    }
-
-    fn work_image_of(&self, patch: &WorkPatch, flattening: &mut Option<Flattening>) -> (WorkImage, bool) {
-        let (surface, state, bfs, zt) = (&self.surface, &self.state, &self.bfs, &self.zipper_triangles);
-        if !patch.crosses_charts {
-            return (chart_work_image(surface, &self.sample, state, patch), false);
-        }
-        if let Some(work) = flattening
-            .as_ref()
-            .and_then(|f| f.work_image(surface, &self.sample, state, patch, bfs, zt))
-        {
-            return (work, false);
-        }
-        if let Some((work, coords)) = flattened_work_image(
-            surface,
-            &self.sample,
-            state,
-            patch,
-            bfs,
-            zt,
-            self.cfg.max_distortion,
-        ) {
-            let mut c: Vec<(u32, [f64; 2])> = patch.texels.iter().copied().zip(coords).collect();
-            c.sort_unstable_by_key(|e| e.0);
-            *flattening = Some(Flattening {
-                coords: c,
-                angle: work.angle,
-            });
-            return (work, false);
-        }
-        (
-            unfolded_work_image(surface, &self.sample, state, patch, bfs),
-            true,
-        )
     }
 
     /// Verbatim copy (§IV): the sample's foreground, its point `centre`
@@ -778,7 +589,7 @@ impl Synthesis {
         let patch = self.bfs.patch(&self.surface, v, radius);
         trace("work patch");
         let mut flattening = None;
-        let (work, _) = self.work_image(&patch, &mut flattening);
+        let (work, _) = self.worker().work_image(&patch, &mut flattening);
         trace("work image");
         let rotations = self.sample.rotations;
         let rotation = rotation_index(work.angle + angle, rotations);
@@ -912,29 +723,4 @@ pub(crate) fn sample_role(k: usize) -> String {
     } else {
         format!("sample_{k}")
     }
-}
-
-/// How far the field turns inside a work patch: the circular standard
-/// deviation √(−2 ln R) of the texels' field directions, R the mean
-/// resultant length pooled over the patch's charts (each chart's
-/// directions against its own mean: atlas angles compare only within a
-/// chart). 0 where the field is constant.
-fn field_spread(surface: &Surface, patch: &WorkPatch) -> f64 {
-    // (chart, Σ cos, Σ sin) per chart met
-    let mut sums: Vec<(u32, f64, f64)> = Vec::new();
-    for &t in &patch.texels {
-        let (c, a) = (surface.chart(t), surface.texel_angle(t));
-        let k = match sums.iter().position(|e| e.0 == c) {
-            Some(k) => k,
-            None => {
-                sums.push((c, 0.0, 0.0));
-                sums.len() - 1
-            }
-        };
-        sums[k].1 += a.cos();
-        sums[k].2 += a.sin();
-    }
-    let n = patch.texels.len().max(1) as f64;
-    let r: f64 = sums.iter().map(|e| e.1.hypot(e.2)).sum::<f64>() / n;
-    (-2.0 * r.clamp(1e-12, 1.0).ln()).sqrt()
 }

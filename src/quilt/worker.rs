@@ -1,0 +1,333 @@
+//! One work patch's computation (section III-B, Fig. 4, steps 2–5): the work
+//! patch, its work image, patch matching and the graphcut fitting — every
+//! read, no write. The synthesis accepts the outcome afterwards, so work
+//! patches that share no atlas tile can be computed at once, each over views
+//! of its own tiles ([`super::rounds`]).
+
+use std::path::Path;
+use std::time::Instant;
+
+use super::fit::{fit_patch, Fit};
+use super::flatten::{chart_work_image, flattened_work_image, unfolded_work_image, Flattening, WorkImage};
+use super::matching::Matcher;
+use super::occurrence::Occurrence;
+use super::placement::{
+    choose_placement, covering_candidates, distinct_best, place_covering, PlacementChoice, REFINE_SPACING,
+};
+use super::sample::Sample;
+use super::state::{Bfs, State, Surface, WorkPatch};
+use super::TileConfig;
+use crate::progress::Progress;
+use crate::{Error, Result};
+
+/// Time and retries of one work patch, added to the report when it is
+/// accepted.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct StepStats {
+    pub(super) shrinks: usize,
+    pub(super) matching_seconds: f64,
+    pub(super) graphcut_seconds: f64,
+}
+
+/// A computed work patch, not yet accepted: the patch, its fitting, and
+/// whether its work image is the rigid unfolding.
+pub(super) struct Outcome {
+    pub(super) patch: WorkPatch,
+    pub(super) fit: Fit,
+    pub(super) unfolded: bool,
+    pub(super) stats: StepStats,
+}
+
+/// What computing a work patch reads (the surface and state whole, or views
+/// of some tiles) and the buffers it reuses.
+pub(super) struct Worker<'a> {
+    pub(super) surface: &'a Surface,
+    pub(super) state: &'a State,
+    pub(super) sample: &'a Sample,
+    pub(super) zipper_triangles: &'a [[u32; 3]],
+    pub(super) cfg: &'a TileConfig,
+    pub(super) sample_path: &'a Path,
+    /// The sample's mean neighbour difference, the unit of T_c.
+    pub(super) reference: f64,
+    /// Painting (§IV): one min-cut per fitting, no T_c shrinking.
+    pub(super) painting: bool,
+    /// The occurrence map matching penalizes with (tiling only).
+    pub(super) occurrence: Option<&'a mut Occurrence>,
+    pub(super) bfs: &'a mut Bfs,
+    pub(super) matcher: &'a mut Matcher,
+    /// The seeded choice's counter: patches accepted before this one.
+    pub(super) counter: u64,
+    pub(super) stats: StepStats,
+}
+
+impl Worker<'_> {
+    /// One step of the quilting loop (the paper's Fig. 4) at vertex `v`:
+    /// work patch P(v) of radius r_w, work image I(v), patch matching,
+    /// graphcut fitting, and the hierarchical search that shrinks r_w by 0.8
+    /// (down to the minimum) while the seam cost exceeds T_c.
+    pub(super) fn step(&mut self, v: u32, radius0: usize, progress: &dyn Progress) -> Result<Outcome> {
+        let cfg = self.cfg;
+        let mut radius = radius0;
+        let mut flattening: Option<Flattening> = None;
+        let painting = self.painting;
+        // the rejected fitting with the lowest mean seam cost: if no radius
+        // passes T_c, it is taken instead of the smallest patch (fewer,
+        // larger pieces than always ending at r_w = 4)
+        let mut best: Option<(f64, WorkPatch, Fit, bool)> = None;
+        loop {
+            let patch = self.bfs.patch(self.surface, v, radius);
+            let (work, unfolded) = self.work_image(&patch, &mut flattening);
+            let fit = self.match_and_fit(&patch, &work, painting, 0)?;
+            let mean = if fit.seam_edges > 0 {
+                fit.seam_cost / fit.seam_edges as f64
+            } else {
+                0.0
+            };
+            // (painting takes its one min-cut per fitting: its seams must
+            // cross the foreground's border where m0 demands it, which T_c
+            // would read as a bad fit)
+            let (mut patch, mut fit, mut unfolded) = (patch, fit, unfolded);
+            if !painting && mean > cfg.seam_threshold * self.reference && fit.taken_new_synth > 0 {
+                if radius > cfg.min_radius {
+                    if best.as_ref().map_or(true, |b| mean < b.0) {
+                        best = Some((mean, patch, fit, unfolded));
+                    }
+                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
+                    self.stats.shrinks += 1;
+                    continue;
+                }
+                if let Some(b) = best.take().filter(|b| b.0 < mean) {
+                    if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                        progress.note(&format!("best of the radii: {:.3} instead of {mean:.3}", b.0));
+                    }
+                    (patch, fit, unfolded) = (b.1, b.2, b.3);
+                }
+            }
+            if fit.taken == 0 && !painting {
+                // nothing could be placed (sample too small for the work
+                // image): shrink, or give up on this vertex at the minimum
+                if radius > cfg.min_radius {
+                    radius = ((radius as f64 * 0.8) as usize).max(cfg.min_radius);
+                    self.stats.shrinks += 1;
+                    continue;
+                }
+                let (sw, sh) = (self.sample.width, self.sample.height);
+                return Err(Error::input(
+                    self.sample_path,
+                    format!("is too small ({sw}×{sh}) to cover a work patch of radius {radius}"),
+                ));
+            }
+            if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                progress.note(&format!(
+                    "patch {} v {v} radius {radius} texels {} taken {} cross {}",
+                    self.counter,
+                    patch.texels.len(),
+                    fit.taken,
+                    patch.crosses_charts
+                ));
+            }
+            return Ok(Outcome {
+                patch,
+                fit,
+                unfolded,
+                stats: self.stats,
+            });
+        }
+    }
+
+    /// Seam refinement's work patch at `v` (see
+    /// [`Synthesis::refine`](super::synthesis::Synthesis::refine)): the
+    /// cheapest cut of the `placements` best covering placements, the core
+    /// of `core` hops around the seam taking the new values.
+    pub(super) fn refinement(
+        &mut self,
+        v: u32,
+        radius: usize,
+        placements: usize,
+        core: u16,
+    ) -> Result<Outcome> {
+        let patch = self.bfs.patch(self.surface, v, radius);
+        let (work, _) = self.work_image(&patch, &mut None);
+        let fit = self.best_of_placements(&patch, &work, placements, core)?;
+        Ok(Outcome {
+            patch,
+            fit,
+            unfolded: false,
+            stats: self.stats,
+        })
+    }
+
+    /// Patch matching of the work image against the sample, then the
+    /// graphcut fitting of the chosen placement ([`fit_patch`], which says
+    /// what `keep_outside_target` and `core` do), timed into the stats.
+    pub(super) fn match_and_fit(
+        &mut self,
+        patch: &WorkPatch,
+        work: &WorkImage,
+        keep_outside_target: bool,
+        core: u16,
+    ) -> Result<Fit> {
+        let t = Instant::now();
+        let occurrence = if self.painting {
+            None
+        } else {
+            self.occurrence.as_deref_mut()
+        };
+        let placement = place_covering(
+            self.sample,
+            self.matcher,
+            work,
+            self.cfg,
+            self.reference,
+            occurrence,
+            self.counter,
+        )?;
+        self.stats.matching_seconds += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let fit = self.fit_placement(patch, work, &placement, keep_outside_target, core);
+        self.stats.graphcut_seconds += t.elapsed().as_secs_f64();
+        Ok(fit)
+    }
+
+    /// The graphcut fitting of one placement ([`fit_patch`]).
+    pub(super) fn fit_placement(
+        &self,
+        patch: &WorkPatch,
+        work: &WorkImage,
+        placement: &PlacementChoice,
+        keep_outside_target: bool,
+        core: u16,
+    ) -> Fit {
+        fit_patch(
+            self.sample,
+            self.state,
+            self.surface,
+            patch,
+            work,
+            placement,
+            self.cfg.constraint_weight * self.reference,
+            keep_outside_target,
+            core,
+        )
+    }
+
+    /// Seam refinement's fitting: the graphcut of each of the `count` best
+    /// covering placements ([`distinct_best`]), the one with the cheapest cut
+    /// kept. A refinement has to beat the seams already there, and the
+    /// cheapest match is not always the cheapest cut.
+    fn best_of_placements(
+        &mut self,
+        patch: &WorkPatch,
+        work: &WorkImage,
+        count: usize,
+        core: u16,
+    ) -> Result<Fit> {
+        let t = Instant::now();
+        let (rotation, covering) =
+            covering_candidates(self.sample, self.matcher, work, self.cfg, self.reference, None)?;
+        let mut picks: Vec<PlacementChoice> = distinct_best(&covering, count, REFINE_SPACING)
+            .into_iter()
+            .map(|p| PlacementChoice {
+                rotation,
+                dx: p.dx as f64,
+                dy: p.dy as f64,
+            })
+            .collect();
+        if picks.is_empty() {
+            // no match covers the patch: the seeded spot the quilting step
+            // would take
+            picks.push(choose_placement(
+                self.sample,
+                work,
+                self.cfg,
+                self.counter,
+                rotation,
+                &covering,
+            ));
+        }
+        self.stats.matching_seconds += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let mut best: Option<Fit> = None;
+        for placement in picks {
+            let fit = self.fit_placement(patch, work, &placement, false, core);
+            if best.as_ref().map_or(true, |b| fit.flow < b.flow) {
+                best = Some(fit);
+            }
+        }
+        self.stats.graphcut_seconds += t.elapsed().as_secs_f64();
+        Ok(best.expect("picks is not empty"))
+    }
+
+    /// The work image I(v) of a work patch: the chart image inside a chart;
+    /// across charts the flattening (reused from `flattening` when the same
+    /// seed's patch shrinks), or the rigid unfolding where that fails — and
+    /// whether it is that unfolding.
+    pub(super) fn work_image(
+        &self,
+        patch: &WorkPatch,
+        flattening: &mut Option<Flattening>,
+    ) -> (WorkImage, bool) {
+        let (mut work, unfolded) = self.work_image_of(patch, flattening);
+        // only matching that may turn the sample reads it
+        if !self.painting && self.cfg.field_turn > 0 {
+            work.field_spread = field_spread(self.surface, patch);
+        }
+        (work, unfolded)
+    }
+
+    fn work_image_of(&self, patch: &WorkPatch, flattening: &mut Option<Flattening>) -> (WorkImage, bool) {
+        let (surface, state, bfs, zt, sample) = (
+            self.surface,
+            self.state,
+            &*self.bfs,
+            self.zipper_triangles,
+            self.sample,
+        );
+        if !patch.crosses_charts {
+            return (chart_work_image(surface, sample, state, patch), false);
+        }
+        if let Some(work) = flattening
+            .as_ref()
+            .and_then(|f| f.work_image(surface, sample, state, patch, bfs, zt))
+        {
+            return (work, false);
+        }
+        if let Some((work, coords)) =
+            flattened_work_image(surface, sample, state, patch, bfs, zt, self.cfg.max_distortion)
+        {
+            let mut c: Vec<(u32, [f64; 2])> = patch.texels.iter().copied().zip(coords).collect();
+            c.sort_unstable_by_key(|e| e.0);
+            *flattening = Some(Flattening {
+                coords: c,
+                angle: work.angle,
+            });
+            return (work, false);
+        }
+        (unfolded_work_image(surface, sample, state, patch, bfs), true)
+    }
+}
+
+/// How far the field turns inside a work patch: the circular standard
+/// deviation √(−2 ln R) of the texels' field directions, R the mean
+/// resultant length pooled over the patch's charts (each chart's
+/// directions against its own mean: atlas angles compare only within a
+/// chart). 0 where the field is constant.
+fn field_spread(surface: &Surface, patch: &WorkPatch) -> f64 {
+    // (chart, Σ cos, Σ sin) per chart met
+    let mut sums: Vec<(u32, f64, f64)> = Vec::new();
+    for &t in &patch.texels {
+        let (c, a) = (surface.chart(t), surface.texel_angle(t));
+        let k = match sums.iter().position(|e| e.0 == c) {
+            Some(k) => k,
+            None => {
+                sums.push((c, 0.0, 0.0));
+                sums.len() - 1
+            }
+        };
+        sums[k].1 += a.cos();
+        sums[k].2 += a.sin();
+    }
+    let n = patch.texels.len().max(1) as f64;
+    let r: f64 = sums.iter().map(|e| e.1.hypot(e.2)).sum::<f64>() / n;
+    (-2.0 * r.clamp(1e-12, 1.0).ln()).sqrt()
+}
