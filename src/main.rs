@@ -304,6 +304,11 @@ enum Command {
         /// longer runs).
         #[arg(long, default_value_t = TileConfig::default().refine_placements)]
         refine_placements: usize,
+        /// Work patches computed at once per round of the quilting loop (1: one
+        /// at a time, as in the paper). Part of the recipe like the seed: the
+        /// output depends on it, never on --threads.
+        #[arg(long, default_value_t = TileConfig::default().round)]
+        round: usize,
         /// Penalise sample regions in proportion to how often the surface
         /// already shows them (0 turns it off; higher: more of the sample's
         /// variety, at some cost in seam quality).
@@ -920,6 +925,7 @@ fn run(cli: Cli) -> Result<()> {
             sample_mask,
             refine,
             refine_placements,
+            round,
             occurrence_weight,
             structure_weight,
             field_turn,
@@ -931,6 +937,7 @@ fn run(cli: Cli) -> Result<()> {
                 sample_mask,
                 refine: (refine != 0.0).then_some(refine),
                 refine_placements,
+                round,
                 occurrence_weight,
                 structure_weight,
                 field_turn,

@@ -605,6 +605,10 @@ impl SampleSpectra {
     }
 }
 
+/// A matcher's cache of sample spectra, shared between matchers.
+#[derive(Clone)]
+pub struct SpectraCache(Arc<Mutex<BoundedCache<CacheKey, Arc<SampleSpectra>>>>);
+
 /// Entire-patch matcher: owns the FFT planner, reusable buffers and a cache
 /// of sample spectra (least recently used entries are dropped beyond the
 /// budget; the newest entry is always kept).
@@ -651,12 +655,24 @@ impl Matcher {
         }
     }
 
-    /// A matcher of its own (planner and buffers) sharing this one's
-    /// spectrum cache, for a work patch computed on another thread (two
-    /// matchers may compute the same spectra; they are equal).
-    pub fn sibling(&self) -> Matcher {
+    /// Bytes of this matcher's buffers (sized by the largest match so far).
+    pub fn buffer_bytes(&self) -> usize {
+        let complex = [&self.rows, &self.spec, &self.zm, &self.acc, &self.out];
+        complex.iter().map(|b| b.capacity()).sum::<usize>() * std::mem::size_of::<C64>()
+            + self.energy.capacity() * 8
+    }
+
+    /// This matcher's spectrum cache, to share with [`Matcher::sharing`].
+    pub fn spectra_cache(&self) -> SpectraCache {
+        SpectraCache(Arc::clone(&self.cache))
+    }
+
+    /// A matcher of its own (planner and buffers) sharing a spectrum cache,
+    /// for a work patch computed on another thread (two matchers may
+    /// compute the same spectra; they are equal).
+    pub fn sharing(cache: SpectraCache) -> Matcher {
         Matcher {
-            cache: Arc::clone(&self.cache),
+            cache: cache.0,
             ..Matcher::with_cache_budget(0)
         }
     }

@@ -40,6 +40,7 @@ pub mod maxflow;
 mod occurrence;
 mod pager;
 mod placement;
+mod rounds;
 mod sample;
 mod state;
 mod structure;
@@ -126,6 +127,16 @@ pub struct TileConfig {
     /// 0.684 (1 placement), 0.667 (2), 0.658 (4); each extra placement costs
     /// a graphcut per refined seam (there 2-3 s more per placement).
     pub refine_placements: usize,
+    /// Work patches per round of the quilting loop (section III-B's loop,
+    /// computed a round at a time, [`rounds`]): the most constrained texel
+    /// and up to this − 1 more of the most constrained ones whose atlas
+    /// tiles the round does not hold yet, computed at once and accepted in
+    /// order. 1 is the paper's one patch at a time. It is part of the
+    /// recipe, like the seed: the quilt depends on it, never on the thread
+    /// count. Default 4: on Spot 4096² from the brick wall, 2 threads, the
+    /// quilting loop took 35 s instead of about 70 s, mean seam cost 1.154
+    /// either way; 8 took 31 s at 1.179.
+    pub round: usize,
     /// The sample's size on the surface: how many mesh units its width
     /// spans. The sample (its geometry maps, rotated copies and mask) is
     /// resampled to the atlas's texel density, so the texture keeps its
@@ -157,6 +168,7 @@ impl Default for TileConfig {
             constraint_weight: 16.0,
             refine: Some(2.0),
             refine_placements: REFINE_PLACEMENTS,
+            round: 4,
             sample_width: None,
             sample_pixel: None,
         }
@@ -264,6 +276,11 @@ impl TileConfig {
         if self.refine_placements == 0 {
             return Err(Error::Config("--refine-placements must be at least 1".into()));
         }
+        if self.round == 0 {
+            return Err(Error::Config(
+                "--round must be at least 1 (work patches per round)".into(),
+            ));
+        }
         crate::container::check_level(self.level)
     }
 }
@@ -296,6 +313,11 @@ pub struct TileReport {
     pub tiles_read: u64,
     /// Compressed bytes written to the scratch store by evictions.
     pub scratch_bytes: u64,
+    /// Work patches (of the loop and of seam refinement) computed in rounds
+    /// of several, and how many of them read outside their tiles and were
+    /// computed again alone.
+    pub concurrent_patches: usize,
+    pub recomputed_patches: usize,
 }
 
 impl std::fmt::Display for TileReport {
@@ -337,6 +359,19 @@ pub fn tile(
     cfg: &TileConfig,
     progress: &dyn Progress,
 ) -> Result<TileReport> {
+    tile_refining_by(gim_path, sample_path, out, cfg, rounds::REFINE_ROUND, progress)
+}
+
+/// [`tile`], seam refinement taking up to `refine_round` patches per round
+/// (the quilt is the same for any).
+pub(crate) fn tile_refining_by(
+    gim_path: &Path,
+    sample_path: &Path,
+    out: &Path,
+    cfg: &TileConfig,
+    refine_round: usize,
+    progress: &dyn Progress,
+) -> Result<TileReport> {
     let start = Instant::now();
     cfg.validate()?;
     let mut inputs = vec![("the geometry image", gim_path), ("the sample", sample_path)];
@@ -348,6 +383,7 @@ pub fn tile(
     let gim = Gim::open(gim_path, MemoryBudget(1 << 20))?;
     let sized = sample_at_density(sample_path, gim.texel_size, cfg.sample_size(), true, progress)?;
     let mut syn = Synthesis::open(&gim, sample_path, &sized.svd, out, cfg, true)?;
+    syn.refine_round = refine_round;
     syn.set_scale(&sized);
     syn.set_structure(cfg.structure_weight);
     if let Some(mask) = &cfg.sample_mask {
@@ -357,24 +393,15 @@ pub fn tile(
     let radius0 = syn.radius0();
     progress.begin("tile", syn.state.remaining as u64);
     // the first vertex: a seeded choice among all dense vertices
-    let mut first = {
+    let first = {
         let vertices = syn.surface.vertices();
         if vertices == 0 {
             return Err(Error::input(gim_path, "has no dense vertices"));
         }
-        Some(
-            syn.surface
-                .nth_vertex((crate::rng::mix64(cfg.seed) % vertices as u64) as usize),
-        )
+        syn.surface
+            .nth_vertex((crate::rng::mix64(cfg.seed) % vertices as u64) as usize)
     };
-    while syn.state.remaining > 0 {
-        let v = first
-            .take()
-            .or_else(|| syn.state.most_constrained())
-            .expect("remaining > 0");
-        syn.step(v, radius0, progress)?;
-        syn.check_paging()?;
-    }
+    syn.synthesize(first, radius0, progress)?;
     progress.end();
     if let Some(step) = cfg.refine {
         syn.refine(radius0.max(cfg.min_radius), step, progress)?;

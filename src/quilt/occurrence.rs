@@ -79,6 +79,16 @@ impl Occurrence {
         Some(cy.min(self.rows - 1) * self.cols + cx.min(self.cols - 1))
     }
 
+    /// A copy of the counts (the summed-area tables are made again on
+    /// use), for work patches computed at once.
+    pub(crate) fn snapshot(&self) -> Occurrence {
+        Occurrence {
+            count: self.count.clone(),
+            tables: vec![(u64::MAX, Vec::new()); self.tables.len()],
+            ..*self
+        }
+    }
+
     /// Counts one texel at sample coordinates `c` (`weight` −1 takes one
     /// back, when a later patch replaces it).
     pub(crate) fn add(&mut self, c: [f64; 2], weight: f64) {

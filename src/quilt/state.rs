@@ -309,6 +309,25 @@ impl State {
         f.first.iter().map(|first| first[b]).min()
     }
 
+    /// The most constrained unsynthesized texel outside the `blocked`
+    /// tiles with at least `min_count` synthesized neighbours (lowest id
+    /// among equals).
+    pub(super) fn most_constrained_outside(&self, blocked: &[bool], min_count: usize) -> Option<u32> {
+        let f = &self.frontier;
+        (min_count.min(BUCKETS - 1)..BUCKETS).rev().find_map(|b| {
+            if f.total[b] == 0 {
+                return None;
+            }
+            f.count
+                .iter()
+                .zip(&f.first)
+                .zip(blocked)
+                .filter(|((count, _), &blocked)| count[b] > 0 && !blocked)
+                .map(|((_, first), _)| first[b])
+                .min()
+        })
+    }
+
     /// Recounts the frontier of the tiles `changed` (sorted, distinct) after
     /// texels in them were synthesized or gained synthesized neighbours.
     pub(super) fn refresh_frontier(&mut self, surface: &Surface, changed: &[usize]) {
@@ -657,18 +676,43 @@ impl Hasher for TexelHasher {
     }
 }
 
-/// The last work patch's vertices by texel (sized by the patch, not the atlas).
+/// The last work patch's vertices by texel (sized by the patch, not the
+/// atlas): a dense window of the atlas around the seed (a patch of radius
+/// r lies within r texels of it inside its chart), a map for the texels
+/// of other charts beyond it.
 #[derive(Default)]
 pub(super) struct Bfs {
+    /// Local index per texel of the window (`u32::MAX`: not in the patch).
+    window: Vec<u32>,
+    /// The window's first column and row and its side.
+    x0: i64,
+    y0: i64,
+    side: usize,
+    grid: Option<TileGrid>,
+    /// Window slots set by the last patch, to clear.
+    set: Vec<u32>,
     index: HashMap<u32, u32, BuildHasherDefault<TexelHasher>>,
 }
 
 impl Bfs {
     pub(super) fn patch(&mut self, surface: &Surface, v: u32, radius: usize) -> WorkPatch {
+        for &slot in &self.set {
+            self.window[slot as usize] = u32::MAX;
+        }
+        self.set.clear();
         self.index.clear();
+        let grid = surface.grid();
+        let (x, y) = grid.xy(v);
+        self.side = 2 * radius + 1;
+        self.x0 = x as i64 - radius as i64;
+        self.y0 = y as i64 - radius as i64;
+        self.grid = Some(grid);
+        if self.window.len() < self.side * self.side {
+            self.window = vec![u32::MAX; self.side * self.side];
+        }
         let mut texels = vec![v];
         let mut depth = vec![0u16];
-        self.index.insert(v, 0);
+        self.insert(v, 0);
         let mut crosses = false;
         let mut head = 0;
         while head < texels.len() {
@@ -678,8 +722,8 @@ impl Bfs {
                 continue;
             }
             surface.for_each_neighbour(t, |n, zipper| {
-                if let std::collections::hash_map::Entry::Vacant(e) = self.index.entry(n) {
-                    e.insert(texels.len() as u32);
+                if self.contains(n).is_none() {
+                    self.insert(n, texels.len() as u32);
                     texels.push(n);
                     depth.push(d + 1);
                     crosses |= zipper;
@@ -693,7 +737,35 @@ impl Bfs {
         }
     }
 
+    /// The window slot of texel `t`, if it lies in the window.
+    #[inline]
+    fn slot(&self, t: u32) -> Option<usize> {
+        let (x, y) = self.grid?.xy(t);
+        let (dx, dy) = (x as i64 - self.x0, y as i64 - self.y0);
+        let side = self.side as i64;
+        (dx >= 0 && dy >= 0 && dx < side && dy < side).then(|| (dy * side + dx) as usize)
+    }
+
+    fn insert(&mut self, t: u32, i: u32) {
+        match self.slot(t) {
+            Some(slot) => {
+                self.window[slot] = i;
+                self.set.push(slot as u32);
+            }
+            None => {
+                self.index.insert(t, i);
+            }
+        }
+    }
+
+    /// The local index of texel `t` in the last patch.
+    #[inline]
     pub(super) fn contains(&self, t: u32) -> Option<usize> {
-        self.index.get(&t).map(|&i| i as usize)
+        match self.slot(t) {
+            Some(slot) => Some(self.window[slot])
+                .filter(|&i| i != u32::MAX)
+                .map(|i| i as usize),
+            None => self.index.get(&t).map(|&i| i as usize),
+        }
     }
 }

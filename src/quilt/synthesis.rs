@@ -41,6 +41,11 @@ pub(crate) struct Synthesis {
     pub(super) state: State,
     pub(super) bfs: Bfs,
     pub(super) matcher: Matcher,
+    /// Matchers (sharing `matcher`'s spectrum cache) and traversals of work
+    /// patches computed at once ([`super::rounds`]).
+    pub(super) spares: Vec<(Matcher, Bfs)>,
+    /// Seam refinement's patches per round ([`super::rounds::REFINE_ROUND`]).
+    pub(crate) refine_round: usize,
     /// How often each sample region shows on the surface (tiling only).
     pub(super) occurrence: Occurrence,
     /// The sample's mean neighbour difference, the unit of T_c.
@@ -110,6 +115,8 @@ impl Synthesis {
             state,
             bfs: Bfs::default(),
             matcher: Matcher::with_cache_budget(quarter.bytes() as usize),
+            spares: Vec::new(),
+            refine_round: super::rounds::REFINE_ROUND,
             occurrence,
             reference,
             report: TileReport {
@@ -520,32 +527,8 @@ impl Synthesis {
             }
         }
         seeds.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-        // one bit per texel
-        let mut visited = vec![0u64; (grid.r * grid.r).div_ceil(64)];
-        let mut kept = 0;
-        for &(_, v) in &seeds {
-            if visited[v as usize / 64] >> (v % 64) & 1 == 1 {
-                continue;
-            }
-            let placements = self.cfg.refine_placements;
-            let Outcome {
-                patch, fit, stats, ..
-            } = self.worker().refinement(v, radius, placements, 3)?;
-            self.add_stats(&stats);
-            let rim = patch.depth.iter().copied().max().unwrap_or(0);
-            for (&t, &d) in patch.texels.iter().zip(&patch.depth) {
-                if d + 2 < rim {
-                    visited[t as usize / 64] |= 1 << (t % 64);
-                }
-            }
-            if fit.taken > 0 && fit.flow < 0.9 * fit.baseline {
-                self.accept(&patch, &fit, progress);
-                self.report.refined += 1;
-                kept += 1;
-            }
-            self.check_paging()?;
-        }
-        Ok(kept)
+        let seeds: Vec<u32> = seeds.into_iter().map(|(_, v)| v).collect();
+        self.refine_seeds(&seeds, radius, progress)
     }
 
     /// Records an accepted fitting under the next patch id.

@@ -27,6 +27,9 @@ pub(super) struct StepStats {
     pub(super) shrinks: usize,
     pub(super) matching_seconds: f64,
     pub(super) graphcut_seconds: f64,
+    /// Whether the seeded choice (and so the patch counter) decided a
+    /// placement of seam refinement.
+    pub(super) seeded: bool,
 }
 
 /// A computed work patch, not yet accepted: the patch, its fitting, and
@@ -236,6 +239,7 @@ impl Worker<'_> {
         if picks.is_empty() {
             // no match covers the patch: the seeded spot the quilting step
             // would take
+            self.stats.seeded = true;
             picks.push(choose_placement(
                 self.sample,
                 work,

@@ -175,6 +175,19 @@ fn spot_is_covered_and_baked_and_rendered() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("--refine-placements"), "{e}");
+    let e = quilt::tile(
+        &g,
+        &sample,
+        &refined,
+        &TileConfig {
+            round: 0,
+            ..TileConfig::default()
+        },
+        &Silent,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("--round"), "{e}");
     // several placements per seam (the cheapest cut of three) lower them too
     let several = dir.path().join("several.quilt");
     let rs = quilt::tile(
@@ -358,6 +371,12 @@ fn a_budget_that_forces_eviction_changes_no_byte() {
     assert_eq!(held.scratch_bytes, 0);
     assert!(paged.tiles_read > 2 * 16 + 16, "{paged}");
     assert!(paged.scratch_bytes > 0, "{paged}");
+    // work patches were computed in rounds, on 1 thread and on 2
+    assert!(
+        paged.concurrent_patches > 0 && held.concurrent_patches > 0,
+        "{paged}"
+    );
+    assert_eq!(paged.concurrent_patches, held.concurrent_patches);
     assert!(small == large, "the quilt depends on the budget");
     // the scratch store went with the run
     let left: Vec<String> = crate::common::listing(dir.path())

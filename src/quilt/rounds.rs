@@ -1,0 +1,445 @@
+//! The quilting loop and seam refinement a round at a time: up to
+//! [`TileConfig::round`](super::TileConfig::round) ([`REFINE_ROUND`])
+//! work patches that share no atlas tile are computed at once, each over
+//! read-only views of its tiles ([`Worker`]), then accepted in order.
+//!
+//! A work patch reads only its tiles, and accepting one writes only its
+//! tiles, so a patch computed with the round's first state equals the
+//! patch computed after the earlier ones of its round were accepted. Which
+//! patches form a round depends on the state alone, never on the threads,
+//! so the quilt is the same for any thread count. A patch that reads
+//! outside its tiles (a view sees a blank tile there) is computed again on
+//! the whole state in its turn.
+
+use std::path::Path;
+use std::sync::Mutex;
+
+use super::matching::{Matcher, SpectraCache};
+use super::occurrence::Occurrence;
+use super::sample::Sample;
+use super::state::{Bfs, State, Surface};
+use super::synthesis::Synthesis;
+use super::worker::{Outcome, StepStats, Worker};
+use super::TileConfig;
+use crate::artifact::gim::TILE;
+use crate::progress::{Progress, Silent};
+use crate::Result;
+
+/// Work patches per round of seam refinement: any number gives the quilt
+/// of one patch at a time; more keep the threads busier.
+pub(crate) const REFINE_ROUND: usize = 16;
+
+/// Candidates tried for each further seed of a round before it ends short.
+const TRIES: usize = 8;
+
+/// What the work patches of a round share while they are computed.
+struct Context<'a> {
+    sample: &'a Sample,
+    zipper_triangles: &'a [[u32; 3]],
+    cfg: &'a TileConfig,
+    sample_path: &'a Path,
+    reference: f64,
+    painting: bool,
+    /// The occurrence map as the round found it.
+    occurrence: Option<Occurrence>,
+    spares: Mutex<Vec<(Matcher, Bfs)>>,
+    spectra: SpectraCache,
+    /// Patches accepted before the round.
+    base: u64,
+}
+
+impl Context<'_> {
+    /// Computes the round's `j`-th work patch with `f` over views of its
+    /// tiles; `None` if it read outside them.
+    fn run<F>(&self, j: usize, job: &Job, surface: Surface, state: State, f: &F) -> Option<Result<Outcome>>
+    where
+        F: Fn(&mut Worker<'_>, u32) -> Result<Outcome> + Sync,
+    {
+        let spare = crate::lock(&self.spares).pop();
+        let (mut matcher, mut bfs) =
+            spare.unwrap_or_else(|| (Matcher::sharing(self.spectra.clone()), Bfs::default()));
+        let mut occurrence = self.occurrence.clone();
+        let mut worker = Worker {
+            surface: &surface,
+            state: &state,
+            sample: self.sample,
+            zipper_triangles: self.zipper_triangles,
+            cfg: self.cfg,
+            sample_path: self.sample_path,
+            reference: self.reference,
+            painting: self.painting,
+            occurrence: occurrence.as_mut(),
+            bfs: &mut bfs,
+            matcher: &mut matcher,
+            counter: self.base + j as u64,
+            stats: StepStats::default(),
+        };
+        let outcome = f(&mut worker, job.v);
+        crate::lock(&self.spares).push((matcher, bfs));
+        (!(surface.missed() || state.missed())).then_some(outcome)
+    }
+}
+
+/// A work patch of a round: its seed and the atlas tiles it may read.
+struct Job {
+    v: u32,
+    tiles: Vec<usize>,
+}
+
+impl Synthesis {
+    /// The quilting loop (the paper's Fig. 4) until every texel is
+    /// synthesized, from `first`. A round starts at the most constrained
+    /// texel; its further seeds are the most constrained texels (with at
+    /// least one synthesized neighbour) whose tiles are not the round's.
+    pub(crate) fn synthesize(&mut self, first: u32, radius0: usize, progress: &dyn Progress) -> Result<()> {
+        self.step(first, radius0, progress)?;
+        self.check_paging()?;
+        while self.state.remaining > 0 {
+            let jobs = self.quilting_round(radius0);
+            let (outcomes, ()) = self.compute(&jobs, |w, v| w.step(v, radius0, &Silent), |_, _| ());
+            for (job, outcome) in jobs.iter().zip(outcomes) {
+                match outcome {
+                    Some(outcome) => self.accept_outcome(&outcome?, progress),
+                    None => {
+                        if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                            progress.note(&format!(
+                                "patch at {} read outside its tiles: computed again",
+                                job.v
+                            ));
+                        }
+                        self.step(job.v, radius0, progress)?;
+                    }
+                }
+            }
+            self.check_paging()?;
+        }
+        Ok(())
+    }
+
+    /// The seeds of the next round of the quilting loop.
+    fn quilting_round(&mut self, radius0: usize) -> Vec<Job> {
+        let v = self.state.most_constrained().expect("texels remain");
+        let tiles = self.reach(v, radius0).0;
+        let mut used = vec![false; self.surface.grid().tiles()];
+        let mut blocked = used.clone();
+        for &k in &tiles {
+            used[k] = true;
+            blocked[k] = true;
+        }
+        let mut jobs = vec![Job { v, tiles }];
+        'round: while jobs.len() < self.cfg.round {
+            for _ in 0..TRIES {
+                let Some(v) = self.state.most_constrained_outside(&blocked, 1) else {
+                    break 'round;
+                };
+                let (tiles, _) = self.reach(v, radius0);
+                if tiles.iter().any(|&k| used[k]) {
+                    blocked[self.surface.grid().locate(v).0] = true;
+                    continue;
+                }
+                for &k in &tiles {
+                    used[k] = true;
+                    blocked[k] = true;
+                }
+                jobs.push(Job { v, tiles });
+                continue 'round;
+            }
+            break;
+        }
+        jobs
+    }
+
+    /// Seam refinement's patches at `seeds` (largest seam step first; see
+    /// [`Synthesis::refine`]): a round takes the next seeds in order while
+    /// their tiles are free, so the seeds visited and the quilt are those
+    /// of one patch at a time. Returns how many were kept.
+    pub(super) fn refine_seeds(
+        &mut self,
+        seeds: &[u32],
+        radius: usize,
+        progress: &dyn Progress,
+    ) -> Result<usize> {
+        let grid = self.surface.grid();
+        let placements = self.cfg.refine_placements;
+        let mut schedule = RefineSchedule {
+            seeds,
+            next: 0,
+            // one bit per texel
+            visited: vec![0u64; (grid.r * grid.r).div_ceil(64)],
+            radius,
+            round: self.refine_round.max(1),
+        };
+        let mut kept = 0;
+        let mut jobs = schedule.round(&mut self.bfs, &self.surface);
+        while !jobs.is_empty() {
+            // each patch computed as if none before it in the round is
+            // kept, while the next round is chosen (the rounds depend on
+            // the surface alone)
+            let base = self.report.patches as u64;
+            let (outcomes, next) = self.compute(
+                &jobs,
+                |w, v| {
+                    w.counter = base;
+                    w.refinement(v, radius, placements, 3)
+                },
+                |bfs, surface| schedule.round(bfs, surface),
+            );
+            for (job, outcome) in jobs.iter().zip(outcomes) {
+                let outcome = match outcome {
+                    // its seeded choice assumed another count
+                    Some(Ok(o)) if o.stats.seeded && self.report.patches as u64 != base => None,
+                    other => other,
+                };
+                let outcome = match outcome {
+                    Some(outcome) => outcome?,
+                    None => self.worker().refinement(job.v, radius, placements, 3)?,
+                };
+                self.add_stats(&outcome.stats);
+                let fit = &outcome.fit;
+                if fit.taken > 0 && fit.flow < 0.9 * fit.baseline {
+                    self.accept(&outcome.patch, fit, progress);
+                    self.report.refined += 1;
+                    kept += 1;
+                }
+            }
+            self.check_paging()?;
+            jobs = next;
+        }
+        Ok(kept)
+    }
+
+    /// The atlas tiles computing a work patch of `radius` at `v` may read
+    /// (the bounding boxes, per chart, of the texels within `radius` + 2
+    /// hops, grown by one texel), and the texels more than two hops inside
+    /// the patch's rim (seam refinement's core).
+    fn reach(&mut self, v: u32, radius: usize) -> (Vec<usize>, Vec<u32>) {
+        reach(&mut self.bfs, &self.surface, v, radius)
+    }
+
+    /// Computes the round's work patches with `f`, at once when there are
+    /// several, each over views of its tiles and counting from the patches
+    /// accepted so far plus its place in the round, while `alongside` runs
+    /// on the whole surface. `None` for a patch that read outside its
+    /// tiles.
+    fn compute<F, A, R>(&mut self, jobs: &[Job], f: F, alongside: A) -> (Vec<Option<Result<Outcome>>>, R)
+    where
+        F: Fn(&mut Worker<'_>, u32) -> Result<Outcome> + Sync,
+        A: FnOnce(&mut Bfs, &mut Surface) -> R + Send,
+        R: Send,
+    {
+        if jobs.len() <= 1 {
+            let outcomes = jobs.iter().map(|j| Some(f(&mut self.worker(), j.v))).collect();
+            return (outcomes, alongside(&mut self.bfs, &mut self.surface));
+        }
+        let at_once = self.at_once(jobs.len());
+        let job = Context {
+            sample: &self.sample,
+            zipper_triangles: &self.zipper_triangles,
+            cfg: &self.cfg,
+            sample_path: &self.sample_path,
+            reference: self.reference,
+            painting: self.painting,
+            occurrence: (!self.painting).then(|| self.occurrence.snapshot()),
+            spares: Mutex::new(std::mem::take(&mut self.spares)),
+            spectra: self.matcher.spectra_cache(),
+            base: self.report.patches as u64,
+        };
+        let (outcomes, other): (Vec<Option<Result<Outcome>>>, R) = if at_once <= 1 {
+            // one at a time, each over its views all the same (a patch that
+            // reads outside its tiles is computed again in its turn)
+            let outcomes = jobs
+                .iter()
+                .enumerate()
+                .map(|(j, w)| job.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), &f))
+                .collect();
+            (outcomes, alongside(&mut self.bfs, &mut self.surface))
+        } else {
+            // `at_once` tasks take the patches in turn: no more are in
+            // flight (nor matchers held) however the threads steal work
+            let views: Vec<_> = jobs
+                .iter()
+                .map(|w| Mutex::new(Some((self.surface.view(&w.tiles), self.state.view(&w.tiles)))))
+                .collect();
+            let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
+                jobs.iter().map(|_| Mutex::new(None)).collect();
+            let next = std::sync::atomic::AtomicUsize::new(0);
+            let (main_bfs, main_surface) = (&mut self.bfs, &mut self.surface);
+            let (job, views, slots, next, f) = (&job, &views, &slots, &next, &f);
+            let other = rayon::scope(|s| {
+                for _ in 0..at_once {
+                    s.spawn(move |_| loop {
+                        let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if j >= jobs.len() {
+                            break;
+                        }
+                        let (surface, state) = crate::lock(&views[j]).take().expect("taken once");
+                        *crate::lock(&slots[j]) = Some(job.run(j, &jobs[j], surface, state, f));
+                    });
+                }
+                alongside(main_bfs, main_surface)
+            });
+            let outcomes = slots
+                .iter()
+                .map(|slot| crate::lock(slot).take().expect("every patch computed"))
+                .collect();
+            (outcomes, other)
+        };
+        self.report.concurrent_patches += jobs.len();
+        self.report.recomputed_patches += outcomes.iter().filter(|o| o.is_none()).count();
+        self.spares = job.spares.into_inner().unwrap_or_else(|e| e.into_inner());
+        (outcomes, other)
+    }
+
+    /// How many of `jobs` patches to compute at once: one per thread, fewer
+    /// when the matcher's buffers (about a work patch's own memory, which
+    /// comes on top of `--memory`) would exceed a quarter of the budget
+    /// each. How many run at once never changes the quilt.
+    fn at_once(&self, jobs: usize) -> usize {
+        let buffers = self
+            .spares
+            .iter()
+            .map(|(m, _)| m.buffer_bytes())
+            .chain([self.matcher.buffer_bytes()])
+            .max()
+            .unwrap_or(0) as u64;
+        let by_memory = (self.cfg.memory.bytes() / (4 * buffers).max(1)).max(1) as usize;
+        rayon::current_num_threads().min(jobs).min(by_memory)
+    }
+}
+
+/// The atlas tiles computing a work patch of `radius` at `v` may read (the
+/// bounding boxes, per chart, of the texels within `radius` + 2 hops, grown
+/// by one texel), and the texels more than two hops inside the patch's rim
+/// (seam refinement's core). Both depend on the surface alone.
+fn reach(bfs: &mut Bfs, surface: &Surface, v: u32, radius: usize) -> (Vec<usize>, Vec<u32>) {
+    let grid = surface.grid();
+    let ball = bfs.patch(surface, v, radius + 2);
+
+    // (chart, x0, y0, x1, y1)
+    let mut boxes: Vec<(u32, usize, usize, usize, usize)> = Vec::new();
+    let mut rim = 0;
+    for (&t, &d) in ball.texels.iter().zip(&ball.depth) {
+        if d as usize <= radius {
+            rim = rim.max(d);
+        }
+        let (x, y) = grid.xy(t);
+        let c = surface.chart(t);
+        match boxes.iter_mut().find(|b| b.0 == c) {
+            Some(b) => {
+                b.1 = b.1.min(x);
+                b.2 = b.2.min(y);
+                b.3 = b.3.max(x);
+                b.4 = b.4.max(y);
+            }
+            None => boxes.push((c, x, y, x, y)),
+        }
+    }
+    let core = ball
+        .texels
+        .iter()
+        .zip(&ball.depth)
+        .filter(|&(_, &d)| d as usize <= radius && d + 2 < rim)
+        .map(|(&t, _)| t)
+        .collect();
+    let mut tiles = Vec::new();
+    for &(_, x0, y0, x1, y1) in &boxes {
+        let (tx0, ty0) = (x0.saturating_sub(1) / TILE, y0.saturating_sub(1) / TILE);
+        let (tx1, ty1) = ((x1 + 1).min(grid.r - 1) / TILE, (y1 + 1).min(grid.r - 1) / TILE);
+        for ty in ty0..=ty1 {
+            tiles.extend((tx0..=tx1).map(|tx| ty * grid.across + tx));
+        }
+    }
+    tiles.sort_unstable();
+    tiles.dedup();
+    (tiles, core)
+}
+
+/// Seam refinement's seeds taken in order, a round at a time.
+struct RefineSchedule<'a> {
+    seeds: &'a [u32],
+    next: usize,
+    /// Texels inside a refined patch's core (one bit each): their seeds are
+    /// not visited again.
+    visited: Vec<u64>,
+    radius: usize,
+    /// Seeds per round at most.
+    round: usize,
+}
+
+impl RefineSchedule<'_> {
+    /// The next round: the next seeds not yet visited, in order, while
+    /// their tiles are free (empty when every seed is taken).
+    fn round(&mut self, bfs: &mut Bfs, surface: &Surface) -> Vec<Job> {
+        let mut jobs: Vec<Job> = Vec::new();
+        let mut used = vec![false; surface.grid().tiles()];
+        while self.next < self.seeds.len() && jobs.len() < self.round {
+            let v = self.seeds[self.next];
+            if self.visited[v as usize / 64] >> (v % 64) & 1 == 1 {
+                self.next += 1;
+                continue;
+            }
+            let (tiles, core) = reach(bfs, surface, v, self.radius);
+            if tiles.iter().any(|&k| used[k]) {
+                break;
+            }
+            for &t in &core {
+                self.visited[t as usize / 64] |= 1 << (t % 64);
+            }
+            for &k in &tiles {
+                used[k] = true;
+            }
+            jobs.push(Job { v, tiles });
+            self.next += 1;
+        }
+        jobs
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::REFINE_ROUND;
+    use crate::atlas::AtlasConfig;
+    use crate::progress::Silent;
+    use crate::quilt::{tile_refining_by, TileConfig, TileReport};
+
+    /// Seam refinement a round at a time visits the same seeds and keeps
+    /// the same patches as one at a time (the loop itself one at a time
+    /// here, so only refinement runs in rounds).
+    #[test]
+    fn refinement_in_rounds_gives_the_quilt_of_one_patch_at_a_time() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let gim = dir.path().join("spot.gim");
+        let atlas = AtlasConfig {
+            resolution: 256,
+            ..AtlasConfig::default()
+        };
+        crate::atlas::build_gim(&root.join("data/spot_5.8k.obj"), &gim, &atlas, &Silent).unwrap();
+        let sample = root.join("data/brick_wall.png");
+        let cfg = TileConfig {
+            round: 1,
+            seed: 3,
+            ..TileConfig::default()
+        };
+        let run = |refine_round: usize, threads: usize| -> (Vec<u8>, TileReport) {
+            let out = dir.path().join(format!("r{refine_round}-t{threads}.quilt"));
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let report = pool
+                .install(|| tile_refining_by(&gim, &sample, &out, &cfg, refine_round, &Silent))
+                .unwrap();
+            (std::fs::read(&out).unwrap(), report)
+        };
+        let (one, alone) = run(1, 1);
+        let (many, rounds) = run(REFINE_ROUND, 2);
+        assert!(alone.refined > 2, "{alone}");
+        assert_eq!(alone.concurrent_patches, 0, "{alone}");
+        assert!(rounds.concurrent_patches > 2 * rounds.refined, "{rounds}");
+        assert_eq!((alone.refined, alone.patches), (rounds.refined, rounds.patches));
+        assert!(one == many, "refinement in rounds changed the quilt");
+    }
+}
