@@ -703,28 +703,12 @@ fn apply_stroke(
         // inside (not on the rim of) a work patch; seeds deepest in F first
         // (highest m0, then lowest id), so the first patch lays the feature
         // where it must be and later ones continue it
-        let mut pending: std::collections::HashSet<u32> = zone.iter().map(|&(t, _)| t).collect();
         let mut order = zone;
         order.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
         let order: Vec<u32> = order.into_iter().map(|(t, _)| t).collect();
-        let mut left = report.zone_texels;
         let radius0 = syn.radius0();
-        progress.begin("paint", left as u64);
-        let mut cursor = 0usize;
-        while left > 0 {
-            while !pending.contains(&order[cursor]) {
-                cursor += 1;
-            }
-            let next = order[cursor] as usize;
-            let patch = syn.step(next as u32, radius0, progress)?;
-            let rim = patch.depth.iter().copied().max().unwrap_or(0);
-            for (&t, &d) in patch.texels.iter().zip(&patch.depth) {
-                if (d < rim || t as usize == next) && pending.remove(&t) {
-                    left -= 1;
-                    progress.advance(1);
-                }
-            }
-        }
+        progress.begin("paint", report.zone_texels as u64);
+        syn.paint_seeds(&order, radius0, &|n| progress.advance(n as u64), progress)?;
         progress.end();
         trace("painted");
         report.patches = syn.report.patches;

@@ -17,7 +17,7 @@ use std::sync::Mutex;
 use super::matching::{Matcher, SpectraCache};
 use super::occurrence::Occurrence;
 use super::sample::Sample;
-use super::state::{Bfs, State, Surface};
+use super::state::{Bfs, State, Surface, WorkPatch};
 use super::synthesis::Synthesis;
 use super::worker::{Outcome, StepStats, Worker};
 use super::TileConfig;
@@ -149,6 +149,66 @@ impl Synthesis {
         jobs
     }
 
+    /// Painting's work patches (§IV): every texel of `order` (the zone,
+    /// deepest in F first) is synthesized again once, as the seed of a
+    /// patch or inside one (not on its rim); the next seed is the next such
+    /// texel not yet covered. A round takes the next seeds while their
+    /// tiles are free; as a painting patch never shrinks, the seeds depend
+    /// on the surface alone and the quilt is that of one patch at a time.
+    /// `covered(n)` is told how many zone texels each patch covered.
+    pub(crate) fn paint_seeds(
+        &mut self,
+        order: &[u32],
+        radius0: usize,
+        covered: &dyn Fn(usize),
+        progress: &dyn Progress,
+    ) -> Result<()> {
+        let mut pending: std::collections::HashSet<u32> = order.iter().copied().collect();
+        let mut cursor = 0;
+        let grid = self.surface.grid();
+        while !pending.is_empty() {
+            let mut jobs: Vec<Job> = Vec::new();
+            let mut used = vec![false; grid.tiles()];
+            while !pending.is_empty() && jobs.len() < self.refine_round.max(1) {
+                while !pending.contains(&order[cursor]) {
+                    cursor += 1;
+                }
+                let v = order[cursor];
+                let (tiles, ball) = self.reach(v, radius0);
+                if tiles.iter().any(|&k| used[k]) {
+                    break;
+                }
+                let (texels, rim) = within(&ball, radius0);
+                let taken = texels
+                    .filter(|&(t, d)| (d < rim || t == v) && pending.remove(&t))
+                    .count();
+                covered(taken);
+                for &k in &tiles {
+                    used[k] = true;
+                }
+                jobs.push(Job { v, tiles });
+            }
+            let (outcomes, ()) = self.compute(&jobs, |w, v| w.step(v, radius0, &Silent), |_, _| ());
+            for (job, outcome) in jobs.iter().zip(outcomes) {
+                match outcome {
+                    Some(outcome) => self.accept_outcome(&outcome?, progress),
+                    None => {
+                        self.step(job.v, radius0, progress)?;
+                    }
+                }
+            }
+            self.check_paging()?;
+        }
+        if std::env::var_os("BTFQUILT_TRACE").is_some() {
+            let r = &self.report;
+            progress.note(&format!(
+                "{} painted in rounds, {} again",
+                r.concurrent_patches, r.recomputed_patches
+            ));
+        }
+        Ok(())
+    }
+
     /// Seam refinement's patches at `seeds` (largest seam step first; see
     /// [`Synthesis::refine`]): a round takes the next seeds in order while
     /// their tiles are free, so the seeds visited and the quilt are those
@@ -208,11 +268,8 @@ impl Synthesis {
         Ok(kept)
     }
 
-    /// The atlas tiles computing a work patch of `radius` at `v` may read
-    /// (the bounding boxes, per chart, of the texels within `radius` + 2
-    /// hops, grown by one texel), and the texels more than two hops inside
-    /// the patch's rim (seam refinement's core).
-    fn reach(&mut self, v: u32, radius: usize) -> (Vec<usize>, Vec<u32>) {
+    /// [`reach`] on the whole surface.
+    fn reach(&mut self, v: u32, radius: usize) -> (Vec<usize>, WorkPatch) {
         reach(&mut self.bfs, &self.surface, v, radius)
     }
 
@@ -309,19 +366,14 @@ impl Synthesis {
 
 /// The atlas tiles computing a work patch of `radius` at `v` may read (the
 /// bounding boxes, per chart, of the texels within `radius` + 2 hops, grown
-/// by one texel), and the texels more than two hops inside the patch's rim
-/// (seam refinement's core). Both depend on the surface alone.
-fn reach(bfs: &mut Bfs, surface: &Surface, v: u32, radius: usize) -> (Vec<usize>, Vec<u32>) {
+/// by one texel), and that traversal (its texels within `radius` hops, in
+/// order, are the work patch). Both depend on the surface alone.
+fn reach(bfs: &mut Bfs, surface: &Surface, v: u32, radius: usize) -> (Vec<usize>, WorkPatch) {
     let grid = surface.grid();
     let ball = bfs.patch(surface, v, radius + 2);
-
     // (chart, x0, y0, x1, y1)
     let mut boxes: Vec<(u32, usize, usize, usize, usize)> = Vec::new();
-    let mut rim = 0;
-    for (&t, &d) in ball.texels.iter().zip(&ball.depth) {
-        if d as usize <= radius {
-            rim = rim.max(d);
-        }
+    for &t in &ball.texels {
         let (x, y) = grid.xy(t);
         let c = surface.chart(t);
         match boxes.iter_mut().find(|b| b.0 == c) {
@@ -334,13 +386,6 @@ fn reach(bfs: &mut Bfs, surface: &Surface, v: u32, radius: usize) -> (Vec<usize>
             None => boxes.push((c, x, y, x, y)),
         }
     }
-    let core = ball
-        .texels
-        .iter()
-        .zip(&ball.depth)
-        .filter(|&(_, &d)| d as usize <= radius && d + 2 < rim)
-        .map(|(&t, _)| t)
-        .collect();
     let mut tiles = Vec::new();
     for &(_, x0, y0, x1, y1) in &boxes {
         let (tx0, ty0) = (x0.saturating_sub(1) / TILE, y0.saturating_sub(1) / TILE);
@@ -351,7 +396,26 @@ fn reach(bfs: &mut Bfs, surface: &Surface, v: u32, radius: usize) -> (Vec<usize>
     }
     tiles.sort_unstable();
     tiles.dedup();
-    (tiles, core)
+    (tiles, ball)
+}
+
+/// The texels of a traversal within `radius` hops with their depth, and the
+/// largest such depth (the work patch's rim).
+fn within(ball: &WorkPatch, radius: usize) -> (impl Iterator<Item = (u32, u16)> + '_, u16) {
+    let rim = ball
+        .depth
+        .iter()
+        .copied()
+        .filter(|&d| d as usize <= radius)
+        .max()
+        .unwrap_or(0);
+    let texels = ball
+        .texels
+        .iter()
+        .zip(&ball.depth)
+        .filter(move |&(_, &d)| d as usize <= radius)
+        .map(|(&t, &d)| (t, d));
+    (texels, rim)
 }
 
 /// Seam refinement's seeds taken in order, a round at a time.
@@ -378,11 +442,13 @@ impl RefineSchedule<'_> {
                 self.next += 1;
                 continue;
             }
-            let (tiles, core) = reach(bfs, surface, v, self.radius);
+            let (tiles, ball) = reach(bfs, surface, v, self.radius);
             if tiles.iter().any(|&k| used[k]) {
                 break;
             }
-            for &t in &core {
+            // the core: more than two hops inside the rim
+            let (texels, rim) = within(&ball, self.radius);
+            for (t, _) in texels.filter(|&(_, d)| d + 2 < rim) {
                 self.visited[t as usize / 64] |= 1 << (t % 64);
             }
             for &k in &tiles {

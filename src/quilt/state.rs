@@ -161,7 +161,7 @@ pub(super) struct State {
     pub(super) active: u8,
     /// Geometry-map vectors of foreign texels projected into the active
     /// sample's basis (see [`Synthesis::load`](super::synthesis::Synthesis::load)), `n` per entry.
-    pub(super) foreign_features: Vec<f32>,
+    pub(super) foreign_features: Arc<Vec<f32>>,
     /// Whether m0 is set (constrained synthesis).
     pub(super) constrained: bool,
     /// The id the next accepted patch gets.
@@ -198,7 +198,7 @@ impl State {
             n,
             tiles: pager,
             active: 0,
-            foreign_features: Vec::new(),
+            foreign_features: Arc::default(),
             constrained: false,
             next_patch: 0,
             remaining,
@@ -214,7 +214,7 @@ impl State {
             n: self.n,
             tiles: self.tiles.view(tiles),
             active: self.active,
-            foreign_features: self.foreign_features.clone(),
+            foreign_features: Arc::clone(&self.foreign_features),
             constrained: self.constrained,
             next_patch: self.next_patch,
             remaining: self.remaining,

@@ -328,7 +328,9 @@ impl Synthesis {
             let q = quilt.texel_region(x0, y0, w, h)?;
             let chart = self.surface.chart_tile(k);
             let (sample, st) = (&self.sample, &mut self.state);
-            let mut foreign_features = std::mem::take(&mut st.foreign_features);
+            // (held alone while loading: taken out without a copy)
+            let held = std::mem::take(&mut st.foreign_features);
+            let mut foreign_features = std::sync::Arc::try_unwrap(held).unwrap_or_else(|a| a.to_vec());
             let loaded = st.tile_mut(k, |s| -> Result<()> {
                 for y in 0..h {
                     for x in 0..w {
@@ -383,7 +385,7 @@ impl Synthesis {
                 }
                 Ok(())
             });
-            st.foreign_features = foreign_features;
+            st.foreign_features = std::sync::Arc::new(foreign_features);
             loaded?;
             self.state.refresh_frontier(&self.surface, &[k]);
         }
