@@ -97,23 +97,35 @@ impl Synthesis {
         while self.state.remaining > 0 {
             let jobs = self.quilting_round(radius0);
             let (outcomes, ()) = self.compute(&jobs, |w, v| w.step(v, radius0, &Silent), |_, _| ());
-            for (job, outcome) in jobs.iter().zip(outcomes) {
-                match outcome {
-                    Some(outcome) => self.accept_outcome(&outcome?, progress),
-                    None => {
-                        if std::env::var_os("BTFQUILT_TRACE").is_some() {
-                            progress.note(&format!(
-                                "patch at {} read outside its tiles: computed again",
-                                job.v
-                            ));
-                        }
-                        self.step(job.v, radius0, progress)?;
-                    }
-                }
-            }
-            self.check_paging()?;
+            self.accept_steps(&jobs, outcomes, radius0, progress)?;
         }
         Ok(())
+    }
+
+    /// Accepts a round's quilting steps in order; a step that read outside
+    /// its tiles is computed again on the whole state first.
+    fn accept_steps(
+        &mut self,
+        jobs: &[Job],
+        outcomes: Vec<Option<Result<Outcome>>>,
+        radius0: usize,
+        progress: &dyn Progress,
+    ) -> Result<()> {
+        for (job, outcome) in jobs.iter().zip(outcomes) {
+            match outcome {
+                Some(outcome) => self.accept_outcome(&outcome?, progress),
+                None => {
+                    if std::env::var_os("BTFQUILT_TRACE").is_some() {
+                        progress.note(&format!(
+                            "patch at {} read outside its tiles: computed again",
+                            job.v
+                        ));
+                    }
+                    self.step(job.v, radius0, progress)?;
+                }
+            }
+        }
+        self.check_paging()
     }
 
     /// The seeds of the next round of the quilting loop.
@@ -155,7 +167,7 @@ impl Synthesis {
     /// texel not yet covered. A round takes the next seeds while their
     /// tiles are free; as a painting patch never shrinks, the seeds depend
     /// on the surface alone and the quilt is that of one patch at a time.
-    /// `covered(n)` is told how many zone texels each patch covered.
+    /// `covered(n)` is told how many zone texels each round covered.
     pub(crate) fn paint_seeds(
         &mut self,
         order: &[u32],
@@ -163,48 +175,31 @@ impl Synthesis {
         covered: &dyn Fn(usize),
         progress: &dyn Progress,
     ) -> Result<()> {
-        let mut pending: std::collections::HashSet<u32> = order.iter().copied().collect();
-        let mut cursor = 0;
         let grid = self.surface.grid();
-        while !pending.is_empty() {
-            let mut jobs: Vec<Job> = Vec::new();
-            let mut used = vec![false; grid.tiles()];
-            while !pending.is_empty() && jobs.len() < self.refine_round.max(1) {
-                while !pending.contains(&order[cursor]) {
-                    cursor += 1;
-                }
-                let v = order[cursor];
-                let (tiles, ball) = self.reach(v, radius0);
-                if tiles.iter().any(|&k| used[k]) {
-                    break;
-                }
-                let (texels, rim) = within(&ball, radius0);
-                let taken = texels
-                    .filter(|&(t, d)| (d < rim || t == v) && pending.remove(&t))
-                    .count();
-                covered(taken);
-                for &k in &tiles {
-                    used[k] = true;
-                }
-                jobs.push(Job { v, tiles });
-            }
-            let (outcomes, ()) = self.compute(&jobs, |w, v| w.step(v, radius0, &Silent), |_, _| ());
-            for (job, outcome) in jobs.iter().zip(outcomes) {
-                match outcome {
-                    Some(outcome) => self.accept_outcome(&outcome?, progress),
-                    None => {
-                        self.step(job.v, radius0, progress)?;
-                    }
-                }
-            }
-            self.check_paging()?;
+        // only the zone's texels are open
+        let mut open = vec![0u64; (grid.r * grid.r).div_ceil(64)];
+        for &t in order {
+            open[t as usize / 64] |= 1 << (t % 64);
         }
-        if std::env::var_os("BTFQUILT_TRACE").is_some() {
-            let r = &self.report;
-            progress.note(&format!(
-                "{} painted in rounds, {} again",
-                r.concurrent_patches, r.recomputed_patches
-            ));
+        let mut schedule = Schedule {
+            seeds: order,
+            next: 0,
+            open,
+            done: Done::Inside,
+            radius: radius0,
+            round: self.refine_round.max(1),
+        };
+        let (mut jobs, mut closed) = schedule.round(&mut self.bfs, &self.surface);
+        while !jobs.is_empty() {
+            // (the next round chosen while this one is computed)
+            let (outcomes, next) = self.compute(
+                &jobs,
+                |w, v| w.step(v, radius0, &Silent),
+                |bfs, surface| schedule.round(bfs, surface),
+            );
+            self.accept_steps(&jobs, outcomes, radius0, progress)?;
+            covered(closed);
+            (jobs, closed) = next;
         }
         Ok(())
     }
@@ -221,16 +216,17 @@ impl Synthesis {
     ) -> Result<usize> {
         let grid = self.surface.grid();
         let placements = self.cfg.refine_placements;
-        let mut schedule = RefineSchedule {
+        let mut schedule = Schedule {
             seeds,
             next: 0,
-            // one bit per texel
-            visited: vec![0u64; (grid.r * grid.r).div_ceil(64)],
+            // every texel open
+            open: vec![u64::MAX; (grid.r * grid.r).div_ceil(64)],
+            done: Done::Core,
             radius,
             round: self.refine_round.max(1),
         };
         let mut kept = 0;
-        let mut jobs = schedule.round(&mut self.bfs, &self.surface);
+        let (mut jobs, _) = schedule.round(&mut self.bfs, &self.surface);
         while !jobs.is_empty() {
             // each patch computed as if none before it in the round is
             // kept, while the next round is chosen (the rounds depend on
@@ -263,7 +259,7 @@ impl Synthesis {
                 }
             }
             self.check_paging()?;
-            jobs = next;
+            jobs = next.0;
         }
         Ok(kept)
     }
@@ -418,27 +414,41 @@ fn within(ball: &WorkPatch, radius: usize) -> (impl Iterator<Item = (u32, u16)> 
     (texels, rim)
 }
 
-/// Seam refinement's seeds taken in order, a round at a time.
-struct RefineSchedule<'a> {
+/// Which texels of a taken work patch are done with (no seed there is
+/// taken again).
+#[derive(Clone, Copy)]
+enum Done {
+    /// More than two hops inside the rim (seam refinement's core).
+    Core,
+    /// The seed and every texel inside the rim (painting).
+    Inside,
+}
+
+/// Seeds taken in order, a round at a time, skipping those a taken patch
+/// is done with: seam refinement's and painting's, which depend on the
+/// surface alone.
+struct Schedule<'a> {
     seeds: &'a [u32],
     next: usize,
-    /// Texels inside a refined patch's core (one bit each): their seeds are
-    /// not visited again.
-    visited: Vec<u64>,
+    /// One bit per texel: open until a taken patch is done with it.
+    open: Vec<u64>,
+    done: Done,
     radius: usize,
     /// Seeds per round at most.
     round: usize,
 }
 
-impl RefineSchedule<'_> {
-    /// The next round: the next seeds not yet visited, in order, while
-    /// their tiles are free (empty when every seed is taken).
-    fn round(&mut self, bfs: &mut Bfs, surface: &Surface) -> Vec<Job> {
+impl Schedule<'_> {
+    /// The next round: the next open seeds, in order, while their tiles
+    /// are free (empty when every seed is taken), and how many open texels
+    /// its patches closed.
+    fn round(&mut self, bfs: &mut Bfs, surface: &Surface) -> (Vec<Job>, usize) {
         let mut jobs: Vec<Job> = Vec::new();
+        let mut closed = 0;
         let mut used = vec![false; surface.grid().tiles()];
         while self.next < self.seeds.len() && jobs.len() < self.round {
             let v = self.seeds[self.next];
-            if self.visited[v as usize / 64] >> (v % 64) & 1 == 1 {
+            if self.open[v as usize / 64] >> (v % 64) & 1 == 0 {
                 self.next += 1;
                 continue;
             }
@@ -446,10 +456,17 @@ impl RefineSchedule<'_> {
             if tiles.iter().any(|&k| used[k]) {
                 break;
             }
-            // the core: more than two hops inside the rim
             let (texels, rim) = within(&ball, self.radius);
-            for (t, _) in texels.filter(|&(_, d)| d + 2 < rim) {
-                self.visited[t as usize / 64] |= 1 << (t % 64);
+            for (t, d) in texels {
+                let done = match self.done {
+                    Done::Core => d + 2 < rim,
+                    Done::Inside => d < rim || t == v,
+                };
+                let bit = 1u64 << (t % 64);
+                if done && self.open[t as usize / 64] & bit != 0 {
+                    self.open[t as usize / 64] &= !bit;
+                    closed += 1;
+                }
             }
             for &k in &tiles {
                 used[k] = true;
@@ -457,7 +474,7 @@ impl RefineSchedule<'_> {
             jobs.push(Job { v, tiles });
             self.next += 1;
         }
-        jobs
+        (jobs, closed)
     }
 }
 
