@@ -149,45 +149,35 @@ fn spot_is_covered_and_baked_and_rendered() {
         after < before,
         "refinement raised the seams' total step: {before} → {after}"
     );
-    let e = quilt::tile(
-        &g,
-        &sample,
-        &refined,
-        &TileConfig {
-            refine: Some(0.0),
-            ..TileConfig::default()
-        },
-        &Silent,
-    )
-    .unwrap_err()
-    .to_string();
-    assert!(e.contains("--refine"), "{e}");
-    let e = quilt::tile(
-        &g,
-        &sample,
-        &refined,
-        &TileConfig {
-            refine_placements: 0,
-            ..TileConfig::default()
-        },
-        &Silent,
-    )
-    .unwrap_err()
-    .to_string();
-    assert!(e.contains("--refine-placements"), "{e}");
-    let e = quilt::tile(
-        &g,
-        &sample,
-        &refined,
-        &TileConfig {
-            round: 0,
-            ..TileConfig::default()
-        },
-        &Silent,
-    )
-    .unwrap_err()
-    .to_string();
-    assert!(e.contains("--round"), "{e}");
+    let refused = [
+        (
+            TileConfig {
+                refine: Some(0.0),
+                ..TileConfig::default()
+            },
+            "--refine",
+        ),
+        (
+            TileConfig {
+                refine_placements: 0,
+                ..TileConfig::default()
+            },
+            "--refine-placements",
+        ),
+        (
+            TileConfig {
+                round: 0,
+                ..TileConfig::default()
+            },
+            "--round",
+        ),
+    ];
+    for (cfg, flag) in refused {
+        let e = quilt::tile(&g, &sample, &refined, &cfg, &Silent)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(flag), "{e}");
+    }
     // several placements per seam (the cheapest cut of three) lower them too
     let several = dir.path().join("several.quilt");
     let rs = quilt::tile(
