@@ -322,6 +322,12 @@ enum Command {
         /// field's mean direction where the field turns inside a work patch (0: never).
         #[arg(long, default_value_t = TileConfig::default().field_turn)]
         field_turn: usize,
+        /// Match samples longer than this many pixels a side (after resampling)
+        /// coarse to fine: on copies averaged down to at most this size, then
+        /// exactly around the best coarse placements (0: always at full
+        /// resolution). Part of the recipe like the seed.
+        #[arg(long, default_value_t = TileConfig::default().coarse_above)]
+        coarse_above: usize,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -929,6 +935,7 @@ fn run(cli: Cli) -> Result<()> {
             occurrence_weight,
             structure_weight,
             field_turn,
+            coarse_above,
             output,
             res,
         } => {
@@ -941,6 +948,7 @@ fn run(cli: Cli) -> Result<()> {
                 occurrence_weight,
                 structure_weight,
                 field_turn,
+                coarse_above,
                 ..quilting.tile_config(memory)
             };
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;

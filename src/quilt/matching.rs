@@ -221,6 +221,42 @@ impl CostMap {
         Some((self.cost[i], self.overlap[i]))
     }
 
+    /// The map over the bounding box of `placements`, +∞ (overlap 0) where
+    /// none is given; empty without placements.
+    pub fn from_placements(placements: &[Placement]) -> CostMap {
+        if placements.is_empty() {
+            return CostMap {
+                dx0: 0,
+                dy0: 0,
+                columns: 0,
+                rows: 0,
+                cost: Vec::new(),
+                overlap: Vec::new(),
+            };
+        }
+        let (x0, x1) = placements
+            .iter()
+            .fold((i32::MAX, i32::MIN), |a, p| (a.0.min(p.dx), a.1.max(p.dx)));
+        let (y0, y1) = placements
+            .iter()
+            .fold((i32::MAX, i32::MIN), |a, p| (a.0.min(p.dy), a.1.max(p.dy)));
+        let (columns, rows) = ((x1 - x0 + 1) as usize, (y1 - y0 + 1) as usize);
+        let mut map = CostMap {
+            dx0: x0,
+            dy0: y0,
+            columns,
+            rows,
+            cost: vec![f64::INFINITY; columns * rows],
+            overlap: vec![0.0; columns * rows],
+        };
+        for p in placements {
+            let i = (p.dy - y0) as usize * columns + (p.dx - x0) as usize;
+            map.cost[i] = p.cost;
+            map.overlap[i] = p.overlap;
+        }
+        map
+    }
+
     /// All placements with a finite cost, unordered.
     pub fn placements(&self) -> impl Iterator<Item = Placement> + '_ {
         (0..self.rows * self.columns)
@@ -956,6 +992,81 @@ pub fn brute_force_map(work: &Work, sample: &Sample, cfg: &MatchConfig) -> Resul
         cost: all.iter().map(|p| p.cost).collect(),
         overlap: all.iter().map(|p| p.overlap).collect(),
     })
+}
+
+/// The placements [`Matcher::cost_map`] considers for a `work`-sized image
+/// over a `sample`-sized one: the (dx, dy) ranges, inclusive.
+pub fn placement_range(work: [usize; 2], sample: [usize; 2], span: Span) -> [(i32, i32); 2] {
+    [axis(work[0], sample[0], span).0, axis(work[1], sample[1], span).0]
+}
+
+/// The exact cost of each of `placements` by direct sums over the work
+/// image's known pixels, with the acceptance rule of [`Matcher::cost_map`]
+/// (cost +∞ where rejected): the fine step of coarse-to-fine matching,
+/// where only a few placements around the coarse minima are wanted. Each
+/// placement is summed in pixel order on one thread, so the result does
+/// not depend on the thread count.
+pub fn direct_costs(
+    work: &Work,
+    sample: &Sample,
+    cfg: &MatchConfig,
+    placements: &[(i32, i32)],
+) -> Result<Vec<Placement>> {
+    let lay = Layout::new(work, sample, cfg)?;
+    let (wi, si) = (&work.image, &sample.image);
+    let known: Vec<u32> = (0..wi.pixels() as u32)
+        .filter(|&p| work.known[p as usize] > 0.0)
+        .collect();
+    let mass: f64 = work.known.iter().map(|&m| m as f64).sum();
+    let max_valid = sample.valid.iter().fold(0.0f64, |a, &v| a.max(v as f64));
+    let tol = 1e-9 * mass * max_valid;
+    let w = if work.constraint.is_some() {
+        cfg.constraint_weight
+    } else {
+        0.0
+    };
+    let (n, nc) = (lay.n, lay.nc);
+    let diff = |a: &[f32], b: &[f32]| -> f64 {
+        a.iter()
+            .zip(b)
+            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+            .sum()
+    };
+    Ok(placements
+        .par_iter()
+        .map(|&(dx, dy)| {
+            let (mut ssd, mut overlap) = (0.0f64, 0.0f64);
+            for &p in &known {
+                let p = p as usize;
+                let (sx, sy) = ((p % wi.width) as i32 - dx, (p / wi.width) as i32 - dy);
+                if sx < 0 || sy < 0 || sx >= si.width as i32 || sy >= si.height as i32 {
+                    continue;
+                }
+                let s = sy as usize * si.width + sx as usize;
+                let mv = work.known[p] as f64 * sample.valid[s] as f64;
+                if mv == 0.0 {
+                    continue;
+                }
+                let mut d = diff(&wi.data[p * n..(p + 1) * n], &si.data[s * n..(s + 1) * n]);
+                if let (Some(a), Some(b)) = (&work.constraint, &sample.constraint) {
+                    d += w * diff(&a.data[p * nc..(p + 1) * nc], &b.data[s * nc..(s + 1) * nc]);
+                }
+                ssd += mv * d;
+                overlap += mv;
+            }
+            let cost = if accept(overlap, cfg.min_overlap, tol) {
+                ssd / overlap
+            } else {
+                f64::INFINITY
+            };
+            Placement {
+                dx,
+                dy,
+                cost,
+                overlap,
+            }
+        })
+        .collect())
 }
 
 /// An owned sample copy in f32: maps `[y][x][c]` and validity `[y][x]`.

@@ -33,6 +33,7 @@ use crate::container::MemoryBudget;
 use crate::progress::Progress;
 use crate::{Error, Result};
 
+mod coarse;
 mod fit;
 mod flatten;
 pub mod matching;
@@ -148,6 +149,14 @@ pub struct TileConfig {
     /// pixel spans (the width is this times the sample's width in pixels).
     /// At most one of `sample_width` and `sample_pixel`.
     pub sample_pixel: Option<f64>,
+    /// Matching goes coarse to fine for samples (after resampling) longer
+    /// than this many pixels a side ([`coarse`]): it matches copies
+    /// box-averaged to at most this size, then costs the placements around
+    /// the best coarse ones exactly. 0 always matches at full resolution.
+    /// Default 512: samples up to 512² (the 192² wall and the 128² BTFs at
+    /// any atlas size without `--sample-width`) are matched exactly as
+    /// before.
+    pub coarse_above: usize,
 }
 
 impl Default for TileConfig {
@@ -171,6 +180,7 @@ impl Default for TileConfig {
             round: 4,
             sample_width: None,
             sample_pixel: None,
+            coarse_above: 512,
         }
     }
 }
@@ -318,6 +328,10 @@ pub struct TileReport {
     /// computed again alone.
     pub concurrent_patches: usize,
     pub recomputed_patches: usize,
+    /// The factor matching averaged the sample down by before the exact
+    /// step ([`TileConfig::coarse_above`]); 1 where it matched at full
+    /// resolution.
+    pub coarse_factor: usize,
 }
 
 impl std::fmt::Display for TileReport {
@@ -338,9 +352,14 @@ impl std::fmt::Display for TileReport {
         )?;
         write!(
             f,
-            "; the sample spans {:.4} mesh units ({:.3} sample pixels per texel); {} atlas tiles read {} times, {} evicted to scratch",
+            "; the sample spans {:.4} mesh units ({:.3} sample pixels per texel){}; {} atlas tiles read {} times, {} evicted to scratch",
             self.sample_width,
             self.sample_scale,
+            if self.coarse_factor > 1 {
+                format!(", matched coarse to fine at 1/{}", self.coarse_factor)
+            } else {
+                String::new()
+            },
             self.atlas_tiles,
             self.tiles_read,
             crate::container::human_bytes(self.scratch_bytes)
@@ -390,6 +409,7 @@ pub(crate) fn tile_refining_by(
         syn.set_mask(mask)?;
         syn.constrain_to_background();
     }
+    syn.report.coarse_factor = coarse::factor(syn.sample.width.max(syn.sample.height), cfg.coarse_above);
     let radius0 = syn.radius0();
     progress.begin("tile", syn.state.remaining as u64);
     // the first vertex: a seeded choice among all dense vertices

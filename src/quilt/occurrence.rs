@@ -117,7 +117,10 @@ impl Occurrence {
     /// pixels the `work_width × work_height` work image covers at that
     /// placement (pixel (x − dx, y − dy) of rotated copy `rotation` lands on
     /// work pixel (x, y)). `to_unrotated` maps a rotated copy's pixel to
-    /// unrotated sample coordinates. Nothing changes before the first count.
+    /// unrotated sample coordinates. Entry (c, r) of the map is placement
+    /// ((dx0 + c)·`step`, (dy0 + r)·`step`): 1 for a full match, f for a
+    /// coarse one ([`super::coarse`]). Nothing changes before the first
+    /// count.
     pub(crate) fn penalize(
         &mut self,
         map: &mut CostMap,
@@ -125,6 +128,7 @@ impl Occurrence {
         to_unrotated: impl Fn([f64; 2]) -> [f64; 2],
         work_size: [usize; 2],
         weight: f64,
+        step: i32,
     ) {
         if self.total <= 0.0 || weight <= 0.0 {
             return;
@@ -172,7 +176,7 @@ impl Occurrence {
             (a, b.max(a))
         };
         for r in 0..map.rows {
-            let dy = map.dy0 + r as i32;
+            let dy = (map.dy0 + r as i32) * step;
             let (y0, y1) = span(-(dy as i64), wh, rows);
             for c in 0..map.columns {
                 let i = r * map.columns + c;
@@ -183,7 +187,7 @@ impl Occurrence {
                     map.cost[i] = f64::INFINITY;
                     continue;
                 }
-                let dx = map.dx0 + c as i32;
+                let dx = (map.dx0 + c as i32) * step;
                 let (x0, x1) = span(-(dx as i64), ww, cols);
                 let cells = ((x1 - x0) * (y1 - y0)) as f64;
                 if cells == 0.0 {
@@ -216,7 +220,7 @@ mod tests {
         let mut occ = Occurrence::new(64, 64, false, 4);
         let mut map = flat_map(33, 33, -32, -32);
         let before = map.clone();
-        occ.penalize(&mut map, 0, |p| p, [32, 32], 1.0);
+        occ.penalize(&mut map, 0, |p| p, [32, 32], 1.0, 1);
         assert_eq!(map, before);
     }
 
@@ -232,7 +236,7 @@ mod tests {
         assert_eq!(occ.total(), 2.0 * 32.0 * 64.0);
         // a 16² work image: dx ∈ [−48, 0]
         let mut map = flat_map(49, 49, -48, -48);
-        occ.penalize(&mut map, 0, |p| p, [16, 16], 0.5);
+        occ.penalize(&mut map, 0, |p| p, [16, 16], 0.5, 1);
         // the mean use per pixel is 1: density 2 on the left, 0 on the right
         let cost = |dx: i32, dy: i32| map.get(dx, dy).unwrap().0;
         assert!((cost(0, 0) - (1.0 + 0.5 * 2.0)).abs() < 1e-12);
@@ -268,7 +272,7 @@ mod tests {
         }
         let half_turn = |p: [f64; 2]| [127.0 - p[0], 127.0 - p[1]];
         let mut map = flat_map(127, 127, -126, -126);
-        occ.penalize(&mut map, 36, half_turn, [2, 2], 1.0);
+        occ.penalize(&mut map, 36, half_turn, [2, 2], 1.0, 1);
         let (best_x, best_y) = (0..map.rows * map.columns)
             .max_by(|&a, &b| map.cost[a].total_cmp(&map.cost[b]))
             .map(|i| {
@@ -292,7 +296,7 @@ mod tests {
         map.cost[7] = 1.0 + SLACK + 1e-9;
         map.cost[8] = 1.0 + SLACK;
         map.cost[9] = f64::INFINITY;
-        occ.penalize(&mut map, 0, |p| p, [16, 16], 1.0);
+        occ.penalize(&mut map, 0, |p| p, [16, 16], 1.0, 1);
         assert!(map.cost[7].is_infinite() && map.cost[9].is_infinite());
         assert!(map.cost[8].is_finite());
         assert_eq!(map.cost.iter().filter(|c| c.is_infinite()).count(), 2);

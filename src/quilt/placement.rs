@@ -1,6 +1,7 @@
 //! Placement (section III-B, step 4): the candidate translations and
 //! rotations from FFT matching, and the seeded choice among near-minimal ones.
 
+use super::coarse::{self, Coarse};
 use super::flatten::{rotation_index, WorkImage};
 use super::matching::{Image, MatchConfig, Matcher};
 use super::occurrence::Occurrence;
@@ -24,7 +25,7 @@ pub(super) fn covering_candidates(
 ) -> Result<(usize, Vec<matching::Placement>)> {
     let weight = (cfg.constraint_weight * reference).powi(2);
     let penalty = occurrence.map(|o| (o, cfg.occurrence_weight * reference * reference));
-    let (rotation, candidates) = match_candidates(sample, matcher, work, weight, penalty, cfg.field_turn)?;
+    let (rotation, candidates) = match_candidates(sample, matcher, work, weight, penalty, cfg)?;
     let step = (work.coords.len() / 400).max(1);
     let probe: Vec<[f64; 2]> = work.coords.iter().step_by(step).copied().collect();
     let covering = candidates
@@ -199,15 +200,18 @@ pub(super) fn choose_placement(
 /// `field_turn` steps either side are matched too, and the one whose best
 /// placement costs least is taken (the field's own first among equals): a
 /// patch may then follow its neighbours' courses rather than the field's
-/// mean direction.
+/// mean direction. Large samples are matched coarse to fine
+/// ([`super::coarse`], `cfg.coarse_above`).
 pub(super) fn match_candidates(
     sample: &Sample,
     matcher: &mut Matcher,
     work: &WorkImage,
     constraint_weight: f64,
     mut penalty: Option<(&mut Occurrence, f64)>,
-    field_turn: usize,
+    cfg: &TileConfig,
 ) -> Result<(usize, Vec<matching::Placement>)> {
+    let field_turn = cfg.field_turn;
+    let f = coarse::factor(sample.width.max(sample.height), cfg.coarse_above);
     let rotations = sample.rotations;
     let rot = rotation_index(work.angle, rotations);
     let known_count: f64 = work.known.iter().map(|&k| k as f64).sum();
@@ -221,7 +225,7 @@ pub(super) fn match_candidates(
     for d in [0].into_iter().chain((1..=span).flat_map(|k| [-k, k])) {
         let r = (rot as i64 + d).rem_euclid(rotations as i64) as usize;
         let p = penalty.as_mut().map(|(o, w)| (&mut **o, *w));
-        let c = match_at_rotation(sample, matcher, work, constraint_weight, p, r, known_count)?;
+        let c = match_at_rotation(sample, matcher, work, constraint_weight, p, r, known_count, f)?;
         let cost = c.first().map_or(f64::INFINITY, |p| p.cost);
         if best.as_ref().map_or(true, |b| cost < b.0) {
             best = Some((cost, r, c));
@@ -231,6 +235,9 @@ pub(super) fn match_candidates(
     Ok((r, c))
 }
 
+/// The best placements (up to 64, cheapest first) of rotated copy `rot`
+/// over the work image, matched at full resolution (`f` = 1) or coarse to
+/// fine at factor `f`, with the occurrence penalty when given.
 #[allow(clippy::too_many_arguments)]
 fn match_at_rotation(
     sample: &Sample,
@@ -240,6 +247,7 @@ fn match_at_rotation(
     penalty: Option<(&mut Occurrence, f64)>,
     rot: usize,
     known_count: f64,
+    f: usize,
 ) -> Result<Vec<matching::Placement>> {
     let (sw, sh, n) = (sample.width, sample.height, sample.n);
     let constrained = !work.constraint.is_empty() && sample.mask.is_some();
@@ -266,6 +274,7 @@ fn match_at_rotation(
             data: &work.constraint,
         }),
     };
+    let key = rot as u64 | (constrained as u64) << 32;
     let sample_in = matching::Sample {
         image: Image {
             width: sw,
@@ -280,7 +289,7 @@ fn match_at_rotation(
             channels: 1,
             data: m,
         }),
-        key: rot as u64 | (constrained as u64) << 32,
+        key,
     };
     let mc = MatchConfig {
         min_overlap: (0.5 * known_count).max(1.0),
@@ -289,11 +298,55 @@ fn match_at_rotation(
         constraint_weight,
         ..MatchConfig::default()
     };
-    let mut map = matcher.cost_map(&work_in, &sample_in, &mc)?;
-    if let Some((occurrence, weight)) = penalty {
-        let sample = &*sample;
-        let to_unrotated = |p: [f64; 2]| to_sample(sample, rot, 0.0, 0.0, p);
-        occurrence.penalize(&mut map, rot, to_unrotated, [work.width, work.height], weight);
-    }
+    let mut penalty = penalty;
+    let mut penalize = |map: &mut matching::CostMap, step: i32| {
+        if let Some((occurrence, weight)) = penalty.as_mut() {
+            let to_unrotated = |p: [f64; 2]| to_sample(sample, rot, 0.0, 0.0, p);
+            occurrence.penalize(map, rot, to_unrotated, [work.width, work.height], *weight, step);
+        }
+    };
+    let map = if f == 1 {
+        let mut map = matcher.cost_map(&work_in, &sample_in, &mc)?;
+        penalize(&mut map, 1);
+        map
+    } else {
+        let ccopy = sample.coarse_rotation(rot, f)?;
+        let cmask = mask.map(|m| Coarse::new(&sample_in.image, valid, m, 1, f).constraint);
+        let cwork = Coarse::new(&work_in.image, &work.known, &work.constraint, 1, f);
+        let (cw, ch) = (sw.div_ceil(f), sh.div_ceil(f));
+        let coarse_work = matching::Work {
+            image: cwork.image(n),
+            known: &cwork.weight,
+            constraint: mask.and(cwork.constraint_image(1)),
+        };
+        let coarse_sample = matching::Sample {
+            image: Image {
+                width: cw,
+                height: ch,
+                channels: n,
+                data: &ccopy.0,
+            },
+            valid: &ccopy.1,
+            constraint: cmask.as_deref().map(|m| Image {
+                width: cw,
+                height: ch,
+                channels: 1,
+                data: m,
+            }),
+            key: key | (f as u64) << 40,
+        };
+        let mut map = coarse::match_coarse_to_fine(
+            matcher,
+            &work_in,
+            &sample_in,
+            &coarse_work,
+            &coarse_sample,
+            &mc,
+            f,
+            &mut penalize,
+        )?;
+        penalize(&mut map, 1);
+        map
+    };
     Ok(map.best(mc.candidates, mc.tolerance))
 }

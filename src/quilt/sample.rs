@@ -5,6 +5,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
+use super::coarse::Coarse;
+use super::matching::Image;
 use crate::artifact::svd::SvdArtifact;
 use crate::container::{BoundedCache, MemoryBudget};
 use crate::factorize::FactorizeConfig;
@@ -26,8 +28,10 @@ pub(super) struct Sample {
     pub(super) rotations: usize,
     /// Rotated copies as f32 (maps, validity), loaded lazily into a cache
     /// bounded by the budget given in [`Sample::from_svd`] (shared by the
-    /// work patches computed at once).
-    rotated: Mutex<BoundedCache<usize, Arc<RotatedCopy>>>,
+    /// work patches computed at once), keyed by (rotation, downsampling
+    /// factor): factor 1 is the copy itself, f > 1 its f×f block means
+    /// ([`Sample::coarse_rotation`]).
+    rotated: Mutex<BoundedCache<(usize, usize), Arc<RotatedCopy>>>,
     /// The foreground mask m_P (`[y][x]`, 0..1), if painting or keeping the
     /// foreground out.
     pub(super) mask: Option<Vec<f32>>,
@@ -81,7 +85,7 @@ impl Sample {
     /// Rotated copy `r` (maps, validity), loaded on first use (two threads
     /// may both load it; they get equal copies).
     pub(super) fn rotation(&self, r: usize) -> Result<Arc<RotatedCopy>> {
-        if let Some(copy) = crate::lock(&self.rotated).get(&r) {
+        if let Some(copy) = crate::lock(&self.rotated).get(&(r, 1)) {
             return Ok(Arc::clone(copy));
         }
         let copy = {
@@ -98,7 +102,30 @@ impl Sample {
             Arc::new((m, valid.iter().map(|&v| v as f32).collect::<Vec<f32>>()))
         };
         let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
-        crate::lock(&self.rotated).insert(r, Arc::clone(&copy), bytes);
+        crate::lock(&self.rotated).insert((r, 1), Arc::clone(&copy), bytes);
+        Ok(copy)
+    }
+
+    /// Rotated copy `r` box-averaged by `f` ([`Coarse`]): its maps and mean
+    /// validity, `⌈width/f⌉ × ⌈height/f⌉`, made from the copy on first use.
+    pub(super) fn coarse_rotation(&self, r: usize, f: usize) -> Result<Arc<RotatedCopy>> {
+        if f == 1 {
+            return self.rotation(r);
+        }
+        if let Some(copy) = crate::lock(&self.rotated).get(&(r, f)) {
+            return Ok(Arc::clone(copy));
+        }
+        let full = self.rotation(r)?;
+        let image = Image {
+            width: self.width,
+            height: self.height,
+            channels: self.n,
+            data: &full.0,
+        };
+        let c = Coarse::new(&image, &full.1, &[], 0, f);
+        let copy = Arc::new((c.features, c.weight));
+        let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
+        crate::lock(&self.rotated).insert((r, f), Arc::clone(&copy), bytes);
         Ok(copy)
     }
 

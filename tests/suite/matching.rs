@@ -3,8 +3,8 @@
 
 use btfquilt::factorize::rotate_maps;
 use btfquilt::quilt::matching::{
-    brute_force_cost, brute_force_map, choose, valid_to_f32, CostMap, Image, MatchConfig, Matcher, Placement,
-    Sample, Span, Work,
+    brute_force_cost, brute_force_map, choose, direct_costs, placement_range, valid_to_f32, CostMap, Image,
+    MatchConfig, Matcher, Placement, Sample, Span, Work,
 };
 
 /// splitmix64 stream → uniform [0, 1).
@@ -133,6 +133,76 @@ fn fft_costs_equal_brute_force() {
             (bf_best[0].dx, bf_best[0].dy),
             "case {k}"
         );
+    }
+}
+
+/// The direct sums of coarse-to-fine matching's fine step give the
+/// brute-force reference's costs bit for bit (the same sums, skipping only
+/// zero terms), with and without constraint channels, at placements in any
+/// order, repeated, and outside the map (no overlap: rejected); and the
+/// placement range is the map's.
+#[test]
+fn direct_costs_equal_brute_force() {
+    let mut rng = Rng(11);
+    for (k, &((sw, sh), (ww, wh), n, nc, span)) in [
+        ((17, 13), (9, 6), 3, 0, Span::Contained),
+        ((12, 20), (16, 9), 40, 0, Span::Contained),
+        ((23, 18), (10, 7), 3, 2, Span::Overlapping),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let sdata = rng.vec(sw * sh * n);
+        let wdata = rng.vec(ww * wh * n);
+        let (sc, wc) = (rng.vec(sw * sh * nc), rng.vec(ww * wh * nc));
+        let known: Vec<f32> = rng
+            .vec(ww * wh)
+            .iter()
+            .map(|&u| if u < 0.3 { 0.0 } else { u })
+            .collect();
+        let valid = holey_valid(&mut rng, sw, sh);
+        let work = Work {
+            image: img(ww, wh, n, &wdata),
+            known: &known,
+            constraint: (nc > 0).then(|| img(ww, wh, nc, &wc)),
+        };
+        let sample = Sample {
+            image: img(sw, sh, n, &sdata),
+            valid: &valid,
+            constraint: (nc > 0).then(|| img(sw, sh, nc, &sc)),
+            key: k as u64,
+        };
+        let cfg = MatchConfig {
+            min_overlap: 2.0,
+            constraint_weight: 0.7,
+            span,
+            ..MatchConfig::default()
+        };
+        let bf = brute_force_map(&work, &sample, &cfg).unwrap();
+        let [(x0, x1), (y0, y1)] = placement_range([ww, wh], [sw, sh], span);
+        assert_eq!((x0, y0), (bf.dx0, bf.dy0), "case {k}");
+        assert_eq!(
+            ((x1 - x0 + 1) as usize, (y1 - y0 + 1) as usize),
+            (bf.columns, bf.rows)
+        );
+        let mut at: Vec<(i32, i32)> = (y0..=y1)
+            .rev()
+            .flat_map(|y| (x0..=x1).map(move |x| (x, y)))
+            .collect();
+        at.push(at[0]);
+        at.push((x1 + sw as i32 + 1, y0));
+        let got = direct_costs(&work, &sample, &cfg, &at).unwrap();
+        assert_eq!(got.len(), at.len());
+        for (p, &(dx, dy)) in got.iter().zip(&at) {
+            assert_eq!((p.dx, p.dy), (dx, dy));
+            match bf.get(dx, dy) {
+                Some((cost, overlap)) => {
+                    assert_eq!((p.cost, p.overlap), (cost, overlap), "case {k} at {dx},{dy}")
+                }
+                None => assert!(p.cost.is_infinite() && p.overlap == 0.0, "{p:?}"),
+            }
+        }
+        assert!(bf.cost.iter().any(|c| c.is_finite()), "case {k}");
     }
 }
 

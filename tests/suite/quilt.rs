@@ -376,6 +376,42 @@ fn a_budget_that_forces_eviction_changes_no_byte() {
     assert!(left.is_empty(), "{left:?}");
 }
 
+/// Matching coarse to fine (a sample longer than `coarse_above` a side):
+/// the same bytes on 1 and 2 threads, another quilt than matching at full
+/// resolution, and seams as good (evaluate's seam ratio within 10 %).
+#[test]
+fn coarse_to_fine_matching_is_deterministic_and_as_seamless() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = square_atlas(dir.path(), 256);
+    let sample = brick_crop(dir.path(), 96, None);
+    let cfg = TileConfig {
+        coarse_above: 40,
+        ..TileConfig::default()
+    };
+    let outs = tile_with_threads(&g, &sample, &cfg, dir.path(), "c", |r| {
+        assert_eq!(r.coarse_factor, 3, "{r}");
+        assert!(r.to_string().contains("coarse to fine at 1/3"), "{r}");
+    });
+    assert!(std::fs::read(&outs[0]).unwrap() == std::fs::read(&outs[1]).unwrap());
+    let exact = dir.path().join("exact.quilt");
+    let cfg = TileConfig {
+        coarse_above: 0,
+        ..TileConfig::default()
+    };
+    let report = quilt::tile(&g, &sample, &exact, &cfg, &Silent).unwrap();
+    assert_eq!(report.coarse_factor, 1);
+    assert!(std::fs::read(&outs[0]).unwrap() != std::fs::read(&exact).unwrap());
+    let ratio = |p: &Path| {
+        btfquilt::output::evaluate::evaluate(p, None, None, MemoryBudget::default())
+            .unwrap()
+            .seam
+            .ratio_to_inside
+    };
+    let (coarse, full) = (ratio(&outs[0]), ratio(&exact));
+    eprintln!("seam ratio: coarse to fine {coarse:.3}, full resolution {full:.3}");
+    assert!(coarse <= 1.1 * full, "{coarse} vs {full}");
+}
+
 #[test]
 fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
     // Spot at 256²: 4 bands of 64 rows whose borders cross charts, gutter,
