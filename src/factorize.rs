@@ -416,7 +416,25 @@ pub fn image_to_btf(image: &Path, out: &Path, budget: MemoryBudget) -> Result<()
 }
 
 /// Factorizes the BTF (or colour image) at `input` into the `.svd` artifact `out`.
+///
+/// The dense steps run on a thread of their own: faer's matrix products keep
+/// a 64 MiB workspace per thread that used them for the thread's lifetime,
+/// which would otherwise stay with the caller (a whole `tile` run).
 pub fn factorize(
+    input: &Path,
+    out: &Path,
+    cfg: &FactorizeConfig,
+    progress: &dyn Progress,
+) -> Result<FactorizeReport> {
+    std::thread::scope(
+        |s| match s.spawn(|| factorize_here(input, out, cfg, progress)).join() {
+            Ok(result) => result,
+            Err(panic) => std::panic::resume_unwind(panic),
+        },
+    )
+}
+
+fn factorize_here(
     input: &Path,
     out: &Path,
     cfg: &FactorizeConfig,

@@ -83,7 +83,18 @@ impl Context<'_> {
 /// A work patch of a round: its seed and the atlas tiles it may read.
 struct Job {
     v: u32,
-    tiles: Vec<usize>,
+    /// The tiles its views hold ([`view_tiles`]).
+    view: Vec<usize>,
+}
+
+impl Job {
+    /// The patch at `v` whose [`reach`] is `tiles` and `ball`.
+    fn new(v: u32, tiles: &[usize], ball: &WorkPatch, surface: &Surface) -> Job {
+        Job {
+            v,
+            view: view_tiles(surface, ball, tiles),
+        }
+    }
 }
 
 impl Synthesis {
@@ -131,20 +142,20 @@ impl Synthesis {
     /// The seeds of the next round of the quilting loop.
     fn quilting_round(&mut self, radius0: usize) -> Vec<Job> {
         let v = self.state.most_constrained().expect("texels remain");
-        let tiles = self.reach(v, radius0).0;
+        let (tiles, ball) = self.reach(v, radius0);
         let mut used = vec![false; self.surface.grid().tiles()];
         let mut blocked = used.clone();
         for &k in &tiles {
             used[k] = true;
             blocked[k] = true;
         }
-        let mut jobs = vec![Job { v, tiles }];
+        let mut jobs = vec![Job::new(v, &tiles, &ball, &self.surface)];
         'round: while jobs.len() < self.cfg.round {
             for _ in 0..TRIES {
                 let Some(v) = self.state.most_constrained_outside(&blocked, 1) else {
                     break 'round;
                 };
-                let (tiles, _) = self.reach(v, radius0);
+                let (tiles, ball) = self.reach(v, radius0);
                 if tiles.iter().any(|&k| used[k]) {
                     blocked[self.surface.grid().locate(v).0] = true;
                     continue;
@@ -153,7 +164,7 @@ impl Synthesis {
                     used[k] = true;
                     blocked[k] = true;
                 }
-                jobs.push(Job { v, tiles });
+                jobs.push(Job::new(v, &tiles, &ball, &self.surface));
                 continue 'round;
             }
             break;
@@ -303,39 +314,46 @@ impl Synthesis {
             let outcomes = jobs
                 .iter()
                 .enumerate()
-                .map(|(j, w)| job.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), &f))
+                .map(|(j, w)| job.run(j, w, self.surface.view(&w.view), self.state.view(&w.view), &f))
                 .collect();
             (outcomes, alongside(&mut self.bfs, &mut self.surface))
         } else {
-            // `at_once` tasks take the patches in turn: no more are in
-            // flight (nor matchers held) however the threads steal work
-            let views: Vec<_> = jobs
-                .iter()
-                .map(|w| Mutex::new(Some((self.surface.view(&w.tiles), self.state.view(&w.tiles)))))
-                .collect();
-            let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
-                jobs.iter().map(|_| Mutex::new(None)).collect();
-            let next = std::sync::atomic::AtomicUsize::new(0);
-            let (main_bfs, main_surface) = (&mut self.bfs, &mut self.surface);
-            let (job, views, slots, next, f) = (&job, &views, &slots, &next, &f);
-            let other = rayon::scope(|s| {
-                for _ in 0..at_once {
-                    s.spawn(move |_| loop {
-                        let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                        if j >= jobs.len() {
-                            break;
-                        }
-                        let (surface, state) = crate::lock(&views[j]).take().expect("taken once");
-                        *crate::lock(&slots[j]) = Some(job.run(j, &jobs[j], surface, state, f));
-                    });
+            // `at_once` patches at a time, each task over its own views: no
+            // more are in flight, nor their tiles held outside the pagers'
+            // budgets, however the threads steal work; `alongside` runs
+            // next to the first of them
+            let mut outcomes = Vec::with_capacity(jobs.len());
+            let mut alongside = Some(alongside);
+            let mut other = None;
+            for (c, chunk) in jobs.chunks(at_once).enumerate() {
+                let views: Vec<_> = chunk
+                    .iter()
+                    .map(|w| Mutex::new(Some((self.surface.view(&w.view), self.state.view(&w.view)))))
+                    .collect();
+                let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
+                    chunk.iter().map(|_| Mutex::new(None)).collect();
+                let (main_bfs, main_surface) = (&mut self.bfs, &mut self.surface);
+                let (job, views, slots, f) = (&job, &views, &slots, &f);
+                let first = alongside.take();
+                let done = rayon::scope(|s| {
+                    for (k, w) in chunk.iter().enumerate() {
+                        s.spawn(move |_| {
+                            let (surface, state) = crate::lock(&views[k]).take().expect("taken once");
+                            *crate::lock(&slots[k]) = Some(job.run(c * at_once + k, w, surface, state, f));
+                        });
+                    }
+                    first.map(|a| a(main_bfs, main_surface))
+                });
+                if done.is_some() {
+                    other = done;
                 }
-                alongside(main_bfs, main_surface)
-            });
-            let outcomes = slots
-                .iter()
-                .map(|slot| crate::lock(slot).take().expect("every patch computed"))
-                .collect();
-            (outcomes, other)
+                outcomes.extend(
+                    slots
+                        .iter()
+                        .map(|slot| crate::lock(slot).take().expect("every patch computed")),
+                );
+            }
+            (outcomes, other.expect("a round has patches"))
         };
         self.report.concurrent_patches += jobs.len();
         self.report.recomputed_patches += outcomes.iter().filter(|o| o.is_none()).count();
@@ -393,6 +411,33 @@ fn reach(bfs: &mut Bfs, surface: &Surface, v: u32, radius: usize) -> (Vec<usize>
     tiles.sort_unstable();
     tiles.dedup();
     (tiles, ball)
+}
+
+/// The tiles a work patch's views hold: its [`reach`] where the traversal
+/// stays in one chart (the chart's work image reads the patch's whole atlas
+/// box); across charts, where the work image reads only the patch's
+/// texels, the tiles of the traversal's texels and their eight neighbours —
+/// far fewer than the charts' boxes, which a patch of large radius spreads
+/// over hundreds of tiles. A read outside them is caught like any other
+/// ([`Pager::missed`](super::pager::Pager::missed)).
+fn view_tiles(surface: &Surface, ball: &WorkPatch, tiles: &[usize]) -> Vec<usize> {
+    let chart = ball.texels.first().map(|&t| surface.chart(t));
+    if ball.texels.iter().all(|&t| Some(surface.chart(t)) == chart) {
+        return tiles.to_vec();
+    }
+    let grid = surface.grid();
+    let last = grid.r as i64 - 1;
+    let mut held = vec![false; grid.tiles()];
+    for &t in &ball.texels {
+        let (x, y) = grid.xy(t);
+        for dy in -1..=1i64 {
+            for dx in -1..=1i64 {
+                let (cx, cy) = ((x as i64 + dx).clamp(0, last), (y as i64 + dy).clamp(0, last));
+                held[cy as usize / TILE * grid.across + cx as usize / TILE] = true;
+            }
+        }
+    }
+    (0..held.len()).filter(|&k| held[k]).collect()
 }
 
 /// The texels of a traversal within `radius` hops with their depth, and the
@@ -471,7 +516,7 @@ impl Schedule<'_> {
             for &k in &tiles {
                 used[k] = true;
             }
-            jobs.push(Job { v, tiles });
+            jobs.push(Job::new(v, &tiles, &ball, surface));
             self.next += 1;
         }
         (jobs, closed)
