@@ -1014,9 +1014,35 @@ pub fn direct_costs(
 ) -> Result<Vec<Placement>> {
     let lay = Layout::new(work, sample, cfg)?;
     let (wi, si) = (&work.image, &sample.image);
-    let known: Vec<u32> = (0..wi.pixels() as u32)
-        .filter(|&p| work.known[p as usize] > 0.0)
+    let (n, nc) = (lay.n, lay.nc);
+    // the known pixels, struct of arrays: weight, features (and constraint)
+    // gathered, and the sample index each lands on at placement (0, 0)
+    let known: Vec<usize> = (0..wi.pixels()).filter(|&p| work.known[p] > 0.0).collect();
+    let weight: Vec<f64> = known.iter().map(|&p| work.known[p] as f64).collect();
+    let features: Vec<f32> = known
+        .iter()
+        .flat_map(|&p| &wi.data[p * n..(p + 1) * n])
+        .copied()
         .collect();
+    let constraint: Vec<f32> = match &work.constraint {
+        Some(c) => known
+            .iter()
+            .flat_map(|&p| &c.data[p * nc..(p + 1) * nc])
+            .copied()
+            .collect(),
+        None => Vec::new(),
+    };
+    let at_origin: Vec<i64> = known
+        .iter()
+        .map(|&p| ((p / wi.width) * si.width + p % wi.width) as i64)
+        .collect();
+    // the known pixels' bounding box, to tell placements wholly inside
+    let (x0, x1) = known.iter().fold((usize::MAX, 0), |a, &p| {
+        (a.0.min(p % wi.width), a.1.max(p % wi.width))
+    });
+    let (y0, y1) = known.iter().fold((usize::MAX, 0), |a, &p| {
+        (a.0.min(p / wi.width), a.1.max(p / wi.width))
+    });
     let mass: f64 = work.known.iter().map(|&m| m as f64).sum();
     let max_valid = sample.valid.iter().fold(0.0f64, |a, &v| a.max(v as f64));
     let tol = 1e-9 * mass * max_valid;
@@ -1025,7 +1051,6 @@ pub fn direct_costs(
     } else {
         0.0
     };
-    let (n, nc) = (lay.n, lay.nc);
     let diff = |a: &[f32], b: &[f32]| -> f64 {
         a.iter()
             .zip(b)
@@ -1036,20 +1061,30 @@ pub fn direct_costs(
         .par_iter()
         .map(|&(dx, dy)| {
             let (mut ssd, mut overlap) = (0.0f64, 0.0f64);
-            for &p in &known {
-                let p = p as usize;
-                let (sx, sy) = ((p % wi.width) as i32 - dx, (p / wi.width) as i32 - dy);
-                if sx < 0 || sy < 0 || sx >= si.width as i32 || sy >= si.height as i32 {
-                    continue;
+            let inside = !known.is_empty()
+                && x0 as i64 - dx as i64 >= 0
+                && y0 as i64 - dy as i64 >= 0
+                && ((x1 as i64 - dx as i64) as usize) < si.width
+                && ((y1 as i64 - dy as i64) as usize) < si.height;
+            let shift = dy as i64 * si.width as i64 + dx as i64;
+            for (k, &p) in known.iter().enumerate() {
+                if !inside {
+                    let (sx, sy) = (
+                        (p % wi.width) as i64 - dx as i64,
+                        (p / wi.width) as i64 - dy as i64,
+                    );
+                    if sx < 0 || sy < 0 || sx >= si.width as i64 || sy >= si.height as i64 {
+                        continue;
+                    }
                 }
-                let s = sy as usize * si.width + sx as usize;
-                let mv = work.known[p] as f64 * sample.valid[s] as f64;
+                let s = (at_origin[k] - shift) as usize;
+                let mv = weight[k] * sample.valid[s] as f64;
                 if mv == 0.0 {
                     continue;
                 }
-                let mut d = diff(&wi.data[p * n..(p + 1) * n], &si.data[s * n..(s + 1) * n]);
-                if let (Some(a), Some(b)) = (&work.constraint, &sample.constraint) {
-                    d += w * diff(&a.data[p * nc..(p + 1) * nc], &b.data[s * nc..(s + 1) * nc]);
+                let mut d = diff(&features[k * n..(k + 1) * n], &si.data[s * n..(s + 1) * n]);
+                if let Some(b) = &sample.constraint {
+                    d += w * diff(&constraint[k * nc..(k + 1) * nc], &b.data[s * nc..(s + 1) * nc]);
                 }
                 ssd += mv * d;
                 overlap += mv;

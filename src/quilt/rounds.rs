@@ -85,6 +85,8 @@ struct Job {
     v: u32,
     /// The tiles its views hold ([`view_tiles`]).
     view: Vec<usize>,
+    /// Texels of its traversal (the work patch and two hops more).
+    texels: usize,
 }
 
 impl Job {
@@ -93,6 +95,7 @@ impl Job {
         Job {
             v,
             view: view_tiles(surface, ball, tiles),
+            texels: ball.texels.len(),
         }
     }
 }
@@ -295,7 +298,7 @@ impl Synthesis {
             let outcomes = jobs.iter().map(|j| Some(f(&mut self.worker(), j.v))).collect();
             return (outcomes, alongside(&mut self.bfs, &mut self.surface));
         }
-        let at_once = self.at_once(jobs.len());
+        let at_once = self.at_once(jobs);
         let job = Context {
             sample: &self.sample,
             zipper_triangles: &self.zipper_triangles,
@@ -361,11 +364,12 @@ impl Synthesis {
         (outcomes, other)
     }
 
-    /// How many of `jobs` patches to compute at once: one per thread, fewer
-    /// when the matcher's buffers (about a work patch's own memory, which
-    /// comes on top of `--memory`) would exceed a quarter of the budget
-    /// each. How many run at once never changes the quilt.
-    fn at_once(&self, jobs: usize) -> usize {
+    /// How many of `jobs` to compute at once: one per thread, fewer when
+    /// the work patches in flight would need more than half of `--memory`
+    /// on top of it (each: the matcher's buffers and [`BYTES_PER_TEXEL`]
+    /// per texel of the largest traversal). How many run at once never
+    /// changes the quilt.
+    fn at_once(&self, jobs: &[Job]) -> usize {
         let buffers = self
             .spares
             .iter()
@@ -373,10 +377,17 @@ impl Synthesis {
             .chain([self.matcher.buffer_bytes()])
             .max()
             .unwrap_or(0) as u64;
-        let by_memory = (self.cfg.memory.bytes() / (4 * buffers).max(1)).max(1) as usize;
-        rayon::current_num_threads().min(jobs).min(by_memory)
+        let texels = jobs.iter().map(|j| j.texels).max().unwrap_or(0) as u64;
+        let patch = buffers + BYTES_PER_TEXEL * texels;
+        let by_memory = (self.cfg.memory.bytes() / 2 / patch.max(1)).max(1) as usize;
+        rayon::current_num_threads().min(jobs.len()).min(by_memory)
     }
 }
+
+/// A work patch's own memory per texel of its traversal, besides the
+/// matcher's buffers: its work image, flattening, graph and max-flow
+/// (about 1 KiB a texel at radius 192 on Spot 4096², traced with heaptrack).
+const BYTES_PER_TEXEL: u64 = 1024;
 
 /// The atlas tiles computing a work patch of `radius` at `v` may read (the
 /// bounding boxes, per chart, of the texels within `radius` + 2 hops, grown
