@@ -417,8 +417,9 @@ pub fn image_to_btf(image: &Path, out: &Path, budget: MemoryBudget) -> Result<()
 
 /// Factorizes the BTF (or colour image) at `input` into the `.svd` artifact `out`.
 ///
-/// The dense steps run on a thread of their own: faer's matrix products keep
-/// a 64 MiB workspace per thread that used them for the thread's lifetime,
+/// The dense steps run on a thread of their own: faer's matrix products
+/// keep a workspace per thread that used them (twice the L3 cache, reserved
+/// and touched as far as the matrices need) for the thread's lifetime,
 /// which would otherwise stay with the caller (a whole `tile` run).
 pub fn factorize(
     input: &Path,

@@ -83,7 +83,9 @@ impl Context<'_> {
 /// A work patch of a round: its seed and the atlas tiles it may read.
 struct Job {
     v: u32,
-    /// The tiles its views hold ([`view_tiles`]).
+    /// The tiles it may read ([`reach`]).
+    tiles: Vec<usize>,
+    /// The tiles its views hold first ([`view_tiles`]).
     view: Vec<usize>,
     /// Texels of its traversal (the work patch and two hops more).
     texels: usize,
@@ -94,6 +96,7 @@ impl Job {
     fn new(v: u32, tiles: &[usize], ball: &WorkPatch, surface: &Surface) -> Job {
         Job {
             v,
+            tiles: tiles.to_vec(),
             view: view_tiles(surface, ball, tiles),
             texels: ball.texels.len(),
         }
@@ -321,43 +324,45 @@ impl Synthesis {
                 .collect();
             (outcomes, alongside(&mut self.bfs, &mut self.surface))
         } else {
-            // `at_once` patches at a time, each task over its own views: no
-            // more are in flight, nor their tiles held outside the pagers'
-            // budgets, however the threads steal work; `alongside` runs
-            // next to the first of them
-            let mut outcomes = Vec::with_capacity(jobs.len());
-            let mut alongside = Some(alongside);
-            let mut other = None;
-            for (c, chunk) in jobs.chunks(at_once).enumerate() {
-                let views: Vec<_> = chunk
-                    .iter()
-                    .map(|w| Mutex::new(Some((self.surface.view(&w.view), self.state.view(&w.view)))))
-                    .collect();
-                let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
-                    chunk.iter().map(|_| Mutex::new(None)).collect();
-                let (main_bfs, main_surface) = (&mut self.bfs, &mut self.surface);
-                let (job, views, slots, f) = (&job, &views, &slots, &f);
-                let first = alongside.take();
-                let done = rayon::scope(|s| {
-                    for (k, w) in chunk.iter().enumerate() {
-                        s.spawn(move |_| {
-                            let (surface, state) = crate::lock(&views[k]).take().expect("taken once");
-                            *crate::lock(&slots[k]) = Some(job.run(c * at_once + k, w, surface, state, f));
-                        });
-                    }
-                    first.map(|a| a(main_bfs, main_surface))
-                });
-                if done.is_some() {
-                    other = done;
+            // `at_once` tasks take the patches in turn: no more are in
+            // flight (nor matchers held) however the threads steal work
+            let views: Vec<_> = jobs
+                .iter()
+                .map(|w| Mutex::new(Some((self.surface.view(&w.view), self.state.view(&w.view)))))
+                .collect();
+            let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
+                jobs.iter().map(|_| Mutex::new(None)).collect();
+            let next = std::sync::atomic::AtomicUsize::new(0);
+            let (main_bfs, main_surface) = (&mut self.bfs, &mut self.surface);
+            let (job, views, slots, next, f) = (&job, &views, &slots, &next, &f);
+            let other = rayon::scope(|s| {
+                for _ in 0..at_once {
+                    s.spawn(move |_| loop {
+                        let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if j >= jobs.len() {
+                            break;
+                        }
+                        let (surface, state) = crate::lock(&views[j]).take().expect("taken once");
+                        *crate::lock(&slots[j]) = Some(job.run(j, &jobs[j], surface, state, f));
+                    });
                 }
-                outcomes.extend(
-                    slots
-                        .iter()
-                        .map(|slot| crate::lock(slot).take().expect("every patch computed")),
-                );
-            }
-            (outcomes, other.expect("a round has patches"))
+                alongside(main_bfs, main_surface)
+            });
+            let outcomes = slots
+                .iter()
+                .map(|slot| crate::lock(slot).take().expect("every patch computed"))
+                .collect();
+            (outcomes, other)
         };
+        // a patch that read outside its view's tiles but not outside its
+        // reach: computed again over views of its reach, before any patch
+        // of the round is accepted (so the same outcome as over them first)
+        let mut outcomes = outcomes;
+        for (j, w) in jobs.iter().enumerate() {
+            if outcomes[j].is_none() && w.view != w.tiles {
+                outcomes[j] = job.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), &f);
+            }
+        }
         self.report.concurrent_patches += jobs.len();
         self.report.recomputed_patches += outcomes.iter().filter(|o| o.is_none()).count();
         self.spares = job.spares.into_inner().unwrap_or_else(|e| e.into_inner());
@@ -424,13 +429,14 @@ fn reach(bfs: &mut Bfs, surface: &Surface, v: u32, radius: usize) -> (Vec<usize>
     (tiles, ball)
 }
 
-/// The tiles a work patch's views hold: its [`reach`] where the traversal
-/// stays in one chart (the chart's work image reads the patch's whole atlas
-/// box); across charts, where the work image reads only the patch's
-/// texels, the tiles of the traversal's texels and their eight neighbours —
-/// far fewer than the charts' boxes, which a patch of large radius spreads
-/// over hundreds of tiles. A read outside them is caught like any other
-/// ([`Pager::missed`](super::pager::Pager::missed)).
+/// The tiles a work patch's views hold first: its [`reach`] where the
+/// traversal stays in one chart (the chart's work image reads the patch's
+/// whole atlas box); across charts, where the work image reads only the
+/// patch's texels, the tiles of the traversal's texels and their eight
+/// neighbours — far fewer than the charts' boxes, which a patch of large
+/// radius spreads over hundreds of tiles. A patch that reads outside them
+/// (one that shrinks into a single chart reads that chart's box) is
+/// computed again over its reach before the round is accepted.
 fn view_tiles(surface: &Surface, ball: &WorkPatch, tiles: &[usize]) -> Vec<usize> {
     let chart = ball.texels.first().map(|&t| surface.chart(t));
     if ball.texels.iter().all(|&t| Some(surface.chart(t)) == chart) {

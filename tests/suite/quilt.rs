@@ -377,7 +377,8 @@ fn a_budget_that_forces_eviction_changes_no_byte() {
 }
 
 /// Matching coarse to fine (a sample longer than `coarse_above` a side):
-/// the same bytes on 1 and 2 threads, another quilt than matching at full
+/// the same bytes on 1 and 2 threads and with a budget that forces
+/// eviction, another quilt than matching at full
 /// resolution, and seams as good (evaluate's seam ratio within 10 %).
 #[test]
 fn coarse_to_fine_matching_is_deterministic_and_as_seamless() {
@@ -393,6 +394,15 @@ fn coarse_to_fine_matching_is_deterministic_and_as_seamless() {
         assert!(r.to_string().contains("coarse to fine at 1/3"), "{r}");
     });
     assert!(std::fs::read(&outs[0]).unwrap() == std::fs::read(&outs[1]).unwrap());
+    // a budget that pages the atlas and computes one patch at a time
+    let small = dir.path().join("small.quilt");
+    let cfg_small = TileConfig {
+        memory: MemoryBudget(1 << 20),
+        ..cfg.clone()
+    };
+    let report = quilt::tile(&g, &sample, &small, &cfg_small, &Silent).unwrap();
+    assert!(report.scratch_bytes > 0, "{report}");
+    assert!(std::fs::read(&outs[0]).unwrap() == std::fs::read(&small).unwrap());
     let exact = dir.path().join("exact.quilt");
     let cfg = TileConfig {
         coarse_above: 0,
