@@ -941,17 +941,11 @@ fn brute(work: &Work, sample: &Sample, cfg: &MatchConfig, lay: &Layout, dx: i32,
                 (sy * si.width as i32 + sx) as usize,
             );
             let mv = work.known[p] as f64 * sample.valid[s] as f64;
-            let diff = |a: &[f32], b: &[f32]| -> f64 {
-                a.iter()
-                    .zip(b)
-                    .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
-                    .sum()
-            };
             let n = lay.n;
-            let mut d = diff(&wi.data[p * n..(p + 1) * n], &si.data[s * n..(s + 1) * n]);
+            let mut d = sq_diff(&wi.data[p * n..(p + 1) * n], &si.data[s * n..(s + 1) * n]);
             if let (Some(a), Some(b)) = (&work.constraint, &sample.constraint) {
                 let k = lay.nc;
-                d += w * diff(&a.data[p * k..(p + 1) * k], &b.data[s * k..(s + 1) * k]);
+                d += w * sq_diff(&a.data[p * k..(p + 1) * k], &b.data[s * k..(s + 1) * k]);
             }
             ssd += mv * d;
             overlap += mv;
@@ -959,7 +953,21 @@ fn brute(work: &Work, sample: &Sample, cfg: &MatchConfig, lay: &Layout, dx: i32,
     }
     let mass: f64 = work.known.iter().map(|&m| m as f64).sum();
     let max_valid = sample.valid.iter().fold(0.0f64, |a, &v| a.max(v as f64));
-    let cost = if accept(overlap, cfg.min_overlap, 1e-9 * mass * max_valid) {
+    scored(dx, dy, ssd, overlap, cfg.min_overlap, 1e-9 * mass * max_valid)
+}
+
+/// Σ (a − b)² in f64.
+fn sq_diff(a: &[f32], b: &[f32]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+        .sum()
+}
+
+/// The placement (dx, dy) with its direct sums: cost SSD / overlap, or +∞
+/// where [`accept`] rejects the overlap.
+fn scored(dx: i32, dy: i32, ssd: f64, overlap: f64, min_overlap: f64, tol: f64) -> Placement {
+    let cost = if accept(overlap, min_overlap, tol) {
         ssd / overlap
     } else {
         f64::INFINITY
@@ -1051,12 +1059,6 @@ pub fn direct_costs(
     } else {
         0.0
     };
-    let diff = |a: &[f32], b: &[f32]| -> f64 {
-        a.iter()
-            .zip(b)
-            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
-            .sum()
-    };
     Ok(placements
         .par_iter()
         .map(|&(dx, dy)| {
@@ -1082,24 +1084,14 @@ pub fn direct_costs(
                 if mv == 0.0 {
                     continue;
                 }
-                let mut d = diff(&features[k * n..(k + 1) * n], &si.data[s * n..(s + 1) * n]);
+                let mut d = sq_diff(&features[k * n..(k + 1) * n], &si.data[s * n..(s + 1) * n]);
                 if let Some(b) = &sample.constraint {
-                    d += w * diff(&constraint[k * nc..(k + 1) * nc], &b.data[s * nc..(s + 1) * nc]);
+                    d += w * sq_diff(&constraint[k * nc..(k + 1) * nc], &b.data[s * nc..(s + 1) * nc]);
                 }
                 ssd += mv * d;
                 overlap += mv;
             }
-            let cost = if accept(overlap, cfg.min_overlap, tol) {
-                ssd / overlap
-            } else {
-                f64::INFINITY
-            };
-            Placement {
-                dx,
-                dy,
-                cost,
-                overlap,
-            }
+            scored(dx, dy, ssd, overlap, cfg.min_overlap, tol)
         })
         .collect())
 }

@@ -390,9 +390,12 @@ impl Synthesis {
 }
 
 /// A work patch's own memory per texel of its traversal, besides the
-/// matcher's buffers: its work image, flattening, graph and max-flow
-/// (about 1 KiB a texel at radius 192 on Spot 4096², traced with heaptrack).
-const BYTES_PER_TEXEL: u64 = 1024;
+/// matcher's buffers: its work image, flattening, graph and max-flow. On
+/// Spot 4096² with patches of radius 192 they hold about 1 KiB a texel
+/// (heaptrack), but a second patch in flight raised the peak RSS by about
+/// 270 MB, three times that: the C library's allocator keeps what each
+/// thread freed.
+const BYTES_PER_TEXEL: u64 = 3 << 10;
 
 /// The atlas tiles computing a work patch of `radius` at `v` may read (the
 /// bounding boxes, per chart, of the texels within `radius` + 2 hops, grown
