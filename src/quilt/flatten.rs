@@ -381,47 +381,63 @@ pub(super) fn close_gaps(
         .map(|i| EPS + nbr[start[i]..start[i + 1]].iter().map(|e| e.1).sum::<f64>())
         .collect();
     let op = membrane_operator(&start, &nbr, &diag);
-    let apply = |x: &[f64], out: &mut [f64]| apply_membrane(&op, x, out);
-    for c in 0..2 {
-        let b: Vec<f64> = rhs.iter().map(|r| r[c]).collect();
-        let bnorm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if bnorm == 0.0 {
-            continue;
-        }
-        let mut x = vec![0.0f64; m];
-        let mut r = b.clone();
-        let mut z: Vec<f64> = r.iter().zip(&diag).map(|(r, d)| r / d).collect();
-        let mut p = z.clone();
-        let mut ap = vec![0.0f64; m];
-        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
-        for _ in 0..iterations {
-            apply(&p, &mut ap);
-            let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
-            if !(pap > 0.0) {
-                break;
-            }
-            let alpha = rz / pap;
+    // the two coordinates are independent systems with one operator:
+    // solved side by side (each exactly as alone)
+    let b = |c: usize| -> Vec<f64> { rhs.iter().map(|r| r[c]).collect() };
+    let (bx, by) = (b(0), b(1));
+    let (x, y) = rayon::join(
+        || jacobi_cg(&op, &diag, &bx, iterations),
+        || jacobi_cg(&op, &diag, &by, iterations),
+    );
+    for (c, solution) in [(0, x), (1, y)] {
+        if let Some(x) = solution {
             for k in 0..m {
-                x[k] += alpha * p[k];
-                r[k] -= alpha * ap[k];
+                coords[k][c] += x[k];
             }
-            if r.iter().map(|v| v * v).sum::<f64>().sqrt() < 1e-3 * bnorm {
-                break;
-            }
-            for k in 0..m {
-                z[k] = r[k] / diag[k];
-            }
-            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
-            let beta = rz_new / rz;
-            rz = rz_new;
-            for k in 0..m {
-                p[k] = z[k] + beta * p[k];
-            }
-        }
-        for k in 0..m {
-            coords[k][c] += x[k];
         }
     }
+}
+
+/// Jacobi-preconditioned conjugate gradients on `op · x = b` from 0, at
+/// most `iterations` steps, until the residual is below 10⁻³ ‖b‖; `None`
+/// when b = 0.
+fn jacobi_cg(op: &SparseRowMat<usize, f64>, diag: &[f64], b: &[f64], iterations: usize) -> Option<Vec<f64>> {
+    let m = diag.len();
+    let bnorm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if bnorm == 0.0 {
+        return None;
+    }
+    let mut x = vec![0.0f64; m];
+    let mut r = b.to_vec();
+    let mut z: Vec<f64> = r.iter().zip(diag).map(|(r, d)| r / d).collect();
+    let mut p = z.clone();
+    let mut ap = vec![0.0f64; m];
+    let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+    for _ in 0..iterations {
+        apply_membrane(op, &p, &mut ap);
+        let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
+        if !(pap > 0.0) {
+            break;
+        }
+        let alpha = rz / pap;
+        for k in 0..m {
+            x[k] += alpha * p[k];
+            r[k] -= alpha * ap[k];
+        }
+        if r.iter().map(|v| v * v).sum::<f64>().sqrt() < 1e-3 * bnorm {
+            break;
+        }
+        for k in 0..m {
+            z[k] = r[k] / diag[k];
+        }
+        let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        let beta = rz_new / rz;
+        rz = rz_new;
+        for k in 0..m {
+            p[k] = z[k] + beta * p[k];
+        }
+    }
+    Some(x)
 }
 
 /// The operator diag − W of [`close_gaps`] as a sparse matrix: row i holds
