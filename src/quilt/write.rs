@@ -3,12 +3,14 @@
 
 use std::path::Path;
 
+use rayon::prelude::*;
+
 use super::state::{State, StateTile, Surface};
 use super::synthesis::{sample_role, Synthesis};
 use super::{TileConfig, TileReport};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{KIND, SEAM_X, SEAM_Y, SEAM_ZIPPER};
-use crate::container::{ArraySpec, ContainerWriter, DType, Element, Param};
+use crate::container::{codec, ArraySpec, ContainerWriter, DType, Element, Param};
 use crate::Result;
 
 /// Writes the synthesis state as a `.quilt`; `paint_log` (a JSON array of
@@ -225,18 +227,33 @@ fn write_plane<T: Element>(
         (vec![r, r, c], vec![t, t, c])
     };
     let id = w.add_array(ArraySpec::new(name, T::DTYPE, &shape, &chunk)?)?;
-    let mut buf: Vec<T> = Vec::new();
-    for k in 0..grid.tiles() {
-        let (x0, y0, tw, th) = grid.region(k);
-        buf.clear();
-        state.tile(k, |s| {
-            for y in 0..th {
-                for x in 0..tw {
-                    f(s, y * TILE + x, ((y0 + y) * grid.r + x0 + x) as u32, &mut buf);
-                }
-            }
-        });
-        w.write_chunk(id, k as u64, &buf)?;
+    // tiles read in order (the state pages them), a batch at a time
+    // compressed in parallel and written in order: the same bytes
+    let tiles: Vec<usize> = (0..grid.tiles()).collect();
+    for batch in tiles.chunks(WRITE_BATCH) {
+        let values: Vec<Vec<T>> = batch
+            .iter()
+            .map(|&k| {
+                let (x0, y0, tw, th) = grid.region(k);
+                let mut buf = Vec::with_capacity(tw * th * c as usize);
+                state.tile(k, |s| {
+                    for y in 0..th {
+                        for x in 0..tw {
+                            f(s, y * TILE + x, ((y0 + y) * grid.r + x0 + x) as u32, &mut buf);
+                        }
+                    }
+                });
+                buf
+            })
+            .collect();
+        let level = w.level();
+        let encoded: Vec<_> = values.par_iter().map(|v| codec::encode(v, level)).collect();
+        for (&k, e) in batch.iter().zip(encoded) {
+            w.write_encoded(id, k as u64, e)?;
+        }
     }
     Ok(())
 }
+
+/// Atlas tiles gathered before compressing them in parallel.
+const WRITE_BATCH: usize = 64;
