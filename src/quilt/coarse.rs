@@ -14,7 +14,7 @@
 use super::matching::{self, CostMap, Image, MatchConfig, Matcher};
 
 /// Coarse placements refined at full resolution.
-pub(super) const COARSE_CANDIDATES: usize = 16;
+const COARSE_CANDIDATES: usize = 16;
 
 /// The downsampling factor for a sample `side` pixels long with the limit
 /// `above` (1: match at full resolution; `above` 0 never downsamples).
@@ -122,7 +122,7 @@ impl Coarse {
 /// The coarse matching's config: the same options with the minimum
 /// overlap scaled to coarse pixels (weights are block means, so an overlap
 /// of A full pixels is about A / f² coarse ones) and `candidates` kept.
-pub(super) fn coarse_config(cfg: &MatchConfig, f: usize) -> MatchConfig {
+fn coarse_config(cfg: &MatchConfig, f: usize) -> MatchConfig {
     MatchConfig {
         min_overlap: (cfg.min_overlap / (f * f) as f64).max(f64::MIN_POSITIVE),
         candidates: COARSE_CANDIDATES,
@@ -134,11 +134,7 @@ pub(super) fn coarse_config(cfg: &MatchConfig, f: usize) -> MatchConfig {
 /// The full-resolution placements to cost around the best `coarse` ones
 /// (coarse placement c ↦ f·c, then ±(f − 1) a side), inside `range` (the
 /// full match's placements), each once, in (dy, dx) order.
-pub(super) fn fine_window(
-    coarse: &[matching::Placement],
-    f: usize,
-    range: [(i32, i32); 2],
-) -> Vec<(i32, i32)> {
+fn fine_window(coarse: &[matching::Placement], f: usize, range: [(i32, i32); 2]) -> Vec<(i32, i32)> {
     let r = f as i32 - 1;
     let mut out: Vec<(i32, i32)> = Vec::new();
     for p in coarse {

@@ -244,7 +244,7 @@ fn match_at_rotation(
     matcher: &mut Matcher,
     work: &WorkImage,
     constraint_weight: f64,
-    penalty: Option<(&mut Occurrence, f64)>,
+    mut penalty: Option<(&mut Occurrence, f64)>,
     rot: usize,
     known_count: f64,
     f: usize,
@@ -298,7 +298,6 @@ fn match_at_rotation(
         constraint_weight,
         ..MatchConfig::default()
     };
-    let mut penalty = penalty;
     let mut penalize = |map: &mut matching::CostMap, step: i32| {
         if let Some((occurrence, weight)) = penalty.as_mut() {
             let to_unrotated = |p: [f64; 2]| to_sample(sample, rot, 0.0, 0.0, p);
@@ -311,13 +310,20 @@ fn match_at_rotation(
         map
     } else {
         let ccopy = sample.coarse_rotation(rot, f)?;
-        let cmask = mask.map(|m| Coarse::new(&sample_in.image, valid, m, 1, f).constraint);
-        let cwork = Coarse::new(&work_in.image, &work.known, &work.constraint, 1, f);
+        // (the features of the copy are block-averaged once, in the sample)
+        let no_features = Image {
+            channels: 0,
+            data: &[],
+            ..sample_in.image
+        };
+        let cmask = mask.map(|m| Coarse::new(&no_features, valid, m, 1, f).constraint);
+        let work_constraint: &[f32] = if mask.is_some() { &work.constraint } else { &[] };
+        let cwork = Coarse::new(&work_in.image, &work.known, work_constraint, 1, f);
         let (cw, ch) = (sw.div_ceil(f), sh.div_ceil(f));
         let coarse_work = matching::Work {
             image: cwork.image(n),
             known: &cwork.weight,
-            constraint: mask.and(cwork.constraint_image(1)),
+            constraint: cwork.constraint_image(1),
         };
         let coarse_sample = matching::Sample {
             image: Image {

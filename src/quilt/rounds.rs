@@ -85,8 +85,9 @@ struct Job {
     v: u32,
     /// The tiles it may read ([`reach`]).
     tiles: Vec<usize>,
-    /// The tiles its views hold first ([`view_tiles`]).
-    view: Vec<usize>,
+    /// Fewer tiles for its views to hold first, when it crosses charts
+    /// ([`narrow_tiles`]).
+    narrow: Option<Vec<usize>>,
     /// Texels of its traversal (the work patch and two hops more).
     texels: usize,
 }
@@ -97,9 +98,14 @@ impl Job {
         Job {
             v,
             tiles: tiles.to_vec(),
-            view: view_tiles(surface, ball, tiles),
+            narrow: narrow_tiles(surface, ball),
             texels: ball.texels.len(),
         }
+    }
+
+    /// The tiles its views hold first.
+    fn view(&self) -> &[usize] {
+        self.narrow.as_deref().unwrap_or(&self.tiles)
     }
 }
 
@@ -320,7 +326,7 @@ impl Synthesis {
             let outcomes = jobs
                 .iter()
                 .enumerate()
-                .map(|(j, w)| job.run(j, w, self.surface.view(&w.view), self.state.view(&w.view), &f))
+                .map(|(j, w)| job.run(j, w, self.surface.view(w.view()), self.state.view(w.view()), &f))
                 .collect();
             (outcomes, alongside(&mut self.bfs, &mut self.surface))
         } else {
@@ -328,7 +334,7 @@ impl Synthesis {
             // flight (nor matchers held) however the threads steal work
             let views: Vec<_> = jobs
                 .iter()
-                .map(|w| Mutex::new(Some((self.surface.view(&w.view), self.state.view(&w.view)))))
+                .map(|w| Mutex::new(Some((self.surface.view(w.view()), self.state.view(w.view())))))
                 .collect();
             let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
                 jobs.iter().map(|_| Mutex::new(None)).collect();
@@ -359,7 +365,7 @@ impl Synthesis {
         // of the round is accepted (so the same outcome as over them first)
         let mut outcomes = outcomes;
         for (j, w) in jobs.iter().enumerate() {
-            if outcomes[j].is_none() && w.view != w.tiles {
+            if outcomes[j].is_none() && w.narrow.is_some() {
                 outcomes[j] = job.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), &f);
             }
         }
@@ -432,18 +438,18 @@ fn reach(bfs: &mut Bfs, surface: &Surface, v: u32, radius: usize) -> (Vec<usize>
     (tiles, ball)
 }
 
-/// The tiles a work patch's views hold first: its [`reach`] where the
-/// traversal stays in one chart (the chart's work image reads the patch's
-/// whole atlas box); across charts, where the work image reads only the
-/// patch's texels, the tiles of the traversal's texels and their eight
-/// neighbours — far fewer than the charts' boxes, which a patch of large
-/// radius spreads over hundreds of tiles. A patch that reads outside them
-/// (one that shrinks into a single chart reads that chart's box) is
+/// The tiles a work patch's views hold first where its traversal crosses
+/// charts (`None` inside one chart, whose work image reads the patch's
+/// whole atlas box: its [`reach`]): across charts the work image reads only
+/// the patch's texels, so the tiles of the traversal's texels and their
+/// eight neighbours — far fewer than the charts' boxes, which a patch of
+/// large radius spreads over hundreds of tiles. A patch that reads outside
+/// them (one that shrinks into a single chart reads that chart's box) is
 /// computed again over its reach before the round is accepted.
-fn view_tiles(surface: &Surface, ball: &WorkPatch, tiles: &[usize]) -> Vec<usize> {
+fn narrow_tiles(surface: &Surface, ball: &WorkPatch) -> Option<Vec<usize>> {
     let chart = ball.texels.first().map(|&t| surface.chart(t));
     if ball.texels.iter().all(|&t| Some(surface.chart(t)) == chart) {
-        return tiles.to_vec();
+        return None;
     }
     let grid = surface.grid();
     let last = grid.r as i64 - 1;
@@ -457,7 +463,7 @@ fn view_tiles(surface: &Surface, ball: &WorkPatch, tiles: &[usize]) -> Vec<usize
             }
         }
     }
-    (0..held.len()).filter(|&k| held[k]).collect()
+    Some((0..held.len()).filter(|&k| held[k]).collect())
 }
 
 /// The texels of a traversal within `radius` hops with their depth, and the
