@@ -687,6 +687,7 @@ impl Resources {
 }
 
 fn main() {
+    one_malloc_arena();
     let result = run(Cli::parse());
     for r in btfquilt::io::staging::take_removed_partials() {
         eprintln!(
@@ -699,6 +700,35 @@ fn main() {
     if let Err(e) = result {
         eprintln!("error: {}", error_chain(&e));
         std::process::exit(1);
+    }
+}
+
+/// The C library's allocator (glibc) gives each thread that meets
+/// contention an arena of its own and keeps what that thread frees there, so
+/// with work patches computed on several threads the process held up to twice
+/// its live heap (a 128 MiB budget peaked at 286 MB with a 140 MB heap).
+/// The variable `MALLOC_ARENA_MAX` is read only when the process starts,
+/// so unless the user set it the binary runs itself again in place (`exec`,
+/// same process id) with one arena. Nothing else changes: outputs never
+/// depend on the allocator. If the `exec` fails, it carries on as it is.
+fn one_malloc_arena() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        use std::os::unix::process::CommandExt;
+        if std::env::var_os("MALLOC_ARENA_MAX").is_some() {
+            return;
+        }
+        let Ok(exe) = std::env::current_exe() else {
+            return;
+        };
+        let mut args = std::env::args_os();
+        let arg0 = args.next().unwrap_or_else(|| exe.clone().into_os_string());
+        // (returns only on failure)
+        let _ = std::process::Command::new(&exe)
+            .arg0(arg0)
+            .args(args)
+            .env("MALLOC_ARENA_MAX", "1")
+            .exec();
     }
 }
 

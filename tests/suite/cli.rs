@@ -596,3 +596,60 @@ fn outputs_do_not_depend_on_threads_or_memory() {
         );
     }
 }
+
+/// With glibc the binary runs with one allocator arena unless the user set
+/// `MALLOC_ARENA_MAX` (it re-executes itself once): read from the
+/// environment of a running `serve`.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+#[test]
+fn the_binary_runs_with_one_malloc_arena_unless_the_user_chose() {
+    use std::io::BufRead;
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("square.obj");
+    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n").unwrap();
+    let gim = dir.path().join("square.gim");
+    crate::common::ok(&["atlas", s(&obj), "--resolution", "64", "-q", "-o", s(&gim)]);
+    let brick = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png");
+    let quilt = dir.path().join("square.quilt");
+    crate::common::ok(&[
+        "tile",
+        "--gim",
+        s(&gim),
+        "--sample",
+        s(&brick),
+        "-q",
+        "-o",
+        s(&quilt),
+    ]);
+    for (set, want) in [(None, "MALLOC_ARENA_MAX=1"), (Some("3"), "MALLOC_ARENA_MAX=3")] {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_btfquilt"));
+        cmd.args(["serve", s(&quilt), "--port", "0"])
+            .env_remove("MALLOC_ARENA_MAX")
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null());
+        if let Some(v) = set {
+            cmd.env("MALLOC_ARENA_MAX", v);
+        }
+        let mut child = cmd.spawn().unwrap();
+        // the studio's address is printed once it listens
+        let mut line = String::new();
+        std::io::BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let environ = std::fs::read(format!("/proc/{}/environ", child.id())).unwrap();
+        child.kill().unwrap();
+        child.wait().unwrap();
+        assert!(line.contains("http://127.0.0.1:"), "{line}");
+        let vars: Vec<&[u8]> = environ.split(|&b| b == 0).collect();
+        assert!(
+            vars.contains(&want.as_bytes()),
+            "{want} not in the environment of serve (MALLOC_ARENA_MAX given: {set:?})"
+        );
+        assert_eq!(
+            vars.iter()
+                .filter(|v| v.starts_with(b"MALLOC_ARENA_MAX="))
+                .count(),
+            1
+        );
+    }
+}
