@@ -662,13 +662,39 @@ fn encode_srgb(v: f32, max: f32) -> f32 {
     (s * max).round()
 }
 
+/// [`encode_srgb`] to 8 bits, exactly, without a power per value: the
+/// code is the number of the 255 thresholds (the least f32 giving each code
+/// 1..=255, found once by bisection over the ordered bit patterns of the
+/// positive floats) that `v` reaches.
+pub fn linear_to_srgb8(v: f32) -> u8 {
+    static THRESHOLDS: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
+    let t = THRESHOLDS.get_or_init(|| {
+        (1..=255u32)
+            .map(|k| {
+                // least bits with code ≥ k among the finite positive floats
+                let (mut lo, mut hi) = (0u32, f32::MAX.to_bits());
+                while lo < hi {
+                    let mid = lo + (hi - lo) / 2;
+                    if encode_srgb(f32::from_bits(mid), 255.0) as u32 >= k {
+                        hi = mid;
+                    } else {
+                        lo = mid + 1;
+                    }
+                }
+                f32::from_bits(lo)
+            })
+            .collect()
+    });
+    t.partition_point(|&x| x <= v) as u8
+}
+
 /// Write PNG: linear -> sRGB encode, clamp to 0..1, round to nearest, 8 or 16 bit RGB.
 pub fn write_png(path: &Path, img: &RgbImage, depth: PngDepth) -> Result<()> {
     check_write(path, img.width, img.height, 3, img.data.len())?;
     let (w, h) = dims_u32(path, img.width, img.height)?;
     match depth {
         PngDepth::Eight => {
-            let raw: Vec<u8> = img.data.iter().map(|&v| encode_srgb(v, 255.0) as u8).collect();
+            let raw: Vec<u8> = img.data.iter().map(|&v| linear_to_srgb8(v)).collect();
             let buf = image::ImageBuffer::<image::Rgb<u8>, _>::from_raw(w, h, raw)
                 .ok_or_else(|| Error::input(path, "image buffer size mismatch"))?;
             write_atomic(path, |out| {
@@ -1041,6 +1067,30 @@ pub fn dilate_with(img: &mut RgbImage, covered: &[bool], passes: usize, fill: [f
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn the_8_bit_encoding_equals_the_power_law_everywhere() {
+        let slow = |v: f32| encode_srgb(v, 255.0) as u8;
+        // every 997th positive float, every threshold ± 2 ulp, specials
+        let mut values: Vec<f32> = (0..=f32::MAX.to_bits())
+            .step_by(997)
+            .map(f32::from_bits)
+            .collect();
+        for k in 1..=255u32 {
+            let t = (0..=f32::MAX.to_bits())
+                .step_by(1 << 12)
+                .map(f32::from_bits)
+                .find(|&v| slow(v) as u32 >= k)
+                .unwrap();
+            for d in -(1 << 13)..(1 << 13) {
+                values.push(f32::from_bits((t.to_bits() as i64 + d) as u32));
+            }
+        }
+        values.extend([-1.0, -0.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1.0, 2.0]);
+        for v in values {
+            assert_eq!(linear_to_srgb8(v), slow(v), "{v:e} ({:#x})", v.to_bits());
+        }
+    }
 
     #[test]
     fn mask_lookup_wraps_only_tileable_samples() {

@@ -327,8 +327,8 @@ pub(super) const LINK_WEIGHT: f64 = 4.0;
 /// μ Σ_links |x_i + d_i − x_j − d_j|² (+ a tiny ε|d|²), a membrane that
 /// spreads the misfit over the patch like the distortion LSCM would
 /// distribute. Solved per coordinate by Jacobi-preconditioned conjugate
-/// gradients (at most `iterations`), the operator held as a faer sparse
-/// matrix.
+/// gradients (at most `iterations`) from the solution of a [`Coarse`] copy
+/// of the system, the operator held as a faer sparse matrix.
 ///
 /// The iteration is this loop rather than
 /// `faer::matrix_free::conjugate_gradient`: given the very same operator,
@@ -381,14 +381,16 @@ pub(super) fn close_gaps(
         .map(|i| EPS + nbr[start[i]..start[i + 1]].iter().map(|e| e.1).sum::<f64>())
         .collect();
     let op = membrane_operator(&start, &nbr, &diag);
+    let coarse = Coarse::new(surface, patch, &start, &nbr, &diag);
     // the two coordinates are independent systems with one operator:
     // solved side by side (each exactly as alone)
     let b = |c: usize| -> Vec<f64> { rhs.iter().map(|r| r[c]).collect() };
     let (bx, by) = (b(0), b(1));
-    let (x, y) = rayon::join(
-        || jacobi_cg(&op, &diag, &bx, iterations),
-        || jacobi_cg(&op, &diag, &by, iterations),
-    );
+    let solve = |b: &[f64]| {
+        let x0 = coarse.as_ref().and_then(|c| c.guess(b, iterations));
+        jacobi_cg(&op, &diag, b, x0, iterations)
+    };
+    let (x, y) = rayon::join(|| solve(&bx), || solve(&by));
     for (c, solution) in [(0, x), (1, y)] {
         if let Some(x) = solution {
             for k in 0..m {
@@ -398,17 +400,33 @@ pub(super) fn close_gaps(
     }
 }
 
-/// Jacobi-preconditioned conjugate gradients on `op · x = b` from 0, at
-/// most `iterations` steps, until the residual is below 10⁻³ ‖b‖; `None`
-/// when b = 0.
-fn jacobi_cg(op: &SparseRowMat<usize, f64>, diag: &[f64], b: &[f64], iterations: usize) -> Option<Vec<f64>> {
+/// Jacobi-preconditioned conjugate gradients on `op · x = b` from `x0`
+/// (or 0), at most `iterations` steps, until the residual is below
+/// 10⁻³ ‖b‖; `None` when b = 0.
+fn jacobi_cg(
+    op: &SparseRowMat<usize, f64>,
+    diag: &[f64],
+    b: &[f64],
+    x0: Option<Vec<f64>>,
+    iterations: usize,
+) -> Option<Vec<f64>> {
     let m = diag.len();
     let bnorm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
     if bnorm == 0.0 {
         return None;
     }
-    let mut x = vec![0.0f64; m];
-    let mut r = b.to_vec();
+    let (mut x, mut r) = match x0 {
+        Some(x0) => {
+            let mut ax = vec![0.0f64; m];
+            apply_membrane(op, &x0, &mut ax);
+            let r = b.iter().zip(&ax).map(|(b, a)| b - a).collect();
+            (x0, r)
+        }
+        None => (vec![0.0f64; m], b.to_vec()),
+    };
+    if r.iter().map(|v| v * v).sum::<f64>().sqrt() < 1e-3 * bnorm {
+        return Some(x);
+    }
     let mut z: Vec<f64> = r.iter().zip(diag).map(|(r, d)| r / d).collect();
     let mut p = z.clone();
     let mut ap = vec![0.0f64; m];
@@ -438,6 +456,107 @@ fn jacobi_cg(op: &SparseRowMat<usize, f64>, diag: &[f64], b: &[f64], iterations:
         }
     }
     Some(x)
+}
+
+/// Side of the atlas blocks whose texels (of one chart) [`Coarse`] merges.
+const COARSE_BLOCK: usize = 4;
+
+/// A coarse copy of the gap-closing membrane: the patch's texels merged by
+/// chart and [`COARSE_BLOCK`]² atlas block (piecewise-constant
+/// prolongation P, Galerkin operator PᵀAP). Its solution, spread back over
+/// the texels, is the fine solve's first guess: the smooth part of the
+/// displacement field is found on 1/16 of the unknowns, and the fine
+/// iteration only has to mend what varies within a block.
+struct Coarse {
+    /// Aggregate of each texel.
+    of: Vec<u32>,
+    op: SparseRowMat<usize, f64>,
+    diag: Vec<f64>,
+}
+
+impl Coarse {
+    /// `None` when merging would not shrink the system much.
+    fn new(
+        surface: &Surface,
+        patch: &WorkPatch,
+        start: &[usize],
+        nbr: &[(u32, f64)],
+        diag: &[f64],
+    ) -> Option<Coarse> {
+        let m = patch.texels.len();
+        if m < 256 {
+            return None;
+        }
+        let grid = surface.grid();
+        let mut ids: std::collections::HashMap<u64, u32> = std::collections::HashMap::with_capacity(m / 8);
+        let of: Vec<u32> = patch
+            .texels
+            .iter()
+            .map(|&t| {
+                let (x, y) = grid.xy(t);
+                let key = (surface.chart(t) as u64) << 40
+                    | ((y / COARSE_BLOCK) as u64) << 20
+                    | (x / COARSE_BLOCK) as u64;
+                let next = ids.len() as u32;
+                *ids.entry(key).or_insert(next)
+            })
+            .collect();
+        let n = ids.len();
+        if n * 4 > m {
+            return None;
+        }
+        // rows of PᵀAP: (column, value), summed in fine-row order
+        let mut rows: Vec<Vec<(u32, f64)>> = vec![Vec::new(); n];
+        for i in 0..m {
+            let a = of[i] as usize;
+            rows[a].push((a as u32, diag[i]));
+            for &(j, w) in &nbr[start[i]..start[i + 1]] {
+                rows[a].push((of[j as usize], -w));
+            }
+        }
+        let mut row_ptr = Vec::with_capacity(n + 1);
+        let mut col_idx = Vec::new();
+        let mut values = Vec::new();
+        let mut cdiag = vec![0.0f64; n];
+        row_ptr.push(0);
+        for (a, row) in rows.iter_mut().enumerate() {
+            // stable: equal columns keep their summation order
+            row.sort_by_key(|e| e.0);
+            let mut k = 0;
+            while k < row.len() {
+                let c = row[k].0;
+                let mut v = 0.0;
+                while k < row.len() && row[k].0 == c {
+                    v += row[k].1;
+                    k += 1;
+                }
+                if c as usize == a {
+                    cdiag[a] = v;
+                }
+                col_idx.push(c as usize);
+                values.push(v);
+            }
+            row_ptr.push(col_idx.len());
+        }
+        if cdiag.iter().any(|&d| !(d > 0.0)) {
+            return None;
+        }
+        let op = SparseRowMat::new(
+            SymbolicSparseRowMat::new_unsorted_checked(n, n, row_ptr, None, col_idx),
+            values,
+        );
+        Some(Coarse { of, op, diag: cdiag })
+    }
+
+    /// P (PᵀAP)⁻¹ Pᵀ b, by the same Jacobi-preconditioned iteration.
+    fn guess(&self, b: &[f64], iterations: usize) -> Option<Vec<f64>> {
+        let mut bc = vec![0.0f64; self.diag.len()];
+        for (i, &v) in b.iter().enumerate() {
+            bc[self.of[i] as usize] += v;
+        }
+        let xc = jacobi_cg(&self.op, &self.diag, &bc, None, iterations)?;
+        Some(self.of.iter().map(|&a| xc[a as usize]).collect())
+    }
 }
 
 /// The operator diag − W of [`close_gaps`] as a sparse matrix: row i holds

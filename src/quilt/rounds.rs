@@ -70,6 +70,7 @@ impl Context<'_> {
             painting: self.painting,
             occurrence: occurrence.as_mut(),
             bfs: &mut bfs,
+            ball: Some((&job.ball, job.radius + 2)),
             matcher: &mut matcher,
             counter: self.base + j as u64,
             stats: StepStats::default(),
@@ -88,18 +89,21 @@ struct Job {
     /// Fewer tiles for its views to hold first, when it crosses charts
     /// ([`narrow_tiles`]).
     narrow: Option<Vec<usize>>,
-    /// Texels of its traversal (the work patch and two hops more).
-    texels: usize,
+    /// Its traversal (the work patch and two hops more; [`reach`]).
+    ball: WorkPatch,
+    /// The work patch's radius.
+    radius: usize,
 }
 
 impl Job {
     /// The patch at `v` whose [`reach`] is `tiles` and `ball`.
-    fn new(v: u32, tiles: &[usize], ball: &WorkPatch, surface: &Surface) -> Job {
+    fn new(v: u32, tiles: &[usize], ball: WorkPatch, radius: usize, surface: &Surface) -> Job {
         Job {
             v,
             tiles: tiles.to_vec(),
-            narrow: narrow_tiles(surface, ball),
-            texels: ball.texels.len(),
+            narrow: narrow_tiles(surface, &ball),
+            ball,
+            radius,
         }
     }
 
@@ -161,7 +165,7 @@ impl Synthesis {
             used[k] = true;
             blocked[k] = true;
         }
-        let mut jobs = vec![Job::new(v, &tiles, &ball, &self.surface)];
+        let mut jobs = vec![Job::new(v, &tiles, ball, radius0, &self.surface)];
         'round: while jobs.len() < self.cfg.round {
             for _ in 0..TRIES {
                 let Some(v) = self.state.most_constrained_outside(&blocked, 1) else {
@@ -176,7 +180,7 @@ impl Synthesis {
                     used[k] = true;
                     blocked[k] = true;
                 }
-                jobs.push(Job::new(v, &tiles, &ball, &self.surface));
+                jobs.push(Job::new(v, &tiles, ball, radius0, &self.surface));
                 continue 'round;
             }
             break;
@@ -388,7 +392,7 @@ impl Synthesis {
             .chain([self.matcher.buffer_bytes()])
             .max()
             .unwrap_or(0) as u64;
-        let texels = jobs.iter().map(|j| j.texels).max().unwrap_or(0) as u64;
+        let texels = jobs.iter().map(|j| j.ball.texels.len()).max().unwrap_or(0) as u64;
         let patch = buffers + BYTES_PER_TEXEL * texels;
         let by_memory = (self.cfg.memory.bytes() / 2 / patch.max(1)).max(1) as usize;
         rayon::current_num_threads().min(jobs.len()).min(by_memory)
@@ -542,7 +546,7 @@ impl Schedule<'_> {
             for &k in &tiles {
                 used[k] = true;
             }
-            jobs.push(Job::new(v, &tiles, &ball, surface));
+            jobs.push(Job::new(v, &tiles, ball, self.radius, surface));
             self.next += 1;
         }
         (jobs, closed)
@@ -557,6 +561,56 @@ mod tests {
     use crate::atlas::AtlasConfig;
     use crate::progress::Silent;
     use crate::quilt::{tile_refining_by, TileConfig, TileReport};
+
+    /// A patch cut from a deeper traversal at the same seed equals the
+    /// traversal stopped at its radius, index included, inside charts and
+    /// across zippers.
+    #[test]
+    fn a_prefix_of_a_deeper_traversal_is_the_work_patch() {
+        use crate::artifact::gim::Gim;
+        use crate::container::MemoryBudget;
+        use crate::quilt::state::{Bfs, Surface};
+        let dir = tempfile::tempdir().unwrap();
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let gim = dir.path().join("spot.gim");
+        let atlas = AtlasConfig {
+            resolution: 256,
+            ..AtlasConfig::default()
+        };
+        crate::atlas::build_gim(&root.join("data/spot_5.8k.obj"), &gim, &atlas, &Silent).unwrap();
+        let gim = Gim::open(&gim, MemoryBudget(1 << 24)).unwrap();
+        let surface = Surface::open(&gim, MemoryBudget(1 << 24)).unwrap();
+        let (mut deep, mut direct) = (Bfs::default(), Bfs::default());
+        let (mut seeds, mut crossing) = (0, 0);
+        for v in (0..256 * 256u32).step_by(997).filter(|&v| surface.covered(v)) {
+            let ball = deep.patch(&surface, v, 14);
+            seeds += 1;
+            crossing += ball.crosses_charts as usize;
+            for r in [0, 1, 5, 11, 12, 14] {
+                let want = direct.patch(&surface, v, r);
+                let got = deep.prefix(&surface, &ball, r);
+                assert_eq!(
+                    (&got.texels, &got.depth),
+                    (&want.texels, &want.depth),
+                    "seed {v} radius {r}"
+                );
+                assert_eq!(
+                    (got.crosses_charts, got.first_zipper),
+                    (want.crosses_charts, want.first_zipper),
+                    "seed {v} radius {r}"
+                );
+                for (i, &t) in ball.texels.iter().enumerate() {
+                    let expect = (i < want.texels.len()).then_some(i);
+                    assert_eq!(deep.contains(t), expect, "seed {v} radius {r} texel {t}");
+                    assert_eq!(direct.contains(t), expect, "seed {v} radius {r} texel {t}");
+                }
+            }
+        }
+        assert!(
+            seeds > 20 && crossing > 3,
+            "{seeds} seeds, {crossing} crossing charts"
+        );
+    }
 
     /// Seam refinement a round at a time visits the same seeds and keeps
     /// the same patches as one at a time (the loop itself one at a time

@@ -279,9 +279,6 @@ impl State {
     pub(super) fn patch(&self, t: u32) -> u32 {
         self.texel(t, |s, i| s.patch[i])
     }
-    pub(super) fn source(&self, t: u32) -> u8 {
-        self.texel(t, |s, i| s.source[i])
-    }
     /// m0 at `t` when constrained.
     pub(super) fn target(&self, t: u32) -> Option<f32> {
         self.constrained.then(|| self.texel(t, |s, i| s.target[i]))
@@ -640,6 +637,10 @@ pub(crate) struct WorkPatch {
     pub(crate) depth: Vec<u16>,
     /// Whether the traversal crossed a zipper (the patch spans charts).
     pub(super) crosses_charts: bool,
+    /// Where in `texels` the first texel reached across a zipper is
+    /// (`texels.len()` if none): the patches of smaller radius at the same
+    /// seed are prefixes of this traversal ([`Bfs::prefix`]).
+    pub(super) first_zipper: usize,
 }
 
 impl WorkPatch {
@@ -695,7 +696,8 @@ pub(super) struct Bfs {
 }
 
 impl Bfs {
-    pub(super) fn patch(&mut self, surface: &Surface, v: u32, radius: usize) -> WorkPatch {
+    /// Empties the index and centres its window of `radius` on `v`.
+    fn window_around(&mut self, surface: &Surface, v: u32, radius: usize) {
         for &slot in &self.set {
             self.window[slot as usize] = u32::MAX;
         }
@@ -710,10 +712,16 @@ impl Bfs {
         if self.window.len() < self.side * self.side {
             self.window = vec![u32::MAX; self.side * self.side];
         }
+    }
+
+    /// The work patch of `radius` at `v`: a breadth-first traversal of the
+    /// dense mesh, indexed for [`Bfs::contains`].
+    pub(super) fn patch(&mut self, surface: &Surface, v: u32, radius: usize) -> WorkPatch {
+        self.window_around(surface, v, radius);
         let mut texels = vec![v];
         let mut depth = vec![0u16];
         self.insert(v, 0);
-        let mut crosses = false;
+        let mut first_zipper = usize::MAX;
         let mut head = 0;
         while head < texels.len() {
             let (t, d) = (texels[head], depth[head]);
@@ -723,17 +731,39 @@ impl Bfs {
             }
             surface.for_each_neighbour(t, |n, zipper| {
                 if self.contains(n).is_none() {
+                    if zipper && first_zipper == usize::MAX {
+                        first_zipper = texels.len();
+                    }
                     self.insert(n, texels.len() as u32);
                     texels.push(n);
                     depth.push(d + 1);
-                    crosses |= zipper;
                 }
             });
         }
         WorkPatch {
+            crosses_charts: first_zipper != usize::MAX,
+            first_zipper: first_zipper.min(texels.len()),
             texels,
             depth,
-            crosses_charts: crosses,
+        }
+    }
+
+    /// [`Bfs::patch`] of `radius` at the seed of `ball`, a traversal of at
+    /// least that radius from it, without traversing again: a breadth-first
+    /// traversal lists its texels by depth, and those within `radius` come
+    /// in the same order as a traversal stopped there.
+    pub(super) fn prefix(&mut self, surface: &Surface, ball: &WorkPatch, radius: usize) -> WorkPatch {
+        let v = ball.texels[0];
+        self.window_around(surface, v, radius);
+        let len = ball.depth.partition_point(|&d| d as usize <= radius);
+        for (i, &t) in ball.texels[..len].iter().enumerate() {
+            self.insert(t, i as u32);
+        }
+        WorkPatch {
+            texels: ball.texels[..len].to_vec(),
+            depth: ball.depth[..len].to_vec(),
+            crosses_charts: ball.first_zipper < len,
+            first_zipper: ball.first_zipper.min(len),
         }
     }
 

@@ -453,6 +453,7 @@ impl Synthesis {
             painting: self.painting,
             occurrence: Some(&mut self.occurrence),
             bfs: &mut self.bfs,
+            ball: None,
             matcher: &mut self.matcher,
             counter: self.report.patches as u64,
             stats: StepStats::default(),
@@ -604,21 +605,34 @@ impl Synthesis {
             let (x0, y0, w, h) = patch.atlas_box(r);
             let mut data = vec![0f32; w * h * 3];
             let mut covered = vec![false; w * h];
-            for y in 0..h {
-                for x in 0..w {
-                    let t = ((y0 + y) * r + x0 + x) as u32;
-                    if self.state.synthesized(t) {
-                        let c = self.state.coord(t);
-                        let from = self.other_previews.get(self.state.source(t) as usize);
-                        let col = crate::io::imageio::bilinear(
-                            from.and_then(Option::as_ref).unwrap_or(&colours),
-                            c[0],
-                            c[1],
-                        );
-                        data[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&col);
-                        covered[y * w + x] = true;
+            // the surface as it is, a state tile at a time
+            let grid = self.surface.grid();
+            let (ty0, ty1) = (y0 / TILE, (y0 + h - 1) / TILE);
+            let (tx0, tx1) = (x0 / TILE, (x0 + w - 1) / TILE);
+            for k in (ty0..=ty1).flat_map(|ty| (tx0..=tx1).map(move |tx| ty * grid.across + tx)) {
+                let (kx, ky, kw, kh) = grid.region(k);
+                let (ax0, ax1) = (kx.max(x0), (kx + kw).min(x0 + w));
+                let (ay0, ay1) = (ky.max(y0), (ky + kh).min(y0 + h));
+                self.state.tile(k, |s| {
+                    for ay in ay0..ay1 {
+                        for ax in ax0..ax1 {
+                            let i = (ay - ky) * TILE + (ax - kx);
+                            if !s.synthesized[i] {
+                                continue;
+                            }
+                            let c = s.coord[i];
+                            let from = self.other_previews.get(s.source[i] as usize);
+                            let col = crate::io::imageio::bilinear(
+                                from.and_then(Option::as_ref).unwrap_or(&colours),
+                                c[0],
+                                c[1],
+                            );
+                            let o = (ay - y0) * w + ax - x0;
+                            data[o * 3..o * 3 + 3].copy_from_slice(&col);
+                            covered[o] = true;
+                        }
                     }
-                }
+                });
             }
             for (i, &t) in patch.texels.iter().enumerate() {
                 if fg[i] >= 0.5 {

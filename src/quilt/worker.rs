@@ -57,6 +57,9 @@ pub(super) struct Worker<'a> {
     /// The occurrence map matching penalizes with (tiling only).
     pub(super) occurrence: Option<&'a mut Occurrence>,
     pub(super) bfs: &'a mut Bfs,
+    /// A traversal from the seed already made, and its radius: patches
+    /// up to that radius are its prefixes ([`Bfs::prefix`]).
+    pub(super) ball: Option<(&'a WorkPatch, usize)>,
     pub(super) matcher: &'a mut Matcher,
     /// The seeded choice's counter: patches accepted before this one.
     pub(super) counter: u64,
@@ -64,6 +67,17 @@ pub(super) struct Worker<'a> {
 }
 
 impl Worker<'_> {
+    /// The work patch of `radius` at `v` ([`Bfs::patch`]), from the
+    /// traversal already made when there is one.
+    fn patch_at(&mut self, v: u32, radius: usize) -> WorkPatch {
+        match self.ball {
+            Some((ball, r)) if ball.texels.first() == Some(&v) && radius <= r => {
+                self.bfs.prefix(self.surface, ball, radius)
+            }
+            _ => self.bfs.patch(self.surface, v, radius),
+        }
+    }
+
     /// One step of the quilting loop (the paper's Fig. 4) at vertex `v`:
     /// work patch P(v) of radius r_w, work image I(v), patch matching,
     /// graphcut fitting, and the hierarchical search that shrinks r_w by 0.8
@@ -78,7 +92,7 @@ impl Worker<'_> {
         // larger pieces than always ending at r_w = 4)
         let mut best: Option<(f64, WorkPatch, Fit, bool)> = None;
         loop {
-            let patch = self.bfs.patch(self.surface, v, radius);
+            let patch = self.patch_at(v, radius);
             let (work, unfolded) = self.work_image(&patch, &mut flattening);
             let fit = self.match_and_fit(&patch, &work, painting, 0)?;
             let mean = if fit.seam_edges > 0 {
@@ -149,7 +163,7 @@ impl Worker<'_> {
         placements: usize,
         core: u16,
     ) -> Result<Outcome> {
-        let patch = self.bfs.patch(self.surface, v, radius);
+        let patch = self.patch_at(v, radius);
         let (work, _) = self.work_image(&patch, &mut None);
         let fit = self.best_of_placements(&patch, &work, placements, core)?;
         Ok(Outcome {

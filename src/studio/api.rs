@@ -529,11 +529,12 @@ impl Studio {
             out.extend_from_slice(&(v as u32).to_le_bytes());
         }
         for (c, &cov) in p.image.data.chunks_exact(3).zip(&p.covered) {
-            for &v in c {
-                let s = crate::io::imageio::linear_to_srgb(v).clamp(0.0, 1.0);
-                out.push((s * 255.0).round() as u8);
+            if cov {
+                out.extend(c.iter().map(|&v| crate::io::imageio::linear_to_srgb8(v)));
+                out.push(255);
+            } else {
+                out.extend([0, 0, 0, 0]);
             }
-            out.push(if cov { 255 } else { 0 });
         }
         bytes(Arc::new(out), "application/octet-stream")
     }

@@ -605,13 +605,11 @@ fn outputs_do_not_depend_on_threads_or_memory() {
 fn the_binary_runs_with_one_malloc_arena_unless_the_user_chose() {
     use std::io::BufRead;
     let dir = tempfile::tempdir().unwrap();
-    let obj = dir.path().join("square.obj");
-    std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n").unwrap();
-    let gim = dir.path().join("square.gim");
-    crate::common::ok(&["atlas", s(&obj), "--resolution", "64", "-q", "-o", s(&gim)]);
+    let (gim, quilt) = (dir.path().join("s.gim"), dir.path().join("s.quilt"));
+    let obj = crate::common::square_obj(dir.path());
     let brick = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png");
-    let quilt = dir.path().join("square.quilt");
-    crate::common::ok(&[
+    crate::common::ok(&["atlas", s(&obj), "--resolution", "64", "-q", "-o", s(&gim)]);
+    let tile = [
         "tile",
         "--gim",
         s(&gim),
@@ -620,7 +618,8 @@ fn the_binary_runs_with_one_malloc_arena_unless_the_user_chose() {
         "-q",
         "-o",
         s(&quilt),
-    ]);
+    ];
+    crate::common::ok(&tile);
     for (set, want) in [(None, "MALLOC_ARENA_MAX=1"), (Some("3"), "MALLOC_ARENA_MAX=3")] {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_btfquilt"));
         cmd.args(["serve", s(&quilt), "--port", "0"])
