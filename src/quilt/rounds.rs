@@ -562,6 +562,18 @@ mod tests {
     use crate::progress::Silent;
     use crate::quilt::{tile_refining_by, TileConfig, TileReport};
 
+    /// Spot atlased at 256² as `dir/spot.gim`.
+    fn spot_256(dir: &Path) -> std::path::PathBuf {
+        let gim = dir.join("spot.gim");
+        let atlas = AtlasConfig {
+            resolution: 256,
+            ..AtlasConfig::default()
+        };
+        let mesh = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj");
+        crate::atlas::build_gim(&mesh, &gim, &atlas, &Silent).unwrap();
+        gim
+    }
+
     /// A patch cut from a deeper traversal at the same seed equals the
     /// traversal stopped at its radius, index included, inside charts and
     /// across zippers.
@@ -571,13 +583,7 @@ mod tests {
         use crate::container::MemoryBudget;
         use crate::quilt::state::{Bfs, Surface};
         let dir = tempfile::tempdir().unwrap();
-        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-        let gim = dir.path().join("spot.gim");
-        let atlas = AtlasConfig {
-            resolution: 256,
-            ..AtlasConfig::default()
-        };
-        crate::atlas::build_gim(&root.join("data/spot_5.8k.obj"), &gim, &atlas, &Silent).unwrap();
+        let gim = spot_256(dir.path());
         let gim = Gim::open(&gim, MemoryBudget(1 << 24)).unwrap();
         let surface = Surface::open(&gim, MemoryBudget(1 << 24)).unwrap();
         let (mut deep, mut direct) = (Bfs::default(), Bfs::default());
@@ -619,12 +625,7 @@ mod tests {
     fn refinement_in_rounds_gives_the_quilt_of_one_patch_at_a_time() {
         let dir = tempfile::tempdir().unwrap();
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-        let gim = dir.path().join("spot.gim");
-        let atlas = AtlasConfig {
-            resolution: 256,
-            ..AtlasConfig::default()
-        };
-        crate::atlas::build_gim(&root.join("data/spot_5.8k.obj"), &gim, &atlas, &Silent).unwrap();
+        let gim = spot_256(dir.path());
         let sample = root.join("data/brick_wall.png");
         let cfg = TileConfig {
             round: 1,

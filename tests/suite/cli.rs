@@ -609,17 +609,8 @@ fn the_binary_runs_with_one_malloc_arena_unless_the_user_chose() {
     let obj = crate::common::square_obj(dir.path());
     let brick = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png");
     crate::common::ok(&["atlas", s(&obj), "--resolution", "64", "-q", "-o", s(&gim)]);
-    let tile = [
-        "tile",
-        "--gim",
-        s(&gim),
-        "--sample",
-        s(&brick),
-        "-q",
-        "-o",
-        s(&quilt),
-    ];
-    crate::common::ok(&tile);
+    let (g, b, q) = (s(&gim), s(&brick), s(&quilt));
+    crate::common::ok(&["tile", "--gim", g, "--sample", b, "-q", "-o", q]);
     for (set, want) in [(None, "MALLOC_ARENA_MAX=1"), (Some("3"), "MALLOC_ARENA_MAX=3")] {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_btfquilt"));
         cmd.args(["serve", s(&quilt), "--port", "0"])
