@@ -156,7 +156,7 @@ pub fn preview(quilt_path: &Path, cfg: &PaintConfig, progress: &dyn Progress) ->
 /// A decorated surface and a sample opened once for interactive verbatim
 /// previews (§IV's fast preview): each [`PreviewSession::preview`] is only
 /// the direct projection of the foreground at a point (no graphcut, no
-/// re-reading of the artifacts), about 60 ms on Spot at 1024².
+/// re-reading of the artifacts), about 30 ms on Spot at 1024².
 pub struct PreviewSession {
     syn: Synthesis,
     _tmp: SizedSample,

@@ -828,6 +828,41 @@ pub(super) fn flattened_work_image(
     Some((work, coords))
 }
 
+/// The work coordinates (per patch vertex) and field angle the work image
+/// of a patch has, without the image: the same choice between the chart's
+/// own layout, the flattening and the rigid unfolding, for readers of the
+/// coordinates alone (the verbatim preview).
+pub(super) fn work_coords(
+    surface: &Surface,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+    zipper_triangles: &[[u32; 3]],
+    max_distortion: f64,
+) -> (Vec<[f64; 2]>, f64) {
+    let r = surface.r;
+    if !patch.crosses_charts {
+        let (x0, y0, _, _) = patch.atlas_box(r);
+        let coords = patch
+            .texels
+            .iter()
+            .map(|&t| [(t as usize % r - x0) as f64, (t as usize / r - y0) as f64])
+            .collect();
+        let angle = mean_angle(patch.texels.iter().map(|&t| surface.texel_angle(t)));
+        return (coords, angle);
+    }
+    let (tris, _, grid_count) = patch_triangles(surface, patch, bfs, zipper_triangles);
+    if let Some((mut coords, angle)) = flatten(surface, patch, bfs, &tris[..grid_count], max_distortion) {
+        // (the bound of raster_work_image)
+        let (w, h) = shift_to_origin(&mut coords);
+        if w <= 4 * r && h <= 4 * r {
+            return (coords, angle);
+        }
+    }
+    let (mut coords, angle) = unfold(surface, patch, bfs);
+    shift_to_origin(&mut coords);
+    (coords, angle)
+}
+
 /// A seed's flattening, reused when its patch shrinks: a smaller BFS
 /// ball from the same seed is part of the larger one.
 pub(super) struct Flattening {

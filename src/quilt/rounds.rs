@@ -618,6 +618,48 @@ mod tests {
         );
     }
 
+    /// The verbatim preview's work coordinates without the work image are
+    /// those of the work image, inside charts and across them.
+    #[test]
+    fn work_coordinates_alone_equal_the_work_image_s() {
+        use crate::artifact::gim::Gim;
+        use crate::container::MemoryBudget;
+        use crate::quilt::flatten::work_coords;
+        use crate::quilt::sample::sample_at_density;
+        use crate::quilt::synthesis::Synthesis;
+        let dir = tempfile::tempdir().unwrap();
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let gim = Gim::open(&spot_256(dir.path()), MemoryBudget(1 << 24)).unwrap();
+        let sample = root.join("data/brick_wall.png");
+        let cfg = TileConfig::default();
+        let sized = sample_at_density(&sample, gim.texel_size, None, true, &Silent).unwrap();
+        let out = dir.path().join("never.quilt");
+        let mut syn = Synthesis::open(&gim, &sample, &sized.svd, &out, &cfg, true).unwrap();
+        let (mut inside, mut across) = (0, 0);
+        let seeds: Vec<u32> = (0..256 * 256u32)
+            .step_by(601)
+            .filter(|&v| syn.surface.covered(v))
+            .collect();
+        for v in seeds {
+            let patch = syn.bfs.patch(&syn.surface, v, 12);
+            let (work, _) = syn.worker().work_image(&patch, &mut None);
+            let (coords, angle) = work_coords(
+                &syn.surface,
+                &patch,
+                &syn.bfs,
+                &syn.zipper_triangles,
+                cfg.max_distortion,
+            );
+            assert_eq!((coords, angle), (work.coords, work.angle), "seed {v}");
+            inside += !patch.crosses_charts as usize;
+            across += patch.crosses_charts as usize;
+        }
+        assert!(
+            inside > 5 && across > 5,
+            "{inside} inside charts, {across} across"
+        );
+    }
+
     /// Seam refinement a round at a time visits the same seeds and keeps
     /// the same patches as one at a time (the loop itself one at a time
     /// here, so only refinement runs in rounds).

@@ -574,11 +574,24 @@ impl Synthesis {
         let trace = |what: &str| crate::progress::trace(progress, t0, &format!("verbatim {what}"));
         let patch = self.bfs.patch(&self.surface, v, radius);
         trace("work patch");
-        let mut flattening = None;
-        let (work, _) = self.worker().work_image(&patch, &mut flattening);
+        // (a preview reads only the work coordinates)
+        let (work, coords, field) = if preview {
+            let (coords, field) = super::flatten::work_coords(
+                &self.surface,
+                &patch,
+                &self.bfs,
+                &self.zipper_triangles,
+                self.cfg.max_distortion,
+            );
+            (None, coords, field)
+        } else {
+            let (work, _) = self.worker().work_image(&patch, &mut None);
+            let (coords, field) = (work.coords.clone(), work.angle);
+            (Some(work), coords, field)
+        };
         trace("work image");
         let rotations = self.sample.rotations;
-        let rotation = rotation_index(work.angle + angle, rotations);
+        let rotation = rotation_index(field + angle, rotations);
         let theta = rotation as f64 * std::f64::consts::TAU / rotations as f64;
         let (s, c) = theta.sin_cos();
         let mid = [
@@ -589,11 +602,10 @@ impl Synthesis {
         let q = [c * d[0] - s * d[1], s * d[0] + c * d[1]];
         let placement = PlacementChoice {
             rotation,
-            dx: work.coords[0][0] - mid[0] - q[0],
-            dy: work.coords[0][1] - mid[1] - q[1],
+            dx: coords[0][0] - mid[0] - q[0],
+            dy: coords[0][1] - mid[1] - q[1],
         };
-        let placed: Vec<[f64; 2]> = work
-            .coords
+        let placed: Vec<[f64; 2]> = coords
             .iter()
             .map(|&w| to_sample(&self.sample, rotation, placement.dx, placement.dy, w))
             .collect();
@@ -665,6 +677,7 @@ impl Synthesis {
         for (i, &t) in patch.texels.iter().enumerate() {
             self.state.texel_mut(t, |s, k| s.target[k] = fg[i]);
         }
+        let work = work.expect("a merge has its work image");
         let t = Instant::now();
         let fit = fit_patch(
             &self.sample,
