@@ -65,6 +65,20 @@ pub(super) fn mean_angle(angles: impl Iterator<Item = f64>) -> f64 {
     s.atan2(c)
 }
 
+/// In-chart work coordinates: the patch's atlas positions from the corner
+/// of its atlas box, and the mean field angle.
+fn chart_coords(surface: &Surface, patch: &WorkPatch) -> (Vec<[f64; 2]>, f64) {
+    let r = surface.r;
+    let (x0, y0, _, _) = patch.atlas_box(r);
+    let coords = patch
+        .texels
+        .iter()
+        .map(|&t| [(t as usize % r - x0) as f64, (t as usize / r - y0) as f64])
+        .collect();
+    let angle = mean_angle(patch.texels.iter().map(|&t| surface.texel_angle(t)));
+    (coords, angle)
+}
+
 /// In-chart work image: the chart's sub-image around the patch.
 pub(super) fn chart_work_image(
     surface: &Surface,
@@ -76,12 +90,7 @@ pub(super) fn chart_work_image(
     let chart = surface.chart(patch.texels[0]);
     let (x0, y0, w, h) = patch.atlas_box(r);
     let n = state.n;
-    let coords = patch
-        .texels
-        .iter()
-        .map(|&t| [(t as usize % r - x0) as f64, (t as usize / r - y0) as f64])
-        .collect();
-    let angle = mean_angle(patch.texels.iter().map(|&t| surface.texel_angle(t)));
+    let (coords, angle) = chart_coords(surface, patch);
     let mut work = WorkImage::blank(w, h, state, coords, angle);
     work.atlas_to_work = Some([1.0, 0.0, 0.0, 1.0]);
     for y in 0..h {
@@ -415,6 +424,7 @@ fn jacobi_cg(
     if bnorm == 0.0 {
         return None;
     }
+    let converged = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>().sqrt() < 1e-3 * bnorm;
     let (mut x, mut r) = match x0 {
         Some(x0) => {
             let mut ax = vec![0.0f64; m];
@@ -424,7 +434,7 @@ fn jacobi_cg(
         }
         None => (vec![0.0f64; m], b.to_vec()),
     };
-    if r.iter().map(|v| v * v).sum::<f64>().sqrt() < 1e-3 * bnorm {
+    if converged(&r) {
         return Some(x);
     }
     let mut z: Vec<f64> = r.iter().zip(diag).map(|(r, d)| r / d).collect();
@@ -442,7 +452,7 @@ fn jacobi_cg(
             x[k] += alpha * p[k];
             r[k] -= alpha * ap[k];
         }
-        if r.iter().map(|v| v * v).sum::<f64>().sqrt() < 1e-3 * bnorm {
+        if converged(&r) {
             break;
         }
         for k in 0..m {
@@ -720,6 +730,13 @@ pub(super) fn shift_to_origin(coords: &mut [[f64; 2]]) -> (usize, usize) {
     (w, h)
 }
 
+/// [`shift_to_origin`], and the work image's size, unless the patch
+/// flattened implausibly large (a side over four atlas sides).
+fn shift_within_bound(coords: &mut [[f64; 2]], r: usize) -> Option<(usize, usize)> {
+    let (w, h) = shift_to_origin(coords);
+    (w <= 4 * r && h <= 4 * r).then_some((w, h))
+}
+
 /// The work image of a flattened patch: coordinates shifted to start at 0,
 /// a pixel known where a triangle of three synthesized vertices covers it
 /// (features interpolated). `None` if the patch flattened implausibly large.
@@ -732,10 +749,7 @@ pub(super) fn raster_work_image(
     angle: f64,
     r: usize,
 ) -> Option<WorkImage> {
-    let (w, h) = shift_to_origin(&mut coords);
-    if w > 4 * r || h > 4 * r {
-        return None;
-    }
+    let (w, h) = shift_within_bound(&mut coords, r)?;
     let n = state.n;
     let mut work = WorkImage::blank(w, h, state, coords, angle);
     // each patch vertex's values once (a vertex is a corner of up to six
@@ -839,22 +853,12 @@ pub(super) fn work_coords(
     zipper_triangles: &[[u32; 3]],
     max_distortion: f64,
 ) -> (Vec<[f64; 2]>, f64) {
-    let r = surface.r;
     if !patch.crosses_charts {
-        let (x0, y0, _, _) = patch.atlas_box(r);
-        let coords = patch
-            .texels
-            .iter()
-            .map(|&t| [(t as usize % r - x0) as f64, (t as usize / r - y0) as f64])
-            .collect();
-        let angle = mean_angle(patch.texels.iter().map(|&t| surface.texel_angle(t)));
-        return (coords, angle);
+        return chart_coords(surface, patch);
     }
     let (tris, _, grid_count) = patch_triangles(surface, patch, bfs, zipper_triangles);
     if let Some((mut coords, angle)) = flatten(surface, patch, bfs, &tris[..grid_count], max_distortion) {
-        // (the bound of raster_work_image)
-        let (w, h) = shift_to_origin(&mut coords);
-        if w <= 4 * r && h <= 4 * r {
+        if shift_within_bound(&mut coords, surface.r).is_some() {
             return (coords, angle);
         }
     }

@@ -402,9 +402,10 @@ impl Synthesis {
 /// A work patch's own memory per texel of its traversal, besides the
 /// matcher's buffers: its work image, flattening, graph and max-flow. On
 /// Spot 4096² with patches of radius 192 they hold about 1 KiB a texel
-/// (heaptrack), but a second patch in flight raised the peak RSS by about
-/// 270 MB, three times that: the C library's allocator keeps what each
-/// thread freed.
+/// (heaptrack), but with glibc's per-thread arenas a second patch in flight
+/// raised the peak RSS by about 270 MB, three times that (each thread kept
+/// what it freed). The binary runs with one arena, where this is
+/// conservative; a program using the library may not.
 const BYTES_PER_TEXEL: u64 = 3 << 10;
 
 /// The atlas tiles computing a work patch of `radius` at `v` may read (the
