@@ -121,16 +121,16 @@ pub(super) fn fit_patch(
         let outside = keep_outside_target && m0.is_some_and(|m0| m0 <= 0.0);
         if valid[i] && synth && patch.depth[i] < core {
             // refinement: the core around the seed takes the new patch
-            g.add_tweights(i as u32, 0.0, INFINITE);
+            g.fix(i as u32, Segment::Sink);
         } else if !valid[i] || (synth && outside) {
             // B cannot reach here, or region painting keeps everything
             // outside F and its transition zone: keep A (or stay
             // unsynthesized)
-            g.add_tweights(i as u32, INFINITE, 0.0);
+            g.fix(i as u32, Segment::Source);
         } else if !synth {
-            g.add_tweights(i as u32, 0.0, INFINITE);
+            g.fix(i as u32, Segment::Sink);
         } else if patch.depth[i] == max_depth && max_depth > 0 {
-            g.add_tweights(i as u32, INFINITE, 0.0);
+            g.fix(i as u32, Segment::Source);
         }
     }
     // the old values A at the patch's synthesized vertices

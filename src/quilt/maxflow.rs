@@ -77,6 +77,9 @@ pub struct Graph {
     flow: f64,
     /// Tree tag per node after solving (empty before).
     tree: Vec<u8>,
+    /// Per node: `FREE`, or the terminal it is tied to ([`Graph::fix`]);
+    /// empty while no node is fixed.
+    fixed: Vec<u8>,
     solved: bool,
 }
 
@@ -100,6 +103,7 @@ impl Graph {
             r_cap: Vec::with_capacity(2 * edges_hint),
             flow: 0.0,
             tree: Vec::new(),
+            fixed: Vec::new(),
             solved: false,
         }
     }
@@ -147,6 +151,24 @@ impl Graph {
         self.tr_cap[node as usize] = if s == t { 0.0 } else { s - t };
     }
 
+    /// Ties `node` to one side of the cut, as an infinite t-link to that
+    /// terminal would, but cheaper: [`Graph::maxflow`] merges fixed nodes
+    /// into their terminals (an edge to a fixed node becomes a t-link of
+    /// the other end) and searches the free nodes alone. The flow and the
+    /// segmentation equal those with the infinite t-link, up to the order
+    /// of floating-point sums. The node's finite t-links still count: the
+    /// one to the other terminal is cut.
+    pub fn fix(&mut self, node: u32, side: Segment) {
+        assert!(!self.solved, "maxflow::Graph::fix after maxflow");
+        let n = self.tr_cap.len();
+        assert!((node as usize) < n, "maxflow: node {node} out of range ({n} nodes)");
+        self.fixed.resize(n, FREE);
+        self.fixed[node as usize] = match side {
+            Segment::Source => TREE_S,
+            Segment::Sink => TREE_T,
+        };
+    }
+
     /// An edge pair between two nodes: capacity `cap` from `a` to `b` and
     /// `rev_cap` from `b` to `a` (both ≥ 0, finite). Parallel edges add up;
     /// self-loops are allowed and have no effect.
@@ -176,10 +198,80 @@ impl Graph {
     pub fn maxflow(&mut self) -> f64 {
         if !self.solved {
             self.solved = true;
-            let tree = Solver::new(self).run();
-            self.tree = tree;
+            let scale = self.scale();
+            if self.fixed.iter().any(|&f| f != FREE) {
+                self.fixed.resize(self.tr_cap.len(), FREE);
+                let (mut free, index) = self.contract();
+                free.tree = Solver::new(&mut free, scale).run();
+                let mut tree = std::mem::take(&mut self.fixed);
+                for (i, t) in tree.iter_mut().enumerate() {
+                    if *t == FREE {
+                        *t = free.tree_of(index[i]);
+                    }
+                }
+                self.flow = free.flow;
+                self.tree = tree;
+            } else {
+                let tree = Solver::new(self, scale).run();
+                self.tree = tree;
+            }
         }
         self.flow
+    }
+
+    /// The tree tag of `node` after solving.
+    fn tree_of(&self, node: u32) -> u8 {
+        self.tree[node as usize]
+    }
+
+    /// The capacity that sets the solver's saturation tolerance: the largest
+    /// edge capacity, or without edges the largest finite terminal one.
+    fn scale(&self) -> f64 {
+        let max_edge = self.r_cap.iter().fold(0.0f64, |acc, &c| acc.max(c));
+        if max_edge > 0.0 {
+            max_edge
+        } else {
+            self.tr_cap
+                .iter()
+                .filter(|c| c.is_finite())
+                .fold(0.0f64, |acc, &c| acc.max(c.abs()))
+        }
+    }
+
+    /// The graph over the free nodes alone (in order), with the fixed ones
+    /// merged into their terminals, and each node's index in it. Consumes
+    /// this graph's arcs.
+    fn contract(&mut self) -> (Graph, Vec<u32>) {
+        let mut index = vec![NONE; self.tr_cap.len()];
+        let mut free = Graph::default();
+        free.flow = self.flow;
+        for (i, &f) in self.fixed.iter().enumerate() {
+            let c = self.tr_cap[i];
+            match f {
+                FREE => {
+                    index[i] = free.tr_cap.len() as u32;
+                    free.tr_cap.push(c);
+                }
+                // the t-link to the other terminal is cut
+                TREE_S => free.flow += (-c).max(0.0),
+                _ => free.flow += c.max(0.0),
+            }
+        }
+        let (head, r_cap) = (std::mem::take(&mut self.head), std::mem::take(&mut self.r_cap));
+        for k in 0..head.len() / 2 {
+            // arc 2k: a -> b, arc 2k + 1: b -> a
+            let (a, b) = (head[2 * k + 1] as usize, head[2 * k] as usize);
+            let (ab, ba) = (r_cap[2 * k], r_cap[2 * k + 1]);
+            match (self.fixed[a], self.fixed[b]) {
+                (FREE, FREE) => free.add_edge(index[a], index[b], ab, ba),
+                (FREE, side) => tie(&mut free, index[a], side, ab, ba),
+                (side, FREE) => tie(&mut free, index[b], side, ba, ab),
+                (TREE_S, TREE_T) => free.flow += ab,
+                (TREE_T, TREE_S) => free.flow += ba,
+                _ => {}
+            }
+        }
+        (free, index)
     }
 
     /// After [`Graph::maxflow`]: which side of the minimum cut the node is on.
@@ -195,6 +287,17 @@ impl Graph {
         } else {
             Segment::Sink
         }
+    }
+}
+
+/// An edge between free `node` and a node fixed to `side`, with capacity
+/// `out` from `node` and `back` into it, as a t-link of `node`: to the sink
+/// (`out`) or from the source (`back`).
+fn tie(g: &mut Graph, node: u32, side: u8, out: f64, back: f64) {
+    if side == TREE_T {
+        g.add_tweights(node, 0.0, out);
+    } else {
+        g.add_tweights(node, back, 0.0);
     }
 }
 
@@ -224,7 +327,8 @@ struct Solver<'g> {
 }
 
 impl<'g> Solver<'g> {
-    fn new(g: &'g mut Graph) -> Solver<'g> {
+    /// A solve of `g` where residuals `≤ 1e-12 · scale` count as saturated.
+    fn new(g: &'g mut Graph, scale: f64) -> Solver<'g> {
         let n = g.tr_cap.len();
         let m = g.head.len();
         // CSR adjacency: out-degree counts, prefix sums, fill in arc order.
@@ -243,16 +347,6 @@ impl<'g> Solver<'g> {
             fill[tail] += 1;
         }
         drop(fill);
-
-        let max_edge = g.r_cap.iter().fold(0.0f64, |acc, &c| acc.max(c));
-        let scale = if max_edge > 0.0 {
-            max_edge
-        } else {
-            g.tr_cap
-                .iter()
-                .filter(|c| c.is_finite())
-                .fold(0.0f64, |acc, &c| acc.max(c.abs()))
-        };
         let eps = 1e-12 * scale;
 
         Solver {

@@ -514,3 +514,63 @@ proptest! {
         prop_assert!(close(spec.cut_value(&side), f, 1e-9));
     }
 }
+
+/// Fixing a node to a side ([`Graph::fix`], which merges it into its
+/// terminal before solving) gives the flow and the segmentation of the
+/// same graph with an infinite t-link to that side. Integer capacities:
+/// both flows are exact, and the smallest source side is unique.
+#[test]
+fn fixed_nodes_cut_as_infinite_terminal_links() {
+    let mut rng = Lcg(99);
+    for round in 0..400 {
+        let n = 1 + rng.below(120) as usize;
+        let spec = int_spec(&mut rng, n, [3, 100, 100_000][round % 3]);
+        let share = rng.below(4); // none, a third, two thirds, all of the nodes
+        let fixed: Vec<Option<Segment>> = (0..n)
+            .map(|_| match rng.below(6) {
+                k if k < 2 * share => Some(if rng.below(2) == 0 { Segment::Source } else { Segment::Sink }),
+                _ => None,
+            })
+            .collect();
+        let mut infinite = spec.clone();
+        for (i, f) in fixed.iter().enumerate() {
+            match f {
+                Some(Segment::Source) => infinite.tlinks.push((i as u32, 1e30, 0.0)),
+                Some(Segment::Sink) => infinite.tlinks.push((i as u32, 0.0, 1e30)),
+                None => {}
+            }
+        }
+        let (want, want_side) = solve_checked(&infinite, 0.0);
+        let mut g = spec.build();
+        for (i, f) in fixed.iter().enumerate() {
+            if let Some(side) = f {
+                g.fix(i as u32, *side);
+            }
+        }
+        let got = g.maxflow();
+        let side = segmentation(&g);
+        assert_eq!(got, want, "round {round}: flow");
+        assert_eq!(side, want_side, "round {round}: segmentation");
+        for (i, f) in fixed.iter().enumerate() {
+            if let Some(f) = f {
+                assert_eq!(g.segment(i as u32), *f, "round {round}: node {i} left its side");
+            }
+        }
+        // and the brute-force minimum over the cuts that keep the fixed sides
+        if n <= 12 {
+            let mut best = f64::INFINITY;
+            for mask in 0u32..(1 << n) {
+                let s: Vec<bool> = (0..n).map(|i| mask >> i & 1 == 1).collect();
+                let keeps = fixed.iter().zip(&s).all(|(f, &s)| match f {
+                    Some(Segment::Source) => s,
+                    Some(Segment::Sink) => !s,
+                    None => true,
+                });
+                if keeps {
+                    best = best.min(spec.cut_value(&s));
+                }
+            }
+            assert_eq!(got, best, "round {round}: brute force");
+        }
+    }
+}
