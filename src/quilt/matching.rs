@@ -1059,42 +1059,59 @@ pub fn direct_costs(
     } else {
         0.0
     };
+    // placements in groups of neighbours (the list is in (dy, dx) order):
+    // one pass over the known pixels serves a group, whose sample reads
+    // lie close together; each placement still sums in pixel order
     Ok(placements
-        .par_iter()
-        .map(|&(dx, dy)| {
-            let (mut ssd, mut overlap) = (0.0f64, 0.0f64);
-            let inside = !known.is_empty()
-                && x0 as i64 - dx as i64 >= 0
-                && y0 as i64 - dy as i64 >= 0
-                && ((x1 as i64 - dx as i64) as usize) < si.width
-                && ((y1 as i64 - dy as i64) as usize) < si.height;
-            let shift = dy as i64 * si.width as i64 + dx as i64;
+        .par_chunks(DIRECT_GROUP)
+        .flat_map_iter(|group| {
+            let g = group.len();
+            let mut ssd = [0.0f64; DIRECT_GROUP];
+            let mut overlap = [0.0f64; DIRECT_GROUP];
+            let mut inside = [false; DIRECT_GROUP];
+            let mut shift = [0i64; DIRECT_GROUP];
+            for (j, &(dx, dy)) in group.iter().enumerate() {
+                inside[j] = !known.is_empty()
+                    && x0 as i64 - dx as i64 >= 0
+                    && y0 as i64 - dy as i64 >= 0
+                    && ((x1 as i64 - dx as i64) as usize) < si.width
+                    && ((y1 as i64 - dy as i64) as usize) < si.height;
+                shift[j] = dy as i64 * si.width as i64 + dx as i64;
+            }
             for (k, &p) in known.iter().enumerate() {
-                if !inside {
-                    let (sx, sy) = (
-                        (p % wi.width) as i64 - dx as i64,
-                        (p / wi.width) as i64 - dy as i64,
-                    );
-                    if sx < 0 || sy < 0 || sx >= si.width as i64 || sy >= si.height as i64 {
+                let (px, py) = ((p % wi.width) as i64, (p / wi.width) as i64);
+                let a = &features[k * n..(k + 1) * n];
+                for (j, &(dx, dy)) in group.iter().enumerate() {
+                    if !inside[j] {
+                        let (sx, sy) = (px - dx as i64, py - dy as i64);
+                        if sx < 0 || sy < 0 || sx >= si.width as i64 || sy >= si.height as i64 {
+                            continue;
+                        }
+                    }
+                    let s = (at_origin[k] - shift[j]) as usize;
+                    let mv = weight[k] * sample.valid[s] as f64;
+                    if mv == 0.0 {
                         continue;
                     }
+                    let mut d = sq_diff(a, &si.data[s * n..(s + 1) * n]);
+                    if let Some(b) = &sample.constraint {
+                        d += w * sq_diff(&constraint[k * nc..(k + 1) * nc], &b.data[s * nc..(s + 1) * nc]);
+                    }
+                    ssd[j] += mv * d;
+                    overlap[j] += mv;
                 }
-                let s = (at_origin[k] - shift) as usize;
-                let mv = weight[k] * sample.valid[s] as f64;
-                if mv == 0.0 {
-                    continue;
-                }
-                let mut d = sq_diff(&features[k * n..(k + 1) * n], &si.data[s * n..(s + 1) * n]);
-                if let Some(b) = &sample.constraint {
-                    d += w * sq_diff(&constraint[k * nc..(k + 1) * nc], &b.data[s * nc..(s + 1) * nc]);
-                }
-                ssd += mv * d;
-                overlap += mv;
             }
-            scored(dx, dy, ssd, overlap, cfg.min_overlap, tol)
+            (0..g).map(move |j| {
+                let (dx, dy) = group[j];
+                scored(dx, dy, ssd[j], overlap[j], cfg.min_overlap, tol)
+            })
         })
         .collect())
 }
+
+/// Placements [`direct_costs`] sums in one pass over the known pixels: the
+/// ±1 window around a coarse placement of factor 2.
+const DIRECT_GROUP: usize = 9;
 
 /// An owned sample copy in f32: maps `[y][x][c]` and validity `[y][x]`.
 #[derive(Clone, Debug)]
