@@ -311,7 +311,7 @@ impl Synthesis {
             let outcomes = jobs.iter().map(|j| Some(f(&mut self.worker(), j.v))).collect();
             return (outcomes, alongside(&mut self.bfs, &mut self.surface));
         }
-        let at_once = self.at_once(jobs);
+        let (at_once, by_memory) = self.at_once(jobs);
         let job = Context {
             sample: &self.sample,
             zipper_triangles: &self.zipper_triangles,
@@ -335,29 +335,41 @@ impl Synthesis {
             (outcomes, alongside(&mut self.bfs, &mut self.surface))
         } else {
             // `at_once` tasks take the patches in turn: no more are in
-            // flight (nor matchers held) however the threads steal work
-            let views: Vec<_> = jobs
-                .iter()
-                .map(|w| Mutex::new(Some((self.surface.view(w.view()), self.state.view(w.view())))))
-                .collect();
+            // flight (nor matchers held) however the threads steal work.
+            // A view pins its tiles until its patch is computed, so the
+            // views are made as many patches at a time as memory holds in
+            // flight (each such wave waits for its slowest patch)
+            let wave = by_memory;
             let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
                 jobs.iter().map(|_| Mutex::new(None)).collect();
-            let next = std::sync::atomic::AtomicUsize::new(0);
-            let (main_bfs, main_surface) = (&mut self.bfs, &mut self.surface);
-            let (job, views, slots, next, f) = (&job, &views, &slots, &next, &f);
-            let other = rayon::scope(|s| {
-                for _ in 0..at_once {
-                    s.spawn(move |_| loop {
-                        let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                        if j >= jobs.len() {
-                            break;
-                        }
-                        let (surface, state) = crate::lock(&views[j]).take().expect("taken once");
-                        *crate::lock(&slots[j]) = Some(job.run(j, &jobs[j], surface, state, f));
-                    });
-                }
-                alongside(main_bfs, main_surface)
-            });
+            let mut alongside = Some(alongside);
+            let mut other = None;
+            for start in (0..jobs.len()).step_by(wave) {
+                let end = (start + wave).min(jobs.len());
+                let views: Vec<_> = jobs[start..end]
+                    .iter()
+                    .map(|w| Mutex::new(Some((self.surface.view(w.view()), self.state.view(w.view())))))
+                    .collect();
+                let next = std::sync::atomic::AtomicUsize::new(start);
+                let (main_bfs, main_surface) = (&mut self.bfs, &mut self.surface);
+                let first = alongside.take();
+                let (job, views, slots, next, f) = (&job, &views, &slots, &next, &f);
+                let done = rayon::scope(|s| {
+                    for _ in 0..at_once.min(end - start) {
+                        s.spawn(move |_| loop {
+                            let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            if j >= end {
+                                break;
+                            }
+                            let (surface, state) = crate::lock(&views[j - start]).take().expect("taken once");
+                            *crate::lock(&slots[j]) = Some(job.run(j, &jobs[j], surface, state, f));
+                        });
+                    }
+                    first.map(|a| a(main_bfs, main_surface))
+                });
+                other = other.or(done);
+            }
+            let other = other.expect("the first wave ran it");
             let outcomes = slots
                 .iter()
                 .map(|slot| crate::lock(slot).take().expect("every patch computed"))
@@ -381,10 +393,9 @@ impl Synthesis {
 
     /// How many of `jobs` to compute at once: one per thread, fewer when
     /// the work patches in flight would need more than half of `--memory`
-    /// on top of it (each: the matcher's buffers and [`BYTES_PER_TEXEL`]
-    /// per texel of the largest traversal). How many run at once never
-    /// changes the quilt.
-    fn at_once(&self, jobs: &[Job]) -> usize {
+    /// on top of it (each: the matcher's buffers and [`bytes_per_texel`]
+    /// per texel of the largest traversal), and how many memory would hold. How many run at once never changes the quilt.
+    fn at_once(&self, jobs: &[Job]) -> (usize, usize) {
         let buffers = self
             .spares
             .iter()
@@ -393,20 +404,25 @@ impl Synthesis {
             .max()
             .unwrap_or(0) as u64;
         let texels = jobs.iter().map(|j| j.ball.texels.len()).max().unwrap_or(0) as u64;
-        let patch = buffers + BYTES_PER_TEXEL * texels;
+        let patch = buffers + bytes_per_texel(self.sample.n) * texels;
         let by_memory = (self.cfg.memory.bytes() / 2 / patch.max(1)).max(1) as usize;
-        rayon::current_num_threads().min(jobs.len()).min(by_memory)
+        (rayon::current_num_threads().min(jobs.len()).min(by_memory), by_memory)
     }
 }
 
 /// A work patch's own memory per texel of its traversal, besides the
-/// matcher's buffers: its work image, flattening, graph and max-flow. On
-/// Spot 4096² with patches of radius 192 they hold about 1 KiB a texel
-/// (heaptrack), but with glibc's per-thread arenas a second patch in flight
-/// raised the peak RSS by about 270 MB, three times that (each thread kept
-/// what it freed). The binary runs with one arena, where this is
-/// conservative; a program using the library may not.
-const BYTES_PER_TEXEL: u64 = 3 << 10;
+/// matcher's buffers: its work image, flattening, graph and max-flow, and
+/// the tiles its views pin, for a sample of `channels` channels (the work
+/// image and the fitting hold a few copies of them per texel). Measured on
+/// Spot 4096² with the wall resampled to 768² (patches of radius 192,
+/// 76–89 thousand texels, 3 channels, one allocator arena): a second patch
+/// in flight raised the peak RSS by about 62 MB, its 12.5 MB of matcher
+/// buffers included, about 580 bytes a texel. A program using the library
+/// with glibc's per-thread arenas may hold more (each thread keeps what it
+/// freed).
+fn bytes_per_texel(channels: usize) -> u64 {
+    512 + 16 * channels as u64
+}
 
 /// The atlas tiles computing a work patch of `radius` at `v` may read (the
 /// bounding boxes, per chart, of the texels within `radius` + 2 hops, grown
