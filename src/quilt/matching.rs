@@ -1027,16 +1027,17 @@ pub fn direct_costs(
     // gathered, and the sample index each lands on at placement (0, 0)
     let known: Vec<usize> = (0..wi.pixels()).filter(|&p| work.known[p] > 0.0).collect();
     let weight: Vec<f64> = known.iter().map(|&p| work.known[p] as f64).collect();
-    let features: Vec<f32> = known
+    // (in f64 already: the same differences as converting in the loop)
+    let features: Vec<f64> = known
         .iter()
         .flat_map(|&p| &wi.data[p * n..(p + 1) * n])
-        .copied()
+        .map(|&v| v as f64)
         .collect();
-    let constraint: Vec<f32> = match &work.constraint {
+    let constraint: Vec<f64> = match &work.constraint {
         Some(c) => known
             .iter()
             .flat_map(|&p| &c.data[p * nc..(p + 1) * nc])
-            .copied()
+            .map(|&v| v as f64)
             .collect(),
         None => Vec::new(),
     };
@@ -1062,51 +1063,114 @@ pub fn direct_costs(
     // placements in groups of neighbours (the list is in (dy, dx) order):
     // one pass over the known pixels serves a group, whose sample reads
     // lie close together; each placement still sums in pixel order
-    Ok(placements
-        .par_chunks(DIRECT_GROUP)
-        .flat_map_iter(|group| {
-            let g = group.len();
-            let mut ssd = [0.0f64; DIRECT_GROUP];
-            let mut overlap = [0.0f64; DIRECT_GROUP];
-            let mut inside = [false; DIRECT_GROUP];
-            let mut shift = [0i64; DIRECT_GROUP];
+    let pixels = Known {
+        pixels: &known,
+        weight: &weight,
+        features: &features,
+        constraint: &constraint,
+        at_origin: &at_origin,
+        width: wi.width,
+    };
+    let group_costs = |group: &[(i32, i32)]| -> Vec<Placement> {
+        let mut inside = [false; DIRECT_GROUP];
+        let mut shift = [0i64; DIRECT_GROUP];
+        for (j, &(dx, dy)) in group.iter().enumerate() {
+            inside[j] = !known.is_empty()
+                && x0 as i64 - dx as i64 >= 0
+                && y0 as i64 - dy as i64 >= 0
+                && ((x1 as i64 - dx as i64) as usize) < si.width
+                && ((y1 as i64 - dy as i64) as usize) < si.height;
+            shift[j] = dy as i64 * si.width as i64 + dx as i64;
+        }
+        // colour samples (three channels) get the sum unrolled
+        let (ssd, overlap) = if n == 3 {
+            pixels.pass(sample, group, &inside, &shift, w, sq_diff3)
+        } else {
+            pixels.pass(sample, group, &inside, &shift, w, sq_diff_f64)
+        };
+        group
+            .iter()
+            .enumerate()
+            .map(|(j, &(dx, dy))| scored(dx, dy, ssd[j], overlap[j], cfg.min_overlap, tol))
+            .collect()
+    };
+    // placements in groups of neighbours (the list is in (dy, dx) order):
+    // one pass over the known pixels serves a group, whose sample reads
+    // lie close together; each placement still sums in pixel order
+    Ok(placements.par_chunks(DIRECT_GROUP).flat_map_iter(group_costs).collect())
+}
+
+/// The work image's known pixels as [`direct_costs`] gathers them: pixel
+/// index, weight, features and constraint (f64), and the sample index each
+/// lands on at placement (0, 0).
+struct Known<'a> {
+    pixels: &'a [usize],
+    weight: &'a [f64],
+    features: &'a [f64],
+    constraint: &'a [f64],
+    at_origin: &'a [i64],
+    /// The work image's width.
+    width: usize,
+}
+
+impl Known<'_> {
+    /// Σ m·v·(feature distance + w · constraint distance) and Σ m·v of each
+    /// placement of `group` (at most [`DIRECT_GROUP`]; `inside`: wholly
+    /// inside the sample, `shift`: its sample index offset), each summed in
+    /// pixel order, with `diff` the features' squared distance.
+    fn pass(
+        &self,
+        sample: &Sample,
+        group: &[(i32, i32)],
+        inside: &[bool; DIRECT_GROUP],
+        shift: &[i64; DIRECT_GROUP],
+        w: f64,
+        diff: impl Fn(&[f64], &[f32]) -> f64,
+    ) -> ([f64; DIRECT_GROUP], [f64; DIRECT_GROUP]) {
+        let si = &sample.image;
+        let (n, nc) = (si.channels, sample.constraint.as_ref().map_or(0, |c| c.channels));
+        let mut ssd = [0.0f64; DIRECT_GROUP];
+        let mut overlap = [0.0f64; DIRECT_GROUP];
+        for (k, &p) in self.pixels.iter().enumerate() {
+            let (px, py) = ((p % self.width) as i64, (p / self.width) as i64);
+            let a = &self.features[k * n..(k + 1) * n];
             for (j, &(dx, dy)) in group.iter().enumerate() {
-                inside[j] = !known.is_empty()
-                    && x0 as i64 - dx as i64 >= 0
-                    && y0 as i64 - dy as i64 >= 0
-                    && ((x1 as i64 - dx as i64) as usize) < si.width
-                    && ((y1 as i64 - dy as i64) as usize) < si.height;
-                shift[j] = dy as i64 * si.width as i64 + dx as i64;
-            }
-            for (k, &p) in known.iter().enumerate() {
-                let (px, py) = ((p % wi.width) as i64, (p / wi.width) as i64);
-                let a = &features[k * n..(k + 1) * n];
-                for (j, &(dx, dy)) in group.iter().enumerate() {
-                    if !inside[j] {
-                        let (sx, sy) = (px - dx as i64, py - dy as i64);
-                        if sx < 0 || sy < 0 || sx >= si.width as i64 || sy >= si.height as i64 {
-                            continue;
-                        }
-                    }
-                    let s = (at_origin[k] - shift[j]) as usize;
-                    let mv = weight[k] * sample.valid[s] as f64;
-                    if mv == 0.0 {
+                if !inside[j] {
+                    let (sx, sy) = (px - dx as i64, py - dy as i64);
+                    if sx < 0 || sy < 0 || sx >= si.width as i64 || sy >= si.height as i64 {
                         continue;
                     }
-                    let mut d = sq_diff(a, &si.data[s * n..(s + 1) * n]);
-                    if let Some(b) = &sample.constraint {
-                        d += w * sq_diff(&constraint[k * nc..(k + 1) * nc], &b.data[s * nc..(s + 1) * nc]);
-                    }
-                    ssd[j] += mv * d;
-                    overlap[j] += mv;
                 }
+                let s = (self.at_origin[k] - shift[j]) as usize;
+                let mv = self.weight[k] * sample.valid[s] as f64;
+                if mv == 0.0 {
+                    continue;
+                }
+                let mut d = diff(a, &si.data[s * n..(s + 1) * n]);
+                if let Some(b) = &sample.constraint {
+                    let c = &self.constraint[k * nc..(k + 1) * nc];
+                    d += w * sq_diff_f64(c, &b.data[s * nc..(s + 1) * nc]);
+                }
+                ssd[j] += mv * d;
+                overlap[j] += mv;
             }
-            (0..g).map(move |j| {
-                let (dx, dy) = group[j];
-                scored(dx, dy, ssd[j], overlap[j], cfg.min_overlap, tol)
-            })
-        })
-        .collect())
+        }
+        (ssd, overlap)
+    }
+}
+
+/// [`sq_diff`] with `a` converted to f64 already (the same sum).
+#[inline]
+fn sq_diff_f64(a: &[f64], b: &[f32]) -> f64 {
+    a.iter().zip(b).map(|(&a, &b)| (a - b as f64).powi(2)).sum()
+}
+
+/// [`sq_diff_f64`] of three channels.
+#[inline(always)]
+fn sq_diff3(a: &[f64], b: &[f32]) -> f64 {
+    let (a, b): (&[f64; 3], &[f32; 3]) = (a.try_into().expect("3"), b.try_into().expect("3"));
+    let d = [a[0] - b[0] as f64, a[1] - b[1] as f64, a[2] - b[2] as f64];
+    -0.0 + d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
 }
 
 /// Placements [`direct_costs`] sums in one pass over the known pixels: the
