@@ -336,40 +336,40 @@ impl Synthesis {
         } else {
             // `at_once` tasks take the patches in turn: no more are in
             // flight (nor matchers held) however the threads steal work.
-            // A view pins its tiles until its patch is computed, so the
-            // views are made as many patches at a time as memory holds in
-            // flight (each such wave waits for its slowest patch)
-            let wave = by_memory;
+            // A view pins its tiles until its patch is computed: the views
+            // of as many patches as memory holds in flight are made now,
+            // the others by the task that takes the patch, from the
+            // pagers shared under a lock (also held by `alongside`)
+            let ahead = by_memory.min(jobs.len());
+            let views: Vec<Mutex<Option<(Surface, State)>>> = jobs
+                .iter()
+                .enumerate()
+                .map(|(j, w)| Mutex::new((j < ahead).then(|| (self.surface.view(w.view()), self.state.view(w.view())))))
+                .collect();
             let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
                 jobs.iter().map(|_| Mutex::new(None)).collect();
-            let mut alongside = Some(alongside);
-            let mut other = None;
-            for start in (0..jobs.len()).step_by(wave) {
-                let end = (start + wave).min(jobs.len());
-                let views: Vec<_> = jobs[start..end]
-                    .iter()
-                    .map(|w| Mutex::new(Some((self.surface.view(w.view()), self.state.view(w.view())))))
-                    .collect();
-                let next = std::sync::atomic::AtomicUsize::new(start);
-                let (main_bfs, main_surface) = (&mut self.bfs, &mut self.surface);
-                let first = alongside.take();
-                let (job, views, slots, next, f) = (&job, &views, &slots, &next, &f);
-                let done = rayon::scope(|s| {
-                    for _ in 0..at_once.min(end - start) {
-                        s.spawn(move |_| loop {
-                            let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                            if j >= end {
-                                break;
-                            }
-                            let (surface, state) = crate::lock(&views[j - start]).take().expect("taken once");
-                            *crate::lock(&slots[j]) = Some(job.run(j, &jobs[j], surface, state, f));
+            let next = std::sync::atomic::AtomicUsize::new(0);
+            let main_bfs = &mut self.bfs;
+            let pagers = Mutex::new((&mut self.surface, &mut self.state));
+            let (job, views, slots, next, pagers, f) = (&job, &views, &slots, &next, &pagers, &f);
+            let other = rayon::scope(|s| {
+                for _ in 0..at_once {
+                    s.spawn(move |_| loop {
+                        let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if j >= jobs.len() {
+                            break;
+                        }
+                        let made = crate::lock(&views[j]).take();
+                        let (surface, state) = made.unwrap_or_else(|| {
+                            let p = crate::lock(pagers);
+                            (p.0.view(jobs[j].view()), p.1.view(jobs[j].view()))
                         });
-                    }
-                    first.map(|a| a(main_bfs, main_surface))
-                });
-                other = other.or(done);
-            }
-            let other = other.expect("the first wave ran it");
+                        *crate::lock(&slots[j]) = Some(job.run(j, &jobs[j], surface, state, f));
+                    });
+                }
+                let mut p = crate::lock(pagers);
+                alongside(main_bfs, p.0)
+            });
             let outcomes = slots
                 .iter()
                 .map(|slot| crate::lock(slot).take().expect("every patch computed"))
