@@ -216,13 +216,14 @@ impl Synthesis {
             radius: radius0,
             round: self.refine_round.max(1),
         };
-        let (mut jobs, mut closed) = schedule.round(&mut self.bfs, &self.surface);
+        let surface = &self.surface;
+        let (mut jobs, mut closed) = schedule.round(&mut self.bfs, &|f| f(surface));
         while !jobs.is_empty() {
             // (the next round chosen while this one is computed)
             let (outcomes, next) = self.compute(
                 &jobs,
                 |w, v| w.step(v, radius0, &Silent),
-                |bfs, surface| schedule.round(bfs, surface),
+                |bfs, lend| schedule.round(bfs, lend),
             );
             self.accept_steps(&jobs, outcomes, radius0, progress)?;
             covered(closed);
@@ -253,7 +254,8 @@ impl Synthesis {
             round: self.refine_round.max(1),
         };
         let mut kept = 0;
-        let (mut jobs, _) = schedule.round(&mut self.bfs, &self.surface);
+        let surface = &self.surface;
+        let (mut jobs, _) = schedule.round(&mut self.bfs, &|f| f(surface));
         while !jobs.is_empty() {
             // each patch computed as if none before it in the round is
             // kept, while the next round is chosen (the rounds depend on
@@ -265,7 +267,7 @@ impl Synthesis {
                     w.counter = base;
                     w.refinement(v, radius, placements, 3)
                 },
-                |bfs, surface| schedule.round(bfs, surface),
+                |bfs, lend| schedule.round(bfs, lend),
             );
             for (job, outcome) in jobs.iter().zip(outcomes) {
                 let outcome = match outcome {
@@ -304,12 +306,13 @@ impl Synthesis {
     fn compute<F, A, R>(&mut self, jobs: &[Job], f: F, alongside: A) -> (Vec<Option<Result<Outcome>>>, R)
     where
         F: Fn(&mut Worker<'_>, u32) -> Result<Outcome> + Sync,
-        A: FnOnce(&mut Bfs, &mut Surface) -> R + Send,
+        A: FnOnce(&mut Bfs, Lend) -> R + Send,
         R: Send,
     {
         if jobs.len() <= 1 {
             let outcomes = jobs.iter().map(|j| Some(f(&mut self.worker(), j.v))).collect();
-            return (outcomes, alongside(&mut self.bfs, &mut self.surface));
+            let surface = &self.surface;
+            return (outcomes, alongside(&mut self.bfs, &|f| f(surface)));
         }
         let (at_once, by_memory) = self.at_once(jobs);
         let job = Context {
@@ -332,14 +335,15 @@ impl Synthesis {
                 .enumerate()
                 .map(|(j, w)| job.run(j, w, self.surface.view(w.view()), self.state.view(w.view()), &f))
                 .collect();
-            (outcomes, alongside(&mut self.bfs, &mut self.surface))
+            let surface = &self.surface;
+            (outcomes, alongside(&mut self.bfs, &|f| f(surface)))
         } else {
             // `at_once` tasks take the patches in turn: no more are in
             // flight (nor matchers held) however the threads steal work.
             // A view pins its tiles until its patch is computed: the views
             // of as many patches as memory holds in flight are made now,
             // the others by the task that takes the patch, from the
-            // pagers shared under a lock (also held by `alongside`)
+            // pagers shared under a lock (also lent to `alongside`)
             let ahead = by_memory.min(jobs.len());
             let views: Vec<Mutex<Option<(Surface, State)>>> = jobs
                 .iter()
@@ -367,8 +371,9 @@ impl Synthesis {
                         *crate::lock(&slots[j]) = Some(job.run(j, &jobs[j], surface, state, f));
                     });
                 }
-                let mut p = crate::lock(pagers);
-                alongside(main_bfs, p.0)
+                // lent a traversal at a time, so that tasks wait for the
+                // lock one traversal at most
+                alongside(main_bfs, &|f| f(crate::lock(pagers).0))
             });
             let outcomes = slots
                 .iter()
@@ -534,21 +539,26 @@ impl Schedule<'_> {
     /// The next round: the next open seeds, in order, while their tiles
     /// are free (empty when every seed is taken), and how many open texels
     /// its patches closed.
-    fn round(&mut self, bfs: &mut Bfs, surface: &Surface) -> (Vec<Job>, usize) {
+    fn round(&mut self, bfs: &mut Bfs, lend: Lend) -> (Vec<Job>, usize) {
         let mut jobs: Vec<Job> = Vec::new();
         let mut closed = 0;
-        let mut used = vec![false; surface.grid().tiles()];
+        let mut used = Vec::new();
+        lend(&mut |surface| used = vec![false; surface.grid().tiles()]);
         while self.next < self.seeds.len() && jobs.len() < self.round {
             let v = self.seeds[self.next];
             if self.open[v as usize / 64] >> (v % 64) & 1 == 0 {
                 self.next += 1;
                 continue;
             }
-            let (tiles, ball) = reach(bfs, surface, v, self.radius);
-            if tiles.iter().any(|&k| used[k]) {
-                break;
-            }
-            let (texels, rim) = within(&ball, self.radius);
+            let (radius, mut job) = (self.radius, None);
+            lend(&mut |surface| {
+                let (tiles, ball) = reach(bfs, surface, v, radius);
+                if !tiles.iter().any(|&k| used[k]) {
+                    job = Some(Job::new(v, &tiles, ball, radius, surface));
+                }
+            });
+            let Some(job) = job else { break };
+            let (texels, rim) = within(&job.ball, self.radius);
             for (t, d) in texels {
                 let done = match self.done {
                     Done::Core => d + 2 < rim,
@@ -560,15 +570,19 @@ impl Schedule<'_> {
                     closed += 1;
                 }
             }
-            for &k in &tiles {
+            for &k in &job.tiles {
                 used[k] = true;
             }
-            jobs.push(Job::new(v, &tiles, ball, self.radius, surface));
+            jobs.push(job);
             self.next += 1;
         }
         (jobs, closed)
     }
 }
+
+/// The whole surface lent for one piece of work at a time (while a round
+/// is computed, under the lock its tasks make views under).
+type Lend<'a> = &'a dyn Fn(&mut dyn FnMut(&Surface));
 
 #[cfg(test)]
 mod tests {
