@@ -766,7 +766,8 @@ mod tests {
                 let b = (lcg(&mut seed) % n as u64) as u32;
                 g.add_edge(a, b, (lcg(&mut seed) % 10) as f64, (lcg(&mut seed) % 10) as f64);
             }
-            let mut s = Solver::new(&mut g);
+            let scale = g.scale();
+            let mut s = Solver::new(&mut g, scale);
             for i in 0..n {
                 let c = s.tr_cap[i];
                 let t = if c > s.eps {
