@@ -1097,7 +1097,10 @@ pub fn direct_costs(
     // placements in groups of neighbours (the list is in (dy, dx) order):
     // one pass over the known pixels serves a group, whose sample reads
     // lie close together; each placement still sums in pixel order
-    Ok(placements.par_chunks(DIRECT_GROUP).flat_map_iter(group_costs).collect())
+    Ok(placements
+        .par_chunks(DIRECT_GROUP)
+        .flat_map_iter(group_costs)
+        .collect())
 }
 
 /// The work image's known pixels as [`direct_costs`] gathers them: pixel

@@ -161,7 +161,10 @@ impl Graph {
     pub fn fix(&mut self, node: u32, side: Segment) {
         assert!(!self.solved, "maxflow::Graph::fix after maxflow");
         let n = self.tr_cap.len();
-        assert!((node as usize) < n, "maxflow: node {node} out of range ({n} nodes)");
+        assert!(
+            (node as usize) < n,
+            "maxflow: node {node} out of range ({n} nodes)"
+        );
         self.fixed.resize(n, FREE);
         self.fixed[node as usize] = match side {
             Segment::Source => TREE_S,

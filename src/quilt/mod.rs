@@ -328,6 +328,10 @@ pub struct TileReport {
     /// computed again alone.
     pub concurrent_patches: usize,
     pub recomputed_patches: usize,
+    /// Of those, the patches whose views of their tiles were made when a
+    /// thread took them, not with the round (more of the round's patches
+    /// than `--memory` holds in flight).
+    pub late_views: usize,
     /// The factor matching averaged the sample down by before the exact
     /// step ([`TileConfig::coarse_above`]); 1 where it matched at full
     /// resolution.

@@ -348,7 +348,9 @@ impl Synthesis {
             let views: Vec<Mutex<Option<(Surface, State)>>> = jobs
                 .iter()
                 .enumerate()
-                .map(|(j, w)| Mutex::new((j < ahead).then(|| (self.surface.view(w.view()), self.state.view(w.view())))))
+                .map(|(j, w)| {
+                    Mutex::new((j < ahead).then(|| (self.surface.view(w.view()), self.state.view(w.view()))))
+                })
                 .collect();
             let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
                 jobs.iter().map(|_| Mutex::new(None)).collect();
@@ -391,6 +393,9 @@ impl Synthesis {
             }
         }
         self.report.concurrent_patches += jobs.len();
+        if at_once > 1 {
+            self.report.late_views += jobs.len() - by_memory.min(jobs.len());
+        }
         self.report.recomputed_patches += outcomes.iter().filter(|o| o.is_none()).count();
         self.spares = job.spares.into_inner().unwrap_or_else(|e| e.into_inner());
         (outcomes, other)
@@ -411,7 +416,10 @@ impl Synthesis {
         let texels = jobs.iter().map(|j| j.ball.texels.len()).max().unwrap_or(0) as u64;
         let patch = buffers + bytes_per_texel(self.sample.n) * texels;
         let by_memory = (self.cfg.memory.bytes() / 2 / patch.max(1)).max(1) as usize;
-        (rayon::current_num_threads().min(jobs.len()).min(by_memory), by_memory)
+        (
+            rayon::current_num_threads().min(jobs.len()).min(by_memory),
+            by_memory,
+        )
     }
 }
 

@@ -528,7 +528,11 @@ fn fixed_nodes_cut_as_infinite_terminal_links() {
         let share = rng.below(4); // none, a third, two thirds, all of the nodes
         let fixed: Vec<Option<Segment>> = (0..n)
             .map(|_| match rng.below(6) {
-                k if k < 2 * share => Some(if rng.below(2) == 0 { Segment::Source } else { Segment::Sink }),
+                k if k < 2 * share => Some(if rng.below(2) == 0 {
+                    Segment::Source
+                } else {
+                    Segment::Sink
+                }),
                 _ => None,
             })
             .collect();
