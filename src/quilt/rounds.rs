@@ -171,11 +171,11 @@ impl Synthesis {
                 let Some(v) = self.state.most_constrained_outside(&blocked, 1) else {
                     break 'round;
                 };
-                let (tiles, ball) = self.reach(v, radius0);
-                if tiles.iter().any(|&k| used[k]) {
+                let Some((tiles, ball)) = reach_unless_used(&mut self.bfs, &self.surface, v, radius0, &used)
+                else {
                     blocked[self.surface.grid().locate(v).0] = true;
                     continue;
-                }
+                };
                 for &k in &tiles {
                     used[k] = true;
                     blocked[k] = true;
@@ -442,8 +442,29 @@ fn bytes_per_texel(channels: usize) -> u64 {
 /// by one texel), and that traversal (its texels within `radius` hops, in
 /// order, are the work patch). Both depend on the surface alone.
 fn reach(bfs: &mut Bfs, surface: &Surface, v: u32, radius: usize) -> (Vec<usize>, WorkPatch) {
-    let grid = surface.grid();
     let ball = bfs.patch(surface, v, radius + 2);
+    (reach_tiles(surface, &ball), ball)
+}
+
+/// [`reach`], or `None` where it would hold a tile marked in `used` — given
+/// up as soon as the traversal meets a texel of such a tile (the tiles of
+/// the traversal's texels are among those of its boxes).
+fn reach_unless_used(
+    bfs: &mut Bfs,
+    surface: &Surface,
+    v: u32,
+    radius: usize,
+    used: &[bool],
+) -> Option<(Vec<usize>, WorkPatch)> {
+    let grid = surface.grid();
+    let ball = bfs.patch_unless(surface, v, radius + 2, |t| used[grid.locate(t).0])?;
+    let tiles = reach_tiles(surface, &ball);
+    (!tiles.iter().any(|&k| used[k])).then_some((tiles, ball))
+}
+
+/// The tiles of [`reach`] for its traversal `ball`.
+fn reach_tiles(surface: &Surface, ball: &WorkPatch) -> Vec<usize> {
+    let grid = surface.grid();
     // (chart, x0, y0, x1, y1)
     let mut boxes: Vec<(u32, usize, usize, usize, usize)> = Vec::new();
     for &t in &ball.texels {
@@ -469,7 +490,7 @@ fn reach(bfs: &mut Bfs, surface: &Surface, v: u32, radius: usize) -> (Vec<usize>
     }
     tiles.sort_unstable();
     tiles.dedup();
-    (tiles, ball)
+    tiles
 }
 
 /// The tiles a work patch's views hold first where its traversal crosses
@@ -560,8 +581,7 @@ impl Schedule<'_> {
             }
             let (radius, mut job) = (self.radius, None);
             lend(&mut |surface| {
-                let (tiles, ball) = reach(bfs, surface, v, radius);
-                if !tiles.iter().any(|&k| used[k]) {
+                if let Some((tiles, ball)) = reach_unless_used(bfs, surface, v, radius, &used) {
                     job = Some(Job::new(v, &tiles, ball, radius, surface));
                 }
             });
@@ -655,6 +675,64 @@ mod tests {
             seeds > 20 && crossing > 3,
             "{seeds} seeds, {crossing} crossing charts"
         );
+    }
+
+    /// A traversal given up at the first texel of a used tile rejects
+    /// exactly the seeds whose whole reach would meet a used tile, and
+    /// otherwise is that reach (tiles and traversal); the traversal after
+    /// a rejected one is whole again.
+    #[test]
+    fn a_reach_given_up_at_a_used_tile_rejects_what_the_whole_reach_would() {
+        use super::{reach, reach_unless_used};
+        use crate::artifact::gim::Gim;
+        use crate::container::MemoryBudget;
+        use crate::quilt::state::{Bfs, Surface};
+        let dir = tempfile::tempdir().unwrap();
+        let gim = spot_256(dir.path());
+        let gim = Gim::open(&gim, MemoryBudget(1 << 24)).unwrap();
+        let surface = Surface::open(&gim, MemoryBudget(1 << 24)).unwrap();
+        let tiles = surface.grid().tiles();
+        let across = surface.grid().across;
+        // a stripe, a checkerboard, and each tile alone (whose reach may
+        // take it for a box's margin without a texel in it)
+        let mut masks: Vec<Vec<bool>> = vec![
+            (0..tiles).map(|k| k % across == 1).collect(),
+            (0..tiles).map(|k| (k % across + k / across) % 2 == 0).collect(),
+        ];
+        masks.extend((0..tiles).map(|one| (0..tiles).map(|k| k == one).collect()));
+        let (mut whole, mut given_up) = (Bfs::default(), Bfs::default());
+        let (mut kept, mut rejected) = (0, 0);
+        for used in &masks {
+            for v in (0..256 * 256u32).step_by(997).filter(|&v| surface.covered(v)) {
+                for radius in [3, 9] {
+                    let (want_tiles, want_ball) = reach(&mut whole, &surface, v, radius);
+                    let meets = want_tiles.iter().any(|&k| used[k]);
+                    match reach_unless_used(&mut given_up, &surface, v, radius, used) {
+                        Some((got_tiles, got_ball)) => {
+                            assert!(
+                                !meets,
+                                "seed {v} radius {radius}: kept though its reach meets a used tile"
+                            );
+                            assert_eq!(got_tiles, want_tiles, "seed {v} radius {radius}");
+                            assert_eq!(
+                                (&got_ball.texels, &got_ball.depth, got_ball.first_zipper),
+                                (&want_ball.texels, &want_ball.depth, want_ball.first_zipper),
+                                "seed {v} radius {radius}"
+                            );
+                            kept += 1;
+                        }
+                        None => {
+                            assert!(
+                                meets,
+                                "seed {v} radius {radius}: rejected though its reach is free"
+                            );
+                            rejected += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(kept > 10 && rejected > 10, "{kept} kept, {rejected} rejected");
     }
 
     /// The verbatim preview's work coordinates without the work image are

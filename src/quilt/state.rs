@@ -717,13 +717,30 @@ impl Bfs {
     /// The work patch of `radius` at `v`: a breadth-first traversal of the
     /// dense mesh, indexed for [`Bfs::contains`].
     pub(super) fn patch(&mut self, surface: &Surface, v: u32, radius: usize) -> WorkPatch {
+        self.patch_unless(surface, v, radius, |_| false)
+            .expect("never stopped")
+    }
+
+    /// [`Bfs::patch`], given up (`None`) at the first texel reached for
+    /// which `stop` holds.
+    pub(super) fn patch_unless(
+        &mut self,
+        surface: &Surface,
+        v: u32,
+        radius: usize,
+        stop: impl Fn(u32) -> bool,
+    ) -> Option<WorkPatch> {
         self.window_around(surface, v, radius);
+        if stop(v) {
+            return None;
+        }
         let mut texels = vec![v];
         let mut depth = vec![0u16];
         self.insert(v, 0);
         let mut first_zipper = usize::MAX;
         let mut head = 0;
-        while head < texels.len() {
+        let mut stopped = false;
+        while head < texels.len() && !stopped {
             let (t, d) = (texels[head], depth[head]);
             head += 1;
             if d as usize >= radius {
@@ -737,15 +754,16 @@ impl Bfs {
                     self.insert(n, texels.len() as u32);
                     texels.push(n);
                     depth.push(d + 1);
+                    stopped |= stop(n);
                 }
             });
         }
-        WorkPatch {
+        (!stopped).then(|| WorkPatch {
             crosses_charts: first_zipper != usize::MAX,
             first_zipper: first_zipper.min(texels.len()),
             texels,
             depth,
-        }
+        })
     }
 
     /// [`Bfs::patch`] of `radius` at the seed of `ball`, a traversal of at
