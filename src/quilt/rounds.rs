@@ -621,6 +621,14 @@ mod tests {
     use crate::progress::Silent;
     use crate::quilt::{tile_refining_by, TileConfig, TileReport};
 
+    /// The surface of [`spot_256`] (16 MiB for its tiles).
+    fn spot_256_surface(dir: &Path) -> crate::quilt::state::Surface {
+        use crate::artifact::gim::Gim;
+        use crate::container::MemoryBudget;
+        let gim = Gim::open(&spot_256(dir), MemoryBudget(1 << 24)).unwrap();
+        crate::quilt::state::Surface::open(&gim, MemoryBudget(1 << 24)).unwrap()
+    }
+
     /// Spot atlased at 256² as `dir/spot.gim`.
     fn spot_256(dir: &Path) -> std::path::PathBuf {
         let gim = dir.join("spot.gim");
@@ -638,13 +646,9 @@ mod tests {
     /// across zippers.
     #[test]
     fn a_prefix_of_a_deeper_traversal_is_the_work_patch() {
-        use crate::artifact::gim::Gim;
-        use crate::container::MemoryBudget;
-        use crate::quilt::state::{Bfs, Surface};
+        use crate::quilt::state::Bfs;
         let dir = tempfile::tempdir().unwrap();
-        let gim = spot_256(dir.path());
-        let gim = Gim::open(&gim, MemoryBudget(1 << 24)).unwrap();
-        let surface = Surface::open(&gim, MemoryBudget(1 << 24)).unwrap();
+        let surface = spot_256_surface(dir.path());
         let (mut deep, mut direct) = (Bfs::default(), Bfs::default());
         let (mut seeds, mut crossing) = (0, 0);
         for v in (0..256 * 256u32).step_by(997).filter(|&v| surface.covered(v)) {
@@ -684,13 +688,9 @@ mod tests {
     #[test]
     fn a_reach_given_up_at_a_used_tile_rejects_what_the_whole_reach_would() {
         use super::{reach, reach_unless_used};
-        use crate::artifact::gim::Gim;
-        use crate::container::MemoryBudget;
-        use crate::quilt::state::{Bfs, Surface};
+        use crate::quilt::state::Bfs;
         let dir = tempfile::tempdir().unwrap();
-        let gim = spot_256(dir.path());
-        let gim = Gim::open(&gim, MemoryBudget(1 << 24)).unwrap();
-        let surface = Surface::open(&gim, MemoryBudget(1 << 24)).unwrap();
+        let surface = spot_256_surface(dir.path());
         let tiles = surface.grid().tiles();
         let across = surface.grid().across;
         // a stripe, a checkerboard, and each tile alone (whose reach may
