@@ -1060,9 +1060,6 @@ pub fn direct_costs(
     } else {
         0.0
     };
-    // placements in groups of neighbours (the list is in (dy, dx) order):
-    // one pass over the known pixels serves a group, whose sample reads
-    // lie close together; each placement still sums in pixel order
     let pixels = Known {
         pixels: &known,
         weight: &weight,

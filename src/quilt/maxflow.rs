@@ -209,7 +209,7 @@ impl Graph {
                 let mut tree = std::mem::take(&mut self.fixed);
                 for (i, t) in tree.iter_mut().enumerate() {
                     if *t == FREE {
-                        *t = free.tree_of(index[i]);
+                        *t = free.tree[index[i] as usize];
                     }
                 }
                 self.flow = free.flow;
@@ -220,11 +220,6 @@ impl Graph {
             }
         }
         self.flow
-    }
-
-    /// The tree tag of `node` after solving.
-    fn tree_of(&self, node: u32) -> u8 {
-        self.tree[node as usize]
     }
 
     /// The capacity that sets the solver's saturation tolerance: the largest

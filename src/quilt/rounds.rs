@@ -216,8 +216,7 @@ impl Synthesis {
             radius: radius0,
             round: self.refine_round.max(1),
         };
-        let surface = &self.surface;
-        let (mut jobs, mut closed) = schedule.round(&mut self.bfs, &|f| f(surface));
+        let (mut jobs, mut closed) = schedule.round(&mut self.bfs, &lent(&self.surface));
         while !jobs.is_empty() {
             // (the next round chosen while this one is computed)
             let (outcomes, next) = self.compute(
@@ -254,8 +253,7 @@ impl Synthesis {
             round: self.refine_round.max(1),
         };
         let mut kept = 0;
-        let surface = &self.surface;
-        let (mut jobs, _) = schedule.round(&mut self.bfs, &|f| f(surface));
+        let (mut jobs, _) = schedule.round(&mut self.bfs, &lent(&self.surface));
         while !jobs.is_empty() {
             // each patch computed as if none before it in the round is
             // kept, while the next round is chosen (the rounds depend on
@@ -311,8 +309,7 @@ impl Synthesis {
     {
         if jobs.len() <= 1 {
             let outcomes = jobs.iter().map(|j| Some(f(&mut self.worker(), j.v))).collect();
-            let surface = &self.surface;
-            return (outcomes, alongside(&mut self.bfs, &|f| f(surface)));
+            return (outcomes, alongside(&mut self.bfs, &lent(&self.surface)));
         }
         let (at_once, by_memory) = self.at_once(jobs);
         let job = Context {
@@ -335,8 +332,7 @@ impl Synthesis {
                 .enumerate()
                 .map(|(j, w)| job.run(j, w, self.surface.view(w.view()), self.state.view(w.view()), &f))
                 .collect();
-            let surface = &self.surface;
-            (outcomes, alongside(&mut self.bfs, &|f| f(surface)))
+            (outcomes, alongside(&mut self.bfs, &lent(&self.surface)))
         } else {
             // `at_once` tasks take the patches in turn: no more are in
             // flight (nor matchers held) however the threads steal work.
@@ -377,6 +373,7 @@ impl Synthesis {
                 // lock one traversal at most
                 alongside(main_bfs, &|f| f(crate::lock(pagers).0))
             });
+            self.report.late_views += jobs.len() - ahead;
             let outcomes = slots
                 .iter()
                 .map(|slot| crate::lock(slot).take().expect("every patch computed"))
@@ -393,9 +390,6 @@ impl Synthesis {
             }
         }
         self.report.concurrent_patches += jobs.len();
-        if at_once > 1 {
-            self.report.late_views += jobs.len() - by_memory.min(jobs.len());
-        }
         self.report.recomputed_patches += outcomes.iter().filter(|o| o.is_none()).count();
         self.spares = job.spares.into_inner().unwrap_or_else(|e| e.into_inner());
         (outcomes, other)
@@ -404,7 +398,8 @@ impl Synthesis {
     /// How many of `jobs` to compute at once: one per thread, fewer when
     /// the work patches in flight would need more than half of `--memory`
     /// on top of it (each: the matcher's buffers and [`bytes_per_texel`]
-    /// per texel of the largest traversal), and how many memory would hold. How many run at once never changes the quilt.
+    /// per texel of the largest traversal), and how many memory would
+    /// hold. How many run at once never changes the quilt.
     fn at_once(&self, jobs: &[Job]) -> (usize, usize) {
         let buffers = self
             .spares
@@ -611,6 +606,11 @@ impl Schedule<'_> {
 /// The whole surface lent for one piece of work at a time (while a round
 /// is computed, under the lock its tasks make views under).
 type Lend<'a> = &'a dyn Fn(&mut dyn FnMut(&Surface));
+
+/// `surface` lent whole, where no other thread reads it.
+fn lent(surface: &Surface) -> impl Fn(&mut dyn FnMut(&Surface)) + '_ {
+    move |f| f(surface)
+}
 
 #[cfg(test)]
 mod tests {
