@@ -114,29 +114,58 @@ pub fn checksum(bytes: &[u8]) -> u64 {
 /// Groups byte `b` of every element together: `out[b * n + i] = raw[i * size + b]`.
 /// Neighbouring f16 values share their high bytes, which zstd then finds.
 pub fn shuffle(raw: &[u8], size: usize) -> Vec<u8> {
-    if size == 1 {
-        return raw.to_vec();
-    }
-    let n = raw.len() / size;
     let mut out = vec![0u8; raw.len()];
-    for (i, elem) in raw.chunks_exact(size).enumerate() {
-        for (b, &byte) in elem.iter().enumerate() {
-            out[b * n + i] = byte;
+    match size {
+        1 => out.copy_from_slice(raw),
+        2 => shuffle_n::<2>(raw, &mut out),
+        4 => shuffle_n::<4>(raw, &mut out),
+        _ => {
+            let n = raw.len() / size;
+            for (i, elem) in raw.chunks_exact(size).enumerate() {
+                for (b, &byte) in elem.iter().enumerate() {
+                    out[b * n + i] = byte;
+                }
+            }
         }
     }
     out
 }
 
+/// [`shuffle`] for a size known at compile time, so the inner loop unrolls.
+fn shuffle_n<const S: usize>(raw: &[u8], out: &mut [u8]) {
+    let n = raw.len() / S;
+    for b in 0..S {
+        let plane = &mut out[b * n..(b + 1) * n];
+        for (o, e) in plane.iter_mut().zip(raw.chunks_exact(S)) {
+            *o = e[b];
+        }
+    }
+}
+
 /// Inverse of [`shuffle`], writing into `out` (same length as `shuffled`).
 pub fn unshuffle(shuffled: &[u8], size: usize, out: &mut [u8]) {
-    if size == 1 {
-        out.copy_from_slice(shuffled);
-        return;
+    match size {
+        1 => out.copy_from_slice(shuffled),
+        2 => unshuffle_n::<2>(shuffled, out),
+        4 => unshuffle_n::<4>(shuffled, out),
+        _ => {
+            let n = shuffled.len() / size;
+            for (i, elem) in out.chunks_exact_mut(size).enumerate() {
+                for (b, byte) in elem.iter_mut().enumerate() {
+                    *byte = shuffled[b * n + i];
+                }
+            }
+        }
     }
-    let n = shuffled.len() / size;
-    for (i, elem) in out.chunks_exact_mut(size).enumerate() {
-        for (b, byte) in elem.iter_mut().enumerate() {
-            *byte = shuffled[b * n + i];
+}
+
+/// [`unshuffle`] for a size known at compile time.
+fn unshuffle_n<const S: usize>(shuffled: &[u8], out: &mut [u8]) {
+    let n = shuffled.len() / S;
+    let planes: [&[u8]; S] = std::array::from_fn(|b| &shuffled[b * n..(b + 1) * n]);
+    for (i, elem) in out.chunks_exact_mut(S).enumerate() {
+        for b in 0..S {
+            elem[b] = planes[b][i];
         }
     }
 }
@@ -145,8 +174,7 @@ pub fn unshuffle(shuffled: &[u8], size: usize, out: &mut [u8]) {
 pub fn encode<T: Element>(values: &[T], level: i32) -> EncodedChunk {
     let raw: &[u8] = bytemuck::cast_slice(values);
     let shuffled = shuffle(raw, T::DTYPE.size());
-    let bytes =
-        zstd::bulk::compress(&shuffled, level).expect("zstd compression of an in-memory buffer cannot fail");
+    let bytes = compress(&shuffled, level);
     EncodedChunk {
         bytes,
         checksum: checksum(raw),
@@ -213,6 +241,18 @@ mod tests {
         let mut back = vec![0; 40];
         unshuffle(&s, 4, &mut back);
         assert_eq!(back, raw);
+        // the sizes with their own loops agree with the general one
+        let raw: Vec<u8> = (0..48u8).collect();
+        let mut back = vec![0; 48];
+        for size in [2, 3, 4, 8] {
+            let n = raw.len() / size;
+            let s = shuffle(&raw, size);
+            for (i, &byte) in raw.iter().enumerate() {
+                assert_eq!(s[(i % size) * n + i / size], byte, "size {size}");
+            }
+            unshuffle(&s, size, &mut back);
+            assert_eq!(back, raw, "size {size}");
+        }
     }
 
     #[test]
@@ -242,5 +282,24 @@ pub(crate) fn decompress(stored: &[u8], capacity: usize) -> std::io::Result<Vec<
             *cell = Some(zstd::bulk::Decompressor::new()?);
         }
         cell.as_mut().expect("made above").decompress(stored, capacity)
+    })
+}
+
+thread_local! {
+    /// One zstd compression context per thread and level, for the same
+    /// reason as [`DECOMPRESSOR`]; the frames are the ones a fresh context makes.
+    static COMPRESSOR: std::cell::RefCell<Option<(i32, zstd::bulk::Compressor<'static>)>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// zstd-compresses `raw` at `level` with this thread's context.
+fn compress(raw: &[u8], level: i32) -> Vec<u8> {
+    const MSG: &str = "zstd compression of an in-memory buffer cannot fail";
+    COMPRESSOR.with(|cell| {
+        let mut cell = cell.borrow_mut();
+        if cell.as_ref().map(|(l, _)| *l) != Some(level) {
+            *cell = Some((level, zstd::bulk::Compressor::new(level).expect(MSG)));
+        }
+        cell.as_mut().expect("made above").1.compress(raw).expect(MSG)
     })
 }

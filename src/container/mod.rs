@@ -930,6 +930,14 @@ impl Container {
                 spec.shape
             )));
         }
+        // A region that is exactly one chunk is that chunk's values.
+        if (0..nd).all(|d| origin[d] % spec.chunk_shape[d] == 0 && extent[d] > 0) {
+            let cc: Vec<u64> = (0..nd).map(|d| origin[d] / spec.chunk_shape[d]).collect();
+            let chunk_id = spec.chunk_index(&cc);
+            if spec.chunk_region(chunk_id).1 == extent {
+                return Ok(self.read_chunk::<T>(id, chunk_id)?.to_vec());
+            }
+        }
         let n = extent.iter().product::<u64>() as usize;
         let mut out = Vec::new();
         out.try_reserve_exact(n).map_err(|_| {
