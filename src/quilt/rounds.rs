@@ -231,9 +231,9 @@ impl Synthesis {
         Ok(())
     }
 
-    /// Seam refinement's patches at `seeds` (largest seam step first; see
-    /// [`Synthesis::refine`]): a round takes the next seeds in order while
-    /// their tiles are free, so the seeds visited and the quilt are those
+    /// Seam refinement's patches at `seeds` (in the order
+    /// [`Synthesis::refine`] gives them): a round takes the next seeds in
+    /// order while their tiles are free, so the seeds visited and the quilt are those
     /// of one patch at a time. Returns how many were kept.
     pub(super) fn refine_seeds(
         &mut self,

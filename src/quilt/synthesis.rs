@@ -9,6 +9,7 @@ use super::fit::{apply, fit_patch, Fit, INFINITE};
 use super::flatten::rotation_index;
 use super::matching::Matcher;
 use super::occurrence::Occurrence;
+use super::pager::TileGrid;
 use super::placement::{to_sample, PlacementChoice};
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
 use super::state::{Bfs, State, Surface, WorkPatch, NO_FOREIGN};
@@ -485,14 +486,16 @@ impl Synthesis {
 
     /// Seam refinement (Kwatra et al. 2003, §3.3, "patch placement on
     /// seams"): once the surface is covered, the most visible seams —
-    /// edges of the dense graph (grid edges and zipper links) across patches whose step exceeds `step` × the sample's
-    /// neighbour difference, largest first — each get one more work patch
+    /// edges of the dense graph (grid edges and zipper links) across patches
+    /// whose step exceeds `step` × the sample's neighbour difference — each
+    /// get one more work patch
     /// of radius `radius` centred on them, matched against the finished
     /// surface, whose core (3 hops around the seam) must take the new
     /// values; the graphcut with seam nodes then places the new seams, and
     /// the fitting is kept only if its cut costs less than 0.9 × the old
     /// seams it replaces. Returns how many were kept. Seams already inside
-    /// a refined patch are not visited again.
+    /// a refined patch are not visited again. The seams are visited in
+    /// [`visit_order`], which keeps the tiles a round reads few.
     pub(crate) fn refine(&mut self, radius: usize, step: f64, progress: &dyn Progress) -> Result<usize> {
         let n = self.state.n;
         let (mut fa, mut fb) = (vec![0f32; n], vec![0f32; n]);
@@ -529,8 +532,7 @@ impl Synthesis {
                 seeds.push((worst, t));
             }
         }
-        seeds.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-        let seeds: Vec<u32> = seeds.into_iter().map(|(_, v)| v).collect();
+        let seeds = visit_order(&grid, seeds, REFINE_RUNS);
         self.refine_seeds(&seeds, radius, progress)
     }
 
@@ -734,5 +736,80 @@ pub(crate) fn sample_role(k: usize) -> String {
         "sample".to_string()
     } else {
         format!("sample_{k}")
+    }
+}
+
+/// Runs of [`visit_order`]: enough for a refinement round
+/// ([`super::rounds::REFINE_ROUND`]) to hold about half as many patches.
+/// Not tied to the round, so the quilt is the same for any round size.
+const REFINE_RUNS: usize = 8;
+
+/// The order seam refinement visits its `seeds` (seam step, texel) in:
+/// along the atlas tiles in Z order (largest step first within a tile),
+/// the list cut into `streams` equal runs that take turns. Consecutive
+/// seeds thus lie far apart, so a round can take several of them at once,
+/// while each run walks the atlas tile by tile, so the tiles paged in stay
+/// few (largest step first over the whole atlas reads each tile many times).
+fn visit_order(grid: &TileGrid, mut seeds: Vec<(f64, u32)>, streams: usize) -> Vec<u32> {
+    /// Bits of `v` (< 2¹⁶) spread to the even places.
+    fn spread(v: usize) -> u64 {
+        let mut v = v as u64 & 0xffff;
+        v = (v | v << 8) & 0x00ff_00ff;
+        v = (v | v << 4) & 0x0f0f_0f0f;
+        v = (v | v << 2) & 0x3333_3333;
+        (v | v << 1) & 0x5555_5555
+    }
+    let z = |t: u32| {
+        let (k, _) = grid.locate(t);
+        spread(k % grid.across) | spread(k / grid.across) << 1
+    };
+    seeds.sort_by(|a, b| z(a.1).cmp(&z(b.1)).then(b.0.total_cmp(&a.0)).then(a.1.cmp(&b.1)));
+    let streams = streams.max(1);
+    let per = seeds.len().div_ceil(streams);
+    (0..per)
+        .flat_map(|i| (0..streams).map(move |s| s * per + i))
+        .filter_map(|i| seeds.get(i).map(|s| s.1))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::visit_order;
+    use crate::artifact::gim::TILE;
+    use crate::quilt::pager::TileGrid;
+
+    #[test]
+    fn seams_are_visited_once_each_by_runs_that_walk_the_tiles() {
+        let grid = TileGrid::new(4 * TILE);
+        // as many seeds in every tile, steps in a scrambled order
+        let seeds: Vec<(f64, u32)> = (0..grid.r * grid.r)
+            .filter(|&t| grid.locate(t as u32).1 % 7 == 0)
+            .map(|t| (((t * 7919) % 1000) as f64, t as u32))
+            .collect();
+        let order = visit_order(&grid, seeds.clone(), 4);
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        let mut expect: Vec<u32> = seeds.iter().map(|s| s.1).collect();
+        expect.sort_unstable();
+        assert_eq!(sorted, expect, "every seed once");
+        let tile = |t: u32| grid.locate(t).0;
+        // the four runs take turns: neighbours in the order are a quarter
+        // of the atlas apart, each run is one quarter in Z order
+        let quarter = |t: u32| {
+            let (x, y) = grid.xy(t);
+            (y / (2 * TILE)) * 2 + x / (2 * TILE)
+        };
+        for (i, w) in order.chunks(4).enumerate() {
+            let q: Vec<usize> = w.iter().map(|&t| quarter(t)).collect();
+            assert_eq!(q, vec![0, 1, 2, 3], "turn {i}");
+        }
+        // within a run, tiles change rarely and steps fall within a tile
+        let run: Vec<u32> = order.iter().step_by(4).copied().collect();
+        let changes = run.windows(2).filter(|w| tile(w[0]) != tile(w[1])).count();
+        assert_eq!(changes, 3, "a run visits its four tiles one after another");
+        let step = |t: u32| seeds.iter().find(|s| s.1 == t).expect("a seed").0;
+        assert!(run
+            .windows(2)
+            .all(|w| tile(w[0]) != tile(w[1]) || step(w[0]) >= step(w[1])));
     }
 }
