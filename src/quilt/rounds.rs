@@ -340,27 +340,31 @@ impl Synthesis {
             // of as many patches as memory holds in flight are made now,
             // the others by the task that takes the patch, from the
             // pagers shared under a lock (also lent to `alongside`)
+            // largest traversal first, so that the round's last patches are
+            // small ones and no task waits long for the other at its end
+            let mut order: Vec<usize> = (0..jobs.len()).collect();
+            order.sort_by_key(|&j| std::cmp::Reverse(jobs[j].ball.texels.len()));
             let ahead = by_memory.min(jobs.len());
-            let views: Vec<Mutex<Option<(Surface, State)>>> = jobs
-                .iter()
-                .enumerate()
-                .map(|(j, w)| {
-                    Mutex::new((j < ahead).then(|| (self.surface.view(w.view()), self.state.view(w.view()))))
-                })
-                .collect();
+            let mut views: Vec<Mutex<Option<(Surface, State)>>> =
+                jobs.iter().map(|_| Mutex::new(None)).collect();
+            for &j in &order[..ahead] {
+                let view = jobs[j].view();
+                views[j] = Mutex::new(Some((self.surface.view(view), self.state.view(view))));
+            }
             let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
                 jobs.iter().map(|_| Mutex::new(None)).collect();
             let next = std::sync::atomic::AtomicUsize::new(0);
             let main_bfs = &mut self.bfs;
             let pagers = Mutex::new((&mut self.surface, &mut self.state));
-            let (job, views, slots, next, pagers, f) = (&job, &views, &slots, &next, &pagers, &f);
+            let (job, views, slots, next, pagers, f, order) =
+                (&job, &views, &slots, &next, &pagers, &f, &order);
             let other = rayon::scope(|s| {
                 for _ in 0..at_once {
                     s.spawn(move |_| loop {
-                        let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                        if j >= jobs.len() {
+                        let Some(&j) = order.get(next.fetch_add(1, std::sync::atomic::Ordering::Relaxed))
+                        else {
                             break;
-                        }
+                        };
                         let made = crate::lock(&views[j]).take();
                         let (surface, state) = made.unwrap_or_else(|| {
                             let p = crate::lock(pagers);
