@@ -5,12 +5,13 @@ use std::path::Path;
 
 use rayon::prelude::*;
 
-use super::state::{State, StateTile, Surface};
+use super::state::{State, Surface};
 use super::synthesis::{sample_role, Synthesis};
 use super::{TileConfig, TileReport};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{KIND, SEAM_X, SEAM_Y, SEAM_ZIPPER};
-use crate::container::{codec, ArraySpec, ContainerWriter, DType, Element, Param};
+use crate::container::codec::EncodedChunk;
+use crate::container::{codec, ArrayId, ArraySpec, ContainerWriter, DType, Param};
 use crate::Result;
 
 /// Writes the synthesis state as a `.quilt`; `paint_log` (a JSON array of
@@ -67,72 +68,26 @@ pub(super) fn write_quilt(
     w.set_param("patches", Param::Int(state.next_patch as i64));
     w.set_param("mean_seam_cost", Param::Float(report.mean_seam_cost));
     // coordinates and Jacobians in original sample pixels (the loop works
-    // in the resampled sample's, for the texels of the active sample);
-    // written tile by tile, array after array
+    // in the resampled sample's, for the texels of the active sample)
     let active = state.active;
     let [sx, sy] = syn.scale;
     let scaled = syn.scale != [1.0, 1.0];
-    write_plane(
-        &mut w,
-        state,
-        &syn.surface,
-        "coord",
-        2,
-        |s, i, _, buf: &mut Vec<f32>| {
-            let c = s.coord[i];
-            if scaled && s.source[i] == active {
-                buf.extend_from_slice(&[(c[0] as f64 * sx) as f32, (c[1] as f64 * sy) as f32]);
-            } else {
-                buf.extend_from_slice(&c);
-            }
-        },
-    )?;
-    write_plane(
-        &mut w,
-        state,
-        &syn.surface,
-        "jacobian",
-        4,
-        |s, i, _, buf: &mut Vec<f32>| {
-            let j = s.jacobian[i];
-            if scaled && s.source[i] == active {
-                buf.extend_from_slice(&[
-                    (j[0] as f64 * sx) as f32,
-                    (j[1] as f64 * sy) as f32,
-                    (j[2] as f64 * sx) as f32,
-                    (j[3] as f64 * sy) as f32,
-                ]);
-            } else {
-                buf.extend_from_slice(&j);
-            }
-        },
-    )?;
-    write_plane(
-        &mut w,
-        state,
-        &syn.surface,
-        "rotation",
-        1,
-        |s, i, _, buf: &mut Vec<u8>| buf.push(s.rotation[i]),
-    )?;
-    write_plane(
-        &mut w,
-        state,
-        &syn.surface,
-        "patch",
-        1,
-        |s, i, _, buf: &mut Vec<u32>| buf.push(s.patch[i]),
-    )?;
-    if paths.len() > 1 {
-        write_plane(
-            &mut w,
-            state,
-            &syn.surface,
-            "sample",
-            1,
-            |s, i, _, buf: &mut Vec<u8>| buf.push(s.source[i]),
-        )?;
-    }
+    let grid = syn.surface.grid();
+    let planar = |name: &str, dtype| ArraySpec::new(name, dtype, &[r, r], &[t, t]);
+    let vector = |name: &str, c| ArraySpec::new(name, DType::F32, &[r, r, c], &[t, t, c]);
+    let ids = Planes {
+        coord: w.add_array(vector("coord", 2)?)?,
+        jacobian: w.add_array(vector("jacobian", 4)?)?,
+        rotation: w.add_array(planar("rotation", DType::U8)?)?,
+        patch: w.add_array(planar("patch", DType::U32)?)?,
+        sample: (paths.len() > 1)
+            .then(|| w.add_array(planar("sample", DType::U8)?))
+            .transpose()?,
+        seam: w.add_array(planar("seam", DType::U8)?)?,
+        region: matches!((state.constrained, paint_log), (true, Some(_)))
+            .then(|| w.add_array(planar("region", DType::F32)?))
+            .transpose()?,
+    };
     let zippers = gim.zipper_links()?;
     let mut zipper_flag: std::collections::HashMap<u32, u8> = Default::default();
     for &[a, b] in &zippers {
@@ -142,36 +97,120 @@ pub(super) fn write_quilt(
         }
     }
     let surface = &syn.surface;
-    // (the patch ids of +x/+y neighbours may sit in the next tiles)
-    let grid = syn.surface.grid();
-    let id = w.add_array(ArraySpec::new("seam", DType::U8, &[r, r], &[t, t])?)?;
-    for k in 0..grid.tiles() {
-        let (x0, y0, tw, th) = grid.region(k);
-        let patches = state.tile(k, |s| s.patch.clone());
-        let mut flags = Vec::with_capacity(tw * th);
-        for y in 0..th {
-            for x in 0..tw {
-                let texel = ((y0 + y) * grid.r + x0 + x) as u32;
-                let own = patches[y * TILE + x];
-                flags.push(
-                    seam_flags_at(surface, own, texel, grid.r, state)
-                        | zipper_flag.get(&texel).copied().unwrap_or(0),
-                );
+    // each state tile read once (the state pages them) for all its arrays,
+    // a batch of tiles at a time compressed in parallel and written in
+    // order: the same bytes for any budget and thread count
+    let tiles: Vec<usize> = (0..grid.tiles()).collect();
+    for batch in tiles.chunks(WRITE_BATCH) {
+        let values: Vec<TileValues> = batch
+            .iter()
+            .map(|&k| {
+                let (x0, y0, tw, th) = grid.region(k);
+                let mut v = TileValues::with_capacity(tw * th);
+                state.tile(k, |s| {
+                    for y in 0..th {
+                        for x in 0..tw {
+                            let i = y * TILE + x;
+                            let (c, j) = (s.coord[i], s.jacobian[i]);
+                            if scaled && s.source[i] == active {
+                                v.coord
+                                    .extend([(c[0] as f64 * sx) as f32, (c[1] as f64 * sy) as f32]);
+                                v.jacobian.extend([
+                                    (j[0] as f64 * sx) as f32,
+                                    (j[1] as f64 * sy) as f32,
+                                    (j[2] as f64 * sx) as f32,
+                                    (j[3] as f64 * sy) as f32,
+                                ]);
+                            } else {
+                                v.coord.extend(c);
+                                v.jacobian.extend(j);
+                            }
+                            v.rotation.push(s.rotation[i]);
+                            v.patch.push(s.patch[i]);
+                            v.sample.push(s.source[i]);
+                            v.region.push(s.target[i]);
+                        }
+                    }
+                });
+                // (the patch ids of +x/+y neighbours may sit in the next tiles)
+                for y in 0..th {
+                    for x in 0..tw {
+                        let texel = ((y0 + y) * grid.r + x0 + x) as u32;
+                        v.seam.push(
+                            seam_flags_at(surface, v.patch[y * tw + x], texel, grid.r, state)
+                                | zipper_flag.get(&texel).copied().unwrap_or(0),
+                        );
+                    }
+                }
+                v
+            })
+            .collect();
+        let level = w.level();
+        let encoded: Vec<Vec<(ArrayId, EncodedChunk)>> =
+            values.par_iter().map(|v| v.encode(&ids, level)).collect();
+        for (&k, chunks) in batch.iter().zip(encoded) {
+            for (id, e) in chunks {
+                w.write_encoded(id, k as u64, e)?;
             }
         }
-        w.write_chunk(id, k as u64, &flags)?;
-    }
-    if let (true, Some(_)) = (state.constrained, paint_log) {
-        write_plane(
-            &mut w,
-            state,
-            &syn.surface,
-            "region",
-            1,
-            |s, i, _, buf: &mut Vec<f32>| buf.push(s.target[i]),
-        )?;
     }
     w.finish()
+}
+
+/// The per-texel arrays of a `.quilt` (`sample` and `region` only where
+/// they are written).
+struct Planes {
+    coord: ArrayId,
+    jacobian: ArrayId,
+    rotation: ArrayId,
+    patch: ArrayId,
+    sample: Option<ArrayId>,
+    seam: ArrayId,
+    region: Option<ArrayId>,
+}
+
+/// The values of one atlas tile for each of [`Planes`], row-major over the
+/// tile's region.
+struct TileValues {
+    coord: Vec<f32>,
+    jacobian: Vec<f32>,
+    rotation: Vec<u8>,
+    patch: Vec<u32>,
+    sample: Vec<u8>,
+    seam: Vec<u8>,
+    region: Vec<f32>,
+}
+
+impl TileValues {
+    fn with_capacity(n: usize) -> TileValues {
+        TileValues {
+            coord: Vec::with_capacity(2 * n),
+            jacobian: Vec::with_capacity(4 * n),
+            rotation: Vec::with_capacity(n),
+            patch: Vec::with_capacity(n),
+            sample: Vec::with_capacity(n),
+            seam: Vec::with_capacity(n),
+            region: Vec::with_capacity(n),
+        }
+    }
+
+    /// The tile's chunk of each array, in the order the arrays were declared.
+    fn encode(&self, ids: &Planes, level: i32) -> Vec<(ArrayId, EncodedChunk)> {
+        let mut out = vec![
+            (ids.coord, codec::encode(&self.coord, level)),
+            (ids.jacobian, codec::encode(&self.jacobian, level)),
+            (ids.rotation, codec::encode(&self.rotation, level)),
+            (ids.patch, codec::encode(&self.patch, level)),
+        ];
+        if let Some(id) = ids.sample {
+            out.push((id, codec::encode(&self.sample, level)));
+        }
+        out.push((ids.seam, codec::encode(&self.seam, level)));
+        if let Some(id) = ids.region {
+            out.push((id, codec::encode(&self.region, level)));
+        }
+        out
+    }
 }
 
 /// Records a file the quilt at `out` depends on under `role` (a parameter of
@@ -206,53 +245,6 @@ fn seam_flags_at(surface: &Surface, patch: u32, t: u32, r: usize, state: &State)
         flags |= SEAM_Y;
     }
     flags
-}
-
-/// Writes a per-texel array `name` of `c` values per texel, tile by tile
-/// (its chunks): `f` appends the values of a texel of a state tile
-/// (`(tile, index in it, texel id, out)`).
-fn write_plane<T: Element>(
-    w: &mut ContainerWriter,
-    state: &State,
-    surface: &Surface,
-    name: &str,
-    c: u64,
-    mut f: impl FnMut(&StateTile, usize, u32, &mut Vec<T>),
-) -> Result<()> {
-    let grid = surface.grid();
-    let (r, t) = (grid.r as u64, TILE as u64);
-    let (shape, chunk) = if c == 1 {
-        (vec![r, r], vec![t, t])
-    } else {
-        (vec![r, r, c], vec![t, t, c])
-    };
-    let id = w.add_array(ArraySpec::new(name, T::DTYPE, &shape, &chunk)?)?;
-    // tiles read in order (the state pages them), a batch at a time
-    // compressed in parallel and written in order: the same bytes
-    let tiles: Vec<usize> = (0..grid.tiles()).collect();
-    for batch in tiles.chunks(WRITE_BATCH) {
-        let values: Vec<Vec<T>> = batch
-            .iter()
-            .map(|&k| {
-                let (x0, y0, tw, th) = grid.region(k);
-                let mut buf = Vec::with_capacity(tw * th * c as usize);
-                state.tile(k, |s| {
-                    for y in 0..th {
-                        for x in 0..tw {
-                            f(s, y * TILE + x, ((y0 + y) * grid.r + x0 + x) as u32, &mut buf);
-                        }
-                    }
-                });
-                buf
-            })
-            .collect();
-        let level = w.level();
-        let encoded: Vec<_> = values.par_iter().map(|v| codec::encode(v, level)).collect();
-        for (&k, e) in batch.iter().zip(encoded) {
-            w.write_encoded(id, k as u64, e)?;
-        }
-    }
-    Ok(())
 }
 
 /// Atlas tiles gathered before compressing them in parallel.
