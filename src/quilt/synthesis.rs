@@ -83,15 +83,14 @@ impl Synthesis {
     ) -> Result<Self> {
         // --memory is shared by the stores of the loop: the rotated copies
         // as f32, the sample spectra of the matcher and the paged atlas
-        // (surface and state tiles) a quarter each, and decoded tiles of the
-        // .svd at most 16 MiB of the last quarter (the loop reads the maps
-        // and each rotated copy into the sample once, so a larger cache
-        // would only hold a second copy of them); the work patch's own
-        // buffers come on top
+        // (surface and state tiles) a quarter each; the .svd's decoded
+        // tiles are only passed through (the loop reads the maps and each
+        // rotated copy into the sample whole), so its cache is 2 MiB; the
+        // work patch's own buffers come on top
         let [tiles, _, _, atlas] = cfg.memory.split([1, 1, 1, 1]);
         let quarter = MemoryBudget(tiles.bytes().max(1 << 20));
         let [surface_budget, state_budget] = atlas.split([8, 11]);
-        let svd = SvdArtifact::open(svd_path, MemoryBudget(quarter.bytes().min(16 << 20)))?;
+        let svd = SvdArtifact::open(svd_path, MemoryBudget(quarter.bytes().min(2 << 20)))?;
         if matching && svd.rotations == 0 {
             return Err(Error::input(
                 sample_path,
