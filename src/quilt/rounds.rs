@@ -334,14 +334,14 @@ impl Synthesis {
                 .collect();
             (outcomes, alongside(&mut self.bfs, &lent(&self.surface)))
         } else {
-            // `at_once` tasks take the patches in turn: no more are in
-            // flight (nor matchers held) however the threads steal work.
-            // A view pins its tiles until its patch is computed: the views
-            // of as many patches as memory holds in flight are made now,
-            // the others by the task that takes the patch, from the
-            // pagers shared under a lock (also lent to `alongside`)
-            // largest traversal first, so that the round's last patches are
-            // small ones and no task waits long for the other at its end
+            // `at_once` tasks take the patches in turn, largest traversal
+            // first (so that the round ends on small ones and no task waits
+            // long for the other): no more are in flight (nor matchers
+            // held) however the threads steal work. A view pins its tiles
+            // until its patch is computed: the views of as many patches as
+            // memory holds in flight are made now, the others by the task
+            // that takes the patch, from the pagers shared under a lock
+            // (also lent to `alongside`)
             let mut order: Vec<usize> = (0..jobs.len()).collect();
             order.sort_by_key(|&j| std::cmp::Reverse(jobs[j].ball.texels.len()));
             let ahead = by_memory.min(jobs.len());

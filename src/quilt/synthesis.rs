@@ -484,15 +484,14 @@ impl Synthesis {
     }
 
     /// Seam refinement (Kwatra et al. 2003, §3.3, "patch placement on
-    /// seams"): once the surface is covered, the most visible seams —
-    /// edges of the dense graph (grid edges and zipper links) across patches
-    /// whose step exceeds `step` × the sample's neighbour difference — each
-    /// get one more work patch
-    /// of radius `radius` centred on them, matched against the finished
-    /// surface, whose core (3 hops around the seam) must take the new
-    /// values; the graphcut with seam nodes then places the new seams, and
-    /// the fitting is kept only if its cut costs less than 0.9 × the old
-    /// seams it replaces. Returns how many were kept. Seams already inside
+    /// seams"): once the surface is covered, the visible seams — edges of
+    /// the dense graph (grid edges and zipper links) across patches whose
+    /// step exceeds `step` × the sample's neighbour difference — each get
+    /// one more work patch of radius `radius` centred on them, matched
+    /// against the finished surface, whose core (3 hops around the seam)
+    /// must take the new values; the graphcut with seam nodes then places
+    /// the new seams, and the fitting is kept only if its cut costs less
+    /// than 0.9 × the old seams it replaces. Returns how many were kept. Seams already inside
     /// a refined patch are not visited again. The seams are visited in
     /// [`visit_order`], which keeps the tiles a round reads few.
     pub(crate) fn refine(&mut self, radius: usize, step: f64, progress: &dyn Progress) -> Result<usize> {
@@ -745,11 +744,11 @@ const REFINE_RUNS: usize = 8;
 
 /// The order seam refinement visits its `seeds` (seam step, texel) in:
 /// along the atlas tiles in Z order (largest step first within a tile),
-/// the list cut into `streams` equal runs that take turns. Consecutive
+/// the list cut into `runs` equal runs that take turns. Consecutive
 /// seeds thus lie far apart, so a round can take several of them at once,
 /// while each run walks the atlas tile by tile, so the tiles paged in stay
 /// few (largest step first over the whole atlas reads each tile many times).
-fn visit_order(grid: &TileGrid, mut seeds: Vec<(f64, u32)>, streams: usize) -> Vec<u32> {
+fn visit_order(grid: &TileGrid, mut seeds: Vec<(f64, u32)>, runs: usize) -> Vec<u32> {
     /// Bits of `v` (< 2¹⁶) spread to the even places.
     fn spread(v: usize) -> u64 {
         let mut v = v as u64 & 0xffff;
@@ -763,10 +762,10 @@ fn visit_order(grid: &TileGrid, mut seeds: Vec<(f64, u32)>, streams: usize) -> V
         spread(k % grid.across) | spread(k / grid.across) << 1
     };
     seeds.sort_by(|a, b| z(a.1).cmp(&z(b.1)).then(b.0.total_cmp(&a.0)).then(a.1.cmp(&b.1)));
-    let streams = streams.max(1);
-    let per = seeds.len().div_ceil(streams);
+    let runs = runs.max(1);
+    let per = seeds.len().div_ceil(runs);
     (0..per)
-        .flat_map(|i| (0..streams).map(move |s| s * per + i))
+        .flat_map(|i| (0..runs).map(move |s| s * per + i))
         .filter_map(|i| seeds.get(i).map(|s| s.1))
         .collect()
 }
