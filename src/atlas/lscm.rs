@@ -35,7 +35,7 @@ pub(crate) fn local_frame(p: [DVec3; 3]) -> ([[f64; 2]; 3], f64) {
 
 /// Whether a triangle is too thin to carry a conformality constraint
 /// (area below 1e-12 of its longest edge squared).
-fn degenerate(p: [DVec3; 3], area: f64) -> bool {
+pub(crate) fn degenerate(p: [DVec3; 3], area: f64) -> bool {
     let l = p[0]
         .distance_squared(p[1])
         .max(p[1].distance_squared(p[2]))

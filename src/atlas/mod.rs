@@ -16,6 +16,7 @@
 //! The artifact stores the atlas arrays in 64×64 tiles, plus the mesh with
 //! its atlas UVs, the field and the zipper links and triangles.
 
+mod arap;
 pub mod charts;
 pub mod lscm;
 mod overlap;
