@@ -174,7 +174,8 @@ mod tests {
         let uv = relax(&positions, &triangles, &start, 30).unwrap();
         for a in 0..positions.len() {
             for b in [0, n, positions.len() - 1] {
-                let d3 = ((positions[a][0] - positions[b][0]) as f64).hypot((positions[a][1] - positions[b][1]) as f64);
+                let d3 = ((positions[a][0] - positions[b][0]) as f64)
+                    .hypot((positions[a][1] - positions[b][1]) as f64);
                 let duv = (uv[a][0] - uv[b][0]).hypot(uv[a][1] - uv[b][1]);
                 assert!((d3 - duv).abs() < 1e-6, "distance {a}-{b}: 3D {d3}, uv {duv}");
             }
@@ -213,7 +214,11 @@ mod tests {
         let tail = |uv: &[[f64; 2]]| area_distortion_quantile(&positions, &triangles, uv, 0.95);
         let (l2_lscm, _) = stretch(&positions, &triangles, &conformal);
         let (l2_arap, _) = stretch(&positions, &triangles, &relaxed);
-        assert!(tail(&conformal) > 1.5, "the cap should be hard for LSCM: {}", tail(&conformal));
+        assert!(
+            tail(&conformal) > 1.5,
+            "the cap should be hard for LSCM: {}",
+            tail(&conformal)
+        );
         assert!(tail(&relaxed) < 1.3, "{} vs {}", tail(&relaxed), tail(&conformal));
         assert!(l2_arap < l2_lscm, "L2 {l2_arap} vs {l2_lscm}");
     }

@@ -5,8 +5,9 @@
 //! bisection on s. At each scale a chart is rasterized into its footprint —
 //! the texels the rasterizer will cover (centres within
 //! [`COVER_RADIUS`] of a triangle), dilated by half the gutter — in each of
-//! four quarter turns, and placed first-fit: each chart (largest first)
-//! takes the turn and place where its footprint first fits among the
+//! eight orientations (four quarter turns, with and without an eighth turn
+//! first), and placed first-fit: each chart (largest first) takes the
+//! orientation and place where its footprint first fits among the
 //! texels already taken, scanning rows from the top and columns from the
 //! left. Taken texels are kept as runs per row, so the holes between and
 //! inside charts placed earlier are filled like open space: chart shapes
@@ -37,7 +38,8 @@ pub struct Packing {
     pub scale: f64,
     /// Per chart, the atlas texel position of the corner of its box.
     pub offsets: Vec<[f64; 2]>,
-    /// Per chart, quarter turns (0-3, clockwise in the atlas) of its box.
+    /// Per chart, its orientation: quarter turns (0-3, clockwise in the
+    /// atlas) of its box, 4-7 the same after an eighth turn of the chart.
     pub turns: Vec<u8>,
 }
 
@@ -53,13 +55,39 @@ impl Packing {
     }
 }
 
+/// Orientations a chart is tried in: four quarter turns of its box, and
+/// the same four after an eighth turn.
+const ORIENTATIONS: u8 = 8;
+
+/// The box of a chart with `extent` in orientation `k` before its quarter
+/// turns: the chart's own box, or for `k` ≥ 4 the box of the chart turned
+/// an eighth counter-clockwise (that of its turned box, a square).
+fn box_extent(k: u8, extent: [f64; 2]) -> [f64; 2] {
+    if k >= 4 {
+        let side = (extent[0] + extent[1]) * std::f64::consts::FRAC_1_SQRT_2;
+        [side, side]
+    } else {
+        extent
+    }
+}
+
 /// Chart point `uv` (surface units) of a chart with `extent`, in texels
-/// within its box at `scale`: v flipped (see [`Packing::place`]), the box
-/// turned `k` quarter turns. The packer's footprints and the rasterizer's
-/// corners both go through here, so they agree to the bit.
+/// within its box at `scale`: for `k` ≥ 4 first turned an eighth
+/// counter-clockwise in its box (see [`box_extent`]), then v flipped (see
+/// [`Packing::place`]), the box turned `k` quarter turns. The packer's
+/// footprints and the rasterizer's corners both go through here, so they
+/// agree to the bit.
 fn in_box(k: u8, extent: [f64; 2], scale: f64, uv: [f32; 2]) -> [f64; 2] {
-    let local = [uv[0] as f64 * scale, (extent[1] - uv[1] as f64) * scale];
-    turn(k, local, [extent[0] * scale, extent[1] * scale])
+    let (u, v) = (uv[0] as f64, uv[1] as f64);
+    let p = if k >= 4 {
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        [(u - v) * s + extent[1] * s, (u + v) * s]
+    } else {
+        [u, v]
+    };
+    let e = box_extent(k, extent);
+    let local = [p[0] * scale, (e[1] - p[1]) * scale];
+    turn(k, local, [e[0] * scale, e[1] * scale])
 }
 
 /// `p` in a `box_`-sized box turned by `k` quarter turns (a rotation: the
@@ -129,7 +157,8 @@ impl Footprint {
     /// centre is within [`COVER_RADIUS`] of a triangle, dilated by `grow`
     /// texels (Chebyshev). Holes stay holes, so other charts can use them.
     fn new(shape: &Shape, scale: f64, k: u8, grow: i32) -> Footprint {
-        let box_ = [shape.extent[0] * scale, shape.extent[1] * scale];
+        let e = box_extent(k, shape.extent);
+        let box_ = [e[0] * scale, e[1] * scale];
         let turned = if k % 2 == 1 { [box_[1], box_[0]] } else { box_ };
         let margin = COVER_RADIUS.ceil() as i32 + grow + 1;
         let w = turned[0].ceil() as i32 + 2 * margin;
@@ -392,15 +421,16 @@ pub(super) fn closest_on_triangle(p: &[[f64; 2]; 3], q: [f64; 2]) -> Option<(f64
 }
 
 /// Places the charts (in `order`) one after another at `scale`, each in
-/// the turn whose footprint fits first (topmost row, then leftmost
-/// column): per chart the offset of its box and its turn, or `None` if one
-/// does not fit.
+/// the first `orientations` whose footprint fits first (topmost row, then
+/// leftmost column): per chart the offset of its box and its orientation,
+/// or `None` if one does not fit.
 fn first_fit(
     shapes: &[Shape],
     order: &[usize],
     scale: f64,
     resolution: usize,
     gutter: usize,
+    orientations: u8,
 ) -> Option<(Vec<[f64; 2]>, Vec<u8>)> {
     let r = resolution as i32;
     // half the gutter on each chart: two footprints that do not meet leave
@@ -412,7 +442,7 @@ fn first_fit(
     let mut offsets = vec![[0.0; 2]; shapes.len()];
     let mut turns = vec![0u8; shapes.len()];
     for &c in order {
-        let tries: Vec<(Footprint, Option<(i32, i32)>)> = (0..4u8)
+        let tries: Vec<(Footprint, Option<(i32, i32)>)> = (0..orientations)
             .into_par_iter()
             .map(|k| {
                 let f = Footprint::new(&shapes[c], scale, k, grow);
@@ -478,7 +508,11 @@ pub fn pack(shapes: &[Shape], resolution: usize, gutter: usize) -> Packing {
     if hi > lo {
         for _ in 0..12 {
             let mid = 0.5 * (lo + hi);
-            match first_fit(shapes, &by_area, mid, resolution, gutter) {
+            // quarter turns alone, or with eighth turns too: the greedy
+            // placement is not monotone in its choices, so either may fit
+            let fit = first_fit(shapes, &by_area, mid, resolution, gutter, 4)
+                .or_else(|| first_fit(shapes, &by_area, mid, resolution, gutter, ORIENTATIONS));
+            match fit {
                 Some(p) => {
                     lo = mid;
                     found = Some(p);
@@ -588,7 +622,7 @@ mod tests {
             .collect();
         let (r, gutter) = (256usize, 2usize);
         let p = pack(&shapes, r, gutter);
-        assert!(p.scale > 0.0 && p.turns.iter().all(|&k| k < 4));
+        assert!(p.scale > 0.0 && p.turns.iter().all(|&k| k < ORIENTATIONS));
         let cover = covered(&shapes, &p, r);
         // owner per texel: no texel twice, and at least `gutter` free
         // texels between two charts along rows and columns
@@ -712,6 +746,44 @@ mod tests {
             let d = (corners[1][0] - corners[0][0]) * (corners[2][1] - corners[0][1])
                 - (corners[2][0] - corners[0][0]) * (corners[1][1] - corners[0][1]);
             assert!(d > 0.0, "turn {k}");
+        }
+    }
+
+    #[test]
+    fn every_orientation_keeps_the_chart_in_its_box_and_its_winding() {
+        let extent = [3.0, 2.0];
+        let corners: [[f32; 2]; 4] = [[0.0, 0.0], [3.0, 0.0], [3.0, 2.0], [0.0, 2.0]];
+        let scale = 1.5;
+        for k in 0..ORIENTATIONS {
+            let e = box_extent(k, extent);
+            let size = if k % 2 == 1 { [e[1], e[0]] } else { e };
+            let p = corners.map(|c| in_box(k, extent, scale, c));
+            for q in p {
+                for d in 0..2 {
+                    assert!(
+                        q[d] >= -1e-9 && q[d] <= size[d] * scale + 1e-9,
+                        "orientation {k}: {q:?} in {size:?}"
+                    );
+                }
+            }
+            // lengths kept (a rotation, then a mirror in v)
+            let len = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
+            assert!(
+                (len(p[0], p[1]) - 3.0 * scale).abs() < 1e-9 && (len(p[1], p[2]) - 2.0 * scale).abs() < 1e-9
+            );
+            // v flipped: counter-clockwise on the surface, clockwise in rows
+            let d = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+            assert!(d < 0.0, "orientation {k}");
+            // an eighth turn lays the box's bottom edge at 45°
+            let angle = (p[1][1] - p[0][1])
+                .atan2(p[1][0] - p[0][0])
+                .to_degrees()
+                .rem_euclid(90.0);
+            let want = if k >= 4 { 45.0 } else { 0.0 };
+            assert!(
+                (angle - want).abs() < 1e-6 || (angle - want).abs() > 90.0 - 1e-6,
+                "orientation {k}: {angle}"
+            );
         }
     }
 }
