@@ -875,6 +875,67 @@ fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
         .collect()
 }
 
+/// Straightens chart borders once more after merging (a merged tiny chart
+/// often leaves a spike or a notch): the moves of [`Patch::straighten`] over
+/// all charts, kept where every chart they touch stays one disk that maps
+/// within the limits; moves touching a chart that does not are undone, and
+/// the charts they touch checked again.
+fn straighten_charts(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
+    let nf = ctx.adj.len();
+    let mut before = vec![NONE; nf];
+    for (c, chart) in charts.iter().enumerate() {
+        for &f in &chart.faces {
+            before[f as usize] = c as u32;
+        }
+    }
+    let mut label = before.clone();
+    Patch::whole(ctx).straighten(ctx, &mut label);
+    loop {
+        let mut changed = vec![false; charts.len()];
+        for (&now, &was) in label.iter().zip(&before) {
+            if now != was {
+                changed[now as usize] = true;
+                changed[was as usize] = true;
+            }
+        }
+        let ids: Vec<usize> = (0..charts.len()).filter(|&c| changed[c]).collect();
+        if ids.is_empty() {
+            return charts;
+        }
+        let mut faces = vec![Vec::new(); charts.len()];
+        for (f, &l) in label.iter().enumerate() {
+            if changed[l as usize] {
+                faces[l as usize].push(f as u32);
+            }
+        }
+        let remapped: Vec<Option<Chart>> = ids
+            .par_iter()
+            .map(|&c| {
+                let patch = Patch::new(ctx, faces[c].clone());
+                if patch.len() == 0 || patch.split_components().len() > 1 || !patch.is_disk(ctx) {
+                    return None;
+                }
+                parameterize(ctx, &patch.faces)
+            })
+            .collect();
+        if remapped.iter().all(Option::is_some) {
+            for (&c, chart) in ids.iter().zip(remapped) {
+                charts[c] = chart.expect("checked");
+            }
+            return charts;
+        }
+        let mut failed = vec![false; charts.len()];
+        for (&c, chart) in ids.iter().zip(&remapped) {
+            failed[c] = chart.is_none();
+        }
+        for (now, &was) in label.iter_mut().zip(&before) {
+            if failed[*now as usize] || failed[was as usize] {
+                *now = was;
+            }
+        }
+    }
+}
+
 /// Segments the surface into few large disk-shaped charts and parameterises
 /// each with LSCM (Lévy et al. 2002); see the module documentation. Every face
 /// is in exactly one chart; a closed component yields at least two charts.
@@ -964,7 +1025,8 @@ pub fn build_charts(mesh: &Mesh, topology: &Topology, cfg: &ChartConfig) -> Resu
             }
         }
     }
-    let mut charts = merge(&ctx, charts);
+    let charts = merge(&ctx, charts);
+    let mut charts = straighten_charts(&ctx, charts);
     charts.sort_unstable_by_key(|c| c.faces[0]);
     Ok(charts)
 }
