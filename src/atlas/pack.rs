@@ -163,7 +163,8 @@ impl Footprint {
         let margin = COVER_RADIUS.ceil() as i32 + grow + 1;
         let w = turned[0].ceil() as i32 + 2 * margin;
         let h = turned[1].ceil() as i32 + 2 * margin;
-        let mut bits = vec![false; (w * h) as usize];
+        // per row, the covered columns as half-open runs
+        let mut covered: Vec<Vec<(i32, i32)>> = vec![Vec::new(); h as usize];
         let m = margin as f64;
         for t in shape.triangles {
             let p = t.map(|v| {
@@ -183,45 +184,27 @@ impl Footprint {
                 let x0 = ((a - 0.5).ceil() as i32).max(0);
                 let x1 = ((b - 0.5).floor() as i32).min(w - 1);
                 if x0 <= x1 {
-                    bits[(y * w + x0) as usize..=(y * w + x1) as usize].fill(true);
+                    covered[y as usize].push((x0, x1 + 1));
                 }
             }
         }
-        // Chebyshev dilation by `grow`: along rows, then along columns
-        let (wu, hu) = (w as usize, h as usize);
-        let g = grow as usize;
-        let mut along = vec![false; wu * hu];
-        for y in 0..hu {
-            let row = &bits[y * wu..(y + 1) * wu];
-            for x in (0..wu).filter(|&x| row[x]) {
-                along[y * wu + x.saturating_sub(g)..y * wu + (x + g + 1).min(wu)].fill(true);
-            }
-        }
-        let mut grown = vec![false; wu * hu];
-        for y in 0..hu {
-            for x in (0..wu).filter(|&x| along[y * wu + x]) {
-                for yy in y.saturating_sub(g)..(y + g + 1).min(hu) {
-                    grown[yy * wu + x] = true;
-                }
-            }
-        }
-        let mut rows = Vec::with_capacity(hu);
+        // Chebyshev dilation by `grow`: each run widened along its row,
+        // then each row the union of the rows within `grow` of it
+        let widened: Vec<Vec<(i32, i32)>> = covered
+            .into_iter()
+            .map(|row| {
+                union_of_runs(
+                    row.into_iter()
+                        .map(|(a, b)| ((a - grow).max(0), (b + grow).min(w))),
+                )
+            })
+            .collect();
+        let mut rows = Vec::with_capacity(h as usize);
         let mut spans = Vec::new();
-        for y in 0..hu {
+        for y in 0..h {
+            let near = (y - grow).max(0) as usize..=(y + grow).min(h - 1) as usize;
             let first = spans.len() as u32;
-            let row = &grown[y * wu..(y + 1) * wu];
-            let mut x = 0;
-            while x < wu {
-                if row[x] {
-                    let s = x;
-                    while x < wu && row[x] {
-                        x += 1;
-                    }
-                    spans.push((s as i32, x as i32));
-                } else {
-                    x += 1;
-                }
-            }
+            spans.extend(union_of_runs(widened[near].iter().flatten().copied()));
             rows.push((first, spans.len() as u32));
         }
         Footprint { rows, spans, margin }
@@ -289,6 +272,20 @@ impl Footprint {
         }
         None
     }
+}
+
+/// The union of half-open runs as sorted maximal runs (touching runs join).
+fn union_of_runs(runs: impl Iterator<Item = (i32, i32)>) -> Vec<(i32, i32)> {
+    let mut runs: Vec<(i32, i32)> = runs.collect();
+    runs.sort_unstable();
+    let mut out: Vec<(i32, i32)> = Vec::with_capacity(runs.len());
+    for (a, b) in runs {
+        match out.last_mut() {
+            Some(last) if a <= last.1 => last.1 = last.1.max(b),
+            _ => out.push((a, b)),
+        }
+    }
+    out
 }
 
 /// The atlas texels taken so far, as sorted disjoint runs per row.
