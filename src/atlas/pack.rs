@@ -163,8 +163,8 @@ impl Footprint {
         let margin = COVER_RADIUS.ceil() as i32 + grow + 1;
         let w = turned[0].ceil() as i32 + 2 * margin;
         let h = turned[1].ceil() as i32 + 2 * margin;
-        // per row, the covered columns as half-open runs
-        let mut covered: Vec<Vec<(i32, i32)>> = vec![Vec::new(); h as usize];
+        // covered columns as half-open runs (row, start, end)
+        let mut covered: Vec<(i32, i32, i32)> = Vec::new();
         let m = margin as f64;
         for t in shape.triangles {
             let p = t.map(|v| {
@@ -184,28 +184,41 @@ impl Footprint {
                 let x0 = ((a - 0.5).ceil() as i32).max(0);
                 let x1 = ((b - 0.5).floor() as i32).min(w - 1);
                 if x0 <= x1 {
-                    covered[y as usize].push((x0, x1 + 1));
+                    covered.push((y, x0, x1 + 1));
                 }
             }
         }
-        // Chebyshev dilation by `grow`: each run widened along its row,
-        // then each row the union of the rows within `grow` of it
-        let widened: Vec<Vec<(i32, i32)>> = covered
-            .into_iter()
-            .map(|row| {
-                union_of_runs(
-                    row.into_iter()
-                        .map(|(a, b)| ((a - grow).max(0), (b + grow).min(w))),
-                )
-            })
-            .collect();
+        covered.sort_unstable();
+        // Chebyshev dilation by `grow`: each run widened along its row, then
+        // each row the union of the rows within `grow` of it
+        let mut wide_rows = vec![(0u32, 0u32); h as usize];
+        let mut wide = Vec::with_capacity(covered.len());
+        let mut i = 0;
+        while i < covered.len() {
+            let y = covered[i].0;
+            let first = wide.len() as u32;
+            while i < covered.len() && covered[i].0 == y {
+                let (_, a, b) = covered[i];
+                join_run(&mut wide, first as usize, ((a - grow).max(0), (b + grow).min(w)));
+                i += 1;
+            }
+            wide_rows[y as usize] = (first, wide.len() as u32);
+        }
         let mut rows = Vec::with_capacity(h as usize);
         let mut spans = Vec::new();
+        let mut near = Vec::new();
         for y in 0..h {
-            let near = (y - grow).max(0) as usize..=(y + grow).min(h - 1) as usize;
-            let first = spans.len() as u32;
-            spans.extend(union_of_runs(widened[near].iter().flatten().copied()));
-            rows.push((first, spans.len() as u32));
+            near.clear();
+            for yy in (y - grow).max(0)..=(y + grow).min(h - 1) {
+                let (a, b) = wide_rows[yy as usize];
+                near.extend_from_slice(&wide[a as usize..b as usize]);
+            }
+            near.sort_unstable();
+            let first = spans.len();
+            for &run in &near {
+                join_run(&mut spans, first, run);
+            }
+            rows.push((first as u32, spans.len() as u32));
         }
         Footprint { rows, spans, margin }
     }
@@ -274,18 +287,16 @@ impl Footprint {
     }
 }
 
-/// The union of half-open runs as sorted maximal runs (touching runs join).
-fn union_of_runs(runs: impl Iterator<Item = (i32, i32)>) -> Vec<(i32, i32)> {
-    let mut runs: Vec<(i32, i32)> = runs.collect();
-    runs.sort_unstable();
-    let mut out: Vec<(i32, i32)> = Vec::with_capacity(runs.len());
-    for (a, b) in runs {
-        match out.last_mut() {
-            Some(last) if a <= last.1 => last.1 = last.1.max(b),
-            _ => out.push((a, b)),
-        }
+/// Appends the half-open `run` to the sorted maximal runs `out[first..]`,
+/// joining it to the last when they overlap or touch; runs arrive sorted by
+/// start.
+fn join_run(out: &mut Vec<(i32, i32)>, first: usize, run: (i32, i32)) {
+    let n = out.len();
+    if n > first && run.0 <= out[n - 1].1 {
+        out[n - 1].1 = out[n - 1].1.max(run.1);
+    } else {
+        out.push(run);
     }
-    out
 }
 
 /// The atlas texels taken so far, as sorted disjoint runs per row.
