@@ -248,6 +248,11 @@ enum Command {
         /// in some direction (L∞ stretch, ≥ 1).
         #[arg(long, default_value_t = AtlasConfig::default().charts.max_linf_stretch)]
         max_linf_stretch: f32,
+        /// A more compact atlas: stretched charts relaxed (ARAP) instead of
+        /// split, borders straightened after merging, eighth turns in
+        /// packing. Fewer charts and shorter seams; a different atlas.
+        #[arg(long, default_value_t = AtlasConfig::default().charts.compact)]
+        compact: bool,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -901,6 +906,7 @@ fn run(cli: Cli) -> Result<()> {
             max_stretch,
             max_area_distortion,
             max_linf_stretch,
+            compact,
             output,
             res,
         } => {
@@ -915,6 +921,7 @@ fn run(cli: Cli) -> Result<()> {
             cfg.charts.max_stretch = max_stretch;
             cfg.charts.max_area_distortion = max_area_distortion;
             cfg.charts.max_linf_stretch = max_linf_stretch;
+            cfg.charts.compact = compact;
             cfg.validate()?;
             let report = atlas::build_gim(&mesh, &output, &cfg, &bars)?;
             say!("{}: {}", mesh.display(), report.repair);

@@ -67,6 +67,12 @@ pub struct ChartConfig {
     /// in some direction (L∞, the largest singular value of its uv → 3D
     /// map at the chart's uniform density). Default 2.
     pub max_linf_stretch: f32,
+    /// A more compact atlas: a chart over a stretch or area-distortion limit
+    /// is relaxed (ARAP) before it is split, merges use relaxed maps too,
+    /// chart borders are straightened once more after merging, and the
+    /// packer also tries eighth turns. Fewer charts and shorter seams; the
+    /// atlas differs from the default one. Default off.
+    pub compact: bool,
 }
 
 impl Default for ChartConfig {
@@ -76,6 +82,7 @@ impl Default for ChartConfig {
             max_stretch: 1.25,
             max_area_distortion: 1.5,
             max_linf_stretch: 2.0,
+            compact: false,
         }
     }
 }
@@ -119,6 +126,8 @@ struct Ctx<'a> {
     max_linf_stretch: f64,
     /// [`RELAXED_LINF_SHARE`] of `max_linf_stretch`.
     max_relaxed_linf: f64,
+    /// [`ChartConfig::compact`].
+    compact: bool,
 }
 
 /// Heap key for a non-negative finite f64 (bit order = numeric order).
@@ -170,6 +179,7 @@ impl<'a> Ctx<'a> {
             max_area_distortion: cfg.max_area_distortion as f64,
             max_linf_stretch: cfg.max_linf_stretch as f64,
             max_relaxed_linf: RELAXED_LINF_SHARE * cfg.max_linf_stretch as f64,
+            compact: cfg.compact,
         }
     }
 }
@@ -576,8 +586,8 @@ fn segment(ctx: &Ctx) -> Vec<Vec<u32>> {
     regions
 }
 
-/// LSCM of a set of faces (sorted), or its ARAP relaxation when LSCM is over
-/// a stretch limit (the relaxed map within [`RELAXED_LINF_SHARE`] of the L∞
+/// LSCM of a set of faces (sorted), or for a compact atlas its ARAP
+/// relaxation when LSCM is over a stretch limit (the relaxed map within [`RELAXED_LINF_SHARE`] of the L∞
 /// limit), normalised to uniform density and oriented; `None` if a
 /// triangle flips, the map folds over itself (two boundary edges cross) or
 /// both maps are over a limit.
@@ -613,14 +623,14 @@ fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
             ctx.max_linf_stretch,
         ) {
             Some(Check::Within) => conformal,
-            Some(Check::Stretched) => {
+            Some(Check::Stretched) if ctx.compact => {
                 let relaxed = relax(&positions, &triangles, &conformal, ARAP_ITERATIONS)?;
                 match acceptable(ctx, faces, &positions, &triangles, &relaxed, ctx.max_relaxed_linf) {
                     Some(Check::Within) => relaxed,
                     _ => return None,
                 }
             }
-            None => return None,
+            Some(Check::Stretched) | None => return None,
         }
     };
     let (l2, linf) = stretch(&positions, &triangles, &uv);
@@ -1055,8 +1065,10 @@ pub fn build_charts(mesh: &Mesh, topology: &Topology, cfg: &ChartConfig) -> Resu
         return Ok(Vec::new());
     }
     let ctx = Ctx::new(mesh, topology, cfg);
-    let charts = merge(&ctx, split_until_mapped(&ctx, segment(&ctx)));
-    let mut charts = straighten_charts(&ctx, charts);
+    let mut charts = merge(&ctx, split_until_mapped(&ctx, segment(&ctx)));
+    if cfg.compact {
+        charts = straighten_charts(&ctx, charts);
+    }
     charts.sort_unstable_by_key(|c| c.faces[0]);
     Ok(charts)
 }
@@ -1216,6 +1228,7 @@ mod tests {
             max_stretch: 100.0,
             max_area_distortion: 100.0,
             max_linf_stretch: 100.0,
+            compact: true,
         };
         let worst = |charts: &[Chart]| charts.iter().map(|c| worst(&m, c)).fold(1.0f64, f64::max);
         let one = build_charts(&m, &topo, &loose).unwrap();
@@ -1234,8 +1247,15 @@ mod tests {
         let topo = m.topology();
         let cfg = ChartConfig {
             max_normal_deviation: 180.0,
+            compact: true,
             ..ChartConfig::default()
         };
+        // without relaxation, LSCM's rim splits the cap
+        let conformal_only = ChartConfig {
+            compact: false,
+            ..cfg.clone()
+        };
+        assert!(build_charts(&m, &topo, &conformal_only).unwrap().len() > 1);
         let faces: Vec<u32> = (0..m.triangles.len() as u32).collect();
         let conformal = lscm(&m.positions, &m.triangles).unwrap();
         let limit = cfg.max_area_distortion as f64;
@@ -1295,7 +1315,11 @@ mod tests {
         }
         let (m, _) = crate::mesh::io::load(&path, &Default::default()).unwrap();
         let topo = m.topology();
-        let ctx = Ctx::new(&m, &topo, &ChartConfig::default());
+        let cfg = ChartConfig {
+            compact: true,
+            ..ChartConfig::default()
+        };
+        let ctx = Ctx::new(&m, &topo, &cfg);
         let merged = merge(&ctx, split_until_mapped(&ctx, segment(&ctx)));
         let straight = straighten_charts(&ctx, merged.clone());
         let (before, after) = (spikes(&ctx, &merged), spikes(&ctx, &straight));

@@ -476,8 +476,10 @@ fn first_fit(
 }
 
 /// Packs the charts into `resolution`² with at least `gutter` texels
-/// between the texels the rasterizer covers (see the module documentation).
-pub fn pack(shapes: &[Shape], resolution: usize, gutter: usize) -> Packing {
+/// between the texels the rasterizer covers (see the module documentation);
+/// with `eighth_turns`, charts are also tried after an eighth turn where
+/// their quarter turns do not fit a scale.
+pub fn pack(shapes: &[Shape], resolution: usize, gutter: usize, eighth_turns: bool) -> Packing {
     let extents: Vec<[f64; 2]> = shapes.iter().map(|s| s.extent).collect();
     // tallest first (ties by index), so shelves fill evenly
     let mut order: Vec<usize> = (0..extents.len()).collect();
@@ -518,8 +520,11 @@ pub fn pack(shapes: &[Shape], resolution: usize, gutter: usize) -> Packing {
             let mid = 0.5 * (lo + hi);
             // quarter turns alone, or with eighth turns too: the greedy
             // placement is not monotone in its choices, so either may fit
-            let fit = first_fit(shapes, &by_area, mid, resolution, gutter, 4)
-                .or_else(|| first_fit(shapes, &by_area, mid, resolution, gutter, ORIENTATIONS));
+            let fit = first_fit(shapes, &by_area, mid, resolution, gutter, 4).or_else(|| {
+                eighth_turns
+                    .then(|| first_fit(shapes, &by_area, mid, resolution, gutter, ORIENTATIONS))
+                    .flatten()
+            });
             match fit {
                 Some(p) => {
                     lo = mid;
@@ -629,53 +634,57 @@ mod tests {
             })
             .collect();
         let (r, gutter) = (256usize, 2usize);
-        let p = pack(&shapes, r, gutter);
-        assert!(p.scale > 0.0 && p.turns.iter().all(|&k| k < ORIENTATIONS));
-        let cover = covered(&shapes, &p, r);
-        // owner per texel: no texel twice, and at least `gutter` free
-        // texels between two charts along rows and columns
-        let mut owner = vec![usize::MAX; r * r];
-        for (c, texels) in cover.iter().enumerate() {
-            for &(x, y) in texels {
-                let o = &mut owner[y as usize * r + x as usize];
-                assert_eq!(*o, usize::MAX, "texel ({x}, {y}) in two charts");
-                *o = c;
+        for eighth_turns in [false, true] {
+            let p = pack(&shapes, r, gutter, eighth_turns);
+            let most = if eighth_turns { ORIENTATIONS } else { 4 };
+            assert!(p.scale > 0.0 && p.turns.iter().all(|&k| k < most));
+            let cover = covered(&shapes, &p, r);
+            // owner per texel: no texel twice, and at least `gutter` free
+            // texels between two charts along rows and columns
+            let mut owner = vec![usize::MAX; r * r];
+            for (c, texels) in cover.iter().enumerate() {
+                for &(x, y) in texels {
+                    let o = &mut owner[y as usize * r + x as usize];
+                    assert_eq!(*o, usize::MAX, "texel ({x}, {y}) in two charts");
+                    *o = c;
+                }
             }
-        }
-        let g = gutter as i64;
-        for (c, texels) in cover.iter().enumerate() {
-            for &(x, y) in texels {
-                for dy in -g..=g {
-                    for dx in -g..=g {
-                        let (nx, ny) = (x + dx, y + dy);
-                        if nx >= 0 && ny >= 0 && nx < r as i64 && ny < r as i64 {
-                            let o = owner[ny as usize * r + nx as usize];
-                            assert!(
-                                o == usize::MAX || o == c,
-                                "charts {c} and {o} closer than the gutter"
-                            );
+            let g = gutter as i64;
+            for (c, texels) in cover.iter().enumerate() {
+                for &(x, y) in texels {
+                    for dy in -g..=g {
+                        for dx in -g..=g {
+                            let (nx, ny) = (x + dx, y + dy);
+                            if nx >= 0 && ny >= 0 && nx < r as i64 && ny < r as i64 {
+                                let o = owner[ny as usize * r + nx as usize];
+                                assert!(
+                                    o == usize::MAX || o == c,
+                                    "charts {c} and {o} closer than the gutter"
+                                );
+                            }
                         }
                     }
                 }
             }
-        }
-        // the L shapes nest: a larger scale than their bounding rectangles
-        // allow on shelves
-        let extents: Vec<[f64; 2]> = shapes.iter().map(|s| s.extent).collect();
-        let order: Vec<usize> = (0..extents.len()).collect();
-        assert!(
-            shelf(&extents, &order, p.scale, r, gutter).is_none(),
-            "scale {}",
-            p.scale
-        );
-        // and the turned boxes keep every triangle counter-clockwise
-        for (c, s) in shapes.iter().enumerate() {
-            for t in s.triangles {
-                let q = t.map(|v| p.place(c, s.extent, s.uv[v as usize]));
-                // atlas rows run down: counter-clockwise on the surface is
-                // clockwise in (x, y-down)
-                let d = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
-                assert!(d < 0.0, "chart {c} turn {}", p.turns[c]);
+            // the L shapes nest: a larger scale than their bounding rectangles
+            // allow on shelves
+            let extents: Vec<[f64; 2]> = shapes.iter().map(|s| s.extent).collect();
+            let order: Vec<usize> = (0..extents.len()).collect();
+            assert!(
+                shelf(&extents, &order, p.scale, r, gutter).is_none(),
+                "scale {}",
+                p.scale
+            );
+            // and the turned boxes keep every triangle counter-clockwise
+            for (c, s) in shapes.iter().enumerate() {
+                for t in s.triangles {
+                    let q = t.map(|v| p.place(c, s.extent, s.uv[v as usize]));
+                    // atlas rows run down: counter-clockwise on the surface is
+                    // clockwise in (x, y-down)
+                    let d =
+                        (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
+                    assert!(d < 0.0, "chart {c} turn {}", p.turns[c]);
+                }
             }
         }
     }
@@ -700,7 +709,7 @@ mod tests {
             },
         ];
         let r = 128;
-        let p = pack(&shapes, r, 2);
+        let p = pack(&shapes, r, 2, false);
         let cover = covered(&shapes, &p, r);
         let span = |c: usize, i: usize| {
             let v = cover[c].iter().map(|t| if i == 0 { t.0 } else { t.1 });

@@ -401,7 +401,7 @@ pub fn build_gim(
             extent,
         })
         .collect();
-    let packing = pack(&shapes, r, cfg.gutter);
+    let packing = pack(&shapes, r, cfg.gutter, cfg.charts.compact);
     if packing.scale <= 0.0 {
         return Err(Error::input(
             mesh_path,

@@ -633,6 +633,11 @@ fn shared_mesh_charts() {
             continue;
         };
         run(file, &mesh, max_charts);
+        let compact = ChartConfig {
+            compact: true,
+            ..ChartConfig::default()
+        };
+        run_with(&format!("{file}, compact"), &mesh, max_charts, &compact);
     }
 }
 
@@ -643,16 +648,24 @@ fn limits_are_enforced() {
         max_stretch: 1.25,
         max_area_distortion: 1.5,
         max_linf_stretch: 2.0,
+        compact: false,
     };
     let strict = ChartConfig {
         max_normal_deviation: 25.0,
         max_stretch: 1.02,
         max_area_distortion: 1.1,
         max_linf_stretch: 1.1,
+        compact: false,
     };
     for (name, mesh) in [("icosphere", icosphere(3)), ("torus", torus(48, 16, 1.0, 0.4))] {
         run_with(&format!("{name} loose"), &mesh, 50, &loose);
         run_with(&format!("{name} strict"), &mesh, 400, &strict);
+        let compact = |c: &ChartConfig| ChartConfig {
+            compact: true,
+            ..c.clone()
+        };
+        run_with(&format!("{name} loose, compact"), &mesh, 50, &compact(&loose));
+        run_with(&format!("{name} strict, compact"), &mesh, 400, &compact(&strict));
     }
 }
 
