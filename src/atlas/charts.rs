@@ -43,9 +43,8 @@ const TINY_CHART: f64 = 0.01;
 const CREASE_COS: f64 = 0.866_025_403_784_438_6;
 /// An ARAP-relaxed map is kept only while its L∞ stretch stays within this
 /// share of [`ChartConfig::max_linf_stretch`]: relaxation trades angle for
-/// area, and past this it starts stretching single triangles more than the
-/// conformal maps of the split charts would (measured on the shared meshes:
-/// with the whole limit, the 99th-percentile stretch rose on four of ten).
+/// area, and with the whole limit L∞ and the 99th-percentile stretch rose
+/// on four of the ten shared meshes (docs/measurements.md, "Atlas").
 const RELAXED_LINF_SHARE: f64 = 0.75;
 /// Neighbours tried when merging a chart.
 const MERGE_CANDIDATES: usize = 3;
