@@ -185,30 +185,8 @@ mod tests {
     /// On a deep cap LSCM shrinks the rim; ARAP evens the texel density out.
     #[test]
     fn relaxation_lowers_the_area_distortion_of_a_cap() {
-        let (rings, sectors) = (10, 32);
-        let mut positions = vec![[0.0f32, 0.0, 1.0]];
-        for r in 1..=rings {
-            let polar = 1.3 * r as f64 / rings as f64;
-            for s in 0..sectors {
-                let az = std::f64::consts::TAU * s as f64 / sectors as f64;
-                positions.push([
-                    (polar.sin() * az.cos()) as f32,
-                    (polar.sin() * az.sin()) as f32,
-                    polar.cos() as f32,
-                ]);
-            }
-        }
-        let ring = |r: usize, s: usize| (1 + (r - 1) * sectors + s % sectors) as u32;
-        let mut triangles = Vec::new();
-        for s in 0..sectors {
-            triangles.push([0, ring(1, s), ring(1, s + 1)]);
-        }
-        for r in 1..rings {
-            for s in 0..sectors {
-                triangles.push([ring(r, s), ring(r + 1, s), ring(r + 1, s + 1)]);
-                triangles.push([ring(r, s), ring(r + 1, s + 1), ring(r, s + 1)]);
-            }
-        }
+        let cap = crate::atlas::charts::tests::dome(10, 75.0);
+        let (positions, triangles) = (cap.positions, cap.triangles);
         let conformal = lscm(&positions, &triangles).unwrap();
         let relaxed = relax(&positions, &triangles, &conformal, ARAP_ITERATIONS).unwrap();
         let tail = |uv: &[[f64; 2]]| area_distortion_quantile(&positions, &triangles, uv, 0.95);

@@ -1073,7 +1073,7 @@ pub fn build_charts(mesh: &Mesh, topology: &Topology, cfg: &ChartConfig) -> Resu
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     fn mesh(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Mesh {
@@ -1187,7 +1187,7 @@ mod tests {
 
     /// A dome: the sphere's cap down to `polar` degrees from the pole, `n`
     /// rings.
-    fn dome(n: usize, polar: f64) -> Mesh {
+    pub(crate) fn dome(n: usize, polar: f64) -> Mesh {
         let (rings, segments) = (n, 4 * n);
         let mut p = vec![[0.0, 0.0, 1.0]];
         for i in 1..=rings {
