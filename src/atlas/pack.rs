@@ -188,21 +188,32 @@ impl Footprint {
                 }
             }
         }
-        covered.sort_unstable();
+        // bucketed by row (a counting sort), each row's runs sorted
+        let mut start = vec![0usize; h as usize + 1];
+        for &(y, _, _) in &covered {
+            start[y as usize + 1] += 1;
+        }
+        for y in 0..h as usize {
+            start[y + 1] += start[y];
+        }
+        let mut by_row = vec![(0i32, 0i32); covered.len()];
+        let mut next = start.clone();
+        for &(y, a, b) in &covered {
+            by_row[next[y as usize]] = (a, b);
+            next[y as usize] += 1;
+        }
         // Chebyshev dilation by `grow`: each run widened along its row, then
         // each row the union of the rows within `grow` of it
         let mut wide_rows = vec![(0u32, 0u32); h as usize];
         let mut wide = Vec::with_capacity(covered.len());
-        let mut i = 0;
-        while i < covered.len() {
-            let y = covered[i].0;
-            let first = wide.len() as u32;
-            while i < covered.len() && covered[i].0 == y {
-                let (_, a, b) = covered[i];
-                join_run(&mut wide, first as usize, ((a - grow).max(0), (b + grow).min(w)));
-                i += 1;
+        for y in 0..h as usize {
+            let row = &mut by_row[start[y]..start[y + 1]];
+            row.sort_unstable();
+            let first = wide.len();
+            for &(a, b) in row.iter() {
+                join_run(&mut wide, first, ((a - grow).max(0), (b + grow).min(w)));
             }
-            wide_rows[y as usize] = (first, wide.len() as u32);
+            wide_rows[y] = (first as u32, wide.len() as u32);
         }
         let mut rows = Vec::with_capacity(h as usize);
         let mut spans = Vec::new();
