@@ -856,16 +856,22 @@ fn split_until_mapped(ctx: &Ctx, mut pending: Vec<Vec<u32>>) -> Vec<Chart> {
     charts
 }
 
-/// Merges charts into neighbours, smallest first, while the union stays a
-/// disk that [`parameterize`] maps and within the normal cone (waived for
-/// tiny charts).
-fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
+/// Per face, the index of the chart holding it.
+fn owners(ctx: &Ctx, charts: &[Chart]) -> Vec<u32> {
     let mut owner = vec![NONE; ctx.adj.len()];
     for (c, chart) in charts.iter().enumerate() {
         for &f in &chart.faces {
             owner[f as usize] = c as u32;
         }
     }
+    owner
+}
+
+/// Merges charts into neighbours, smallest first, while the union stays a
+/// disk that [`parameterize`] maps and within the normal cone (waived for
+/// tiny charts).
+fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
+    let mut owner = owners(ctx, &charts);
     let area = |chart: &Chart| chart.faces.iter().map(|&f| ctx.area[f as usize]).sum::<f64>();
     let mut order: Vec<(f64, u32, usize)> = charts
         .iter()
@@ -931,13 +937,7 @@ fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
 /// within the limits; moves touching a chart that does not are undone, and
 /// the charts they touch checked again.
 fn straighten_charts(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
-    let nf = ctx.adj.len();
-    let mut before = vec![NONE; nf];
-    for (c, chart) in charts.iter().enumerate() {
-        for &f in &chart.faces {
-            before[f as usize] = c as u32;
-        }
-    }
+    let before = owners(ctx, &charts);
     let mut label = before.clone();
     Patch::whole(ctx).straighten(ctx, &mut label);
     loop {
@@ -988,8 +988,7 @@ fn straighten_charts(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
 
 /// Segments the surface into few large disk-shaped charts and parameterises
 /// each with LSCM (Lévy et al. 2002), relaxed by ARAP where needed; see the
-/// module documentation. Every face
-/// is in exactly one chart; a closed component yields at least two charts.
+/// module documentation. Every face is in exactly one chart; a closed component yields at least two charts.
 /// Deterministic (independent of thread count); charts are ordered by their
 /// first face.
 pub fn build_charts(mesh: &Mesh, topology: &Topology, cfg: &ChartConfig) -> Result<Vec<Chart>> {
@@ -1282,12 +1281,7 @@ pub(super) mod tests {
     /// Faces meeting their own chart along at most one edge and another
     /// chart along two: the spikes and notches straightening removes.
     fn spikes(ctx: &Ctx, charts: &[Chart]) -> usize {
-        let mut owner = vec![NONE; ctx.adj.len()];
-        for (c, chart) in charts.iter().enumerate() {
-            for &f in &chart.faces {
-                owner[f as usize] = c as u32;
-            }
-        }
+        let owner = owners(ctx, charts);
         (0..ctx.adj.len())
             .filter(|&f| {
                 let around: Vec<u32> = ctx.adj[f]

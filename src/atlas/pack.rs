@@ -5,9 +5,10 @@
 //! bisection on s. At each scale a chart is rasterized into its footprint —
 //! the texels the rasterizer will cover (centres within
 //! [`COVER_RADIUS`] of a triangle), dilated by half the gutter — in each of
-//! eight orientations (four quarter turns, with and without an eighth turn
-//! first), and placed first-fit: each chart (largest first) takes the
-//! orientation and place where its footprint first fits among the
+//! its four quarter turns (and, where those do not fit a scale and eighth
+//! turns are asked for, the four again after an eighth turn), and placed
+//! first-fit: each chart (largest first) takes the orientation and place
+//! where its footprint first fits among the
 //! texels already taken, scanning rows from the top and columns from the
 //! left. Taken texels are kept as runs per row, so the holes between and
 //! inside charts placed earlier are filled like open space: chart shapes
@@ -55,15 +56,17 @@ impl Packing {
     }
 }
 
-/// Orientations a chart is tried in: four quarter turns of its box, and
-/// the same four after an eighth turn.
-const ORIENTATIONS: u8 = 8;
+/// The quarter turns of a chart's box, orientations 0-3.
+const QUARTER_TURNS: u8 = 4;
+/// Orientations a chart is tried in with eighth turns: the quarter turns,
+/// and the same four after an eighth turn.
+const ORIENTATIONS: u8 = 2 * QUARTER_TURNS;
 
 /// The box of a chart with `extent` in orientation `k` before its quarter
 /// turns: the chart's own box, or for `k` ≥ 4 the box of the chart turned
 /// an eighth counter-clockwise (that of its turned box, a square).
 fn box_extent(k: u8, extent: [f64; 2]) -> [f64; 2] {
-    if k >= 4 {
+    if k >= QUARTER_TURNS {
         let side = (extent[0] + extent[1]) * std::f64::consts::FRAC_1_SQRT_2;
         [side, side]
     } else {
@@ -79,7 +82,7 @@ fn box_extent(k: u8, extent: [f64; 2]) -> [f64; 2] {
 /// agree to the bit.
 fn in_box(k: u8, extent: [f64; 2], scale: f64, uv: [f32; 2]) -> [f64; 2] {
     let (u, v) = (uv[0] as f64, uv[1] as f64);
-    let p = if k >= 4 {
+    let p = if k >= QUARTER_TURNS {
         let s = std::f64::consts::FRAC_1_SQRT_2;
         [(u - v) * s + extent[1] * s, (u + v) * s]
     } else {
@@ -531,7 +534,7 @@ pub fn pack(shapes: &[Shape], resolution: usize, gutter: usize, eighth_turns: bo
             let mid = 0.5 * (lo + hi);
             // quarter turns alone, or with eighth turns too: the greedy
             // placement is not monotone in its choices, so either may fit
-            let fit = first_fit(shapes, &by_area, mid, resolution, gutter, 4).or_else(|| {
+            let fit = first_fit(shapes, &by_area, mid, resolution, gutter, QUARTER_TURNS).or_else(|| {
                 eighth_turns
                     .then(|| first_fit(shapes, &by_area, mid, resolution, gutter, ORIENTATIONS))
                     .flatten()
@@ -647,7 +650,7 @@ mod tests {
         let (r, gutter) = (256usize, 2usize);
         for eighth_turns in [false, true] {
             let p = pack(&shapes, r, gutter, eighth_turns);
-            let most = if eighth_turns { ORIENTATIONS } else { 4 };
+            let most = if eighth_turns { ORIENTATIONS } else { QUARTER_TURNS };
             assert!(p.scale > 0.0 && p.turns.iter().all(|&k| k < most));
             let cover = covered(&shapes, &p, r);
             // owner per texel: no texel twice, and at least `gutter` free
@@ -764,7 +767,7 @@ mod tests {
     #[test]
     fn quarter_turns_are_rotations_of_the_box() {
         let b = [3.0, 2.0];
-        for k in 0..4u8 {
+        for k in 0..QUARTER_TURNS {
             let corners = [[0.0, 0.0], [3.0, 0.0], [3.0, 2.0], [0.0, 2.0]].map(|p| turn(k, p, b));
             let size = if k % 2 == 1 { [2.0, 3.0] } else { b };
             for c in corners {
@@ -807,7 +810,7 @@ mod tests {
                 .atan2(p[1][0] - p[0][0])
                 .to_degrees()
                 .rem_euclid(90.0);
-            let want = if k >= 4 { 45.0 } else { 0.0 };
+            let want = if k >= QUARTER_TURNS { 45.0 } else { 0.0 };
             assert!(
                 (angle - want).abs() < 1e-6 || (angle - want).abs() > 90.0 - 1e-6,
                 "orientation {k}: {angle}"

@@ -491,9 +491,10 @@ impl Synthesis {
     /// against the finished surface, whose core (3 hops around the seam)
     /// must take the new values; the graphcut with seam nodes then places
     /// the new seams, and the fitting is kept only if its cut costs less
-    /// than 0.9 × the old seams it replaces. Returns how many were kept. Seams already inside
-    /// a refined patch are not visited again. The seams are visited in
-    /// [`visit_order`], which keeps the tiles a round reads few.
+    /// than 0.9 × the old seams it replaces. Returns how many were kept.
+    /// Seams already inside a refined patch are not visited again. The seams
+    /// are visited in [`visit_order`], which keeps the tiles a round reads
+    /// few.
     pub(crate) fn refine(&mut self, radius: usize, step: f64, progress: &dyn Progress) -> Result<usize> {
         let n = self.state.n;
         let (mut fa, mut fb) = (vec![0f32; n], vec![0f32; n]);
