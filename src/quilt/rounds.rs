@@ -12,13 +12,13 @@
 //! the whole state in its turn.
 
 use std::path::Path;
-use std::sync::Mutex;
+use std::sync::{Condvar, Mutex};
 
 use super::matching::{Matcher, SpectraCache};
 use super::occurrence::Occurrence;
 use super::sample::Sample;
 use super::state::{Bfs, State, Surface, WorkPatch};
-use super::synthesis::Synthesis;
+use super::synthesis::{Ledger, Synthesis};
 use super::worker::{Outcome, StepStats, Worker};
 use super::TileConfig;
 use crate::artifact::gim::TILE;
@@ -81,6 +81,29 @@ impl Context<'_> {
     }
 }
 
+/// Tells the thread accepting a round's patches that a task has filled a
+/// slot, or panicked.
+#[derive(Default)]
+struct Filled {
+    lock: Mutex<()>,
+    told: Condvar,
+    panicked: std::sync::atomic::AtomicBool,
+}
+
+/// Tells [`Filled`] when dropped: after each patch of a task, and when the
+/// task panics.
+struct Telling<'a>(&'a Filled);
+
+impl Drop for Telling<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.panicked.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+        let _told = crate::lock(&self.0.lock);
+        self.0.told.notify_all();
+    }
+}
+
 /// A work patch of a round: its seed and the atlas tiles it may read.
 struct Job {
     v: u32,
@@ -123,8 +146,13 @@ impl Synthesis {
         self.check_paging()?;
         while self.state.remaining > 0 {
             let jobs = self.quilting_round(radius0);
-            let (outcomes, ()) = self.compute(&jobs, |w, v| w.step(v, radius0, &Silent), |_, _| ());
-            self.accept_steps(&jobs, outcomes, radius0, progress)?;
+            let (accepted, outcomes, ()) = self.compute(
+                &jobs,
+                |w, v| w.step(v, radius0, &Silent),
+                |_, _| (),
+                Some(progress),
+            );
+            self.accept_steps(&jobs[accepted..], outcomes, radius0, progress)?;
         }
         Ok(())
     }
@@ -219,10 +247,11 @@ impl Synthesis {
         let (mut jobs, mut closed) = schedule.round(&mut self.bfs, &lent(&self.surface));
         while !jobs.is_empty() {
             // (the next round chosen while this one is computed)
-            let (outcomes, next) = self.compute(
+            let (_, outcomes, next) = self.compute(
                 &jobs,
                 |w, v| w.step(v, radius0, &Silent),
                 |bfs, lend| schedule.round(bfs, lend),
+                None,
             );
             self.accept_steps(&jobs, outcomes, radius0, progress)?;
             covered(closed);
@@ -259,13 +288,14 @@ impl Synthesis {
             // kept, while the next round is chosen (the rounds depend on
             // the surface alone)
             let base = self.report.patches as u64;
-            let (outcomes, next) = self.compute(
+            let (_, outcomes, next) = self.compute(
                 &jobs,
                 |w, v| {
                     w.counter = base;
                     w.refinement(v, radius, placements, 3)
                 },
                 |bfs, lend| schedule.round(bfs, lend),
+                None,
             );
             for (job, outcome) in jobs.iter().zip(outcomes) {
                 let outcome = match outcome {
@@ -299,9 +329,21 @@ impl Synthesis {
     /// Computes the round's work patches with `f`, at once when there are
     /// several, each over views of its tiles and counting from the patches
     /// accepted so far plus its place in the round, while `alongside` runs
-    /// on the whole surface. `None` for a patch that read outside its
-    /// tiles.
-    fn compute<F, A, R>(&mut self, jobs: &[Job], f: F, alongside: A) -> (Vec<Option<Result<Outcome>>>, R)
+    /// on the whole surface. With `eager`, this thread meanwhile accepts
+    /// the round's first patches in order as they are computed (each
+    /// reads and writes only its own tiles, so this is the quilt of
+    /// accepting them after the round), up to the first that is not
+    /// computed on its views, where this thread is outside the thread pool
+    /// (inside it, the pool needs it for the round). Returns how many were
+    /// accepted and the outcomes of the others (`None` for a patch that
+    /// read outside its tiles).
+    fn compute<F, A, R>(
+        &mut self,
+        jobs: &[Job],
+        f: F,
+        alongside: A,
+        eager: Option<&dyn Progress>,
+    ) -> (usize, Vec<Option<Result<Outcome>>>, R)
     where
         F: Fn(&mut Worker<'_>, u32) -> Result<Outcome> + Sync,
         A: FnOnce(&mut Bfs, Lend) -> R + Send,
@@ -309,7 +351,7 @@ impl Synthesis {
     {
         if jobs.len() <= 1 {
             let outcomes = jobs.iter().map(|j| Some(f(&mut self.worker(), j.v))).collect();
-            return (outcomes, alongside(&mut self.bfs, &lent(&self.surface)));
+            return (0, outcomes, alongside(&mut self.bfs, &lent(&self.surface)));
         }
         let (at_once, by_memory) = self.at_once(jobs);
         let job = Context {
@@ -324,6 +366,7 @@ impl Synthesis {
             spectra: self.matcher.spectra_cache(),
             base: self.report.patches as u64,
         };
+        let mut accepted = 0;
         let (outcomes, other): (Vec<Option<Result<Outcome>>>, R) = if at_once <= 1 {
             // one at a time, each over its views all the same (a patch that
             // reads outside its tiles is computed again in its turn)
@@ -353,14 +396,26 @@ impl Synthesis {
             }
             let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
                 jobs.iter().map(|_| Mutex::new(None)).collect();
+            // told when a slot is filled (or a task panicked)
+            let filled = Filled::default();
             let next = std::sync::atomic::AtomicUsize::new(0);
             let main_bfs = &mut self.bfs;
             let pagers = Mutex::new((&mut self.surface, &mut self.state));
-            let (job, views, slots, next, pagers, f, order) =
-                (&job, &views, &slots, &next, &pagers, &f, &order);
-            let other = rayon::scope(|s| {
+            let mut ledger = Ledger {
+                sample: &self.sample,
+                occurrence: (!self.painting).then_some(&mut self.occurrence),
+                report: &mut self.report,
+                seam_sum: &mut self.seam_sum,
+                seam_cnt: &mut self.seam_cnt,
+            };
+            let eager = eager.filter(|_| rayon::current_thread_index().is_none());
+            let (job, views, slots, filled, next, pagers, f, order) =
+                (&job, &views, &slots, &filled, &next, &pagers, &f, &order);
+            // (in place: outside the pool this thread is free to accept)
+            let other = rayon::in_place_scope(|s| {
                 for _ in 0..at_once {
                     s.spawn(move |_| loop {
+                        let _telling = Telling(filled);
                         let Some(&j) = order.get(next.fetch_add(1, std::sync::atomic::Ordering::Relaxed))
                         else {
                             break;
@@ -375,10 +430,37 @@ impl Synthesis {
                 }
                 // lent a traversal at a time, so that tasks wait for the
                 // lock one traversal at most
-                alongside(main_bfs, &|f| f(crate::lock(pagers).0))
+                let other = alongside(main_bfs, &|f| f(crate::lock(pagers).0));
+                if let Some(progress) = eager {
+                    while accepted < jobs.len() {
+                        let mut told = crate::lock(&filled.lock);
+                        let outcome = loop {
+                            if let Some(outcome) = crate::lock(&slots[accepted]).take() {
+                                break Some(outcome);
+                            }
+                            if filled.panicked.load(std::sync::atomic::Ordering::Relaxed) {
+                                // (the scope passes the panic on)
+                                break None;
+                            }
+                            told = filled.told.wait(told).unwrap_or_else(|e| e.into_inner());
+                        };
+                        drop(told);
+                        let Some(outcome) = outcome else { break };
+                        let Some(Ok(outcome)) = outcome else {
+                            // (computed again, or the error met, in its turn)
+                            *crate::lock(&slots[accepted]) = Some(outcome);
+                            break;
+                        };
+                        let mut p = crate::lock(pagers);
+                        let (surface, state) = &mut *p;
+                        ledger.accept_outcome(state, surface, &outcome, progress);
+                        accepted += 1;
+                    }
+                }
+                other
             });
-            self.report.late_views += jobs.len() - ahead;
-            let outcomes = slots
+            ledger.report.late_views += jobs.len() - ahead;
+            let outcomes = slots[accepted..]
                 .iter()
                 .map(|slot| crate::lock(slot).take().expect("every patch computed"))
                 .collect();
@@ -388,15 +470,16 @@ impl Synthesis {
         // reach: computed again over views of its reach, before any patch
         // of the round is accepted (so the same outcome as over them first)
         let mut outcomes = outcomes;
-        for (j, w) in jobs.iter().enumerate() {
-            if outcomes[j].is_none() && w.narrow.is_some() {
-                outcomes[j] = job.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), &f);
+        for (j, w) in jobs.iter().enumerate().skip(accepted) {
+            let o = &mut outcomes[j - accepted];
+            if o.is_none() && w.narrow.is_some() {
+                *o = job.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), &f);
             }
         }
         self.report.concurrent_patches += jobs.len();
         self.report.recomputed_patches += outcomes.iter().filter(|o| o.is_none()).count();
         self.spares = job.spares.into_inner().unwrap_or_else(|e| e.into_inner());
-        (outcomes, other)
+        (accepted, outcomes, other)
     }
 
     /// How many of `jobs` to compute at once: one per thread, fewer when

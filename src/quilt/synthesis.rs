@@ -471,16 +471,27 @@ impl Synthesis {
     /// Accepts a computed work patch: its stats into the report, its
     /// fitting into the state.
     pub(super) fn accept_outcome(&mut self, outcome: &Outcome, progress: &dyn Progress) {
-        self.add_stats(&outcome.stats);
-        self.report.cross_chart_patches += outcome.patch.crosses_charts as usize;
-        self.report.unfolded_patches += outcome.unfolded as usize;
-        self.accept(&outcome.patch, &outcome.fit, progress);
+        let (mut ledger, state, surface) = self.ledger();
+        ledger.accept_outcome(state, surface, outcome, progress);
     }
 
     pub(super) fn add_stats(&mut self, stats: &StepStats) {
-        self.report.shrinks += stats.shrinks;
-        self.report.matching_seconds += stats.matching_seconds;
-        self.report.graphcut_seconds += stats.graphcut_seconds;
+        add_stats(&mut self.report, stats);
+    }
+
+    /// The [`Ledger`], with the state and surface it accepts into.
+    pub(super) fn ledger(&mut self) -> (Ledger<'_>, &mut State, &Surface) {
+        (
+            Ledger {
+                sample: &self.sample,
+                occurrence: (!self.painting).then_some(&mut self.occurrence),
+                report: &mut self.report,
+                seam_sum: &mut self.seam_sum,
+                seam_cnt: &mut self.seam_cnt,
+            },
+            &mut self.state,
+            &self.surface,
+        )
     }
 
     /// Seam refinement (Kwatra et al. 2003, §3.3, "patch placement on
@@ -537,21 +548,8 @@ impl Synthesis {
 
     /// Records an accepted fitting under the next patch id.
     pub(super) fn accept(&mut self, patch: &WorkPatch, fit: &Fit, progress: &dyn Progress) {
-        let id = self.state.next_patch;
-        self.state.next_patch += 1;
-        apply(
-            &mut self.state,
-            &self.sample,
-            &self.surface,
-            patch,
-            fit,
-            id,
-            (!self.painting).then_some(&mut self.occurrence),
-            progress,
-        );
-        self.seam_sum += fit.seam_cost;
-        self.seam_cnt += fit.seam_edges;
-        self.report.patches += 1;
+        let (mut ledger, state, surface) = self.ledger();
+        ledger.accept(state, surface, patch, fit, progress);
     }
 
     /// Verbatim copy (§IV): the sample's foreground, its point `centre`
@@ -715,6 +713,68 @@ impl Synthesis {
         self.report.tiles_read = self.surface.tiles_read() + self.state.tiles_read();
         self.report.scratch_bytes = self.state.scratch_bytes();
     }
+}
+
+/// What accepting a work patch changes besides the state: the parts of a
+/// [`Synthesis`] borrowed one by one, so that a round's patches can be
+/// accepted while its later ones are still computed
+/// ([`super::rounds`]).
+pub(super) struct Ledger<'a> {
+    pub(super) sample: &'a Sample,
+    /// The occurrence map (tiling only).
+    pub(super) occurrence: Option<&'a mut Occurrence>,
+    pub(super) report: &'a mut TileReport,
+    pub(super) seam_sum: &'a mut f64,
+    pub(super) seam_cnt: &'a mut usize,
+}
+
+impl Ledger<'_> {
+    /// Records an accepted fitting into `state` under the next patch id.
+    pub(super) fn accept(
+        &mut self,
+        state: &mut State,
+        surface: &Surface,
+        patch: &WorkPatch,
+        fit: &Fit,
+        progress: &dyn Progress,
+    ) {
+        let id = state.next_patch;
+        state.next_patch += 1;
+        apply(
+            state,
+            self.sample,
+            surface,
+            patch,
+            fit,
+            id,
+            self.occurrence.as_deref_mut(),
+            progress,
+        );
+        *self.seam_sum += fit.seam_cost;
+        *self.seam_cnt += fit.seam_edges;
+        self.report.patches += 1;
+    }
+
+    /// Accepts a computed work patch: its stats into the report, its
+    /// fitting into `state`.
+    pub(super) fn accept_outcome(
+        &mut self,
+        state: &mut State,
+        surface: &Surface,
+        outcome: &Outcome,
+        progress: &dyn Progress,
+    ) {
+        add_stats(self.report, &outcome.stats);
+        self.report.cross_chart_patches += outcome.patch.crosses_charts as usize;
+        self.report.unfolded_patches += outcome.unfolded as usize;
+        self.accept(state, surface, &outcome.patch, &outcome.fit, progress);
+    }
+}
+
+fn add_stats(report: &mut TileReport, stats: &StepStats) {
+    report.shrinks += stats.shrinks;
+    report.matching_seconds += stats.matching_seconds;
+    report.graphcut_seconds += stats.graphcut_seconds;
 }
 
 /// A verbatim copy's direct projection (§IV's fast preview): the work
