@@ -12,7 +12,7 @@
 //! the whole state in its turn.
 
 use std::path::Path;
-use std::sync::{Condvar, Mutex};
+use std::sync::{Arc, Condvar, Mutex};
 
 use super::matching::{Matcher, SpectraCache};
 use super::occurrence::Occurrence;
@@ -81,26 +81,99 @@ impl Context<'_> {
     }
 }
 
-/// Tells the thread accepting a round's patches that a task has filled a
-/// slot, or panicked.
+/// What the tasks of a streamed round share with the thread handing out
+/// its work patches ([`Synthesis::streamed_round`]).
 #[derive(Default)]
-struct Filled {
-    lock: Mutex<()>,
+struct Shared {
+    round: Mutex<Streamed>,
+    /// Told when a patch is computed or its task panicked.
     told: Condvar,
-    panicked: std::sync::atomic::AtomicBool,
 }
 
-/// Tells [`Filled`] when dropped: after each patch of a task, and when the
-/// task panics.
-struct Telling<'a>(&'a Filled);
+#[derive(Default)]
+struct Streamed {
+    /// The outcome of each patch chosen, once computed.
+    slots: Vec<Option<Option<Result<Outcome>>>>,
+    /// The memory of the patches computed.
+    freed: u64,
+    panicked: bool,
+}
+
+/// Tells the thread handing out a streamed round when dropped: after a
+/// task's patch, and when the task panics.
+struct Telling<'a>(&'a Shared);
 
 impl Drop for Telling<'_> {
     fn drop(&mut self) {
-        if std::thread::panicking() {
-            self.0.panicked.store(true, std::sync::atomic::Ordering::Relaxed);
-        }
-        let _told = crate::lock(&self.0.lock);
+        let mut round = crate::lock(&self.0.round);
+        round.panicked |= std::thread::panicking();
         self.0.told.notify_all();
+    }
+}
+
+/// Chooses a round of the quilting loop a work patch at a time: the most
+/// constrained texel first, then the most constrained texels (with at
+/// least one synthesized neighbour) whose tiles are not the round's, from
+/// the state as the round found it.
+struct Chooser {
+    /// The round's tiles.
+    used: Vec<bool>,
+    /// Its tiles and those of seeds given up.
+    blocked: Vec<bool>,
+    chosen: usize,
+    round: usize,
+    radius: usize,
+}
+
+impl Chooser {
+    fn new(surface: &Surface, round: usize, radius: usize) -> Chooser {
+        let used = vec![false; surface.grid().tiles()];
+        Chooser {
+            blocked: used.clone(),
+            used,
+            chosen: 0,
+            round,
+            radius,
+        }
+    }
+
+    /// The round's next work patch; `None` once it is complete.
+    fn next(&mut self, bfs: &mut Bfs, surface: &Surface, state: &State) -> Option<Job> {
+        let job = self.choose(bfs, surface, state);
+        if job.is_none() {
+            self.chosen = self.round;
+        }
+        job
+    }
+
+    fn choose(&mut self, bfs: &mut Bfs, surface: &Surface, state: &State) -> Option<Job> {
+        let radius = self.radius;
+        let (v, tiles, ball) = if self.chosen == 0 {
+            let v = state.most_constrained()?;
+            let (tiles, ball) = reach(bfs, surface, v, radius);
+            (v, tiles, ball)
+        } else if self.chosen < self.round {
+            let mut found = None;
+            for _ in 0..TRIES {
+                let v = state.most_constrained_outside(&self.blocked, 1)?;
+                match reach_unless_used(bfs, surface, v, radius, &self.used) {
+                    Some((tiles, ball)) => {
+                        found = Some((v, tiles, ball));
+                        break;
+                    }
+                    None => self.blocked[surface.grid().locate(v).0] = true,
+                }
+            }
+            found?
+        } else {
+            return None;
+        };
+        for &k in &tiles {
+            self.used[k] = true;
+            self.blocked[k] = true;
+        }
+        self.chosen += 1;
+        Some(Job::new(v, &tiles, ball, radius, surface))
     }
 }
 
@@ -144,39 +217,178 @@ impl Synthesis {
     pub(crate) fn synthesize(&mut self, first: u32, radius0: usize, progress: &dyn Progress) -> Result<()> {
         self.step(first, radius0, progress)?;
         self.check_paging()?;
+        // (inside the pool the calling thread is one of the round's)
+        let streamed = rayon::current_thread_index().is_none();
         while self.state.remaining > 0 {
-            let jobs = self.quilting_round(radius0);
-            let (accepted, outcomes, ()) = self.compute(
-                &jobs,
-                |w, v| w.step(v, radius0, &Silent),
-                |_, _| (),
-                Some(progress),
-            );
-            self.accept_steps(&jobs[accepted..], outcomes, radius0, progress)?;
+            if streamed {
+                self.streamed_round(radius0, progress)?;
+            } else {
+                let jobs = self.quilting_round(radius0);
+                let (outcomes, ()) = self.compute(&jobs, |w, v| w.step(v, radius0, &Silent), |_, _| ());
+                self.accept_steps(jobs.iter().map(|j| j.v), outcomes, radius0, progress)?;
+            }
         }
         Ok(())
+    }
+
+    /// A round of the quilting loop (as [`Synthesis::quilting_round`]
+    /// chooses it, computed and accepted as [`Synthesis::compute`] and
+    /// [`Synthesis::accept_steps`] do) with this thread, outside the pool,
+    /// choosing, handing out and accepting while the pool computes: each
+    /// work patch goes to the pool over views of its tiles as soon as it is
+    /// chosen and memory holds it (its [`bytes_per_texel`] and the matcher's
+    /// buffers within half of `--memory`, or none other in flight), and once
+    /// the round is chosen the patches are accepted in order as they are
+    /// computed, up to the first that read outside its tiles (that one and
+    /// the rest are accepted after, as [`Synthesis::accept_steps`] does).
+    /// A patch reads and writes only its own tiles, so the quilt is that of
+    /// a round chosen, then computed, then accepted.
+    fn streamed_round(&mut self, radius0: usize, progress: &dyn Progress) -> Result<()> {
+        let budget = self.cfg.memory.bytes() / 2;
+        let buffers = self
+            .spares
+            .iter()
+            .map(|(m, _)| m.buffer_bytes())
+            .chain([self.matcher.buffer_bytes()])
+            .max()
+            .unwrap_or(0) as u64;
+        let per_texel = bytes_per_texel(self.sample.n);
+        let cost = |job: &Job| buffers + per_texel * job.ball.texels.len() as u64;
+        let context = Context {
+            sample: &self.sample,
+            zipper_triangles: &self.zipper_triangles,
+            cfg: &self.cfg,
+            sample_path: &self.sample_path,
+            reference: self.reference,
+            painting: self.painting,
+            occurrence: Some(self.occurrence.snapshot()),
+            spares: Mutex::new(std::mem::take(&mut self.spares)),
+            spectra: self.matcher.spectra_cache(),
+            base: self.report.patches as u64,
+        };
+        let mut ledger = Ledger {
+            sample: &self.sample,
+            occurrence: Some(&mut self.occurrence),
+            report: &mut self.report,
+            seam_sum: &mut self.seam_sum,
+            seam_cnt: &mut self.seam_cnt,
+        };
+        let (bfs, surface, state) = (&mut self.bfs, &self.surface, &mut self.state);
+        let mut chooser = Chooser::new(surface, self.cfg.round, radius0);
+        let shared = Shared::default();
+        let f = |w: &mut Worker<'_>, v: u32| w.step(v, radius0, &Silent);
+        let (cx, sh, f) = (&context, &shared, &f);
+        let mut jobs: Vec<Arc<Job>> = Vec::new();
+        let mut accepted = 0;
+        rayon::in_place_scope(|s| {
+            let (mut choosing, mut accepting) = (true, true);
+            let (mut handed, mut handed_bytes) = (0, 0u64);
+            loop {
+                // hand out what memory holds
+                while handed < jobs.len() {
+                    let c = cost(&jobs[handed]);
+                    let in_flight = handed_bytes - crate::lock(&sh.round).freed;
+                    if in_flight > 0 && in_flight + c > budget {
+                        break;
+                    }
+                    let (j, job) = (handed, Arc::clone(&jobs[handed]));
+                    let (surface, state) = (surface.view(job.view()), state.view(job.view()));
+                    // (a task per patch, which never waits: a waiting
+                    // task could hold up the pool's nested joins)
+                    s.spawn(move |_| {
+                        let _telling = Telling(sh);
+                        let outcome = cx.run(j, &job, surface, state, f);
+                        let mut round = crate::lock(&sh.round);
+                        round.slots[j] = Some(outcome);
+                        round.freed += c;
+                    });
+                    handed += 1;
+                    handed_bytes += c;
+                }
+                if choosing {
+                    // (all chosen from the state as the round found it)
+                    match chooser.next(bfs, surface, state) {
+                        Some(job) => {
+                            jobs.push(Arc::new(job));
+                            crate::lock(&sh.round).slots.push(None);
+                        }
+                        None => choosing = false,
+                    }
+                    continue;
+                }
+                let mut round = crate::lock(&sh.round);
+                if round.panicked {
+                    break;
+                }
+                if accepting && accepted < jobs.len() {
+                    if let Some(outcome) = round.slots[accepted].take() {
+                        drop(round);
+                        match outcome {
+                            Some(Ok(outcome)) => {
+                                ledger.accept_outcome(state, surface, &outcome, progress);
+                                accepted += 1;
+                            }
+                            other => {
+                                // computed again, or its error met, in its turn
+                                crate::lock(&sh.round).slots[accepted] = Some(other);
+                                accepting = false;
+                            }
+                        }
+                        continue;
+                    }
+                }
+                if handed < jobs.len() {
+                    // (memory freed since it was last looked at)
+                    let in_flight = handed_bytes - round.freed;
+                    if in_flight == 0 || in_flight + cost(&jobs[handed]) <= budget {
+                        continue;
+                    }
+                } else if accepted == jobs.len()
+                    || (!accepting && round.slots[accepted..].iter().all(Option::is_some))
+                {
+                    break;
+                }
+                drop(sh.told.wait(round).unwrap_or_else(|e| e.into_inner()));
+            }
+        });
+        let mut round = shared.round.into_inner().unwrap_or_else(|e| e.into_inner());
+        let mut outcomes: Vec<Option<Result<Outcome>>> = round.slots[accepted..]
+            .iter_mut()
+            .map(|slot| slot.take().expect("every patch computed"))
+            .collect();
+        // as in `compute`: a patch that read outside its view's tiles but
+        // not outside its reach is computed again over views of its reach
+        for (j, w) in jobs.iter().enumerate().skip(accepted) {
+            let o = &mut outcomes[j - accepted];
+            if o.is_none() && w.narrow.is_some() {
+                *o = context.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), f);
+            }
+        }
+        if jobs.len() > 1 {
+            self.report.concurrent_patches += jobs.len();
+        }
+        self.report.recomputed_patches += outcomes.iter().filter(|o| o.is_none()).count();
+        self.spares = context.spares.into_inner().unwrap_or_else(|e| e.into_inner());
+        self.accept_steps(jobs[accepted..].iter().map(|j| j.v), outcomes, radius0, progress)
     }
 
     /// Accepts a round's quilting steps in order; a step that read outside
     /// its tiles is computed again on the whole state first.
     fn accept_steps(
         &mut self,
-        jobs: &[Job],
+        seeds: impl IntoIterator<Item = u32>,
         outcomes: Vec<Option<Result<Outcome>>>,
         radius0: usize,
         progress: &dyn Progress,
     ) -> Result<()> {
-        for (job, outcome) in jobs.iter().zip(outcomes) {
+        for (v, outcome) in seeds.into_iter().zip(outcomes) {
             match outcome {
                 Some(outcome) => self.accept_outcome(&outcome?, progress),
                 None => {
                     if std::env::var_os("BTFQUILT_TRACE").is_some() {
-                        progress.note(&format!(
-                            "patch at {} read outside its tiles: computed again",
-                            job.v
-                        ));
+                        progress.note(&format!("patch at {v} read outside its tiles: computed again"));
                     }
-                    self.step(job.v, radius0, progress)?;
+                    self.step(v, radius0, progress)?;
                 }
             }
         }
@@ -185,33 +397,10 @@ impl Synthesis {
 
     /// The seeds of the next round of the quilting loop.
     fn quilting_round(&mut self, radius0: usize) -> Vec<Job> {
-        let v = self.state.most_constrained().expect("texels remain");
-        let (tiles, ball) = self.reach(v, radius0);
-        let mut used = vec![false; self.surface.grid().tiles()];
-        let mut blocked = used.clone();
-        for &k in &tiles {
-            used[k] = true;
-            blocked[k] = true;
-        }
-        let mut jobs = vec![Job::new(v, &tiles, ball, radius0, &self.surface)];
-        'round: while jobs.len() < self.cfg.round {
-            for _ in 0..TRIES {
-                let Some(v) = self.state.most_constrained_outside(&blocked, 1) else {
-                    break 'round;
-                };
-                let Some((tiles, ball)) = reach_unless_used(&mut self.bfs, &self.surface, v, radius0, &used)
-                else {
-                    blocked[self.surface.grid().locate(v).0] = true;
-                    continue;
-                };
-                for &k in &tiles {
-                    used[k] = true;
-                    blocked[k] = true;
-                }
-                jobs.push(Job::new(v, &tiles, ball, radius0, &self.surface));
-                continue 'round;
-            }
-            break;
+        let mut chooser = Chooser::new(&self.surface, self.cfg.round, radius0);
+        let mut jobs = Vec::new();
+        while let Some(job) = chooser.next(&mut self.bfs, &self.surface, &self.state) {
+            jobs.push(job);
         }
         jobs
     }
@@ -247,13 +436,12 @@ impl Synthesis {
         let (mut jobs, mut closed) = schedule.round(&mut self.bfs, &lent(&self.surface));
         while !jobs.is_empty() {
             // (the next round chosen while this one is computed)
-            let (_, outcomes, next) = self.compute(
+            let (outcomes, next) = self.compute(
                 &jobs,
                 |w, v| w.step(v, radius0, &Silent),
                 |bfs, lend| schedule.round(bfs, lend),
-                None,
             );
-            self.accept_steps(&jobs, outcomes, radius0, progress)?;
+            self.accept_steps(jobs.iter().map(|j| j.v), outcomes, radius0, progress)?;
             covered(closed);
             (jobs, closed) = next;
         }
@@ -288,14 +476,13 @@ impl Synthesis {
             // kept, while the next round is chosen (the rounds depend on
             // the surface alone)
             let base = self.report.patches as u64;
-            let (_, outcomes, next) = self.compute(
+            let (outcomes, next) = self.compute(
                 &jobs,
                 |w, v| {
                     w.counter = base;
                     w.refinement(v, radius, placements, 3)
                 },
                 |bfs, lend| schedule.round(bfs, lend),
-                None,
             );
             for (job, outcome) in jobs.iter().zip(outcomes) {
                 let outcome = match outcome {
@@ -321,29 +508,12 @@ impl Synthesis {
         Ok(kept)
     }
 
-    /// [`reach`] on the whole surface.
-    fn reach(&mut self, v: u32, radius: usize) -> (Vec<usize>, WorkPatch) {
-        reach(&mut self.bfs, &self.surface, v, radius)
-    }
-
     /// Computes the round's work patches with `f`, at once when there are
     /// several, each over views of its tiles and counting from the patches
     /// accepted so far plus its place in the round, while `alongside` runs
-    /// on the whole surface. With `eager`, this thread meanwhile accepts
-    /// the round's first patches in order as they are computed (each
-    /// reads and writes only its own tiles, so this is the quilt of
-    /// accepting them after the round), up to the first that is not
-    /// computed on its views, where this thread is outside the thread pool
-    /// (inside it, the pool needs it for the round). Returns how many were
-    /// accepted and the outcomes of the others (`None` for a patch that
-    /// read outside its tiles).
-    fn compute<F, A, R>(
-        &mut self,
-        jobs: &[Job],
-        f: F,
-        alongside: A,
-        eager: Option<&dyn Progress>,
-    ) -> (usize, Vec<Option<Result<Outcome>>>, R)
+    /// on the whole surface. `None` for a patch that read outside its
+    /// tiles.
+    fn compute<F, A, R>(&mut self, jobs: &[Job], f: F, alongside: A) -> (Vec<Option<Result<Outcome>>>, R)
     where
         F: Fn(&mut Worker<'_>, u32) -> Result<Outcome> + Sync,
         A: FnOnce(&mut Bfs, Lend) -> R + Send,
@@ -351,7 +521,7 @@ impl Synthesis {
     {
         if jobs.len() <= 1 {
             let outcomes = jobs.iter().map(|j| Some(f(&mut self.worker(), j.v))).collect();
-            return (0, outcomes, alongside(&mut self.bfs, &lent(&self.surface)));
+            return (outcomes, alongside(&mut self.bfs, &lent(&self.surface)));
         }
         let (at_once, by_memory) = self.at_once(jobs);
         let job = Context {
@@ -366,7 +536,6 @@ impl Synthesis {
             spectra: self.matcher.spectra_cache(),
             base: self.report.patches as u64,
         };
-        let mut accepted = 0;
         let (outcomes, other): (Vec<Option<Result<Outcome>>>, R) = if at_once <= 1 {
             // one at a time, each over its views all the same (a patch that
             // reads outside its tiles is computed again in its turn)
@@ -396,26 +565,14 @@ impl Synthesis {
             }
             let slots: Vec<Mutex<Option<Option<Result<Outcome>>>>> =
                 jobs.iter().map(|_| Mutex::new(None)).collect();
-            // told when a slot is filled (or a task panicked)
-            let filled = Filled::default();
             let next = std::sync::atomic::AtomicUsize::new(0);
             let main_bfs = &mut self.bfs;
             let pagers = Mutex::new((&mut self.surface, &mut self.state));
-            let mut ledger = Ledger {
-                sample: &self.sample,
-                occurrence: (!self.painting).then_some(&mut self.occurrence),
-                report: &mut self.report,
-                seam_sum: &mut self.seam_sum,
-                seam_cnt: &mut self.seam_cnt,
-            };
-            let eager = eager.filter(|_| rayon::current_thread_index().is_none());
-            let (job, views, slots, filled, next, pagers, f, order) =
-                (&job, &views, &slots, &filled, &next, &pagers, &f, &order);
-            // (in place: outside the pool this thread is free to accept)
-            let other = rayon::in_place_scope(|s| {
+            let (job, views, slots, next, pagers, f, order) =
+                (&job, &views, &slots, &next, &pagers, &f, &order);
+            let other = rayon::scope(|s| {
                 for _ in 0..at_once {
                     s.spawn(move |_| loop {
-                        let _telling = Telling(filled);
                         let Some(&j) = order.get(next.fetch_add(1, std::sync::atomic::Ordering::Relaxed))
                         else {
                             break;
@@ -430,37 +587,10 @@ impl Synthesis {
                 }
                 // lent a traversal at a time, so that tasks wait for the
                 // lock one traversal at most
-                let other = alongside(main_bfs, &|f| f(crate::lock(pagers).0));
-                if let Some(progress) = eager {
-                    while accepted < jobs.len() {
-                        let mut told = crate::lock(&filled.lock);
-                        let outcome = loop {
-                            if let Some(outcome) = crate::lock(&slots[accepted]).take() {
-                                break Some(outcome);
-                            }
-                            if filled.panicked.load(std::sync::atomic::Ordering::Relaxed) {
-                                // (the scope passes the panic on)
-                                break None;
-                            }
-                            told = filled.told.wait(told).unwrap_or_else(|e| e.into_inner());
-                        };
-                        drop(told);
-                        let Some(outcome) = outcome else { break };
-                        let Some(Ok(outcome)) = outcome else {
-                            // (computed again, or the error met, in its turn)
-                            *crate::lock(&slots[accepted]) = Some(outcome);
-                            break;
-                        };
-                        let mut p = crate::lock(pagers);
-                        let (surface, state) = &mut *p;
-                        ledger.accept_outcome(state, surface, &outcome, progress);
-                        accepted += 1;
-                    }
-                }
-                other
+                alongside(main_bfs, &|f| f(crate::lock(pagers).0))
             });
-            ledger.report.late_views += jobs.len() - ahead;
-            let outcomes = slots[accepted..]
+            self.report.late_views += jobs.len() - ahead;
+            let outcomes = slots
                 .iter()
                 .map(|slot| crate::lock(slot).take().expect("every patch computed"))
                 .collect();
@@ -470,16 +600,15 @@ impl Synthesis {
         // reach: computed again over views of its reach, before any patch
         // of the round is accepted (so the same outcome as over them first)
         let mut outcomes = outcomes;
-        for (j, w) in jobs.iter().enumerate().skip(accepted) {
-            let o = &mut outcomes[j - accepted];
-            if o.is_none() && w.narrow.is_some() {
-                *o = job.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), &f);
+        for (j, w) in jobs.iter().enumerate() {
+            if outcomes[j].is_none() && w.narrow.is_some() {
+                outcomes[j] = job.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), &f);
             }
         }
         self.report.concurrent_patches += jobs.len();
         self.report.recomputed_patches += outcomes.iter().filter(|o| o.is_none()).count();
         self.spares = job.spares.into_inner().unwrap_or_else(|e| e.into_inner());
-        (accepted, outcomes, other)
+        (outcomes, other)
     }
 
     /// How many of `jobs` to compute at once: one per thread, fewer when
