@@ -44,6 +44,7 @@ mod placement;
 mod rounds;
 mod sample;
 mod state;
+mod streamed;
 mod structure;
 mod synthesis;
 mod worker;

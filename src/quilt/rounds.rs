@@ -10,15 +10,20 @@
 //! so the quilt is the same for any thread count. A patch that reads
 //! outside its tiles (a view sees a blank tile there) is computed again on
 //! the whole state in its turn.
+//!
+//! Run from outside the thread pool (as the command line does), the
+//! quilting loop's rounds are streamed ([`super::streamed`]): the same
+//! rounds, patches and order of acceptance, with choosing and accepting
+//! overlapping the computing.
 
 use std::path::Path;
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::Mutex;
 
 use super::matching::{Matcher, SpectraCache};
 use super::occurrence::Occurrence;
 use super::sample::Sample;
 use super::state::{Bfs, State, Surface, WorkPatch};
-use super::synthesis::{Ledger, Synthesis};
+use super::synthesis::Synthesis;
 use super::worker::{Outcome, StepStats, Worker};
 use super::TileConfig;
 use crate::artifact::gim::TILE;
@@ -33,25 +38,32 @@ pub(crate) const REFINE_ROUND: usize = 16;
 const TRIES: usize = 8;
 
 /// What the work patches of a round share while they are computed.
-struct Context<'a> {
-    sample: &'a Sample,
-    zipper_triangles: &'a [[u32; 3]],
-    cfg: &'a TileConfig,
-    sample_path: &'a Path,
-    reference: f64,
-    painting: bool,
+pub(super) struct Context<'a> {
+    pub(super) sample: &'a Sample,
+    pub(super) zipper_triangles: &'a [[u32; 3]],
+    pub(super) cfg: &'a TileConfig,
+    pub(super) sample_path: &'a Path,
+    pub(super) reference: f64,
+    pub(super) painting: bool,
     /// The occurrence map as the round found it.
-    occurrence: Option<Occurrence>,
-    spares: Mutex<Vec<(Matcher, Bfs)>>,
-    spectra: SpectraCache,
+    pub(super) occurrence: Option<Occurrence>,
+    pub(super) spares: Mutex<Vec<(Matcher, Bfs)>>,
+    pub(super) spectra: SpectraCache,
     /// Patches accepted before the round.
-    base: u64,
+    pub(super) base: u64,
 }
 
 impl Context<'_> {
     /// Computes the round's `j`-th work patch with `f` over views of its
     /// tiles; `None` if it read outside them.
-    fn run<F>(&self, j: usize, job: &Job, surface: Surface, state: State, f: &F) -> Option<Result<Outcome>>
+    pub(super) fn run<F>(
+        &self,
+        j: usize,
+        job: &Job,
+        surface: Surface,
+        state: State,
+        f: &F,
+    ) -> Option<Result<Outcome>>
     where
         F: Fn(&mut Worker<'_>, u32) -> Result<Outcome> + Sync,
     {
@@ -81,41 +93,11 @@ impl Context<'_> {
     }
 }
 
-/// What the tasks of a streamed round share with the thread handing out
-/// its work patches ([`Synthesis::streamed_round`]).
-#[derive(Default)]
-struct Shared {
-    round: Mutex<Streamed>,
-    /// Told when a patch is computed or its task panicked.
-    told: Condvar,
-}
-
-#[derive(Default)]
-struct Streamed {
-    /// The outcome of each patch chosen, once computed.
-    slots: Vec<Option<Option<Result<Outcome>>>>,
-    /// The memory of the patches computed.
-    freed: u64,
-    panicked: bool,
-}
-
-/// Tells the thread handing out a streamed round when dropped: after a
-/// task's patch, and when the task panics.
-struct Telling<'a>(&'a Shared);
-
-impl Drop for Telling<'_> {
-    fn drop(&mut self) {
-        let mut round = crate::lock(&self.0.round);
-        round.panicked |= std::thread::panicking();
-        self.0.told.notify_all();
-    }
-}
-
 /// Chooses a round of the quilting loop a work patch at a time: the most
 /// constrained texel first, then the most constrained texels (with at
 /// least one synthesized neighbour) whose tiles are not the round's, from
 /// the state as the round found it.
-struct Chooser {
+pub(super) struct Chooser {
     /// The round's tiles.
     used: Vec<bool>,
     /// Its tiles and those of seeds given up.
@@ -126,7 +108,7 @@ struct Chooser {
 }
 
 impl Chooser {
-    fn new(surface: &Surface, round: usize, radius: usize) -> Chooser {
+    pub(super) fn new(surface: &Surface, round: usize, radius: usize) -> Chooser {
         let used = vec![false; surface.grid().tiles()];
         Chooser {
             blocked: used.clone(),
@@ -138,7 +120,7 @@ impl Chooser {
     }
 
     /// The round's next work patch; `None` once it is complete.
-    fn next(&mut self, bfs: &mut Bfs, surface: &Surface, state: &State) -> Option<Job> {
+    pub(super) fn next(&mut self, bfs: &mut Bfs, surface: &Surface, state: &State) -> Option<Job> {
         let job = self.choose(bfs, surface, state);
         if job.is_none() {
             self.chosen = self.round;
@@ -178,17 +160,17 @@ impl Chooser {
 }
 
 /// A work patch of a round: its seed and the atlas tiles it may read.
-struct Job {
-    v: u32,
+pub(super) struct Job {
+    pub(super) v: u32,
     /// The tiles it may read ([`reach`]).
-    tiles: Vec<usize>,
+    pub(super) tiles: Vec<usize>,
     /// Fewer tiles for its views to hold first, when it crosses charts
     /// ([`narrow_tiles`]).
-    narrow: Option<Vec<usize>>,
+    pub(super) narrow: Option<Vec<usize>>,
     /// Its traversal (the work patch and two hops more; [`reach`]).
-    ball: WorkPatch,
+    pub(super) ball: WorkPatch,
     /// The work patch's radius.
-    radius: usize,
+    pub(super) radius: usize,
 }
 
 impl Job {
@@ -204,7 +186,7 @@ impl Job {
     }
 
     /// The tiles its views hold first.
-    fn view(&self) -> &[usize] {
+    pub(super) fn view(&self) -> &[usize] {
         self.narrow.as_deref().unwrap_or(&self.tiles)
     }
 }
@@ -217,7 +199,8 @@ impl Synthesis {
     pub(crate) fn synthesize(&mut self, first: u32, radius0: usize, progress: &dyn Progress) -> Result<()> {
         self.step(first, radius0, progress)?;
         self.check_paging()?;
-        // (inside the pool the calling thread is one of the round's)
+        // (inside the pool the calling thread is one of the round's, so
+        // it cannot wait for the others while they compute)
         let streamed = rayon::current_thread_index().is_none();
         while self.state.remaining > 0 {
             if streamed {
@@ -231,150 +214,9 @@ impl Synthesis {
         Ok(())
     }
 
-    /// A round of the quilting loop (as [`Synthesis::quilting_round`]
-    /// chooses it, computed and accepted as [`Synthesis::compute`] and
-    /// [`Synthesis::accept_steps`] do) with this thread, outside the pool,
-    /// choosing, handing out and accepting while the pool computes: each
-    /// work patch goes to the pool over views of its tiles as soon as it is
-    /// chosen and memory holds it (its [`bytes_per_texel`] and the matcher's
-    /// buffers within half of `--memory`, or none other in flight), and once
-    /// the round is chosen the patches are accepted in order as they are
-    /// computed, up to the first that read outside its tiles (that one and
-    /// the rest are accepted after, as [`Synthesis::accept_steps`] does).
-    /// A patch reads and writes only its own tiles, so the quilt is that of
-    /// a round chosen, then computed, then accepted.
-    fn streamed_round(&mut self, radius0: usize, progress: &dyn Progress) -> Result<()> {
-        let budget = self.cfg.memory.bytes() / 2;
-        let buffers = self
-            .spares
-            .iter()
-            .map(|(m, _)| m.buffer_bytes())
-            .chain([self.matcher.buffer_bytes()])
-            .max()
-            .unwrap_or(0) as u64;
-        let per_texel = bytes_per_texel(self.sample.n);
-        let cost = |job: &Job| buffers + per_texel * job.ball.texels.len() as u64;
-        let context = Context {
-            sample: &self.sample,
-            zipper_triangles: &self.zipper_triangles,
-            cfg: &self.cfg,
-            sample_path: &self.sample_path,
-            reference: self.reference,
-            painting: self.painting,
-            occurrence: Some(self.occurrence.snapshot()),
-            spares: Mutex::new(std::mem::take(&mut self.spares)),
-            spectra: self.matcher.spectra_cache(),
-            base: self.report.patches as u64,
-        };
-        let mut ledger = Ledger {
-            sample: &self.sample,
-            occurrence: Some(&mut self.occurrence),
-            report: &mut self.report,
-            seam_sum: &mut self.seam_sum,
-            seam_cnt: &mut self.seam_cnt,
-        };
-        let (bfs, surface, state) = (&mut self.bfs, &self.surface, &mut self.state);
-        let mut chooser = Chooser::new(surface, self.cfg.round, radius0);
-        let shared = Shared::default();
-        let f = |w: &mut Worker<'_>, v: u32| w.step(v, radius0, &Silent);
-        let (cx, sh, f) = (&context, &shared, &f);
-        let mut jobs: Vec<Arc<Job>> = Vec::new();
-        let mut accepted = 0;
-        rayon::in_place_scope(|s| {
-            let (mut choosing, mut accepting) = (true, true);
-            let (mut handed, mut handed_bytes) = (0, 0u64);
-            loop {
-                // hand out what memory holds
-                while handed < jobs.len() {
-                    let c = cost(&jobs[handed]);
-                    let in_flight = handed_bytes - crate::lock(&sh.round).freed;
-                    if in_flight > 0 && in_flight + c > budget {
-                        break;
-                    }
-                    let (j, job) = (handed, Arc::clone(&jobs[handed]));
-                    let (surface, state) = (surface.view(job.view()), state.view(job.view()));
-                    // (a task per patch, which never waits: a waiting
-                    // task could hold up the pool's nested joins)
-                    s.spawn(move |_| {
-                        let _telling = Telling(sh);
-                        let outcome = cx.run(j, &job, surface, state, f);
-                        let mut round = crate::lock(&sh.round);
-                        round.slots[j] = Some(outcome);
-                        round.freed += c;
-                    });
-                    handed += 1;
-                    handed_bytes += c;
-                }
-                if choosing {
-                    // (all chosen from the state as the round found it)
-                    match chooser.next(bfs, surface, state) {
-                        Some(job) => {
-                            jobs.push(Arc::new(job));
-                            crate::lock(&sh.round).slots.push(None);
-                        }
-                        None => choosing = false,
-                    }
-                    continue;
-                }
-                let mut round = crate::lock(&sh.round);
-                if round.panicked {
-                    break;
-                }
-                if accepting && accepted < jobs.len() {
-                    if let Some(outcome) = round.slots[accepted].take() {
-                        drop(round);
-                        match outcome {
-                            Some(Ok(outcome)) => {
-                                ledger.accept_outcome(state, surface, &outcome, progress);
-                                accepted += 1;
-                            }
-                            other => {
-                                // computed again, or its error met, in its turn
-                                crate::lock(&sh.round).slots[accepted] = Some(other);
-                                accepting = false;
-                            }
-                        }
-                        continue;
-                    }
-                }
-                if handed < jobs.len() {
-                    // (memory freed since it was last looked at)
-                    let in_flight = handed_bytes - round.freed;
-                    if in_flight == 0 || in_flight + cost(&jobs[handed]) <= budget {
-                        continue;
-                    }
-                } else if accepted == jobs.len()
-                    || (!accepting && round.slots[accepted..].iter().all(Option::is_some))
-                {
-                    break;
-                }
-                drop(sh.told.wait(round).unwrap_or_else(|e| e.into_inner()));
-            }
-        });
-        let mut round = shared.round.into_inner().unwrap_or_else(|e| e.into_inner());
-        let mut outcomes: Vec<Option<Result<Outcome>>> = round.slots[accepted..]
-            .iter_mut()
-            .map(|slot| slot.take().expect("every patch computed"))
-            .collect();
-        // as in `compute`: a patch that read outside its view's tiles but
-        // not outside its reach is computed again over views of its reach
-        for (j, w) in jobs.iter().enumerate().skip(accepted) {
-            let o = &mut outcomes[j - accepted];
-            if o.is_none() && w.narrow.is_some() {
-                *o = context.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), f);
-            }
-        }
-        if jobs.len() > 1 {
-            self.report.concurrent_patches += jobs.len();
-        }
-        self.report.recomputed_patches += outcomes.iter().filter(|o| o.is_none()).count();
-        self.spares = context.spares.into_inner().unwrap_or_else(|e| e.into_inner());
-        self.accept_steps(jobs[accepted..].iter().map(|j| j.v), outcomes, radius0, progress)
-    }
-
     /// Accepts a round's quilting steps in order; a step that read outside
     /// its tiles is computed again on the whole state first.
-    fn accept_steps(
+    pub(super) fn accept_steps(
         &mut self,
         seeds: impl IntoIterator<Item = u32>,
         outcomes: Vec<Option<Result<Outcome>>>,
@@ -611,19 +453,24 @@ impl Synthesis {
         (outcomes, other)
     }
 
+    /// The largest matcher's buffers, the part of a work patch's memory in
+    /// flight besides its [`bytes_per_texel`].
+    pub(super) fn matcher_buffers(&self) -> u64 {
+        self.spares
+            .iter()
+            .map(|(m, _)| m.buffer_bytes())
+            .chain([self.matcher.buffer_bytes()])
+            .max()
+            .unwrap_or(0) as u64
+    }
+
     /// How many of `jobs` to compute at once: one per thread, fewer when
     /// the work patches in flight would need more than half of `--memory`
     /// on top of it (each: the matcher's buffers and [`bytes_per_texel`]
     /// per texel of the largest traversal), and how many memory would
     /// hold. How many run at once never changes the quilt.
     fn at_once(&self, jobs: &[Job]) -> (usize, usize) {
-        let buffers = self
-            .spares
-            .iter()
-            .map(|(m, _)| m.buffer_bytes())
-            .chain([self.matcher.buffer_bytes()])
-            .max()
-            .unwrap_or(0) as u64;
+        let buffers = self.matcher_buffers();
         let texels = jobs.iter().map(|j| j.ball.texels.len()).max().unwrap_or(0) as u64;
         let patch = buffers + bytes_per_texel(self.sample.n) * texels;
         let by_memory = (self.cfg.memory.bytes() / 2 / patch.max(1)).max(1) as usize;
@@ -644,7 +491,7 @@ impl Synthesis {
 /// buffers included, about 580 bytes a texel. A program using the library
 /// with glibc's per-thread arenas may hold more (each thread keeps what it
 /// freed).
-fn bytes_per_texel(channels: usize) -> u64 {
+pub(super) fn bytes_per_texel(channels: usize) -> u64 {
     512 + 16 * channels as u64
 }
 
@@ -991,6 +838,53 @@ mod tests {
             inside > 5 && across > 5,
             "{inside} inside charts, {across} across"
         );
+    }
+
+    /// The quilting loop streamed from outside the pool gives the quilt of
+    /// its rounds computed inside a pool of one thread, whatever the
+    /// memory: at 1 MiB one work patch is in flight at a time and the
+    /// atlas tiles are evicted and read again.
+    #[test]
+    fn streamed_rounds_give_the_quilt_of_rounds_inside_the_pool() {
+        use crate::container::MemoryBudget;
+        let dir = tempfile::tempdir().unwrap();
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let gim = spot_256(dir.path());
+        let sample = root.join("data/brick_wall.png");
+        let run = |name: &str, memory: u64, pool: Option<usize>| -> (Vec<u8>, TileReport) {
+            let out = dir.path().join(format!("{name}.quilt"));
+            let cfg = TileConfig {
+                seed: 7,
+                memory: MemoryBudget(memory),
+                ..TileConfig::default()
+            };
+            let report = match pool {
+                None => {
+                    assert!(rayon::current_thread_index().is_none());
+                    crate::quilt::tile(&gim, &sample, &out, &cfg, &Silent).unwrap()
+                }
+                Some(threads) => rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap()
+                    .install(|| crate::quilt::tile(&gim, &sample, &out, &cfg, &Silent))
+                    .unwrap(),
+            };
+            (std::fs::read(&out).unwrap(), report)
+        };
+        let (inside, alone) = run("inside", 1 << 30, Some(1));
+        let (streamed, report) = run("streamed", 1 << 30, None);
+        let (small, tight) = run("small", 1 << 20, None);
+        assert!(
+            report.concurrent_patches > 0,
+            "no round held several patches: {report}"
+        );
+        assert!(
+            tight.tiles_read > alone.tiles_read,
+            "1 MiB evicted nothing: {tight}"
+        );
+        assert!(inside == streamed, "streamed rounds changed the quilt");
+        assert!(inside == small, "streamed rounds at 1 MiB changed the quilt");
     }
 
     /// Seam refinement a round at a time visits the same seeds and keeps
