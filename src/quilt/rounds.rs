@@ -37,6 +37,27 @@ pub(crate) const REFINE_ROUND: usize = 16;
 /// Candidates tried for each further seed of a round before it ends short.
 const TRIES: usize = 8;
 
+/// The [`Context`] of a round of synthesis `$syn` (its spare matchers
+/// taken for the round, to be given back): a macro, so that the fields it
+/// borrows stay borrowed one by one.
+macro_rules! round_context {
+    ($syn:expr) => {
+        Context {
+            sample: &$syn.sample,
+            zipper_triangles: &$syn.zipper_triangles,
+            cfg: &$syn.cfg,
+            sample_path: &$syn.sample_path,
+            reference: $syn.reference,
+            painting: $syn.painting,
+            occurrence: (!$syn.painting).then(|| $syn.occurrence.snapshot()),
+            spares: Mutex::new(std::mem::take(&mut $syn.spares)),
+            spectra: $syn.matcher.spectra_cache(),
+            base: $syn.report.patches as u64,
+        }
+    };
+}
+pub(super) use round_context;
+
 /// What the work patches of a round share while they are computed.
 pub(super) struct Context<'a> {
     pub(super) sample: &'a Sample,
@@ -366,18 +387,7 @@ impl Synthesis {
             return (outcomes, alongside(&mut self.bfs, &lent(&self.surface)));
         }
         let (at_once, by_memory) = self.at_once(jobs);
-        let job = Context {
-            sample: &self.sample,
-            zipper_triangles: &self.zipper_triangles,
-            cfg: &self.cfg,
-            sample_path: &self.sample_path,
-            reference: self.reference,
-            painting: self.painting,
-            occurrence: (!self.painting).then(|| self.occurrence.snapshot()),
-            spares: Mutex::new(std::mem::take(&mut self.spares)),
-            spectra: self.matcher.spectra_cache(),
-            base: self.report.patches as u64,
-        };
+        let job = round_context!(self);
         let (outcomes, other): (Vec<Option<Result<Outcome>>>, R) = if at_once <= 1 {
             // one at a time, each over its views all the same (a patch that
             // reads outside its tiles is computed again in its turn)

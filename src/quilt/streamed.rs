@@ -6,7 +6,7 @@
 
 use std::sync::{Arc, Condvar, Mutex};
 
-use super::rounds::{bytes_per_texel, Chooser, Context, Job};
+use super::rounds::{bytes_per_texel, round_context, Chooser, Context, Job};
 use super::synthesis::{Ledger, Synthesis};
 use super::worker::{Outcome, Worker};
 use crate::progress::{Progress, Silent};
@@ -30,18 +30,7 @@ impl Synthesis {
         let buffers = self.matcher_buffers();
         let per_texel = bytes_per_texel(self.sample.n);
         let cost = |job: &Job| buffers + per_texel * job.ball.texels.len() as u64;
-        let context = Context {
-            sample: &self.sample,
-            zipper_triangles: &self.zipper_triangles,
-            cfg: &self.cfg,
-            sample_path: &self.sample_path,
-            reference: self.reference,
-            painting: self.painting,
-            occurrence: (!self.painting).then(|| self.occurrence.snapshot()),
-            spares: Mutex::new(std::mem::take(&mut self.spares)),
-            spectra: self.matcher.spectra_cache(),
-            base: self.report.patches as u64,
-        };
+        let context = round_context!(self);
         let mut ledger = Ledger {
             sample: &self.sample,
             occurrence: (!self.painting).then_some(&mut self.occurrence),
