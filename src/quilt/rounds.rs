@@ -889,6 +889,7 @@ mod tests {
             report.concurrent_patches > 0,
             "no round held several patches: {report}"
         );
+        assert!(report.refined > 2 && report.refined == alone.refined, "{report}");
         assert!(
             tight.tiles_read > alone.tiles_read,
             "1 MiB evicted nothing: {tight}"
