@@ -306,7 +306,13 @@ pub struct ZipperLinks {
     start: Vec<u32>,
     to: Vec<u32>,
     index: Vec<u32>,
+    /// Where each run of [`BUCKET`] texel ids starts in `index` (one more
+    /// entry at the end): most texels have no link, and most runs none.
+    bucket: Vec<u32>,
 }
+
+/// Texel ids per bucket of [`ZipperLinks::bucket`] (as a shift).
+const BUCKET: u32 = 8;
 
 impl ZipperLinks {
     /// Both directions of every link.
@@ -323,13 +329,27 @@ impl ZipperLinks {
             }
             to.push(b);
         }
-        ZipperLinks { start, to, index }
+        let buckets = index.last().map_or(0, |&t| (t >> BUCKET) as usize + 1);
+        let bucket = (0..=buckets)
+            .map(|b| index.partition_point(|&t| ((t >> BUCKET) as usize) < b) as u32)
+            .collect();
+        ZipperLinks {
+            start,
+            to,
+            index,
+            bucket,
+        }
     }
 
     /// Calls `f` for every zipper partner of texel `t`.
     #[inline]
     pub fn for_each(&self, t: u32, mut f: impl FnMut(u32)) {
-        if let Ok(k) = self.index.binary_search(&t) {
+        let b = (t >> BUCKET) as usize;
+        let Some(&[lo, hi]) = self.bucket.get(b..b + 2) else {
+            return;
+        };
+        let run = &self.index[lo as usize..hi as usize];
+        if let Ok(k) = run.binary_search(&t).map(|k| k + lo as usize) {
             let s = self.start[k] as usize;
             let e = self.start.get(k + 1).map_or(self.to.len(), |&v| v as usize);
             for &n in &self.to[s..e] {
@@ -506,4 +526,42 @@ pub fn block_triangles_by(
         out[0] = Some([b, d, c]);
     }
     out.into_iter().flatten()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ZipperLinks;
+
+    /// Every texel's partners, found through the buckets, are those of a
+    /// search over all links, in the same order, around bucket edges too.
+    #[test]
+    fn zipper_partners_are_those_of_every_link() {
+        let mut links: Vec<[u32; 2]> = Vec::new();
+        let mut x = 12345u32;
+        for _ in 0..2000 {
+            x = x.wrapping_mul(1_103_515_245).wrapping_add(12_345);
+            let a = (x >> 8) % 70_000;
+            x = x.wrapping_mul(1_103_515_245).wrapping_add(12_345);
+            let b = (x >> 8) % 70_000;
+            links.push([a, b]);
+        }
+        // ids at and around bucket edges, and the last id
+        links.extend([[255, 256], [511, 0], [69_999, 256]]);
+        let z = ZipperLinks::new(&links);
+        let mut checked = 0;
+        for t in 0..70_100u32 {
+            let mut found = Vec::new();
+            z.for_each(t, |n| found.push(n));
+            let mut all: Vec<u32> = links
+                .iter()
+                .flat_map(|&[a, b]| [(a, b), (b, a)])
+                .filter(|&(a, _)| a == t)
+                .map(|(_, b)| b)
+                .collect();
+            all.sort_unstable();
+            assert_eq!(found, all, "texel {t}");
+            checked += !all.is_empty() as usize;
+        }
+        assert!(checked > 3000, "{checked}");
+    }
 }
