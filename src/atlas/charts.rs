@@ -586,10 +586,10 @@ fn segment(ctx: &Ctx) -> Vec<Vec<u32>> {
 }
 
 /// LSCM of a set of faces (sorted), or for a compact atlas its ARAP
-/// relaxation when LSCM is over a stretch limit (the relaxed map within [`RELAXED_LINF_SHARE`] of the L∞
-/// limit), normalised to uniform density and oriented; `None` if a
-/// triangle flips, the map folds over itself (two boundary edges cross) or
-/// both maps are over a limit.
+/// relaxation when LSCM is over a stretch limit (the relaxed map within
+/// [`RELAXED_LINF_SHARE`] of the L∞ limit), normalised to uniform density
+/// and oriented; `None` if a triangle flips, the map folds over itself (two
+/// boundary edges cross) or both maps are over a limit.
 fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
     let mesh = ctx.mesh;
     let mut vertices: Vec<u32> = faces.iter().flat_map(|&f| mesh.triangles[f as usize]).collect();
@@ -988,7 +988,8 @@ fn straighten_charts(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
 
 /// Segments the surface into few large disk-shaped charts and parameterises
 /// each with LSCM (Lévy et al. 2002), relaxed by ARAP where needed; see the
-/// module documentation. Every face is in exactly one chart; a closed component yields at least two charts.
+/// module documentation. Every face is in exactly one chart; a closed
+/// component yields at least two charts.
 /// Deterministic (independent of thread count); charts are ordered by their
 /// first face.
 pub fn build_charts(mesh: &Mesh, topology: &Topology, cfg: &ChartConfig) -> Result<Vec<Chart>> {

@@ -42,7 +42,7 @@ const TRIES: usize = 8;
 /// borrows stay borrowed one by one.
 macro_rules! round_context {
     ($syn:expr) => {
-        Context {
+        $crate::quilt::rounds::Context {
             sample: &$syn.sample,
             zipper_triangles: &$syn.zipper_triangles,
             cfg: &$syn.cfg,
@@ -50,7 +50,7 @@ macro_rules! round_context {
             reference: $syn.reference,
             painting: $syn.painting,
             occurrence: (!$syn.painting).then(|| $syn.occurrence.snapshot()),
-            spares: Mutex::new(std::mem::take(&mut $syn.spares)),
+            spares: std::sync::Mutex::new(std::mem::take(&mut $syn.spares)),
             spectra: $syn.matcher.spectra_cache(),
             base: $syn.report.patches as u64,
         }
@@ -448,30 +448,47 @@ impl Synthesis {
                 .collect();
             (outcomes, other)
         };
-        // a patch that read outside its view's tiles but not outside its
-        // reach: computed again over views of its reach, before any patch
-        // of the round is accepted (so the same outcome as over them first)
         let mut outcomes = outcomes;
-        for (j, w) in jobs.iter().enumerate() {
-            if outcomes[j].is_none() && w.narrow.is_some() {
-                outcomes[j] = job.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), &f);
-            }
-        }
+        self.recompute_narrow(&job, jobs.iter().enumerate(), &mut outcomes, &f);
         self.report.concurrent_patches += jobs.len();
         self.report.recomputed_patches += outcomes.iter().filter(|o| o.is_none()).count();
         self.spares = job.spares.into_inner().unwrap_or_else(|e| e.into_inner());
         (outcomes, other)
     }
 
-    /// The largest matcher's buffers, the part of a work patch's memory in
-    /// flight besides its [`bytes_per_texel`].
-    pub(super) fn matcher_buffers(&self) -> u64 {
-        self.spares
+    /// Of the round's patches `jobs` (with their place in it) and their
+    /// `outcomes`, those that read outside their view's tiles but not
+    /// outside their reach, computed again over views of their reach
+    /// before any of them is accepted (no patch accepted before reads or
+    /// writes their tiles, so the same outcome as over them first).
+    pub(super) fn recompute_narrow<'j, F>(
+        &self,
+        context: &Context<'_>,
+        jobs: impl Iterator<Item = (usize, &'j Job)>,
+        outcomes: &mut [Option<Result<Outcome>>],
+        f: &F,
+    ) where
+        F: Fn(&mut Worker<'_>, u32) -> Result<Outcome> + Sync,
+    {
+        for ((j, w), o) in jobs.zip(outcomes) {
+            if o.is_none() && w.narrow.is_some() {
+                *o = context.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), f);
+            }
+        }
+    }
+
+    /// A work patch's memory in flight by the texels of its traversal: the
+    /// largest matcher's buffers and [`bytes_per_texel`] per texel.
+    pub(super) fn patch_bytes(&self) -> impl Fn(usize) -> u64 {
+        let buffers = self
+            .spares
             .iter()
             .map(|(m, _)| m.buffer_bytes())
             .chain([self.matcher.buffer_bytes()])
             .max()
-            .unwrap_or(0) as u64
+            .unwrap_or(0) as u64;
+        let per_texel = bytes_per_texel(self.sample.n);
+        move |texels| buffers + per_texel * texels as u64
     }
 
     /// How many of `jobs` to compute at once: one per thread, fewer when
@@ -480,9 +497,8 @@ impl Synthesis {
     /// per texel of the largest traversal), and how many memory would
     /// hold. How many run at once never changes the quilt.
     fn at_once(&self, jobs: &[Job]) -> (usize, usize) {
-        let buffers = self.matcher_buffers();
-        let texels = jobs.iter().map(|j| j.ball.texels.len()).max().unwrap_or(0) as u64;
-        let patch = buffers + bytes_per_texel(self.sample.n) * texels;
+        let texels = jobs.iter().map(|j| j.ball.texels.len()).max().unwrap_or(0);
+        let patch = self.patch_bytes()(texels);
         let by_memory = (self.cfg.memory.bytes() / 2 / patch.max(1)).max(1) as usize;
         (
             rayon::current_num_threads().min(jobs.len()).min(by_memory),
@@ -501,7 +517,7 @@ impl Synthesis {
 /// buffers included, about 580 bytes a texel. A program using the library
 /// with glibc's per-thread arenas may hold more (each thread keeps what it
 /// freed).
-pub(super) fn bytes_per_texel(channels: usize) -> u64 {
+fn bytes_per_texel(channels: usize) -> u64 {
     512 + 16 * channels as u64
 }
 

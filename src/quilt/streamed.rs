@@ -6,8 +6,8 @@
 
 use std::sync::{Arc, Condvar, Mutex};
 
-use super::rounds::{bytes_per_texel, round_context, Chooser, Context, Job};
-use super::synthesis::{Ledger, Synthesis};
+use super::rounds::{round_context, Chooser, Job};
+use super::synthesis::{ledger, Synthesis};
 use super::worker::{Outcome, Worker};
 use crate::progress::{Progress, Silent};
 use crate::Result;
@@ -18,8 +18,8 @@ impl Synthesis {
     /// [`Synthesis::accept_steps`] do) with this thread, outside the pool,
     /// choosing, handing out and accepting while the pool computes: each
     /// work patch goes to the pool over views of its tiles as soon as it is
-    /// chosen and memory holds it (its [`bytes_per_texel`] and the matcher's
-    /// buffers within half of `--memory`, or none other in flight), and once
+    /// chosen and memory holds it ([`Synthesis::patch_bytes`] within half
+    /// of `--memory`, or none other in flight), and once
     /// the round is chosen the patches are accepted in order as they are
     /// computed, up to the first that read outside its tiles (that one and
     /// the rest are accepted after, as [`Synthesis::accept_steps`] does).
@@ -27,17 +27,12 @@ impl Synthesis {
     /// a round chosen, then computed, then accepted.
     pub(super) fn streamed_round(&mut self, radius0: usize, progress: &dyn Progress) -> Result<()> {
         let budget = self.cfg.memory.bytes() / 2;
-        let buffers = self.matcher_buffers();
-        let per_texel = bytes_per_texel(self.sample.n);
-        let cost = |job: &Job| buffers + per_texel * job.ball.texels.len() as u64;
+        let bytes = self.patch_bytes();
+        let cost = |job: &Job| bytes(job.ball.texels.len());
+        // whether a patch of `c` bytes may go with `in_flight` out
+        let room = |in_flight: u64, c: u64| in_flight == 0 || in_flight + c <= budget;
         let context = round_context!(self);
-        let mut ledger = Ledger {
-            sample: &self.sample,
-            occurrence: (!self.painting).then_some(&mut self.occurrence),
-            report: &mut self.report,
-            seam_sum: &mut self.seam_sum,
-            seam_cnt: &mut self.seam_cnt,
-        };
+        let mut ledger = ledger!(self);
         let (bfs, surface, state) = (&mut self.bfs, &self.surface, &mut self.state);
         let mut chooser = Chooser::new(surface, self.cfg.round, radius0);
         let shared = Shared::default();
@@ -52,8 +47,7 @@ impl Synthesis {
                 // hand out what memory holds
                 while handed < jobs.len() {
                     let c = cost(&jobs[handed]);
-                    let in_flight = handed_bytes - crate::lock(&sh.round).freed;
-                    if in_flight > 0 && in_flight + c > budget {
+                    if !room(handed_bytes - crate::lock(&sh.round).freed, c) {
                         break;
                     }
                     let (j, job) = (handed, Arc::clone(&jobs[handed]));
@@ -104,8 +98,7 @@ impl Synthesis {
                 }
                 if handed < jobs.len() {
                     // (memory freed since it was last looked at)
-                    let in_flight = handed_bytes - round.freed;
-                    if in_flight == 0 || in_flight + cost(&jobs[handed]) <= budget {
+                    if room(handed_bytes - round.freed, cost(&jobs[handed])) {
                         continue;
                     }
                 } else if accepted == jobs.len()
@@ -121,14 +114,8 @@ impl Synthesis {
             .iter_mut()
             .map(|slot| slot.take().expect("every patch computed"))
             .collect();
-        // as in `compute`: a patch that read outside its view's tiles but
-        // not outside its reach is computed again over views of its reach
-        for (j, w) in jobs.iter().enumerate().skip(accepted) {
-            let o = &mut outcomes[j - accepted];
-            if o.is_none() && w.narrow.is_some() {
-                *o = context.run(j, w, self.surface.view(&w.tiles), self.state.view(&w.tiles), f);
-            }
-        }
+        let rest = jobs.iter().map(AsRef::as_ref).enumerate().skip(accepted);
+        self.recompute_narrow(&context, rest, &mut outcomes, f);
         if jobs.len() > 1 {
             self.report.concurrent_patches += jobs.len();
         }

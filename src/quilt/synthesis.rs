@@ -471,27 +471,11 @@ impl Synthesis {
     /// Accepts a computed work patch: its stats into the report, its
     /// fitting into the state.
     pub(super) fn accept_outcome(&mut self, outcome: &Outcome, progress: &dyn Progress) {
-        let (mut ledger, state, surface) = self.ledger();
-        ledger.accept_outcome(state, surface, outcome, progress);
+        ledger!(self).accept_outcome(&mut self.state, &self.surface, outcome, progress);
     }
 
     pub(super) fn add_stats(&mut self, stats: &StepStats) {
         add_stats(&mut self.report, stats);
-    }
-
-    /// The [`Ledger`], with the state and surface it accepts into.
-    pub(super) fn ledger(&mut self) -> (Ledger<'_>, &mut State, &Surface) {
-        (
-            Ledger {
-                sample: &self.sample,
-                occurrence: (!self.painting).then_some(&mut self.occurrence),
-                report: &mut self.report,
-                seam_sum: &mut self.seam_sum,
-                seam_cnt: &mut self.seam_cnt,
-            },
-            &mut self.state,
-            &self.surface,
-        )
     }
 
     /// Seam refinement (Kwatra et al. 2003, §3.3, "patch placement on
@@ -548,8 +532,7 @@ impl Synthesis {
 
     /// Records an accepted fitting under the next patch id.
     pub(super) fn accept(&mut self, patch: &WorkPatch, fit: &Fit, progress: &dyn Progress) {
-        let (mut ledger, state, surface) = self.ledger();
-        ledger.accept(state, surface, patch, fit, progress);
+        ledger!(self).accept(&mut self.state, &self.surface, patch, fit, progress);
     }
 
     /// Verbatim copy (§IV): the sample's foreground, its point `centre`
@@ -714,6 +697,22 @@ impl Synthesis {
         self.report.scratch_bytes = self.state.scratch_bytes();
     }
 }
+
+/// The [`Ledger`] of synthesis `$syn`: a macro, so that the fields it
+/// borrows stay borrowed one by one (beside the state and surface it
+/// accepts into, and a round's [`super::rounds::Context`]).
+macro_rules! ledger {
+    ($syn:expr) => {
+        $crate::quilt::synthesis::Ledger {
+            sample: &$syn.sample,
+            occurrence: (!$syn.painting).then_some(&mut $syn.occurrence),
+            report: &mut $syn.report,
+            seam_sum: &mut $syn.seam_sum,
+            seam_cnt: &mut $syn.seam_cnt,
+        }
+    };
+}
+pub(super) use ledger;
 
 /// What accepting a work patch changes besides the state: the parts of a
 /// [`Synthesis`] borrowed one by one, so that a round's patches can be
