@@ -320,6 +320,8 @@ struct Solver<'g> {
     active: std::collections::VecDeque<u32>,
     /// Orphans of the current adoption stage (FIFO via `orphan_next`).
     orphans: Vec<u32>,
+    /// The augmenting path of [`Solver::augment`]: (node, parent arc).
+    path: Vec<(u32, u32)>,
     time: u32,
     eps: f64,
 }
@@ -361,6 +363,7 @@ impl<'g> Solver<'g> {
             in_queue: vec![false; n],
             active: std::collections::VecDeque::with_capacity(n),
             orphans: Vec::new(),
+            path: Vec::new(),
             time: 0,
             eps,
         }
@@ -458,8 +461,12 @@ impl<'g> Solver<'g> {
         let sp = head[mid ^ 1];
         let tq = head[mid];
 
-        // Bottleneck.
+        // Bottleneck, noting the path (node, parent arc) from the source
+        // side's root down to `sp`, then from `tq` up to the sink side's root,
+        // so that the push walks a list instead of the tree again.
         let mut f = self.r_cap[mid];
+        let path = &mut self.path;
+        path.clear();
         let mut i = sp as usize;
         loop {
             let pa = self.parent[i];
@@ -468,8 +475,11 @@ impl<'g> Solver<'g> {
             }
             // Flow goes parent -> i, on the reverse of the parent arc.
             f = f.min(self.r_cap[(pa ^ 1) as usize]);
+            path.push((i as u32, pa));
             i = head[pa as usize] as usize;
         }
+        let s_root = i;
+        let s_len = path.len();
         f = f.min(self.tr_cap[i]);
         let mut i = tq as usize;
         loop {
@@ -478,48 +488,40 @@ impl<'g> Solver<'g> {
                 break;
             }
             f = f.min(self.r_cap[pa as usize]);
+            path.push((i as u32, pa));
             i = head[pa as usize] as usize;
         }
+        let t_root = i;
         f = f.min(-self.tr_cap[i]);
 
         // Push.
         self.r_cap[mid] -= f;
         self.r_cap[mid ^ 1] += f;
-        let mut i = sp as usize;
-        loop {
-            let pa = self.parent[i];
-            if pa == TERMINAL {
-                break;
-            }
+        for &(i, pa) in &self.path[..s_len] {
             let pa = pa as usize;
             self.r_cap[pa] += f;
             self.r_cap[pa ^ 1] -= f;
             if self.r_cap[pa ^ 1] <= eps {
-                self.parent[i] = ORPHAN;
-                self.orphans.push(i as u32);
+                self.parent[i as usize] = ORPHAN;
+                self.orphans.push(i);
             }
-            i = head[pa] as usize;
         }
+        let i = s_root;
         self.tr_cap[i] -= f;
         if self.tr_cap[i] <= eps {
             self.parent[i] = ORPHAN;
             self.orphans.push(i as u32);
         }
-        let mut i = tq as usize;
-        loop {
-            let pa = self.parent[i];
-            if pa == TERMINAL {
-                break;
-            }
+        for &(i, pa) in &self.path[s_len..] {
             let pa = pa as usize;
             self.r_cap[pa] -= f;
             self.r_cap[pa ^ 1] += f;
             if self.r_cap[pa] <= eps {
-                self.parent[i] = ORPHAN;
-                self.orphans.push(i as u32);
+                self.parent[i as usize] = ORPHAN;
+                self.orphans.push(i);
             }
-            i = head[pa] as usize;
         }
+        let i = t_root;
         self.tr_cap[i] += f;
         if self.tr_cap[i] >= -eps {
             self.parent[i] = ORPHAN;
