@@ -4,9 +4,11 @@
 //! the sample.
 //!
 //! `warm/64x64_vs_192x192/n3`, `warm/64x64_vs_192x192/n40`,
-//! `warm/128x128_vs_256x256/n40`, `cold/64x64_vs_192x192/n40`.
+//! `warm/128x128_vs_256x256/n40`, `cold/64x64_vs_192x192/n40`; and the
+//! fine step of coarse-to-fine matching, direct sums over the known pixels
+//! for 8 windows of 3×3 placements: `direct/192x192_vs_384x384/n3`.
 
-use btfquilt::quilt::matching::{Image, MatchConfig, Matcher, Sample, Work};
+use btfquilt::quilt::matching::{direct_costs, Image, MatchConfig, Matcher, Sample, Work};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 
 fn values(len: usize, seed: u64) -> Vec<f32> {
@@ -111,6 +113,28 @@ fn benches(c: &mut Criterion) {
             m.clear_cache();
             m.match_patch(&w, &s, &cfg).unwrap()
         })
+    });
+    group.finish();
+    let mut group = c.benchmark_group("direct");
+    group.sample_size(20);
+    let case = Case::new(192, 384, 3);
+    let (w, s) = case.inputs();
+    // 3×3 windows around 8 coarse minima, some near the sample's edge
+    let placements: Vec<(i32, i32)> = [
+        (10, 40),
+        (-60, 5),
+        (100, 100),
+        (150, -20),
+        (0, 0),
+        (190, 190),
+        (33, 77),
+        (-180, 120),
+    ]
+    .iter()
+    .flat_map(|&(x, y)| (-1..=1).flat_map(move |dy| (-1..=1).map(move |dx| (x + dx, y + dy))))
+    .collect();
+    group.bench_function(BenchmarkId::new(case.name(), "n3"), |b| {
+        b.iter(|| direct_costs(&w, &s, &cfg, &placements).unwrap())
     });
     group.finish();
 }

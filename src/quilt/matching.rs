@@ -1041,10 +1041,11 @@ pub fn direct_costs(
             .collect(),
         None => Vec::new(),
     };
-    let at_origin: Vec<i64> = known
+    let xy: Vec<[i64; 2]> = known
         .iter()
-        .map(|&p| ((p / wi.width) * si.width + p % wi.width) as i64)
+        .map(|&p| [(p % wi.width) as i64, (p / wi.width) as i64])
         .collect();
+    let at_origin: Vec<i64> = xy.iter().map(|&[x, y]| y * si.width as i64 + x).collect();
     // the known pixels' bounding box, to tell placements wholly inside
     let (x0, x1) = known.iter().fold((usize::MAX, 0), |a, &p| {
         (a.0.min(p % wi.width), a.1.max(p % wi.width))
@@ -1061,12 +1062,11 @@ pub fn direct_costs(
         0.0
     };
     let pixels = Known {
-        pixels: &known,
+        xy: &xy,
         weight: &weight,
         features: &features,
         constraint: &constraint,
         at_origin: &at_origin,
-        width: wi.width,
     };
     let group_costs = |group: &[(i32, i32)]| -> Vec<Placement> {
         let mut inside = [false; DIRECT_GROUP];
@@ -1104,13 +1104,12 @@ pub fn direct_costs(
 /// index, weight, features and constraint (f64), and the sample index each
 /// lands on at placement (0, 0).
 struct Known<'a> {
-    pixels: &'a [usize],
+    /// Each known pixel's (x, y) in the work image.
+    xy: &'a [[i64; 2]],
     weight: &'a [f64],
     features: &'a [f64],
     constraint: &'a [f64],
     at_origin: &'a [i64],
-    /// The work image's width.
-    width: usize,
 }
 
 impl Known<'_> {
@@ -1127,22 +1126,41 @@ impl Known<'_> {
         w: f64,
         diff: impl Fn(&[f64], &[f32]) -> f64,
     ) -> ([f64; DIRECT_GROUP], [f64; DIRECT_GROUP]) {
+        // (placements wholly inside need no bounds test: a loop without it)
+        if group.iter().zip(inside).all(|(_, &i)| i) {
+            self.sums::<false>(sample, group, shift, w, diff)
+        } else {
+            self.sums::<true>(sample, group, shift, w, diff)
+        }
+    }
+
+    /// [`Known::pass`], testing each placement's sample bounds if `BOUNDS`.
+    #[inline(always)]
+    fn sums<const BOUNDS: bool>(
+        &self,
+        sample: &Sample,
+        group: &[(i32, i32)],
+        shift: &[i64; DIRECT_GROUP],
+        w: f64,
+        diff: impl Fn(&[f64], &[f32]) -> f64,
+    ) -> ([f64; DIRECT_GROUP], [f64; DIRECT_GROUP]) {
         let si = &sample.image;
         let (n, nc) = (si.channels, sample.constraint.as_ref().map_or(0, |c| c.channels));
+        let (width, height) = (si.width as i64, si.height as i64);
         let mut ssd = [0.0f64; DIRECT_GROUP];
         let mut overlap = [0.0f64; DIRECT_GROUP];
-        for (k, &p) in self.pixels.iter().enumerate() {
-            let (px, py) = ((p % self.width) as i64, (p / self.width) as i64);
+        for (k, &[px, py]) in self.xy.iter().enumerate() {
             let a = &self.features[k * n..(k + 1) * n];
+            let (origin, weight) = (self.at_origin[k], self.weight[k]);
             for (j, &(dx, dy)) in group.iter().enumerate() {
-                if !inside[j] {
+                if BOUNDS {
                     let (sx, sy) = (px - dx as i64, py - dy as i64);
-                    if sx < 0 || sy < 0 || sx >= si.width as i64 || sy >= si.height as i64 {
+                    if sx < 0 || sy < 0 || sx >= width || sy >= height {
                         continue;
                     }
                 }
-                let s = (self.at_origin[k] - shift[j]) as usize;
-                let mv = self.weight[k] * sample.valid[s] as f64;
+                let s = (origin - shift[j]) as usize;
+                let mv = weight * sample.valid[s] as f64;
                 if mv == 0.0 {
                     continue;
                 }
