@@ -114,6 +114,7 @@ fn main() {
         "studio.setMode('brush'); document.getElementById('sample').value = {k}; true"
     ));
     let (mut apply, mut server_paint, mut server_all) = (Vec::new(), Vec::new(), Vec::new());
+    let mut drawn = Vec::new();
     for i in 0..strokes {
         // across the flank of a mesh framed by the default camera
         let (x0, y) = (
@@ -141,12 +142,20 @@ fn main() {
         let err = b.eval("studio.error");
         assert!(err.is_null(), "stroke {i}: {err}");
         apply.push(ms);
+        let part = b.eval("studio.lastFrame");
+        let steps = b.eval("[studio.lastApplySteps, studio.lastChanged]");
+        drawn.push(if part.is_array() {
+            format!("{:.2} s (part {part}; steps {steps})", ms / 1000.0)
+        } else {
+            format!("{:.2} s (whole frame; steps {steps})", ms / 1000.0)
+        });
     }
     println!(
         "stroke release → refreshed texture: median {:.2} s, max {:.2} s over {strokes} strokes",
         median(&mut apply.clone()) / 1000.0,
         apply.iter().cloned().fold(0.0, f64::max) / 1000.0
     );
+    println!("  each: {}", drawn.join(", "));
     println!(
         "  of which in the server: paint median {:.2} s, paint + rebuilding the viewer's data {:.2} s",
         median(&mut server_paint) / 1000.0,

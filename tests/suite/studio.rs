@@ -501,6 +501,15 @@ fn in_chromium_a_brush_stroke_paints_the_region_and_undo_walks_back() {
     }
     b.mouse("mouseReleased", x0 + 40.0, y, 0);
     b.wait("studio.changes >= 1", 120);
+    // the refreshed frame redrew only what the paint and the stroke's
+    // marks covered, and it is the whole frame
+    let part = b.eval("studio.lastFrame");
+    assert!(part.is_array(), "the change redrew the whole canvas");
+    assert_eq!(
+        b.eval("studio.redrawDiff()").as_u64(),
+        Some(0),
+        "redrawn part {part}"
+    );
     b.click("mode-view");
     let painted = server.current();
     assert_ne!(painted, s.base, "the stroke made a new version");
@@ -519,6 +528,7 @@ fn in_chromium_a_brush_stroke_paints_the_region_and_undo_walks_back() {
     );
     b.click("undo");
     b.wait("studio.changes >= 2", 60);
+    assert_eq!(b.eval("studio.redrawDiff()").as_u64(), Some(0), "after undo");
     assert_eq!(server.current(), s.base);
     let undone = b.screenshot(w, h);
     assert!(

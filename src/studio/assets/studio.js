@@ -355,6 +355,7 @@ async function loadMesh() {
   const data = new Float32Array(await api('/api/mesh'));
   const n = data.length / 15;
   S.count = n;
+  S.mesh = data;
   S.vao = gl.createVertexArray();
   gl.bindVertexArray(S.vao);
   const buf = gl.createBuffer();
@@ -376,37 +377,69 @@ async function loadMesh() {
 }
 
 // Scene info, atlas texels and (for a BTF) the factorization: everything
-// a new version of the surface may change.
+// a new version of the surface may change. The factorization is fetched
+// again only when the samples changed. Returns whether only texels can
+// have changed since the last load (so a redraw of what they cover is
+// the whole change).
 async function loadSurface() {
   const meta = await api('/api/scene');
   const info = meta.scene;
+  const prev = S.info;
   S.info = info; S.samples = meta.samples; S.texelSize = meta.texel_size;
   studio.version = meta.version;
   const r = info.resolution;
-  for (const t of Object.values(S.textures)) gl.deleteTexture(t);
-  S.textures = {};
+  const basisKey = JSON.stringify([info.btf, info.samples, info.geometry_size, info.appearance_rows,
+    info.views, info.lights, info.view_cos_max, info.light_cos_max]);
   const texels = new Float32Array(await api('/api/texels'));
+  const old = S.texelData;
+  const onlyTexels = !!prev && S.basisKey === basisKey && prev.resolution === r && !!old
+    && old.length === texels.length && !!S.textures.a;
+  const keepBasis = info.btf && S.basisKey === basisKey && S.textures.geo;
+  S.changed = onlyTexels ? changedTexels(old, texels, r) : null;
+  for (const [k, t] of Object.entries(S.textures)) {
+    if (keepBasis && (k === 'geo' || k === 'app' || k === 'dirs')) continue;
+    if (onlyTexels && (k === 'a' || k === 'b')) continue;
+    gl.deleteTexture(t);
+    delete S.textures[k];
+  }
+  const planes = info.btf ? [['a', 0], ['b', 1]] : [['a', 0]];
+  for (const [k, unit] of planes) {
+    const data = texels.subarray(unit * r * r * 4, (unit + 1) * r * r * 4);
+    if (!onlyTexels) {
+      S.textures[k] = floatTexture(unit, r, r, data);
+    } else if (S.changed.box) {
+      // only the box of changed texels goes to the texture again
+      const [x0, y0, w, h] = S.changed.box;
+      const part = new Float32Array(w * h * 4);
+      for (let y = 0; y < h; y++) part.set(data.subarray(((y0 + y) * r + x0) * 4, ((y0 + y) * r + x0 + w) * 4), y * w * 4);
+      gl.activeTexture(gl.TEXTURE0 + unit);
+      gl.bindTexture(gl.TEXTURE_2D, S.textures[k]);
+      gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+      gl.texSubImage2D(gl.TEXTURE_2D, 0, x0, y0, w, h, gl.RGBA, gl.FLOAT, part);
+    }
+  }
   if (info.btf) {
-    S.textures.a = floatTexture(0, r, r, texels.subarray(0, r * r * 4));
-    S.textures.b = floatTexture(1, r, r, texels.subarray(r * r * 4));
-    const basis = new Float32Array(await api('/api/basis'));
-    const [gw, gh, gl_] = info.geometry_size;
-    S.textures.geo = floatTexture(2, gw, gh, basis.subarray(0, gw * gh * gl_ * 4), gl_);
-    S.textures.app = floatTexture(3, 2048, info.appearance_rows, basis.subarray(gw * gh * gl_ * 4));
-    const nd = Math.max(info.views.length, info.lights.length);
-    const dirs = new Float32Array(nd * 2 * 4);
-    info.views.forEach((d, i) => dirs.set([...d, 0], i * 4));
-    info.lights.forEach((d, i) => dirs.set([...d, 0], (nd + i) * 4));
-    S.textures.dirs = floatTexture(4, nd, 2, dirs);
+    if (!keepBasis) {
+      const basis = new Float32Array(await api('/api/basis'));
+      const [gw, gh, gl_] = info.geometry_size;
+      S.textures.geo = floatTexture(2, gw, gh, basis.subarray(0, gw * gh * gl_ * 4), gl_);
+      S.textures.app = floatTexture(3, 2048, info.appearance_rows, basis.subarray(gw * gh * gl_ * 4));
+      const nd = Math.max(info.views.length, info.lights.length);
+      const dirs = new Float32Array(nd * 2 * 4);
+      info.views.forEach((d, i) => dirs.set([...d, 0], i * 4));
+      info.lights.forEach((d, i) => dirs.set([...d, 0], (nd + i) * 4));
+      S.textures.dirs = floatTexture(4, nd, 2, dirs);
+    }
     const layers = Math.max(...info.samples.map((s) => s.layers));
     if (!S.program || S.layers !== layers) {
       S.program = compile(btfShader(layers));
       S.layers = layers;
     }
-  } else {
-    S.textures.a = floatTexture(0, r, r, texels);
-    if (!S.program) S.program = compile(COLOUR);
+  } else if (!S.program) {
+    S.program = compile(COLOUR);
   }
+  S.basisKey = basisKey;
+  S.texelData = texels;
   gl.activeTexture(gl.TEXTURE6);
   S.overlay = gl.createTexture();
   S.textures.overlay = S.overlay;
@@ -415,6 +448,136 @@ async function loadSurface() {
   for (const p of [gl.TEXTURE_MIN_FILTER, gl.TEXTURE_MAG_FILTER]) gl.texParameteri(gl.TEXTURE_2D, p, gl.NEAREST);
   S.overlayOn = false;
   fillSamples();
+  return onlyTexels;
+}
+
+// The texels that differ between two versions of the viewer's texel
+// arrays (`planes` RGBA planes of r × r): a mask and its bounding box
+// [x, y, w, h] (null when none changed).
+function changedTexels(before, after, r) {
+  const rr = r * r;
+  const planes = after.length / (rr * 4);
+  const mask = new Uint8Array(rr);
+  let x0 = r, y0 = r, x1 = -1, y1 = -1;
+  for (let p = 0; p < planes; p++) {
+    const o = p * rr * 4;
+    for (let i = 0; i < rr; i++) {
+      const k = o + i * 4;
+      // (bit-exact: NaN against NaN is unchanged)
+      if (before[k] === after[k] && before[k + 1] === after[k + 1] && before[k + 2] === after[k + 2]
+        && before[k + 3] === after[k + 3]) continue;
+      if ([0, 1, 2, 3].every((c) => Object.is(before[k + c], after[k + c]))) continue;
+      mask[i] = 1;
+      const x = i % r, y = (i - x) / r;
+      x0 = Math.min(x0, x); y0 = Math.min(y0, y); x1 = Math.max(x1, x); y1 = Math.max(y1, y);
+    }
+  }
+  return { mask, box: x1 >= 0 ? [x0, y0, x1 - x0 + 1, y1 - y0 + 1] : null };
+}
+
+// Texels around a changed one whose change a pixel may see: the BTF
+// shading looks up to 3 rings out for a covered texel, then filters
+// bilinearly.
+const DAMAGE_TEXELS = 5;
+
+// The canvas rectangles [x, y, w, h] (GL's bottom-left origin) that a
+// change of the texels in `changedMask` (r × r) repaints, plus
+// an atlas texel box [x, y, w, h] no longer overlaid and the world
+// spheres [centre, radius] of strokes no longer marked; null when it
+// cannot be bounded (a vertex behind the eye): then the whole canvas.
+function damageRects(changedMask, box, spheres) {
+  const r = S.info.resolution;
+  if (!changedMask) changedMask = new Uint8Array(0);
+  // changed texels, then their summed-area table
+  const sat = new Int32Array((r + 1) * (r + 1));
+  for (let y = 0; y < r; y++) {
+    let row = 0;
+    for (let x = 0; x < r; x++) {
+      let changed = changedMask[y * r + x] || 0;
+      if (box && x >= box[0] && x < box[0] + box[2] && y >= box[1] && y < box[1] + box[3]) changed = 1;
+      row += changed;
+      sat[(y + 1) * (r + 1) + x + 1] = sat[y * (r + 1) + x + 1] + row;
+    }
+  }
+  const count = (x0, y0, x1, y1) => {
+    x0 = Math.max(x0, 0); y0 = Math.max(y0, 0); x1 = Math.min(x1, r - 1); y1 = Math.min(y1, r - 1);
+    if (x0 > x1 || y0 > y1) return 0;
+    const w = r + 1;
+    return sat[(y1 + 1) * w + x1 + 1] - sat[y0 * w + x1 + 1] - sat[(y1 + 1) * w + x0] + sat[y0 * w + x0];
+  };
+  const w = canvas.width, h = canvas.height;
+  const m = viewProj(w, h, S.radius);
+  let bounded = true;
+  const boxes = [];
+  // the canvas box of points given one by one, then closed by `done`
+  let cur = null;
+  const addPoint = (x, y, z) => {
+    const cw = m[3] * x + m[7] * y + m[11] * z + m[15];
+    if (!(cw > 1e-6)) { bounded = false; return; }
+    const px = ((m[0] * x + m[4] * y + m[8] * z + m[12]) / cw * 0.5 + 0.5) * w;
+    const py = ((m[1] * x + m[5] * y + m[9] * z + m[13]) / cw * 0.5 + 0.5) * h;
+    cur = cur || [Infinity, Infinity, -Infinity, -Infinity];
+    cur[0] = Math.min(cur[0], px); cur[1] = Math.min(cur[1], py);
+    cur[2] = Math.max(cur[2], px); cur[3] = Math.max(cur[3], py);
+  };
+  const done = () => {
+    if (!cur) return;
+    // whole pixels, a margin of two for rasterization and derivative quads
+    const b = [Math.max(Math.floor(cur[0]) - 2, 0), Math.max(Math.floor(cur[1]) - 2, 0),
+      Math.min(Math.ceil(cur[2]) + 2, w), Math.min(Math.ceil(cur[3]) + 2, h)];
+    if (b[2] > b[0] && b[3] > b[1]) boxes.push(b);
+    cur = null;
+  };
+  const d = S.mesh, D = DAMAGE_TEXELS;
+  const any = sat[(r + 1) * (r + 1) - 1] > 0;
+  for (let t = 0; any && t < S.count && bounded; t += 3) {
+    let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
+    for (let k = 0; k < 3; k++) {
+      const u = d[(t + k) * 15 + 6] * r - 0.5, v = d[(t + k) * 15 + 7] * r - 0.5;
+      x0 = Math.min(x0, u); y0 = Math.min(y0, v); x1 = Math.max(x1, u); y1 = Math.max(y1, v);
+    }
+    if (!(x1 >= x0 && y1 >= y0)) continue;
+    if (count(Math.floor(x0) - D, Math.floor(y0) - D, Math.ceil(x1) + D, Math.ceil(y1) + D) === 0) continue;
+    for (let k = 0; k < 3; k++) addPoint(d[(t + k) * 15], d[(t + k) * 15 + 1], d[(t + k) * 15 + 2]);
+    done();
+  }
+  for (const [c, rad] of spheres) {
+    for (let k = 0; k < 8 && bounded; k++) {
+      addPoint(c[0] + (k & 1 ? rad : -rad), c[1] + (k & 2 ? rad : -rad), c[2] + (k & 4 ? rad : -rad));
+    }
+    done();
+  }
+  if (!bounded) return null;
+  return mergeBoxes(boxes).map((b) => [b[0], b[1], b[2] - b[0], b[3] - b[1]]);
+}
+
+// Canvas boxes [x0, y0, x1, y1] merged where they touch or lie within
+// DAMAGE_GAP pixels of each other, and all into one when more than
+// DAMAGE_BOXES remain.
+const DAMAGE_GAP = 8;
+const DAMAGE_BOXES = 16;
+function mergeBoxes(boxes) {
+  let out = boxes.slice();
+  for (let merged = true; merged;) {
+    merged = false;
+    const next = [];
+    for (const b of out) {
+      const near = next.find((a) => b[0] <= a[2] + DAMAGE_GAP && a[0] <= b[2] + DAMAGE_GAP
+        && b[1] <= a[3] + DAMAGE_GAP && a[1] <= b[3] + DAMAGE_GAP);
+      if (near) {
+        near[0] = Math.min(near[0], b[0]); near[1] = Math.min(near[1], b[1]);
+        near[2] = Math.max(near[2], b[2]); near[3] = Math.max(near[3], b[3]);
+        merged = true;
+      } else {
+        next.push(b.slice());
+      }
+    }
+    out = next;
+  }
+  if (out.length > DAMAGE_BOXES) {
+    out = [out.reduce((a, b) => [Math.min(a[0], b[0]), Math.min(a[1], b[1]), Math.max(a[2], b[2]), Math.max(a[3], b[3])])];
+  }
+  return out;
 }
 
 function bindTextures() {
@@ -468,8 +631,28 @@ function sync() {
 const BACKGROUND = [0.02, 0.02, 0.025];
 const toSrgb = (v) => (v <= 0.0031308 ? v * 12.92 : 1.055 * Math.pow(v, 1 / 2.4) - 0.055);
 
-function draw() {
+// Draws the frame, or with `rects` ([x, y, w, h] each, GL's origin) only
+// those parts of it over the frame drawn before (the canvas keeps its
+// pixels).
+function draw(rects) {
   if (!S.program) return;
+  if (rects) {
+    gl.enable(gl.SCISSOR_TEST);
+    for (const r of rects) {
+      gl.scissor(r[0], r[1], r[2], r[3]);
+      drawFrame();
+    }
+    gl.disable(gl.SCISSOR_TEST);
+  } else {
+    drawFrame();
+    studio.sizeDrawn = `${canvas.width}x${canvas.height}`;
+  }
+  studio.frames++;
+  studio.lastFrame = rects ? rects.map((r) => r.slice()) : null;
+}
+
+// The frame, within the scissor box when its test is on.
+function drawFrame() {
   const w = canvas.width, h = canvas.height;
   gl.bindFramebuffer(gl.FRAMEBUFFER, null);
   gl.viewport(0, 0, w, h);
@@ -482,7 +665,14 @@ function draw() {
   setUniforms(S.program, w, h, 0);
   gl.bindVertexArray(S.vao);
   gl.drawArrays(gl.TRIANGLES, 0, S.count);
-  studio.frames++;
+}
+
+// The canvas's pixels (RGBA, GL's row order).
+function canvasPixels() {
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  const px = new Uint8Array(canvas.width * canvas.height * 4);
+  gl.readPixels(0, 0, canvas.width, canvas.height, gl.RGBA, gl.UNSIGNED_BYTE, px);
+  return px;
 }
 
 let queued = false;
@@ -491,6 +681,26 @@ function redraw() {
   queued = true;
   requestAnimationFrame(() => { queued = false; draw(); });
 }
+
+// A redraw of what lies within world spheres [centre, radius] only (the
+// brush's ring and stroke marks as they move): the rest of the frame on
+// the canvas stays right while the camera and the surface do not change.
+let around = null;
+function redrawAround(spheres) {
+  if (queued) return;
+  if (studio.sizeDrawn !== `${canvas.width}x${canvas.height}`) { redraw(); return; }
+  if (around) { around.push(...spheres); return; }
+  around = spheres.slice();
+  requestAnimationFrame(() => {
+    const sp = around;
+    around = null;
+    // (a whole redraw queued meanwhile draws these too)
+    if (!queued && sp.length) draw(damageRects(null, null, sp));
+  });
+}
+
+// The world sphere holding the brush's ring.
+const ringSphere = () => [brush.at.slice(), brush.radius * S.info.unit * 1.07];
 
 // What lies under canvas pixel (x, y): the atlas uv and the surface point
 // (scene units), or null. Two one-pixel passes into a float target.
@@ -582,7 +792,9 @@ async function pollStatus() {
 
 // Runs a change of the surface (paint, verbatim, undo, redo), showing
 // progress, then reloads what the viewer draws.
-async function change(path, body) {
+// `erased`: world spheres [centre, radius] of stroke marks the change
+// takes off.
+async function change(path, body, erased) {
   if (studio.busy) return;
   studio.busy = true;
   const t0 = performance.now();
@@ -590,9 +802,25 @@ async function change(path, body) {
   try {
     setStatus(`${path.slice(5)}…`, 0);
     const r = await api(path, body || {});
-    await loadSurface();
-    draw();
+    const overlay = S.overlayOn ? S.overlayBox : null;
+    const sizeDrawn = studio.sizeDrawn;
+    // the frame on the canvas is of the current camera and canvas size
+    // unless a redraw is queued: then only what the change repaints is
+    // drawn again, else all
+    const t1 = performance.now();
+    const onlyTexels = await loadSurface();
+    const t2 = performance.now();
+    const rects = onlyTexels && !queued && sizeDrawn === `${canvas.width}x${canvas.height}`
+      ? damageRects(S.changed.mask, overlay, (erased || []).concat(around || []))
+      : null;
+    const t3 = performance.now();
+    draw(rects);
+    if (S.changed) studio.lastChanged = [S.changed.box, S.changed.mask.reduce((a, b) => a + b, 0)];
+    S.changed = null;
     sync();
+    // milliseconds: the request, reloading the surface, bounding the
+    // change, drawing
+    studio.lastApplySteps = [t1 - t0, t2 - t1, t3 - t2, performance.now() - t3].map(Math.round);
     studio.lastApplyMs = performance.now() - t0;
     setStatus(`${r.report || 'done'} (${(studio.lastApplyMs / 1000).toFixed(2)} s)`, 1);
   } catch (e) {
@@ -609,11 +837,12 @@ async function change(path, body) {
 async function apply() {
   if (!S.strokes.length) return;
   const strokes = S.strokes.map((s) => ({ uv: s.uv, radius: s.radius }));
+  const erased = S.strokes.map((s) => [s.at, s.radius * S.info.unit]);
   S.strokes = [];
   uploadStrokes();
   await change('/api/paint', {
     strokes, sample: Number($('sample').value), transition: Number($('transition').value),
-  });
+  }, erased);
 }
 
 let previewing = false;
@@ -704,8 +933,9 @@ canvas.addEventListener('pointerdown', (e) => {
   drag = { x: e.offsetX, y: e.offsetY, act };
   if (act === 'brush') {
     const hit = pickAt(e.offsetX, e.offsetY);
+    const n = S.strokes.length;
     if (hit) addStrokePoint(hit);
-    redraw();
+    redrawAround(S.strokes.slice(n).map((p) => [p.at, p.radius * S.info.unit]));
   }
   if (act === 'verbatim') {
     const hit = pickAt(e.offsetX, e.offsetY);
@@ -716,11 +946,17 @@ canvas.addEventListener('pointerdown', (e) => {
 canvas.addEventListener('pointermove', (e) => {
   if (mode !== 'view') {
     const hit = pickAt(e.offsetX, e.offsetY);
+    // what changes on the canvas: the ring where it was and where it is,
+    // and the stroke's new marks
+    const spheres = brush.on ? [ringSphere()] : [];
+    const n = S.strokes.length;
     brush.on = !!hit && mode === 'brush';
     if (hit) brush.at = hit.at;
     if (hit && mode === 'verbatim' && !drag) preview(hit);
     if (drag && drag.act === 'brush' && hit) addStrokePoint(hit);
-    redraw();
+    if (brush.on) spheres.push(ringSphere());
+    S.strokes.slice(n).forEach((p) => spheres.push([p.at, p.radius * S.info.unit]));
+    if (mode === 'brush') redrawAround(spheres); else redraw();
   }
   if (!drag || drag.act === 'brush') return;
   const dx = e.offsetX - drag.x, dy = e.offsetY - drag.y;
@@ -811,6 +1047,16 @@ studio.measureFps = (n) => {
   return (n * 1000) / (performance.now() - t0);
 };
 studio.pick = (x, y) => pickAt(x, y);
+// How many bytes of the canvas a whole redraw changes (0 when the frame on
+// it, drawn whole or in part, is the whole frame).
+studio.redrawDiff = () => {
+  const before = canvasPixels();
+  draw();
+  const after = canvasPixels();
+  let n = 0;
+  for (let i = 0; i < after.length; i++) n += before[i] !== after[i];
+  return n;
+};
 studio.apply = apply;
 studio.change = change;
 studio.preview = async (x, y) => { const hit = pickAt(x, y); if (hit) await preview(hit); return hit; };
