@@ -143,6 +143,15 @@ fn main() {
         assert!(err.is_null(), "stroke {i}: {err}");
         apply.push(ms);
         let part = b.eval("studio.lastFrame");
+        if i == 0 {
+            // (after the time is taken: a whole redraw to compare with)
+            let diff = b.eval("studio.redrawDiff()");
+            assert_eq!(
+                diff.as_u64(),
+                Some(0),
+                "the first stroke's frame differs from a whole redraw"
+            );
+        }
         let steps = b.eval("[studio.lastApplySteps, studio.lastChanged]");
         drawn.push(if part.is_array() {
             format!("{:.2} s (part {part}; steps {steps})", ms / 1000.0)

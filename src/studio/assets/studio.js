@@ -378,9 +378,10 @@ async function loadMesh() {
 
 // Scene info, atlas texels and (for a BTF) the factorization: everything
 // a new version of the surface may change. The factorization is fetched
-// again only when the samples changed. Returns whether only texels can
-// have changed since the last load (so a redraw of what they cover is
-// the whole change).
+// again only when the samples changed. Returns whether what the canvas
+// shows can have changed only where texels did (the samples drawn before
+// are where they were), so that a redraw of what those cover is the
+// whole change.
 async function loadSurface() {
   const meta = await api('/api/scene');
   const info = meta.scene;
@@ -392,8 +393,16 @@ async function loadSurface() {
     info.views, info.lights, info.view_cos_max, info.light_cos_max]);
   const texels = new Float32Array(await api('/api/texels'));
   const old = S.texelData;
-  const onlyTexels = !!prev && S.basisKey === basisKey && prev.resolution === r && !!old
-    && old.length === texels.length && !!S.textures.a;
+  // the samples drawn before keep their place in the factorization (a
+  // sample painted with for the first time comes after them)
+  const layoutKey = JSON.stringify([info.btf, (info.geometry_size || []).slice(0, 2), info.views, info.lights,
+    info.view_cos_max, info.light_cos_max]);
+  const samplesBefore = (prev && prev.samples) || [];
+  const samplesKept = !!prev && S.layoutKey === layoutKey
+    && JSON.stringify((info.samples || []).slice(0, samplesBefore.length)) === JSON.stringify(samplesBefore);
+  const layers = info.btf ? Math.max(...info.samples.map((x) => x.layers)) : 0;
+  const onlyTexels = samplesKept && prev.resolution === r && !!old && old.length === texels.length
+    && !!S.textures.a && (!info.btf || S.layers === layers);
   const keepBasis = info.btf && S.basisKey === basisKey && S.textures.geo;
   S.changed = onlyTexels ? changedTexels(old, texels, r) : null;
   for (const [k, t] of Object.entries(S.textures)) {
@@ -430,7 +439,6 @@ async function loadSurface() {
       info.lights.forEach((d, i) => dirs.set([...d, 0], (nd + i) * 4));
       S.textures.dirs = floatTexture(4, nd, 2, dirs);
     }
-    const layers = Math.max(...info.samples.map((s) => s.layers));
     if (!S.program || S.layers !== layers) {
       S.program = compile(btfShader(layers));
       S.layers = layers;
@@ -439,6 +447,7 @@ async function loadSurface() {
     S.program = compile(COLOUR);
   }
   S.basisKey = basisKey;
+  S.layoutKey = layoutKey;
   S.texelData = texels;
   gl.activeTexture(gl.TEXTURE6);
   S.overlay = gl.createTexture();
