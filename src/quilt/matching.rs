@@ -1047,11 +1047,8 @@ pub fn direct_costs(
         .collect();
     let at_origin: Vec<i64> = xy.iter().map(|&[x, y]| y * si.width as i64 + x).collect();
     // the known pixels' bounding box, to tell placements wholly inside
-    let (x0, x1) = known.iter().fold((usize::MAX, 0), |a, &p| {
-        (a.0.min(p % wi.width), a.1.max(p % wi.width))
-    });
-    let (y0, y1) = known.iter().fold((usize::MAX, 0), |a, &p| {
-        (a.0.min(p / wi.width), a.1.max(p / wi.width))
+    let [x0, y0, x1, y1] = xy.iter().fold([i64::MAX, i64::MAX, 0, 0], |b, &[x, y]| {
+        [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)]
     });
     let mass: f64 = work.known.iter().map(|&m| m as f64).sum();
     let max_valid = sample.valid.iter().fold(0.0f64, |a, &v| a.max(v as f64));
@@ -1072,11 +1069,12 @@ pub fn direct_costs(
         let mut inside = [false; DIRECT_GROUP];
         let mut shift = [0i64; DIRECT_GROUP];
         for (j, &(dx, dy)) in group.iter().enumerate() {
+            // (x1 − dx ≥ x0 − dx ≥ 0 once the first two hold)
             inside[j] = !known.is_empty()
-                && x0 as i64 - dx as i64 >= 0
-                && y0 as i64 - dy as i64 >= 0
-                && ((x1 as i64 - dx as i64) as usize) < si.width
-                && ((y1 as i64 - dy as i64) as usize) < si.height;
+                && x0 - dx as i64 >= 0
+                && y0 - dy as i64 >= 0
+                && x1 - (dx as i64) < si.width as i64
+                && y1 - (dy as i64) < si.height as i64;
             shift[j] = dy as i64 * si.width as i64 + dx as i64;
         }
         // colour samples (three channels) get the sum unrolled
@@ -1100,9 +1098,9 @@ pub fn direct_costs(
         .collect())
 }
 
-/// The work image's known pixels as [`direct_costs`] gathers them: pixel
-/// index, weight, features and constraint (f64), and the sample index each
-/// lands on at placement (0, 0).
+/// The work image's known pixels as [`direct_costs`] gathers them: (x, y),
+/// weight, features and constraint (f64), and the sample index each lands
+/// on at placement (0, 0).
 struct Known<'a> {
     /// Each known pixel's (x, y) in the work image.
     xy: &'a [[i64; 2]],
@@ -1127,7 +1125,7 @@ impl Known<'_> {
         diff: impl Fn(&[f64], &[f32]) -> f64,
     ) -> ([f64; DIRECT_GROUP], [f64; DIRECT_GROUP]) {
         // (placements wholly inside need no bounds test: a loop without it)
-        if group.iter().zip(inside).all(|(_, &i)| i) {
+        if inside[..group.len()].iter().all(|&i| i) {
             self.sums::<false>(sample, group, shift, w, diff)
         } else {
             self.sums::<true>(sample, group, shift, w, diff)

@@ -461,9 +461,9 @@ impl<'g> Solver<'g> {
         let sp = head[mid ^ 1];
         let tq = head[mid];
 
-        // Bottleneck, noting the path (node, parent arc) from the source
-        // side's root down to `sp`, then from `tq` up to the sink side's root,
-        // so that the push walks a list instead of the tree again.
+        // Bottleneck, noting the path (node, parent arc) from `sp` up to the
+        // source side's root, then from `tq` up to the sink side's root, so
+        // that the push walks a list instead of the trees again.
         let mut f = self.r_cap[mid];
         let path = &mut self.path;
         path.clear();

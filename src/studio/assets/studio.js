@@ -461,13 +461,13 @@ async function loadSurface() {
 }
 
 // The texels that differ between two versions of the viewer's texel
-// arrays (`planes` RGBA planes of r × r): a mask and its bounding box
-// [x, y, w, h] (null when none changed).
+// arrays (`planes` RGBA planes of r × r): a mask, how many it marks and
+// their bounding box [x, y, w, h] (null when none changed).
 function changedTexels(before, after, r) {
   const rr = r * r;
   const planes = after.length / (rr * 4);
   const mask = new Uint8Array(rr);
-  let x0 = r, y0 = r, x1 = -1, y1 = -1;
+  let count = 0, x0 = r, y0 = r, x1 = -1, y1 = -1;
   for (let p = 0; p < planes; p++) {
     const o = p * rr * 4;
     for (let i = 0; i < rr; i++) {
@@ -476,12 +476,14 @@ function changedTexels(before, after, r) {
       if (before[k] === after[k] && before[k + 1] === after[k + 1] && before[k + 2] === after[k + 2]
         && before[k + 3] === after[k + 3]) continue;
       if ([0, 1, 2, 3].every((c) => Object.is(before[k + c], after[k + c]))) continue;
+      if (mask[i]) continue;
       mask[i] = 1;
+      count++;
       const x = i % r, y = (i - x) / r;
       x0 = Math.min(x0, x); y0 = Math.min(y0, y); x1 = Math.max(x1, x); y1 = Math.max(y1, y);
     }
   }
-  return { mask, box: x1 >= 0 ? [x0, y0, x1 - x0 + 1, y1 - y0 + 1] : null };
+  return { mask, count, box: x1 >= 0 ? [x0, y0, x1 - x0 + 1, y1 - y0 + 1] : null };
 }
 
 // Texels around a changed one whose change a pixel may see: the BTF
@@ -496,10 +498,11 @@ const DAMAGE_TEXELS = 5;
 // cannot be bounded (a vertex behind the eye): then the whole canvas.
 function damageRects(changedMask, box, spheres) {
   const r = S.info.resolution;
+  const texels = !!changedMask || !!box;
   if (!changedMask) changedMask = new Uint8Array(0);
-  // changed texels, then their summed-area table
-  const sat = new Int32Array((r + 1) * (r + 1));
-  for (let y = 0; y < r; y++) {
+  // changed texels, then their summed-area table (none for spheres alone)
+  const sat = new Int32Array(texels ? (r + 1) * (r + 1) : 1);
+  for (let y = 0; texels && y < r; y++) {
     let row = 0;
     for (let x = 0; x < r; x++) {
       let changed = changedMask[y * r + x] || 0;
@@ -538,7 +541,7 @@ function damageRects(changedMask, box, spheres) {
     cur = null;
   };
   const d = S.mesh, D = DAMAGE_TEXELS;
-  const any = sat[(r + 1) * (r + 1) - 1] > 0;
+  const any = texels && sat[(r + 1) * (r + 1) - 1] > 0;
   for (let t = 0; any && t < S.count && bounded; t += 3) {
     let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
     for (let k = 0; k < 3; k++) {
@@ -710,6 +713,8 @@ function redrawAround(spheres) {
 
 // The world sphere holding the brush's ring.
 const ringSphere = () => [brush.at.slice(), brush.radius * S.info.unit * 1.07];
+// The world sphere a stroke point marks (as the shading's `uStrokes`).
+const markSphere = (s) => [s.at, s.radius * S.info.unit];
 
 // What lies under canvas pixel (x, y): the atlas uv and the surface point
 // (scene units), or null. Two one-pixel passes into a float target.
@@ -813,18 +818,18 @@ async function change(path, body, erased) {
     const r = await api(path, body || {});
     const overlay = S.overlayOn ? S.overlayBox : null;
     const sizeDrawn = studio.sizeDrawn;
-    // the frame on the canvas is of the current camera and canvas size
-    // unless a redraw is queued: then only what the change repaints is
-    // drawn again, else all
     const t1 = performance.now();
     const onlyTexels = await loadSurface();
     const t2 = performance.now();
+    // the frame on the canvas is of the current camera and canvas size
+    // unless a redraw is queued: then only what the change repaints is
+    // drawn again, else all
     const rects = onlyTexels && !queued && sizeDrawn === `${canvas.width}x${canvas.height}`
       ? damageRects(S.changed.mask, overlay, (erased || []).concat(around || []))
       : null;
     const t3 = performance.now();
     draw(rects);
-    if (S.changed) studio.lastChanged = [S.changed.box, S.changed.mask.reduce((a, b) => a + b, 0)];
+    if (S.changed) studio.lastChanged = [S.changed.box, S.changed.count];
     S.changed = null;
     sync();
     // milliseconds: the request, reloading the surface, bounding the
@@ -846,7 +851,7 @@ async function change(path, body, erased) {
 async function apply() {
   if (!S.strokes.length) return;
   const strokes = S.strokes.map((s) => ({ uv: s.uv, radius: s.radius }));
-  const erased = S.strokes.map((s) => [s.at, s.radius * S.info.unit]);
+  const erased = S.strokes.map(markSphere);
   S.strokes = [];
   uploadStrokes();
   await change('/api/paint', {
@@ -944,7 +949,7 @@ canvas.addEventListener('pointerdown', (e) => {
     const hit = pickAt(e.offsetX, e.offsetY);
     const n = S.strokes.length;
     if (hit) addStrokePoint(hit);
-    redrawAround(S.strokes.slice(n).map((p) => [p.at, p.radius * S.info.unit]));
+    redrawAround(S.strokes.slice(n).map(markSphere));
   }
   if (act === 'verbatim') {
     const hit = pickAt(e.offsetX, e.offsetY);
@@ -964,7 +969,7 @@ canvas.addEventListener('pointermove', (e) => {
     if (hit && mode === 'verbatim' && !drag) preview(hit);
     if (drag && drag.act === 'brush' && hit) addStrokePoint(hit);
     if (brush.on) spheres.push(ringSphere());
-    S.strokes.slice(n).forEach((p) => spheres.push([p.at, p.radius * S.info.unit]));
+    spheres.push(...S.strokes.slice(n).map(markSphere));
     if (mode === 'brush') redrawAround(spheres); else redraw();
   }
   if (!drag || drag.act === 'brush') return;
