@@ -16,7 +16,10 @@
 //! each chart is merged into one of its neighbours (longest shared border
 //! first) when the union is a disk with a map that passes the same checks
 //! and its faces stay within the normal cone of the union's mean normal; the
-//! cone is waived for tiny charts (under 1% of their component's area).
+//! cone is waived for tiny charts (under 1% of their component's area). A
+//! tiny chart no neighbour takes whole is then shared out among all its
+//! neighbours, each face to the nearest one, when every grown neighbour
+//! still maps (relaxed by ARAP if need be).
 //! Finally chart borders are straightened once more (the spikes and notches
 //! merging leaves), keeping only the moves after which every chart they
 //! touch still passes.
@@ -591,6 +594,11 @@ fn segment(ctx: &Ctx) -> Vec<Vec<u32>> {
 /// and oriented; `None` if a triangle flips, the map folds over itself (two
 /// boundary edges cross) or both maps are over a limit.
 fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
+    parameterize_relaxing(ctx, faces, ctx.compact)
+}
+
+/// [`parameterize`], relaxing a stretched conformal map (ARAP) when `relax`.
+fn parameterize_relaxing(ctx: &Ctx, faces: &[u32], relax_stretched: bool) -> Option<Chart> {
     let mesh = ctx.mesh;
     let mut vertices: Vec<u32> = faces.iter().flat_map(|&f| mesh.triangles[f as usize]).collect();
     vertices.sort_unstable();
@@ -622,7 +630,7 @@ fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
             ctx.max_linf_stretch,
         ) {
             Some(Check::Within) => conformal,
-            Some(Check::Stretched) if ctx.compact => {
+            Some(Check::Stretched) if relax_stretched => {
                 let relaxed = relax(&positions, &triangles, &conformal, ARAP_ITERATIONS)?;
                 match acceptable(ctx, faces, &positions, &triangles, &relaxed, ctx.max_relaxed_linf) {
                     Some(Check::Within) => relaxed,
@@ -923,11 +931,96 @@ fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
             alive[c] = false;
         }
     }
+    // tiny charts no neighbour takes whole are shared out among them
+    for &(_, _, c) in &order {
+        let Some(&first) = charts[c].faces.first() else {
+            continue;
+        };
+        let tiny = area(&charts[c]) < TINY_CHART * ctx.component_area[ctx.component[first as usize] as usize];
+        if !tiny {
+            continue;
+        }
+        if let Some(grown) = dissolve(ctx, &charts, &owner, c) {
+            for (n, chart) in grown {
+                for &f in &chart.faces {
+                    owner[f as usize] = n as u32;
+                }
+                charts[n] = chart;
+            }
+            charts[c].faces.clear();
+            alive[c] = false;
+        }
+    }
     charts
         .into_iter()
         .zip(alive)
         .filter(|(_, a)| *a)
         .map(|(c, _)| c)
+        .collect()
+}
+
+/// Shares a tiny chart that merges whole into none of its neighbours out
+/// among all of them: each face goes to the neighbour nearest over the dual
+/// graph (Dijkstra from the chart's border), and the share is kept only if
+/// every neighbour that grows stays a disk that [`parameterize`] maps.
+/// Returns the grown neighbours, in ascending id.
+fn dissolve(ctx: &Ctx, charts: &[Chart], owner: &[u32], c: usize) -> Option<Vec<(usize, Chart)>> {
+    let faces = &charts[c].faces;
+    let local = |g: u32| faces.binary_search(&g).ok();
+    let mut label = vec![NONE; faces.len()];
+    let mut heap = BinaryHeap::new();
+    for (i, &f) in faces.iter().enumerate() {
+        for (e, &g) in ctx.adj[f as usize].iter().enumerate() {
+            if g != NO_FACE && owner[g as usize] != c as u32 {
+                let d = ctx.weight[f as usize][e];
+                heap.push(Reverse((key(d), owner[g as usize], i as u32, d.to_bits())));
+            }
+        }
+    }
+    while let Some(Reverse((_, n, i, d))) = heap.pop() {
+        if label[i as usize] != NONE {
+            continue;
+        }
+        label[i as usize] = n;
+        let f = faces[i as usize] as usize;
+        for (e, &g) in ctx.adj[f].iter().enumerate() {
+            if let Some(j) = (g != NO_FACE).then(|| local(g)).flatten() {
+                if label[j] == NONE {
+                    let dj = f64::from_bits(d) + ctx.weight[f][e];
+                    heap.push(Reverse((key(dj), n, j as u32, dj.to_bits())));
+                }
+            }
+        }
+    }
+    if label.contains(&NONE) {
+        return None; // a closed chart with no neighbour
+    }
+    let mut grown: Vec<usize> = label.iter().map(|&n| n as usize).collect();
+    grown.sort_unstable();
+    grown.dedup();
+    let mapped: Vec<Option<Chart>> = grown
+        .par_iter()
+        .map(|&n| {
+            let mut union = charts[n].faces.clone();
+            union.extend(
+                faces
+                    .iter()
+                    .zip(&label)
+                    .filter(|(_, &l)| l as usize == n)
+                    .map(|(&f, _)| f),
+            );
+            union.sort_unstable();
+            let patch = Patch::new(ctx, union);
+            if patch.split_components().len() > 1 || !patch.is_disk(ctx) {
+                return None;
+            }
+            parameterize_relaxing(ctx, &patch.faces, true)
+        })
+        .collect();
+    grown
+        .into_iter()
+        .zip(mapped)
+        .map(|(n, m)| m.map(|m| (n, m)))
         .collect()
 }
 
@@ -1421,6 +1514,40 @@ pub(super) mod tests {
             let last = label.iter().filter(|&&l| l == label[f]).count() == 1;
             assert!(same > 1 || !pair || last, "face {f} still a spike or notch");
         }
+    }
+
+    #[test]
+    fn a_tiny_chart_is_shared_out_to_its_nearest_neighbours() {
+        let n = 8;
+        let m = grid(n);
+        let topo = m.topology();
+        let ctx = Ctx::new(&m, &topo, &ChartConfig::default());
+        let column = |f: u32| (f as usize / 2) % n;
+        let row = |f: u32| (f as usize / 2) / n;
+        // left and right halves, and a 2×2-square chart astride their border
+        let part = |f: u32| match (column(f), row(f)) {
+            (3..=4, 3..=4) => 2,
+            (x, _) => usize::from(x >= n / 2),
+        };
+        let faces =
+            |p: usize| -> Vec<u32> { (0..m.triangles.len() as u32).filter(|&f| part(f) == p).collect() };
+        let charts: Vec<Chart> = (0..3)
+            .map(|p| parameterize(&ctx, &faces(p)).expect("a flat disk maps"))
+            .collect();
+        let owner = owners(&ctx, &charts);
+        let grown = dissolve(&ctx, &charts, &owner, 2).expect("both halves take their side");
+        assert_eq!(grown.iter().map(|g| g.0).collect::<Vec<_>>(), [0, 1]);
+        for (k, chart) in grown {
+            // each half takes the tiny chart's faces on its own side
+            let want: Vec<u32> = (0..m.triangles.len() as u32)
+                .filter(|&f| usize::from(column(f) >= n / 2) == k)
+                .collect();
+            assert_eq!(chart.faces, want, "half {k}");
+            assert!(chart.l2_stretch < 1.0001, "a flat chart maps isometrically");
+        }
+        // a chart with no neighbour (the whole grid) cannot be shared out
+        let all = vec![parameterize(&ctx, &(0..m.triangles.len() as u32).collect::<Vec<_>>()).unwrap()];
+        assert!(dissolve(&ctx, &all, &owners(&ctx, &all), 0).is_none());
     }
 
     #[test]
