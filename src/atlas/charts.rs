@@ -70,9 +70,9 @@ pub struct ChartConfig {
     /// map at the chart's uniform density). Default 2.
     pub max_linf_stretch: f32,
     /// A more compact atlas: a chart over a stretch or area-distortion limit
-    /// is relaxed (ARAP) before it is split, merges use relaxed maps too,
-    /// chart borders are straightened once more after merging, and the
-    /// packer also tries eighth turns. Fewer charts and shorter seams; the
+    /// is relaxed (ARAP) before it is split, merges and the straightening
+    /// after them use relaxed maps too, and the packer also tries eighth
+    /// turns. Fewer charts and shorter seams; the
     /// atlas differs from the default one. Default off.
     pub compact: bool,
 }
@@ -1158,9 +1158,7 @@ pub fn build_charts(mesh: &Mesh, topology: &Topology, cfg: &ChartConfig) -> Resu
     }
     let ctx = Ctx::new(mesh, topology, cfg);
     let mut charts = merge(&ctx, split_until_mapped(&ctx, segment(&ctx)));
-    if cfg.compact {
-        charts = straighten_charts(&ctx, charts);
-    }
+    charts = straighten_charts(&ctx, charts);
     charts.sort_unstable_by_key(|c| c.faces[0]);
     Ok(charts)
 }

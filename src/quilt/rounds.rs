@@ -843,7 +843,7 @@ mod tests {
         let mut syn = Synthesis::open(&gim, &sample, &sized.svd, &out, &cfg, true).unwrap();
         let (mut inside, mut across) = (0, 0);
         let seeds: Vec<u32> = (0..256 * 256u32)
-            .step_by(601)
+            .step_by(307)
             .filter(|&v| syn.surface.covered(v))
             .collect();
         for v in seeds {
