@@ -70,9 +70,10 @@ pub struct ChartConfig {
     /// map at the chart's uniform density). Default 2.
     pub max_linf_stretch: f32,
     /// A more compact atlas: a chart over a stretch or area-distortion limit
-    /// is relaxed (ARAP) before it is split, and merges and the
-    /// straightening after them use relaxed maps too. Fewer charts and
-    /// shorter seams; the atlas differs from the default one. Default off.
+    /// is relaxed (ARAP) before it is split, merges and the straightening
+    /// after them use relaxed maps too, and the packer also tries eighth
+    /// turns. Fewer charts and shorter seams; the
+    /// atlas differs from the default one. Default off.
     pub compact: bool,
 }
 

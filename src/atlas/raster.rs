@@ -401,9 +401,7 @@ pub fn build_gim(
             extent,
         })
         .collect();
-    // eighth turns where quarter turns do not fit a scale: never less
-    // covered on the shared meshes, at the cost of a slower bisection
-    let packing = pack(&shapes, r, cfg.gutter, true);
+    let packing = pack(&shapes, r, cfg.gutter, cfg.charts.compact);
     if packing.scale <= 0.0 {
         return Err(Error::input(
             mesh_path,
