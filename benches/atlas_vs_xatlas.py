@@ -17,6 +17,7 @@ Measures, the same for both, from per-face 3D positions and per-corner uvs in
   share a corner: the same 3D vertex with the same uv vertex (vt index; xatlas
   output vertex index). (Sharing an edge instead differs only for xatlas on the
   teapot: 78 charts, not 62, where xatlas welds the mesh's duplicate vertices.)
+- under 1 %: charts with less than 1 % of the surface's 3D area.
 - stretch (Sander et al. 2001) of the map uv -> 3D after scaling the whole uv
   layout by one factor so that total uv area = total 3D area: Jacobian columns
   Ss, St; a = Ss.Ss, b = Ss.St, c = St.St; Γ = sqrt((a+c+sqrt((a-c)²+4b²))/2).
@@ -104,6 +105,10 @@ def measure(pos, fv, uv, ft):
     charts = len({find(f) for f in range(len(fv))})
     # --- stretch
     a3 = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
+    chart_area = {}
+    for f in range(len(fv)):
+        chart_area[find(f)] = chart_area.get(find(f), 0.0) + a3[f]
+    tiny = sum(1 for v in chart_area.values() if v < 0.01 * a3.sum())
     d1, d2 = Q[:, 1] - Q[:, 0], Q[:, 2] - Q[:, 0]
     auv2 = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]  # twice the signed uv area
     scale = np.sqrt(a3.sum() / (0.5 * np.abs(auv2).sum()))
@@ -138,7 +143,7 @@ def measure(pos, fv, uv, ft):
         l2b = ((x[0] - cx) * (y[1] - cy) - (x[1] - cx) * (y[0] - cy)) / den
         inside = (l0 > 0) & (l1 > 0) & (l2b > 0)
         count[j0:j1 + 1, i0:i1 + 1] += inside
-    return dict(charts=charts, l2=l2, linf=G.max(), g99=g99,
+    return dict(charts=charts, tiny=tiny, l2=l2, linf=G.max(), g99=g99,
                 cover=100.0 * (count > 0).sum() / RES ** 2, twice=int((count >= 2).sum()), seam=seam)
 
 
@@ -179,7 +184,7 @@ def run_xatlas(mesh):
     return m
 
 
-FMT = [('charts', '{:d}'), ('l2', '{:.3f}'), ('linf', '{:.2f}'), ('g99', '{:.2f}'),
+FMT = [('charts', '{:d}'), ('tiny', '{:d}'), ('l2', '{:.3f}'), ('linf', '{:.2f}'), ('g99', '{:.2f}'),
        ('cover', '{:.1f} %'), ('twice', '{:d}'), ('seam', '{:.1f}'), ('time', '{:.2f} s')]
 
 
@@ -195,7 +200,7 @@ def main():
             for k, a in enumerate(argv) if not (k and argv[k - 1] == '--args')]
     o = ap.parse_args(argv)
     extra = o.args.split()
-    head = ['mesh', 'charts', 'L2', 'L∞', 'Γ 99 %', 'texel centres in a chart',
+    head = ['mesh', 'charts', 'under 1 %', 'L2', 'L∞', 'Γ 99 %', 'texel centres in a chart',
             'covered twice', 'seam length', 'time']
     who = (o.label or 'btfquilt' + (' ' + o.args if o.args else '')) + (' / xatlas' if o.xatlas else '')
     print(f'{who}, {RES}²\n')
