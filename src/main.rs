@@ -319,6 +319,10 @@ enum Command {
         /// variety, at some cost in seam quality).
         #[arg(long, default_value_t = TileConfig::default().occurrence_weight)]
         occurrence_weight: f64,
+        /// Choose among placements costing at most (1 + this) × the best one,
+        /// by the seed (0: the best; higher: more variety, weaker seams).
+        #[arg(long, default_value_t = TileConfig::default().tolerance)]
+        tolerance: f64,
         /// Weight of the structure channel (distance to the sample's edges) in
         /// matching and seams, in sample neighbour differences (0: colour only).
         #[arg(long, default_value_t = TileConfig::default().structure_weight)]
@@ -970,6 +974,7 @@ fn run(cli: Cli) -> Result<()> {
             refine_placements,
             round,
             occurrence_weight,
+            tolerance,
             structure_weight,
             field_turn,
             coarse_above,
@@ -983,6 +988,7 @@ fn run(cli: Cli) -> Result<()> {
                 refine_placements,
                 round,
                 occurrence_weight,
+                tolerance,
                 structure_weight,
                 field_turn,
                 coarse_above,

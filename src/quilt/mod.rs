@@ -244,6 +244,12 @@ impl TileConfig {
             "a finite number ≥ 0 (0 turns the occurrence penalty off)",
         )?;
         check(
+            "--tolerance",
+            self.tolerance,
+            self.tolerance >= 0.0,
+            "a finite number ≥ 0 (a share of the best placement's cost)",
+        )?;
+        check(
             "--structure-weight",
             self.structure_weight,
             self.structure_weight >= 0.0,

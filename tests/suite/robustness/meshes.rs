@@ -319,6 +319,8 @@ fn mesh_float_flags_must_be_finite() {
         ("--seam-threshold", "-1"),
         ("--occurrence-weight", "-0.5"),
         ("--occurrence-weight", "inf"),
+        ("--tolerance", "-0.1"),
+        ("--tolerance", "NaN"),
         ("--structure-weight", "-1"),
         ("--field-turn", "-1"),
     ] {
