@@ -72,8 +72,8 @@ pub struct ChartConfig {
     /// A more compact atlas: a chart over a stretch or area-distortion limit
     /// is relaxed (ARAP) before it is split, merges and the straightening
     /// after them use relaxed maps too, and the packer also tries eighth
-    /// turns. Fewer charts and shorter seams; the
-    /// atlas differs from the default one. Default off.
+    /// turns. Fewer charts and shorter seams; the atlas differs from the
+    /// default one. Default off.
     pub compact: bool,
 }
 
@@ -597,7 +597,8 @@ fn parameterize(ctx: &Ctx, faces: &[u32]) -> Option<Chart> {
     parameterize_relaxing(ctx, faces, ctx.compact)
 }
 
-/// [`parameterize`], relaxing a stretched conformal map (ARAP) when `relax`.
+/// [`parameterize`], relaxing a stretched conformal map (ARAP) when
+/// `relax_stretched`.
 fn parameterize_relaxing(ctx: &Ctx, faces: &[u32], relax_stretched: bool) -> Option<Chart> {
     let mesh = ctx.mesh;
     let mut vertices: Vec<u32> = faces.iter().flat_map(|&f| mesh.triangles[f as usize]).collect();
@@ -881,6 +882,10 @@ fn owners(ctx: &Ctx, charts: &[Chart]) -> Vec<u32> {
 fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
     let mut owner = owners(ctx, &charts);
     let area = |chart: &Chart| chart.faces.iter().map(|&f| ctx.area[f as usize]).sum::<f64>();
+    let is_tiny = |chart: &Chart| {
+        let component = ctx.component[chart.faces[0] as usize] as usize;
+        area(chart) < TINY_CHART * ctx.component_area[component]
+    };
     let mut order: Vec<(f64, u32, usize)> = charts
         .iter()
         .enumerate()
@@ -889,8 +894,7 @@ fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
     order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     let mut alive = vec![true; charts.len()];
     for &(_, _, c) in &order {
-        let first = charts[c].faces[0] as usize;
-        let tiny = area(&charts[c]) < TINY_CHART * ctx.component_area[ctx.component[first] as usize];
+        let tiny = is_tiny(&charts[c]);
         let mut shared: Vec<(u32, u32)> = Vec::new(); // (neighbour, shared edges)
         for &f in &charts[c].faces {
             for &g in &ctx.adj[f as usize] {
@@ -933,11 +937,7 @@ fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
     }
     // tiny charts no neighbour takes whole are shared out among them
     for &(_, _, c) in &order {
-        let Some(&first) = charts[c].faces.first() else {
-            continue;
-        };
-        let tiny = area(&charts[c]) < TINY_CHART * ctx.component_area[ctx.component[first as usize] as usize];
-        if !tiny {
+        if charts[c].faces.is_empty() || !is_tiny(&charts[c]) {
             continue;
         }
         if let Some(grown) = dissolve(ctx, &charts, &owner, c) {
@@ -962,8 +962,9 @@ fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
 /// Shares a tiny chart that merges whole into none of its neighbours out
 /// among all of them: each face goes to the neighbour nearest over the dual
 /// graph (Dijkstra from the chart's border), and the share is kept only if
-/// every neighbour that grows stays a disk that [`parameterize`] maps.
-/// Returns the grown neighbours, in ascending id.
+/// every neighbour that grows stays a disk that maps within the limits, its
+/// conformal map relaxed by ARAP where it is over one. Returns the grown
+/// neighbours, in ascending id.
 fn dissolve(ctx: &Ctx, charts: &[Chart], owner: &[u32], c: usize) -> Option<Vec<(usize, Chart)>> {
     let faces = &charts[c].faces;
     let local = |g: u32| faces.binary_search(&g).ok();
