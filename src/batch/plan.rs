@@ -154,6 +154,7 @@ struct TileSection {
     sample_widths: Vec<f64>,
     seam_threshold: Option<f64>,
     occurrence_weight: Option<f64>,
+    tolerance: Option<f64>,
     structure_weight: Option<f64>,
     field_turn: Option<usize>,
     /// 0 turns seam refinement off.
@@ -171,6 +172,7 @@ impl Default for TileSection {
             sample_widths: Vec::new(),
             seam_threshold: None,
             occurrence_weight: None,
+            tolerance: None,
             structure_weight: None,
             field_turn: None,
             refine: None,
@@ -341,6 +343,7 @@ pub struct Plan {
 pub struct TileParams {
     pub seam_threshold: f64,
     pub occurrence_weight: f64,
+    pub tolerance: f64,
     pub structure_weight: f64,
     pub field_turn: usize,
     pub refine: Option<f64>,
@@ -557,6 +560,7 @@ impl Plan {
         let tile = TileParams {
             seam_threshold: t.seam_threshold.unwrap_or(defaults.seam_threshold),
             occurrence_weight: t.occurrence_weight.unwrap_or(defaults.occurrence_weight),
+            tolerance: t.tolerance.unwrap_or(defaults.tolerance),
             structure_weight: t.structure_weight.unwrap_or(defaults.structure_weight),
             field_turn: t.field_turn.unwrap_or(defaults.field_turn),
             refine: match t.refine {
@@ -768,6 +772,7 @@ pub fn tile_config(p: &TileParams, seed: u64, sample_width: Option<f64>) -> Tile
     TileConfig {
         seam_threshold: p.seam_threshold,
         occurrence_weight: p.occurrence_weight,
+        tolerance: p.tolerance,
         structure_weight: p.structure_weight,
         field_turn: p.field_turn,
         refine: p.refine,

@@ -795,6 +795,7 @@ fn every_parameter_reaching_an_output_changes_the_key() {
         "[tile]\nsample_widths = [0.5]\n",
         "[tile]\nrefine = 0\n",
         "[tile]\noccurrence_weight = 0.5\n",
+        "[tile]\ntolerance = 0.1\n",
         "[factorize]\nterms = 8\n",
         "[render]\nwidth = 320\n",
         "[render]\nlights = [\"0,1,0\"]\n",
