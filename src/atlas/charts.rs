@@ -918,11 +918,7 @@ fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
                 if !tiny && !within_cone(ctx, &faces) {
                     return None;
                 }
-                let patch = Patch::new(ctx, faces);
-                if !patch.is_disk(ctx) {
-                    return None;
-                }
-                parameterize(ctx, &patch.faces)
+                map_disk(ctx, faces, ctx.compact)
             })
             .collect();
         if let Some((k, merged)) = tries.into_iter().enumerate().find_map(|(k, t)| t.map(|m| (k, m))) {
@@ -957,6 +953,17 @@ fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
         .filter(|(_, a)| *a)
         .map(|(c, _)| c)
         .collect()
+}
+
+/// The chart of `faces` (ascending) if they form one topological disk
+/// ([`Patch::is_disk`]: connected, no pinch, Euler characteristic 1) that
+/// [`parameterize_relaxing`] maps.
+fn map_disk(ctx: &Ctx, faces: Vec<u32>, relax_stretched: bool) -> Option<Chart> {
+    let patch = Patch::new(ctx, faces);
+    if !patch.is_disk(ctx) {
+        return None;
+    }
+    parameterize_relaxing(ctx, &patch.faces, relax_stretched)
 }
 
 /// Shares a tiny chart that merges whole into none of its neighbours out
@@ -1011,11 +1018,7 @@ fn dissolve(ctx: &Ctx, charts: &[Chart], owner: &[u32], c: usize) -> Option<Vec<
                     .map(|(&f, _)| f),
             );
             union.sort_unstable();
-            let patch = Patch::new(ctx, union);
-            if patch.split_components().len() > 1 || !patch.is_disk(ctx) {
-                return None;
-            }
-            parameterize_relaxing(ctx, &patch.faces, true)
+            map_disk(ctx, union, true)
         })
         .collect();
     grown
@@ -1054,13 +1057,7 @@ fn straighten_charts(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
         }
         let remapped: Vec<Option<Chart>> = ids
             .par_iter()
-            .map(|&c| {
-                let patch = Patch::new(ctx, faces[c].clone());
-                if patch.len() == 0 || patch.split_components().len() > 1 || !patch.is_disk(ctx) {
-                    return None;
-                }
-                parameterize(ctx, &patch.faces)
-            })
+            .map(|&c| map_disk(ctx, faces[c].clone(), ctx.compact))
             .collect();
         if remapped.iter().all(Option::is_some) {
             for (&c, chart) in ids.iter().zip(remapped) {
