@@ -643,6 +643,10 @@ function sync() {
 const BACKGROUND = [0.02, 0.02, 0.025];
 const toSrgb = (v) => (v <= 0.0031308 ? v * 12.92 : 1.055 * Math.pow(v, 1 / 2.4) - 0.055);
 
+// The canvas's size as the last whole frame records it (`studio.sizeDrawn`):
+// a part drawn over a frame of another size would leave the rest wrong.
+const canvasSize = () => `${canvas.width}x${canvas.height}`;
+
 // Draws the frame, or with `rects` ([x, y, w, h] each, GL's origin) only
 // those parts of it over the frame drawn before (the canvas keeps its
 // pixels).
@@ -657,7 +661,7 @@ function draw(rects) {
     gl.disable(gl.SCISSOR_TEST);
   } else {
     drawFrame();
-    studio.sizeDrawn = `${canvas.width}x${canvas.height}`;
+    studio.sizeDrawn = canvasSize();
   }
   studio.frames++;
   studio.lastFrame = rects ? rects.map((r) => r.slice()) : null;
@@ -700,7 +704,7 @@ function redraw() {
 let around = null;
 function redrawAround(spheres) {
   if (queued) return;
-  if (studio.sizeDrawn !== `${canvas.width}x${canvas.height}`) { redraw(); return; }
+  if (studio.sizeDrawn !== canvasSize()) { redraw(); return; }
   if (around) { around.push(...spheres); return; }
   around = spheres.slice();
   requestAnimationFrame(() => {
@@ -824,7 +828,7 @@ async function change(path, body, erased) {
     // the frame on the canvas is of the current camera and canvas size
     // unless a redraw is queued: then only what the change repaints is
     // drawn again, else all
-    const rects = onlyTexels && !queued && sizeDrawn === `${canvas.width}x${canvas.height}`
+    const rects = onlyTexels && !queued && sizeDrawn === canvasSize()
       ? damageRects(S.changed.mask, overlay, (erased || []).concat(around || []))
       : null;
     const t3 = performance.now();
