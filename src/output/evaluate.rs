@@ -3,6 +3,10 @@
 //!
 //! - seams: colour differences across grid edges where the patch changes,
 //!   against those inside patches;
+//! - continuation: at seam edges, each side's sample continued one texel
+//!   across the seam against the other side's colour, and the share of
+//!   continuations as different as the sample's strongest edges (a feature
+//!   that ends at the seam; [`super::continuation`]);
 //! - zippers: mean colour difference across zipper links divided by the mean
 //!   across grid links inside charts (≈ 1 means chart seams are invisible);
 //! - coherence: mean and 95th percentile RGB distance from 5×5 output
@@ -22,6 +26,7 @@ use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::MemoryBudget;
 use crate::factorize::rotate_maps;
 use crate::io::imageio::RgbImage;
+use crate::output::continuation::{continuation, ContinuationFigures};
 use crate::output::{colour_rows, open_samples, OpenSample, BAND_ROWS};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
@@ -46,6 +51,8 @@ pub struct EvaluateReport {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub painting: Option<PaintingFigures>,
     pub seam: SeamFigures,
+    /// Whether features continue across seams ([`continuation`]).
+    pub continuation: ContinuationFigures,
     pub zipper: ZipperFigures,
     pub coherence: CoherenceFigures,
     /// Per sample, how often each of its pixels appears on the surface.
@@ -224,6 +231,7 @@ pub fn evaluate(
     let seams_fraction = seam.len() as f64 / (seam.len() + inner_count).max(1) as f64;
     let width = previews.first().map_or(0, |p| p.width);
     let scale = scale(&quilt, &gim, width)?;
+    let continuation = continuation(&quilt, &gim, &previews)?;
     Ok(EvaluateReport {
         texels,
         patches: patch_ids.len(),
@@ -238,6 +246,7 @@ pub fn evaluate(
             inside_patches_mean: inner_mean,
             ratio_to_inside: mean(&seam) / inner_mean.max(1e-12),
         },
+        continuation,
         zipper: ZipperFigures {
             links: zip.len(),
             mean_colour_difference: mean(&zip),

@@ -7,6 +7,7 @@
 
 pub mod bake;
 pub mod compare;
+pub mod continuation;
 pub mod evaluate;
 pub mod export;
 pub mod render;

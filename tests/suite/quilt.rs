@@ -499,6 +499,61 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
     assert!(links > 0 && seam_edges > 0);
     assert_eq!(small.scale.edges, scale_edges);
     assert_eq!(small.coherence.windows, 200);
+    // continuation, the oracle over the whole atlas: at each seam edge,
+    // each side whose patch holds the texel behind it, that patch's sample
+    // continued one texel across against the other side's colour
+    let coords = q.coord_region(0, 0, r, r).unwrap();
+    let colour = |t: usize| &whole.data[t * 3..t * 3 + 3];
+    let continued = |from: usize, behind: usize, to: usize| -> Option<f64> {
+        let same = chart[behind] == chart[from] && covered[behind] && patch[behind] == patch[from];
+        let (du, dv) = (
+            coords[from][0] - coords[behind][0],
+            coords[from][1] - coords[behind][1],
+        );
+        (same && du.hypot(dv) <= 4.0).then(|| {
+            let c = imageio::bilinear(&previews[0], coords[from][0] + du, coords[from][1] + dv);
+            (0..3)
+                .map(|k| ((c[k] - colour(to)[k]) as f64).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+    };
+    let (mut seam_continuations, mut inside) = (Vec::new(), Vec::new());
+    for t in 0..r * r {
+        let (x, y) = (t % r, t / r);
+        for (d, ahead, back, beyond) in [
+            (1, x + 1 < r, x >= 1, x + 2 < r),
+            (r, y + 1 < r, y >= 1, y + 2 < r),
+        ] {
+            let n = t + d;
+            if !ahead || chart[t] == EMPTY || chart[n] != chart[t] || !covered[t] || !covered[n] {
+                continue;
+            }
+            let sides = [back.then(|| (t, t - d, n)), beyond.then(|| (n, n + d, t))];
+            for e in sides
+                .into_iter()
+                .flatten()
+                .filter_map(|(f, b, to)| continued(f, b, to))
+            {
+                if patch[t] != patch[n] {
+                    seam_continuations.push(e);
+                } else {
+                    inside.push(e);
+                }
+            }
+        }
+    }
+    let c = &small.continuation;
+    assert_eq!(c.continuations, seam_continuations.len());
+    let mean = seam_continuations.iter().sum::<f64>() / seam_continuations.len() as f64;
+    assert!((c.mean - mean).abs() < 1e-9, "{} vs {mean}", c.mean);
+    let inside_mean = inside.iter().sum::<f64>() / inside.len() as f64;
+    assert!((c.inside_patches_mean - inside_mean).abs() < 1e-9);
+    let broken = seam_continuations.iter().filter(|&&e| e > c.sample_edge).count();
+    assert!(broken > 0 && c.sample_edge > 0.0);
+    assert!((c.broken - broken as f64 / seam_continuations.len() as f64).abs() < 1e-12);
+    // inside a patch the continuation is the resampling error alone
+    assert!(c.inside_patches_mean < 0.1 * c.mean, "{c:?}");
     // render looks the dilated texture up in tiles: a budget that evicts
     // them draws the same pixels
     let cfg = btfquilt::output::render::RenderConfig {
