@@ -641,6 +641,18 @@ impl SampleSpectra {
     }
 }
 
+/// What the kept work spectra were computed for: the caller's key and the
+/// transform layout.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct WorkTag {
+    key: u64,
+    nx: usize,
+    ny: usize,
+    lanes: usize,
+    /// The constraint weight's bits (it scales the work's lanes).
+    weight: u64,
+}
+
 /// A matcher's cache of sample spectra, shared between matchers.
 #[derive(Clone)]
 pub struct SpectraCache(Arc<Mutex<BoundedCache<CacheKey, Arc<SampleSpectra>>>>);
@@ -656,6 +668,9 @@ pub struct Matcher {
     acc: Vec<C64>,
     out: Vec<C64>,
     energy: Vec<f64>,
+    /// The spectra Z_j of the last keyed work image ([`Matcher::cost_map_for`]).
+    work_spectra: Vec<C64>,
+    work_tag: Option<WorkTag>,
     /// Shared with the matchers of [`Matcher::sibling`].
     cache: Arc<Mutex<BoundedCache<CacheKey, Arc<SampleSpectra>>>>,
     computed: u64,
@@ -685,6 +700,8 @@ impl Matcher {
             acc: Vec::new(),
             out: Vec::new(),
             energy: Vec::new(),
+            work_spectra: Vec::new(),
+            work_tag: None,
             cache: Arc::new(Mutex::new(BoundedCache::new(MemoryBudget(bytes as u64)))),
             computed: 0,
             reused: 0,
@@ -693,7 +710,14 @@ impl Matcher {
 
     /// Bytes of this matcher's buffers (sized by the largest match so far).
     pub fn buffer_bytes(&self) -> usize {
-        let complex = [&self.rows, &self.spec, &self.zm, &self.acc, &self.out];
+        let complex = [
+            &self.rows,
+            &self.spec,
+            &self.zm,
+            &self.acc,
+            &self.out,
+            &self.work_spectra,
+        ];
         complex.iter().map(|b| b.capacity()).sum::<usize>() * std::mem::size_of::<C64>()
             + self.energy.capacity() * 8
     }
@@ -743,6 +767,23 @@ impl Matcher {
 
     /// Cost and overlap of every placement.
     pub fn cost_map(&mut self, work: &Work, sample: &Sample, cfg: &MatchConfig) -> Result<CostMap> {
+        self.cost_map_for(work, None, sample, cfg)
+    }
+
+    /// [`Matcher::cost_map`], keeping the work image's spectra under
+    /// `work_key`: a following match of the same work image (the same key)
+    /// against another sample of the same size (another rotated copy)
+    /// reuses them instead of transforming the work image again, with
+    /// bit-identical costs. `work_key` must identify the work image's data
+    /// (features, known weights, constraint) as [`Sample::key`] does the
+    /// sample's; `None` keeps nothing.
+    pub fn cost_map_for(
+        &mut self,
+        work: &Work,
+        work_key: Option<u64>,
+        sample: &Sample,
+        cfg: &MatchConfig,
+    ) -> Result<CostMap> {
         let lay = Layout::new(work, sample, cfg)?;
         let (nx, ny, nn) = (lay.nx, lay.ny, lay.nx * lay.ny);
         let plans = Plans {
@@ -783,31 +824,73 @@ impl Matcher {
         } else {
             0.0
         };
-        self.energy.clear();
-        self.energy.extend((0..wi.pixels()).map(|i| {
-            let m = work.known[i] as f64;
-            let mut e = sq_norm(&wi.data[i * lay.n..(i + 1) * lay.n]);
-            if let Some(c) = &work.constraint {
-                e += w * sq_norm(&c.data[i * lay.nc..(i + 1) * lay.nc]);
-            }
-            m * e
-        }));
-        let energy = &self.energy;
         let m_pair = m_lane(lay.n) / 2;
-        self.acc.fill(ZERO);
-        for j in 0..lay.pairs {
-            pack_pair(&mut self.rows, nx, wi.width, wi.height, lay.lanes, j, |c, i| {
-                work_lane(work, &lay, w, energy, c, i)
-            });
-            let target = if j == m_pair { &mut self.zm } else { &mut self.spec };
-            let ys = &entry.pairs[j * nn..(j + 1) * nn];
-            forward_2d(
-                &plans,
-                &mut self.rows,
-                wi.height,
-                target,
-                Some((&mut self.acc, ys)),
-            );
+        let tag = work_key.map(|key| WorkTag {
+            key,
+            nx,
+            ny,
+            lanes: lay.lanes,
+            weight: w.to_bits(),
+        });
+        if tag.is_some() && tag == self.work_tag {
+            // Z_j kept from the last match of this work image
+            self.acc.fill(ZERO);
+            for j in 0..lay.pairs {
+                let (zs, ys) = (
+                    &self.work_spectra[j * nn..(j + 1) * nn],
+                    &entry.pairs[j * nn..(j + 1) * nn],
+                );
+                self.acc
+                    .par_chunks_mut(TASK_ELEMS)
+                    .zip(zs.par_chunks(TASK_ELEMS))
+                    .zip(ys.par_chunks(TASK_ELEMS))
+                    .for_each(|((acc, zs), ys)| {
+                        for ((a, z), y) in acc.iter_mut().zip(zs).zip(ys) {
+                            *a += z * y.conj();
+                        }
+                    });
+            }
+            self.zm[..nn].copy_from_slice(&self.work_spectra[m_pair * nn..(m_pair + 1) * nn]);
+        } else {
+            self.work_tag = None;
+            if tag.is_some() {
+                self.work_spectra.resize(lay.pairs * nn, ZERO);
+            }
+            self.energy.clear();
+            self.energy.extend((0..wi.pixels()).map(|i| {
+                let m = work.known[i] as f64;
+                let mut e = sq_norm(&wi.data[i * lay.n..(i + 1) * lay.n]);
+                if let Some(c) = &work.constraint {
+                    e += w * sq_norm(&c.data[i * lay.nc..(i + 1) * lay.nc]);
+                }
+                m * e
+            }));
+            let energy = &self.energy;
+            self.acc.fill(ZERO);
+            for j in 0..lay.pairs {
+                pack_pair(&mut self.rows, nx, wi.width, wi.height, lay.lanes, j, |c, i| {
+                    work_lane(work, &lay, w, energy, c, i)
+                });
+                let target = if tag.is_some() {
+                    &mut self.work_spectra[j * nn..(j + 1) * nn]
+                } else if j == m_pair {
+                    &mut self.zm
+                } else {
+                    &mut self.spec
+                };
+                let ys = &entry.pairs[j * nn..(j + 1) * nn];
+                forward_2d(
+                    &plans,
+                    &mut self.rows,
+                    wi.height,
+                    target,
+                    Some((&mut self.acc, ys)),
+                );
+            }
+            if tag.is_some() {
+                self.zm[..nn].copy_from_slice(&self.work_spectra[m_pair * nn..(m_pair + 1) * nn]);
+                self.work_tag = tag;
+            }
         }
 
         // Hermitian part of the sum (→ SSD) + i F(M) conj F(V) (→ overlap)

@@ -557,3 +557,79 @@ fn choose_is_deterministic_and_near_minimal() {
     assert_eq!(choose(&[], 0.1, 1, 1), None);
     assert_eq!(choose(&[p(0, f64::INFINITY)], 0.1, 1, 1), None);
 }
+
+/// A work image matched under a key against several samples of one size
+/// (rotated copies), its spectra kept between them: every cost and overlap
+/// bit-identical to matching it afresh, with and without a constraint; a
+/// new key, another constraint weight or another work image under the old
+/// key's layout is transformed again.
+#[test]
+fn kept_work_spectra_give_the_same_costs_bit_for_bit() {
+    let (sw, sh, ww, wh, n, nc) = (29, 21, 11, 8, 3, 1);
+    let mut rng = Rng(17);
+    let wdata = rng.vec(ww * wh * n);
+    let wc = rng.vec(ww * wh * nc);
+    let known = rng.mask(ww * wh, 0.6);
+    let samples: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = (0..3)
+        .map(|_| {
+            (
+                rng.vec(sw * sh * n),
+                holey_valid(&mut rng, sw, sh),
+                rng.vec(sw * sh * nc),
+            )
+        })
+        .collect();
+    let other = rng.vec(ww * wh * n);
+    for constrained in [false, true] {
+        let work = Work {
+            image: img(ww, wh, n, &wdata),
+            known: &known,
+            constraint: constrained.then(|| img(ww, wh, nc, &wc)),
+        };
+        let mut kept = Matcher::new();
+        for weight in [0.5, 2.0] {
+            let cfg = MatchConfig {
+                constraint_weight: weight,
+                ..MatchConfig::default()
+            };
+            for (k, (data, valid, sc)) in samples.iter().enumerate() {
+                let sample = Sample {
+                    image: img(sw, sh, n, data),
+                    valid,
+                    constraint: constrained.then(|| img(sw, sh, nc, sc)),
+                    key: k as u64 + 10 * constrained as u64,
+                };
+                let a = kept.cost_map_for(&work, Some(7), &sample, &cfg).unwrap();
+                let b = Matcher::new().cost_map(&work, &sample, &cfg).unwrap();
+                let bits = |m: &CostMap| -> Vec<(u64, u64)> {
+                    m.cost
+                        .iter()
+                        .zip(&m.overlap)
+                        .map(|(c, o)| (c.to_bits(), o.to_bits()))
+                        .collect()
+                };
+                assert_eq!(
+                    bits(&a),
+                    bits(&b),
+                    "sample {k}, constrained {constrained}, weight {weight}"
+                );
+                assert!(a.cost.iter().any(|c| c.is_finite()));
+            }
+        }
+        // another work image under a fresh key is not mistaken for the kept one
+        let moved = Work {
+            image: img(ww, wh, n, &other),
+            ..work
+        };
+        let sample = Sample {
+            image: img(sw, sh, n, &samples[0].0),
+            valid: &samples[0].1,
+            constraint: constrained.then(|| img(sw, sh, nc, &samples[0].2)),
+            key: 10 * constrained as u64,
+        };
+        let cfg = MatchConfig::default();
+        let a = kept.cost_map_for(&moved, Some(8), &sample, &cfg).unwrap();
+        let b = Matcher::new().cost_map(&moved, &sample, &cfg).unwrap();
+        assert_eq!(a.cost, b.cost);
+    }
+}
