@@ -25,6 +25,9 @@ pub(super) struct WorkImage {
     /// circular standard deviation; 0 for a constant field): matching may
     /// turn the sample this far from `angle`.
     pub(super) field_spread: f64,
+    /// The direction the sample already has in the patch's synthesized
+    /// texels, in the work image (radians), when known.
+    pub(super) neighbour_angle: Option<f64>,
     /// Local linear map from atlas steps (+x, +y) to work-image offsets, for
     /// in-chart work images (identity) — used for the Jacobian.
     pub(super) atlas_to_work: Option<[f64; 4]>,
@@ -50,6 +53,7 @@ impl WorkImage {
             coords,
             angle,
             field_spread: 0.0,
+            neighbour_angle: None,
             atlas_to_work: None,
             constraint: vec![0f32; if state.constrained { width * height } else { 0 }],
         }

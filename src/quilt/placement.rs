@@ -8,6 +8,7 @@ use super::occurrence::Occurrence;
 use super::sample::Sample;
 use super::{matching, TileConfig};
 use crate::Result;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Placements tried by a refinement are at least this many pixels apart.
 pub(super) const REFINE_SPACING: i32 = 4;
@@ -196,11 +197,10 @@ pub(super) fn choose_placement(
 /// `constraint_weight`) when the work image carries one (§IV); with
 /// `penalty` (an occurrence map and its weight), plus the occurrence
 /// penalty of each placement ([`Occurrence::penalize`]). Where the field
-/// turns inside the patch ([`WorkImage::field_spread`]), the copies up to
-/// `field_turn` steps either side are matched too, and the one whose best
-/// placement costs least is taken (the field's own first among equals): a
-/// patch may then follow its neighbours' courses rather than the field's
-/// mean direction. Large samples are matched coarse to fine
+/// turns inside the patch ([`WorkImage::field_spread`]), the copy may turn
+/// up to `field_turn` steps from the field's ([`choose_rotation`]): a patch
+/// then follows its neighbours' courses rather than the field's mean
+/// direction. Large samples are matched coarse to fine
 /// ([`super::coarse`], `cfg.coarse_above`).
 pub(super) fn match_candidates(
     sample: &Sample,
@@ -218,21 +218,139 @@ pub(super) fn match_candidates(
     if known_count == 0.0 {
         return Ok((rot, Vec::new()));
     }
-    // turned copies where the field itself turns inside the patch
-    let step = std::f64::consts::TAU / rotations as f64;
-    let span = (work.field_spread / step).floor().min(field_turn as f64) as i64;
-    let mut best: Option<(f64, usize, Vec<matching::Placement>)> = None;
-    for d in [0].into_iter().chain((1..=span).flat_map(|k| [-k, k])) {
-        let r = (rot as i64 + d).rem_euclid(rotations as i64) as usize;
-        let p = penalty.as_mut().map(|(o, w)| (&mut **o, *w));
-        let c = match_at_rotation(sample, matcher, work, constraint_weight, p, r, known_count, f)?;
-        let cost = c.first().map_or(f64::INFINITY, |p| p.cost);
-        if best.as_ref().map_or(true, |b| cost < b.0) {
-            best = Some((cost, r, c));
+    let r = match turn_limit(work, field_turn) {
+        0 => rot,
+        limit => choose_rotation(sample, matcher, work, penalty.as_mut(), rot, limit, f)?,
+    };
+    let p = penalty.as_mut().map(|(o, w)| (&mut **o, *w));
+    let c = match_at_rotation(sample, matcher, work, constraint_weight, p, r, known_count, f)?;
+    Ok((r, c))
+}
+
+/// How many rotation steps matching may turn the sample away from the
+/// field's: `field_turn` where the field turns inside the patch at all, 0
+/// where it is constant (a flat square keeps the field's copy).
+fn turn_limit(work: &WorkImage, field_turn: usize) -> i64 {
+    if work.field_spread > 0.0 {
+        field_turn as i64
+    } else {
+        0
+    }
+}
+
+/// Rotations are ranked on a match this many times coarser than the
+/// placement's own ([`choose_rotation`]).
+const RANK_FACTOR: usize = 4;
+
+/// The rotated copy a work patch is matched with, within `limit` steps of
+/// the field's copy `rot`: a climb over the copies, from the one nearest
+/// the direction the sample already has around the patch
+/// ([`WorkImage::neighbour_angle`]; the field's where nothing is known) to
+/// a neighbouring step while that costs less. Each copy is ranked by its
+/// best placement matched [`RANK_FACTOR`] × coarser (block means,
+/// [`Coarse`]) with the occurrence penalty; only the chosen copy is then
+/// matched in full. Following the neighbours' courses where the field
+/// turns keeps structure continuous across seams (a course turned by one
+/// 5° step drifts by a course height over a few course lengths).
+fn choose_rotation(
+    sample: &Sample,
+    matcher: &mut Matcher,
+    work: &WorkImage,
+    mut penalty: Option<&mut (&mut Occurrence, f64)>,
+    rot: usize,
+    limit: i64,
+    f: usize,
+) -> Result<usize> {
+    let rotations = sample.rotations as i64;
+    // signed steps from the field's copy
+    let offset = |r: usize| {
+        let d = (r as i64 - rot as i64).rem_euclid(rotations);
+        if d > rotations / 2 {
+            d - rotations
+        } else {
+            d
+        }
+    };
+    let start = work.neighbour_angle.map_or(0, |a| {
+        offset(rotation_index(a, sample.rotations)).clamp(-limit, limit)
+    });
+    let fr = RANK_FACTOR * f;
+    let n = sample.n;
+    let image = Image {
+        width: work.width,
+        height: work.height,
+        channels: n,
+        data: &work.features,
+    };
+    let cwork = Coarse::new(&image, &work.known, &[], 1, fr);
+    let known: f64 = cwork.weight.iter().map(|&k| k as f64).sum();
+    let mc = MatchConfig {
+        min_overlap: (0.5 * known).max(1.0),
+        candidates: 1,
+        tolerance: f64::INFINITY,
+        ..MatchConfig::default()
+    };
+    // every copy is matched against the same coarse work image: its
+    // spectra are computed once
+    static WORK_KEYS: AtomicU64 = AtomicU64::new(0);
+    let work_key = WORK_KEYS.fetch_add(1, Ordering::Relaxed);
+    let (cw, ch) = (sample.width.div_ceil(fr), sample.height.div_ceil(fr));
+    let mut rank = |d: i64| -> Result<f64> {
+        let r = (rot as i64 + d).rem_euclid(rotations) as usize;
+        let copy = sample.coarse_rotation(r, fr)?;
+        let coarse_work = matching::Work {
+            image: cwork.image(n),
+            known: &cwork.weight,
+            constraint: None,
+        };
+        let coarse_sample = matching::Sample {
+            image: Image {
+                width: cw,
+                height: ch,
+                channels: n,
+                data: &copy.0,
+            },
+            valid: &copy.1,
+            constraint: None,
+            key: r as u64 | (fr as u64) << 40,
+        };
+        let mut map = matcher.cost_map_for(&coarse_work, Some(work_key), &coarse_sample, &mc)?;
+        if let Some((occurrence, weight)) = penalty.as_deref_mut() {
+            let to_unrotated = |p: [f64; 2]| to_sample(sample, r, 0.0, 0.0, p);
+            occurrence.penalize(
+                &mut map,
+                r,
+                to_unrotated,
+                [work.width, work.height],
+                *weight,
+                fr as i32,
+            );
+        }
+        Ok(map
+            .cost
+            .iter()
+            .copied()
+            .filter(|c| c.is_finite())
+            .fold(f64::INFINITY, f64::min))
+    };
+    let (mut best, mut cost) = (start, rank(start)?);
+    let mut dir = 0;
+    for d in [-1, 1] {
+        if (start + d).abs() <= limit {
+            let c = rank(start + d)?;
+            if c < cost {
+                (best, cost, dir) = (start + d, c, d);
+            }
         }
     }
-    let (_, r, c) = best.expect("one rotation at least");
-    Ok((r, c))
+    while dir != 0 && (best + dir).abs() <= limit {
+        let c = rank(best + dir)?;
+        if c >= cost {
+            break;
+        }
+        (best, cost) = (best + dir, c);
+    }
+    Ok((rot as i64 + best).rem_euclid(rotations) as usize)
 }
 
 /// The best placements (up to 64, cheapest first) of rotated copy `rot`
@@ -355,4 +473,96 @@ fn match_at_rotation(
         map
     };
     Ok(map.best(mc.candidates, mc.tolerance))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::artifact::svd::SvdArtifact;
+    use crate::container::MemoryBudget;
+    use crate::io::imageio::{self, RgbImage};
+
+    /// A 64² sample of running-bond bricks (courses 8 px high, bricks 16
+    /// long, mortar 2 px), factorized with its 72 rotated copies.
+    fn bricks(dir: &std::path::Path) -> (Sample, Option<tempfile::TempDir>) {
+        let mut img = RgbImage::new(64, 64);
+        for y in 0..64 {
+            for x in 0..64 {
+                let course = y / 8;
+                let mortar = y % 8 < 2 || (x + 8 * (course % 2)) % 16 < 2;
+                let v = if mortar {
+                    0.8
+                } else {
+                    0.2 + 0.01 * (course % 3) as f32
+                };
+                img.data[(y * 64 + x) * 3..(y * 64 + x) * 3 + 3].copy_from_slice(&[v, v * 0.9, v * 0.8]);
+            }
+        }
+        let png = dir.join("bricks.png");
+        imageio::write_rgb(&png, &img).unwrap();
+        let (svd, guard) = super::super::sample::sample_svd(&png, true, &crate::progress::Silent).unwrap();
+        let svd = SvdArtifact::open(&svd, MemoryBudget::default()).unwrap();
+        (Sample::from_svd(svd, MemoryBudget::default()).unwrap(), guard)
+    }
+
+    /// A 24² work image whose left half is known and shows rotated copy
+    /// `k` of the sample (from its centre), with the field along x.
+    fn work_showing(sample: &Sample, k: usize) -> WorkImage {
+        let (w, h, n) = (24, 24, sample.n);
+        let copy = sample.rotation(k).unwrap();
+        let (ox, oy) = (20, 20);
+        let mut features = vec![0f32; w * h * n];
+        let mut known = vec![0f32; w * h];
+        for y in 0..h {
+            for x in 0..w / 2 {
+                let s = (oy + y) * sample.width + ox + x;
+                assert!(copy.1[s] > 0.0, "the work image lies inside the copy");
+                known[y * w + x] = 1.0;
+                features[(y * w + x) * n..(y * w + x + 1) * n].copy_from_slice(&copy.0[s * n..(s + 1) * n]);
+            }
+        }
+        WorkImage {
+            width: w,
+            height: h,
+            features,
+            known,
+            coords: Vec::new(),
+            angle: 0.0,
+            field_spread: 0.1,
+            neighbour_angle: None,
+            atlas_to_work: None,
+            constraint: Vec::new(),
+        }
+    }
+
+    /// The climb finds the copy the known texels show, from the field's
+    /// copy or from the neighbours' direction, and never turns further
+    /// than the limit; a constant field keeps the field's copy.
+    #[test]
+    fn the_rotation_climb_follows_what_is_already_there() {
+        let dir = tempfile::tempdir().unwrap();
+        let (sample, _svd) = bricks(dir.path());
+        let step = std::f64::consts::TAU / sample.rotations as f64;
+        let mut matcher = Matcher::new();
+        for k in [0usize, 2, 3, 70] {
+            let mut work = work_showing(&sample, k);
+            let got = choose_rotation(&sample, &mut matcher, &work, None, 0, 4, 1).unwrap();
+            assert_eq!(got, k, "climbing from the field's copy");
+            work.neighbour_angle = Some(k as f64 * step);
+            let got = choose_rotation(&sample, &mut matcher, &work, None, 0, 4, 1).unwrap();
+            assert_eq!(got, k, "starting from the neighbours' direction");
+        }
+        // six steps off, beyond the limit: from the neighbours' direction
+        // the climb starts at the limit and stays there
+        let mut work = work_showing(&sample, 6);
+        work.neighbour_angle = Some(6.0 * step);
+        assert_eq!(
+            choose_rotation(&sample, &mut matcher, &work, None, 0, 4, 1).unwrap(),
+            4
+        );
+        let mut flat = work_showing(&sample, 3);
+        flat.field_spread = 0.0;
+        assert_eq!(turn_limit(&flat, 4), 0);
+        assert_eq!(turn_limit(&work, 4), 4);
+    }
 }

@@ -289,6 +289,7 @@ impl Worker<'_> {
         // only matching that may turn the sample reads it
         if !self.painting && self.cfg.field_turn > 0 {
             work.field_spread = field_spread(self.surface, patch);
+            work.neighbour_angle = neighbour_angle(self.surface, self.state, patch, &self.bfs, &work.coords);
         }
         (work, unfolded)
     }
@@ -348,4 +349,67 @@ fn field_spread(surface: &Surface, patch: &WorkPatch) -> f64 {
     let n = patch.texels.len().max(1) as f64;
     let r: f64 = sums.iter().map(|e| e.1.hypot(e.2)).sum::<f64>() / n;
     (-2.0 * r.clamp(1e-12, 1.0).ln()).sqrt()
+}
+
+/// The direction the sample already has around a work patch, in the work
+/// image (radians, like [`WorkImage::angle`]): the circular mean over the
+/// patch's synthesized texels of the sample's x axis as their stored
+/// Jacobian (atlas steps to sample offsets) and the work coordinates of
+/// their atlas neighbours (atlas steps to work offsets) place it. `None`
+/// where no synthesized texel has neighbours in the patch and chart.
+fn neighbour_angle(
+    surface: &Surface,
+    state: &State,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+    coords: &[[f64; 2]],
+) -> Option<f64> {
+    let r = surface.r;
+    let (mut cs, mut sn, mut n) = (0f64, 0f64, 0usize);
+    for (i, &t) in patch.texels.iter().enumerate() {
+        if !state.synthesized(t) {
+            continue;
+        }
+        let chart = surface.chart(t);
+        let (x, y) = (t as usize % r, t as usize / r);
+        // work offset per atlas step along one axis, from a neighbour of
+        // the patch in the same chart (either side)
+        let step = |dx: usize, dy: usize| -> Option<[f64; 2]> {
+            let fwd = (x + dx < r && y + dy < r).then(|| t + (dx + dy * r) as u32);
+            let back = (x >= dx && y >= dy).then(|| t - (dx + dy * r) as u32);
+            for (nb, sign) in [(fwd, 1.0), (back, -1.0)] {
+                let Some(nb) = nb else { continue };
+                if surface.chart(nb) != chart {
+                    continue;
+                }
+                if let Some(k) = bfs.contains(nb) {
+                    return Some([
+                        sign * (coords[k][0] - coords[i][0]),
+                        sign * (coords[k][1] - coords[i][1]),
+                    ]);
+                }
+            }
+            None
+        };
+        let (Some(ax), Some(ay)) = (step(1, 0), step(0, 1)) else {
+            continue;
+        };
+        let det = ax[0] * ay[1] - ay[0] * ax[1];
+        if det <= 0.0 {
+            continue;
+        }
+        let j = state.texel(t, |s, k| s.jacobian[k]).map(f64::from);
+        // sample offset per work +x step: J · A⁻¹ · e₁
+        let (a, b) = (ay[1] / det, -ax[1] / det);
+        let (u, v) = (j[0] * a + j[2] * b, j[1] * a + j[3] * b);
+        if u == 0.0 && v == 0.0 {
+            continue;
+        }
+        // a placement turned by θ steps the sample by (cos θ, −sin θ)
+        let theta = (-v).atan2(u);
+        cs += theta.cos();
+        sn += theta.sin();
+        n += 1;
+    }
+    (n > 0 && cs.hypot(sn) > 0.0).then(|| sn.atan2(cs))
 }
