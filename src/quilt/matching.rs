@@ -648,6 +648,8 @@ struct WorkTag {
     key: u64,
     nx: usize,
     ny: usize,
+    /// Feature channels and all lanes (features, constraint, energy, mask).
+    n: usize,
     lanes: usize,
     /// The constraint weight's bits (it scales the work's lanes).
     weight: u64,
@@ -829,6 +831,7 @@ impl Matcher {
             key,
             nx,
             ny,
+            n: lay.n,
             lanes: lay.lanes,
             weight: w.to_bits(),
         });
