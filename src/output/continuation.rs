@@ -12,7 +12,8 @@ use serde::Serialize;
 
 use crate::artifact::gim::{Gim, EMPTY};
 use crate::io::imageio::{self, RgbImage};
-use crate::output::{colour_rows, BAND_ROWS};
+use crate::output::evaluate::ColourBand;
+use crate::output::BAND_ROWS;
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
 
@@ -44,19 +45,6 @@ pub struct ContinuationFigures {
     pub broken_per_1000_texels: f64,
 }
 
-/// Bands of atlas rows with one row above and two below (a vertical seam
-/// edge from the band's last row continues two rows down).
-struct Band {
-    /// First row held (one above the band's own rows, except at the top).
-    lo: usize,
-    colour: Vec<f32>,
-    covered: Vec<bool>,
-    patch: Vec<u32>,
-    index: Vec<u8>,
-    chart: Vec<u32>,
-    coords: Vec<[f32; 2]>,
-}
-
 /// Measures the continuation of features across the seams of `quilt`,
 /// reading the atlas in bands of [`BAND_ROWS`] rows.
 pub(super) fn continuation(quilt: &Quilt, gim: &Gim, previews: &[RgbImage]) -> Result<ContinuationFigures> {
@@ -66,36 +54,29 @@ pub(super) fn continuation(quilt: &Quilt, gim: &Gim, previews: &[RgbImage]) -> R
     for y0 in (0..r).step_by(BAND_ROWS) {
         let y1 = (y0 + BAND_ROWS).min(r);
         let (lo, hi) = (y0.saturating_sub(1), (y1 + 2).min(r));
-        let (colour, covered) = colour_rows(quilt, previews, lo, hi)?;
-        let b = Band {
-            lo,
-            colour,
-            covered,
-            patch: quilt.patch_region(0, lo, r, hi - lo)?,
-            index: quilt.sample_region(0, lo, r, hi - lo)?,
-            chart: gim.chart_face_region(0, lo, r, hi - lo)?.0,
-            coords: quilt.coord_region(0, lo, r, hi - lo)?,
-        };
+        // one row above and two below: a vertical seam edge from the
+        // band's last row continues two rows down
+        let b = ColourBand::span(quilt, gim, previews, lo, hi)?;
         let rows = hi - lo;
         for y in y0..y1 {
             for x in 0..r {
-                let s = (y - b.lo) * r + x;
+                let s = (y - lo) * r + x;
                 texels += b.covered[s] as usize;
                 // (x, y) and its right and lower neighbours, each edge once
                 for (dx, dy) in [(1usize, 0usize), (0, 1)] {
-                    let (xt, yt) = (x + dx, y - b.lo + dy);
+                    let (xt, yt) = (x + dx, y - lo + dy);
                     if xt >= r || yt >= rows {
                         continue;
                     }
                     let t = yt * r + xt;
                     let d = dx + dy * r;
-                    if !b.same_surface(s, t) {
+                    if !same_surface(&b, s, t) {
                         continue;
                     }
-                    let behind_s = (x >= dx && y - b.lo >= dy).then(|| s - d);
+                    let behind_s = (x >= dx && y - lo >= dy).then(|| s - d);
                     let beyond_t = (xt + dx < r && yt + dy < rows).then(|| t + d);
                     for (from, behind, to) in [(s, behind_s, t), (t, beyond_t, s)] {
-                        let Some(e) = behind.and_then(|k| b.continued(previews, from, k, to)) else {
+                        let Some(e) = behind.and_then(|k| continued(&b, previews, from, k, to)) else {
                             continue;
                         };
                         if b.patch[s] != b.patch[t] {
@@ -124,36 +105,34 @@ pub(super) fn continuation(quilt: &Quilt, gim: &Gim, previews: &[RgbImage]) -> R
     })
 }
 
-impl Band {
-    /// Both texels covered, in one chart, from one sample.
-    fn same_surface(&self, a: usize, b: usize) -> bool {
-        self.covered[a]
-            && self.covered[b]
-            && self.chart[a] != EMPTY
-            && self.chart[a] == self.chart[b]
-            && self.index[a] == self.index[b]
-    }
+/// Both texels covered, in one chart, from one sample.
+fn same_surface(band: &ColourBand, a: usize, b: usize) -> bool {
+    band.covered[a]
+        && band.covered[b]
+        && band.chart[a] != EMPTY
+        && band.chart[a] == band.chart[b]
+        && band.index[a] == band.index[b]
+}
 
-    /// The RGB distance between `to`'s colour and the colour `from`'s patch
-    /// would show at `to`: its sample coordinate continued by the step from
-    /// `behind` (same patch and chart) to `from`. `None` where `behind` is
-    /// not in `from`'s patch or the step is not a continuation.
-    fn continued(&self, previews: &[RgbImage], from: usize, behind: usize, to: usize) -> Option<f64> {
-        if !self.same_surface(from, behind)
-            || self.patch[behind] != self.patch[from]
-            || self.patch[from] == NO_PATCH
-        {
-            return None;
-        }
-        let ([u, v], [ub, vb]) = (self.coords[from], self.coords[behind]);
-        let (du, dv) = (u - ub, v - vb);
-        if !(du.is_finite() && dv.is_finite()) || du.hypot(dv) > MAX_STEP {
-            return None;
-        }
-        let c = imageio::bilinear(&previews[self.index[from] as usize], u + du, v + dv);
-        let o = &self.colour[to * 3..to * 3 + 3];
-        Some((0..3).map(|k| ((c[k] - o[k]) as f64).powi(2)).sum::<f64>().sqrt())
+/// The RGB distance between `to`'s colour and the colour `from`'s patch
+/// would show at `to`: its sample coordinate continued by the step from
+/// `behind` (same patch and chart) to `from`. `None` where `behind` is not
+/// in `from`'s patch or the step is not a continuation.
+fn continued(band: &ColourBand, previews: &[RgbImage], from: usize, behind: usize, to: usize) -> Option<f64> {
+    if !same_surface(band, from, behind)
+        || band.patch[behind] != band.patch[from]
+        || band.patch[from] == NO_PATCH
+    {
+        return None;
     }
+    let ([u, v], [ub, vb]) = (band.coords[from], band.coords[behind]);
+    let (du, dv) = (u - ub, v - vb);
+    if !(du.is_finite() && dv.is_finite()) || du.hypot(dv) > MAX_STEP {
+        return None;
+    }
+    let c = imageio::bilinear(&previews[band.index[from] as usize], u + du, v + dv);
+    let o = &band.colour[to * 3..to * 3 + 3];
+    Some((0..3).map(|k| ((c[k] - o[k]) as f64).powi(2)).sum::<f64>().sqrt())
 }
 
 /// The 95th percentile (nearest rank) of an image's RGB differences

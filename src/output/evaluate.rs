@@ -305,35 +305,49 @@ fn usage_figures(sample: usize, counts: &[u32]) -> UsageFigures {
 
 /// Atlas rows `y0..y1` and the row below (when there is one): preview
 /// colour, covered mask, patch, sample index and chart, row-major from `y0`.
-struct ColourBand {
-    y0: usize,
+pub(super) struct ColourBand {
+    pub(super) y0: usize,
     /// Texels of the band's own rows (`(y1 - y0) * r`).
-    own: usize,
-    colour: Vec<f32>,
-    covered: Vec<bool>,
-    patch: Vec<u32>,
-    index: Vec<u8>,
-    chart: Vec<u32>,
-    rotation: Vec<u8>,
+    pub(super) own: usize,
+    pub(super) colour: Vec<f32>,
+    pub(super) covered: Vec<bool>,
+    pub(super) patch: Vec<u32>,
+    pub(super) index: Vec<u8>,
+    pub(super) chart: Vec<u32>,
+    pub(super) rotation: Vec<u8>,
     /// Stored sample coordinates (sample pixels), own rows only.
-    coords: Vec<[f32; 2]>,
+    pub(super) coords: Vec<[f32; 2]>,
 }
 
 impl ColourBand {
     fn read(quilt: &Quilt, gim: &Gim, previews: &[RgbImage], y0: usize, y1: usize) -> Result<ColourBand> {
         let r = quilt.resolution;
-        let hi = (y1 + 1).min(r);
-        let (colour, covered) = colour_rows(quilt, previews, y0, hi)?;
+        let mut b = ColourBand::span(quilt, gim, previews, y0, (y1 + 1).min(r))?;
+        b.own = (y1 - y0) * r;
+        b.coords.truncate(b.own);
+        Ok(b)
+    }
+
+    /// Atlas rows `y0..y1`, all of them the band's own.
+    pub(super) fn span(
+        quilt: &Quilt,
+        gim: &Gim,
+        previews: &[RgbImage],
+        y0: usize,
+        y1: usize,
+    ) -> Result<ColourBand> {
+        let (r, h) = (quilt.resolution, y1 - y0);
+        let (colour, covered) = colour_rows(quilt, previews, y0, y1)?;
         Ok(ColourBand {
             y0,
-            own: (y1 - y0) * r,
+            own: h * r,
             colour,
             covered,
-            patch: quilt.patch_region(0, y0, r, hi - y0)?,
-            index: quilt.sample_region(0, y0, r, hi - y0)?,
-            chart: gim.chart_face_region(0, y0, r, hi - y0)?.0,
-            rotation: quilt.rotation_region(0, y0, r, hi - y0)?,
-            coords: quilt.coord_region(0, y0, r, y1 - y0)?,
+            patch: quilt.patch_region(0, y0, r, h)?,
+            index: quilt.sample_region(0, y0, r, h)?,
+            chart: gim.chart_face_region(0, y0, r, h)?.0,
+            rotation: quilt.rotation_region(0, y0, r, h)?,
+            coords: quilt.coord_region(0, y0, r, h)?,
         })
     }
 }
