@@ -105,12 +105,13 @@ pub struct TileConfig {
     /// the sample already has around the patch picks the copy (ranked on a
     /// 4× coarser match), so a patch follows its neighbours' courses. 0
     /// keeps the field's nearest copy. A constant field (a flat square) is
-    /// unaffected. Default 4: on Spot at 1024² with the brick wall at the
-    /// size of a 4096² close-up, structure broken at seams (`evaluate`'s
-    /// `continuation.broken_per_1000_texels`) fell by 31 % against 1 (the
-    /// field's copy and one step either side where the field turns by a
-    /// step), by 33 % on Bob, with no more time
-    /// (docs/measurements.md, "Structure across seams").
+    /// unaffected. Default 2: on Spot and Bob at 1024² with the brick wall
+    /// at the size of a 4096² close-up, structure broken at seams
+    /// (`evaluate`'s `continuation`) fell by 28–29 % against 1 step where
+    /// the field turns by a step (the climb at 1: 19–26 %, at 4: 31–32 %),
+    /// with no more time. Following the neighbours, courses drift from the
+    /// field by up to this many steps: on Bob's body about 10° at 2 and
+    /// 20° at 4 (docs/measurements.md, "Structure across seams").
     pub field_turn: usize,
     /// Maximum area distortion of a flattened work patch (T_d).
     pub max_distortion: f64,
@@ -179,7 +180,7 @@ impl Default for TileConfig {
             tolerance: 0.0,
             occurrence_weight: 1.0,
             structure_weight: 0.0,
-            field_turn: 4,
+            field_turn: 2,
             max_distortion: 4.0,
             seed: 1,
             memory: MemoryBudget::default(),
