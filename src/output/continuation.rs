@@ -56,7 +56,7 @@ pub(super) fn continuation(quilt: &Quilt, gim: &Gim, previews: &[RgbImage]) -> R
         let (lo, hi) = (y0.saturating_sub(1), (y1 + 2).min(r));
         // one row above and two below: a vertical seam edge from the
         // band's last row continues two rows down
-        let b = ColourBand::span(quilt, gim, previews, lo, hi)?;
+        let b = ColourBand::span(quilt, gim, previews, lo, hi, hi)?;
         let rows = hi - lo;
         for y in y0..y1 {
             for x in 0..r {

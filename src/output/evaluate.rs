@@ -322,32 +322,31 @@ pub(super) struct ColourBand {
 impl ColourBand {
     fn read(quilt: &Quilt, gim: &Gim, previews: &[RgbImage], y0: usize, y1: usize) -> Result<ColourBand> {
         let r = quilt.resolution;
-        let mut b = ColourBand::span(quilt, gim, previews, y0, (y1 + 1).min(r))?;
-        b.own = (y1 - y0) * r;
-        b.coords.truncate(b.own);
-        Ok(b)
+        ColourBand::span(quilt, gim, previews, y0, y1, (y1 + 1).min(r))
     }
 
-    /// Atlas rows `y0..y1`, all of them the band's own.
+    /// Atlas rows `y0..hi`, rows `y0..y1` the band's own (the only ones
+    /// whose sample coordinates are read).
     pub(super) fn span(
         quilt: &Quilt,
         gim: &Gim,
         previews: &[RgbImage],
         y0: usize,
         y1: usize,
+        hi: usize,
     ) -> Result<ColourBand> {
-        let (r, h) = (quilt.resolution, y1 - y0);
-        let (colour, covered) = colour_rows(quilt, previews, y0, y1)?;
+        let (r, h) = (quilt.resolution, hi - y0);
+        let (colour, covered) = colour_rows(quilt, previews, y0, hi)?;
         Ok(ColourBand {
             y0,
-            own: h * r,
+            own: (y1 - y0) * r,
             colour,
             covered,
             patch: quilt.patch_region(0, y0, r, h)?,
             index: quilt.sample_region(0, y0, r, h)?,
             chart: gim.chart_face_region(0, y0, r, h)?.0,
             rotation: quilt.rotation_region(0, y0, r, h)?,
-            coords: quilt.coord_region(0, y0, r, h)?,
+            coords: quilt.coord_region(0, y0, r, y1 - y0)?,
         })
     }
 }

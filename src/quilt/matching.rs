@@ -592,11 +592,17 @@ fn forward_2d(p: &Plans, rows: &mut [C64], h: usize, spec: &mut [C64], acc: Opti
                 || vec![ZERO; scratch],
                 |s, (ci, ((out, acc), ys))| {
                     column_stage(p, rows, h, ci * per, out, s);
-                    for ((a, z), y) in acc.iter_mut().zip(out.iter()).zip(ys) {
-                        *a += z * y.conj();
-                    }
+                    accumulate(acc, out, ys);
                 },
             ),
+    }
+}
+
+/// `acc += zs · conj(ys)`, element by element.
+#[inline]
+fn accumulate(acc: &mut [C64], zs: &[C64], ys: &[C64]) {
+    for ((a, z), y) in acc.iter_mut().zip(zs).zip(ys) {
+        *a += z * y.conj();
     }
 }
 
@@ -847,11 +853,7 @@ impl Matcher {
                     .par_chunks_mut(TASK_ELEMS)
                     .zip(zs.par_chunks(TASK_ELEMS))
                     .zip(ys.par_chunks(TASK_ELEMS))
-                    .for_each(|((acc, zs), ys)| {
-                        for ((a, z), y) in acc.iter_mut().zip(zs).zip(ys) {
-                            *a += z * y.conj();
-                        }
-                    });
+                    .for_each(|((acc, zs), ys)| accumulate(acc, zs, ys));
             }
             self.zm[..nn].copy_from_slice(&self.work_spectra[m_pair * nn..(m_pair + 1) * nn]);
         } else {

@@ -315,17 +315,7 @@ fn choose_rotation(
             key: r as u64 | (fr as u64) << 40,
         };
         let mut map = matcher.cost_map_for(&coarse_work, Some(work_key), &coarse_sample, &mc)?;
-        if let Some((occurrence, weight)) = penalty.as_deref_mut() {
-            let to_unrotated = |p: [f64; 2]| to_sample(sample, r, 0.0, 0.0, p);
-            occurrence.penalize(
-                &mut map,
-                r,
-                to_unrotated,
-                [work.width, work.height],
-                *weight,
-                fr as i32,
-            );
-        }
+        penalize(penalty.as_deref_mut(), sample, work, &mut map, r, fr as i32);
         Ok(map
             .cost
             .iter()
@@ -351,6 +341,23 @@ fn choose_rotation(
         (best, cost) = (best + dir, c);
     }
     Ok((rot as i64 + best).rem_euclid(rotations) as usize)
+}
+
+/// Adds the occurrence penalty (an occurrence map and its weight) to the
+/// costs of `map`, placements of rotated copy `rot` over `work` matched at
+/// `step` work pixels per cost-map step ([`Occurrence::penalize`]).
+fn penalize(
+    penalty: Option<&mut (&mut Occurrence, f64)>,
+    sample: &Sample,
+    work: &WorkImage,
+    map: &mut matching::CostMap,
+    rot: usize,
+    step: i32,
+) {
+    if let Some((occurrence, weight)) = penalty {
+        let to_unrotated = |p: [f64; 2]| to_sample(sample, rot, 0.0, 0.0, p);
+        occurrence.penalize(map, rot, to_unrotated, [work.width, work.height], *weight, step);
+    }
 }
 
 /// The best placements (up to 64, cheapest first) of rotated copy `rot`
@@ -417,10 +424,7 @@ fn match_at_rotation(
         ..MatchConfig::default()
     };
     let mut penalize = |map: &mut matching::CostMap, step: i32| {
-        if let Some((occurrence, weight)) = penalty.as_mut() {
-            let to_unrotated = |p: [f64; 2]| to_sample(sample, rot, 0.0, 0.0, p);
-            occurrence.penalize(map, rot, to_unrotated, [work.width, work.height], *weight, step);
-        }
+        self::penalize(penalty.as_mut(), sample, work, map, rot, step);
     };
     let map = if f == 1 {
         let mut map = matcher.cost_map(&work_in, &sample_in, &mc)?;

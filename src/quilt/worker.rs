@@ -289,7 +289,11 @@ impl Worker<'_> {
         // only matching that may turn the sample reads it
         if !self.painting && self.cfg.field_turn > 0 {
             work.field_spread = field_spread(self.surface, patch);
-            work.neighbour_angle = neighbour_angle(self.surface, self.state, patch, &self.bfs, &work.coords);
+            // only the rotation climb reads it, where the field turns
+            if work.field_spread > 0.0 {
+                work.neighbour_angle =
+                    neighbour_angle(self.surface, self.state, patch, &self.bfs, &work.coords);
+            }
         }
         (work, unfolded)
     }
