@@ -152,8 +152,17 @@ fn principal_axes(mesh: &Mesh) -> (Vec3, Vec3) {
 const ISOTROPIC: f64 = 0.9;
 
 /// A unit tangent direction per face: RBF-interpolated `keys`, or the
-/// smooth default field when `keys` is empty.
-pub fn face_field(mesh: &Mesh, topology: &Topology, keys: &[FieldKey]) -> Vec<[f32; 3]> {
+/// smooth default field when `keys` is empty. `turning`, when given, holds a
+/// weight per face for the default field's smoothness: turning between two
+/// faces costs the mean of their weights × the usual energy, so the field
+/// turns, and its singularities sit, where the weights are low (the atlas
+/// gives each face's exposure to a power, [`crate::mesh::exposure`]).
+pub fn face_field(
+    mesh: &Mesh,
+    topology: &Topology,
+    keys: &[FieldKey],
+    turning: Option<&[f64]>,
+) -> Vec<[f32; 3]> {
     let nf = mesh.triangles.len();
     let normals: Vec<[f32; 3]> = (0..nf).map(|f| mesh.face_normal(f)).collect();
     let (a1, a2) = principal_axes(mesh);
@@ -169,7 +178,7 @@ pub fn face_field(mesh: &Mesh, topology: &Topology, keys: &[FieldKey]) -> Vec<[f
         let prior: Vec<[f32; 3]> = (0..nf)
             .map(|f| project(a1, normals[f].into()).to_array())
             .collect();
-        match smoothest_field(mesh, topology, &normals, &prior) {
+        match smoothest_field(mesh, topology, &normals, &prior, turning) {
             Some(u) => u,
             None => (0..nf).map(default_dir).collect(),
         }
@@ -196,6 +205,10 @@ pub struct Singularity {
     pub vertex: u32,
     pub index: i32,
     pub position: [f32; 3],
+    /// How exposed the surface around it is: the mean of its faces'
+    /// [`crate::mesh::exposure::face_exposure`] (1: seen from every side;
+    /// `NaN` until the atlas sets it).
+    pub exposure: f32,
 }
 
 /// The singular interior vertices of `field` (one unit tangent per face),
@@ -267,6 +280,7 @@ pub fn singularities(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> Ve
                 vertex: v as u32,
                 index,
                 position: mesh.positions[v],
+                exposure: f32::NAN,
             });
         }
     }
@@ -278,6 +292,20 @@ pub fn singularities(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> Ve
 /// surface's smoothest fields, large enough to keep a flat one's (zero)
 /// factorizable.
 const SMOOTHEST_SHIFT: f64 = 1e-3;
+
+/// Implicit steps of the weighted flow of [`smoothest_field`] (with
+/// `turning`): each solves (L_w + τM) u' = τM û, û the field at unit length
+/// per face, the discrete heat flow of the weighted energy by steps of 1/τ
+/// renormalised (a Ginzburg–Landau-style relaxation). On a sphere whose cap
+/// (z > 0.5) weighs 0.05, 30 steps brought both singularities into the cap,
+/// 100 steps brought one into smaller caps (z > 0.7 and z > 0.85), with the other
+/// opposite.
+const FLOW_STEPS: usize = 100;
+
+/// τ of the weighted flow, in units of 1 / (bounding-box diagonal)²: long
+/// steps (singularities move slowly under the flow); 0.1 and 3 behaved alike
+/// on the sphere above, 100 moved them a quarter as far.
+const FLOW_SHIFT: f64 = 1.0;
 
 /// Inverse-iteration steps of [`smoothest_field`].
 const INVERSE_ITERATIONS: usize = 40;
@@ -355,7 +383,9 @@ pub fn field_energy(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> f64
 /// complex u_f in per-face frames, with the smallest eigenvalue relative to
 /// the area mass, by inverse iteration (one sparse Cholesky factorization of
 /// the real 2F × 2F form of L + εM, [`INVERSE_ITERATIONS`] solves) run
-/// separately on each connected component. Each component's field is then
+/// separately on each connected component; with `turning` (a weight per
+/// face; each dual edge weighs the mean of its two faces'), [`FLOW_STEPS`]
+/// steps of the weighted flow follow. Each component's field is then
 /// turned by the global angle that best aligns its lines with `prior`'s
 /// (pointing along `prior` rather than against it), and
 /// normalised; faces where it vanishes (the singularities) keep the prior's
@@ -365,6 +395,7 @@ fn smoothest_field(
     topology: &Topology,
     normals: &[[f32; 3]],
     prior: &[[f32; 3]],
+    turning: Option<&[f64]>,
 ) -> Option<Vec<[f32; 3]>> {
     use faer::sparse::{SparseColMat, Triplet};
     let nf = mesh.triangles.len();
@@ -375,30 +406,36 @@ fn smoothest_field(
     let diag = (mesh.bbox_diagonal() as f64).max(1e-30);
     let mass: Vec<f64> = (0..nf).map(|f| mesh.face_area(f) as f64).collect();
     let in_frame = |f: usize, v: [f32; 3]| frame_coords(v.into(), frames[f]);
-    let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(nf * 12);
-    let shift = SMOOTHEST_SHIFT / (diag * diag);
     // a degenerate (zero-area) face cut off from its neighbours would leave a
     // zero row: its shift term gets a floor
     let floor = 1e-6 * mass.iter().sum::<f64>() / nf as f64;
-    let mut diagonal: Vec<f64> = mass.iter().map(|m| shift * m.max(floor)).collect();
-    for (f, g, w, rho) in connection(mesh, topology, &frames) {
-        let (f, g) = (f as usize, g as usize);
-        diagonal[f] += w;
-        diagonal[g] += w;
-        // the complex entry −w e^{iρ} at (f, g) as the real block [[a, −b], [b, a]];
-        // only the upper triangle (row ≤ column) is given, and f < g
-        let (a, b) = (-w * rho.cos(), -w * rho.sin());
-        trip.push(Triplet::new(2 * f, 2 * g, a));
-        trip.push(Triplet::new(2 * f, 2 * g + 1, -b));
-        trip.push(Triplet::new(2 * f + 1, 2 * g, b));
-        trip.push(Triplet::new(2 * f + 1, 2 * g + 1, a));
-    }
-    for (f, &d) in diagonal.iter().enumerate() {
-        trip.push(Triplet::new(2 * f, 2 * f, d));
-        trip.push(Triplet::new(2 * f + 1, 2 * f + 1, d));
-    }
-    let h = SparseColMat::<usize, f64>::try_new_from_triplets(2 * nf, 2 * nf, &trip).ok()?;
-    let factor = crate::atlas::lscm::SpdFactor::new(&h).ok()?;
+    let edges = connection(mesh, topology, &frames);
+    // the real 2F × 2F form of L + shift·M, each dual edge's weight × the
+    // mean of its faces' `turning` weights when given
+    let factorize = |shift: f64, turning: Option<&[f64]>| {
+        let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(nf * 12);
+        let mut diagonal: Vec<f64> = mass.iter().map(|m| shift * m.max(floor)).collect();
+        for &(f, g, w, rho) in &edges {
+            let (f, g) = (f as usize, g as usize);
+            let w = turning.map_or(w, |t| w * 0.5 * (t[f] + t[g]));
+            diagonal[f] += w;
+            diagonal[g] += w;
+            // the complex entry −w e^{iρ} at (f, g) as the real block [[a, −b], [b, a]];
+            // only the upper triangle (row ≤ column) is given, and f < g
+            let (a, b) = (-w * rho.cos(), -w * rho.sin());
+            trip.push(Triplet::new(2 * f, 2 * g, a));
+            trip.push(Triplet::new(2 * f, 2 * g + 1, -b));
+            trip.push(Triplet::new(2 * f + 1, 2 * g, b));
+            trip.push(Triplet::new(2 * f + 1, 2 * g + 1, a));
+        }
+        for (f, &d) in diagonal.iter().enumerate() {
+            trip.push(Triplet::new(2 * f, 2 * f, d));
+            trip.push(Triplet::new(2 * f + 1, 2 * f + 1, d));
+        }
+        let h = SparseColMat::<usize, f64>::try_new_from_triplets(2 * nf, 2 * nf, &trip).ok()?;
+        crate::atlas::lscm::SpdFactor::new(&h).ok()
+    };
+    let factor = factorize(SMOOTHEST_SHIFT / (diag * diag), None)?;
     let components = topology.components.max(1);
     let component = |f: usize| topology.face_component.get(f).map_or(0, |&c| c as usize);
     // normalise each component's part to unit mass-norm (each component is
@@ -433,6 +470,31 @@ fn smoothest_field(
             return None;
         }
         normalise(&mut u);
+    }
+    if let Some(turning) = turning {
+        // with weights, the relaxed eigenvector would gather its length where
+        // turning is cheap and so put its zeros (the singularities) elsewhere:
+        // a flow of the weighted energy from it, at unit length per face,
+        // moves them where turning is cheap instead
+        let tau = FLOW_SHIFT / (diag * diag);
+        let flow = factorize(tau, Some(turning))?;
+        for _ in 0..FLOW_STEPS {
+            let b: Vec<f64> = (0..2 * nf)
+                .map(|i| {
+                    let f = i / 2;
+                    let r = (u[2 * f] * u[2 * f] + u[2 * f + 1] * u[2 * f + 1]).sqrt();
+                    if r > 0.0 {
+                        tau * mass[f] * u[i] / r
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            u = flow.solve(b);
+            if !u.iter().all(|v| v.is_finite()) {
+                return None;
+            }
+        }
     }
     // per component, the global angle θ that best aligns the field with the
     // prior's lines: θ maximises Σ A_f |p_f|² cos 2(θ + arg u_f − arg p_f),
@@ -621,7 +683,7 @@ mod tests {
                 dir: [0.0, 1.0, 0.0],
             },
         ];
-        let f = face_field(&m, &topo, &keys);
+        let f = face_field(&m, &topo, &keys, None);
         assert!(Vec3::from(f[0]).dot(Vec3::X) > 0.99, "{:?}", f[0]);
         assert!(Vec3::from(f[199]).dot(Vec3::Y) > 0.99, "{:?}", f[199]);
         for v in &f {
@@ -643,7 +705,7 @@ mod tests {
         for p in &mut m.positions {
             p[0] *= 5.0; // 50 × 10: long along x
         }
-        let f = face_field(&m, &m.topology(), &[]);
+        let f = face_field(&m, &m.topology(), &[], None);
         for v in &f {
             assert!(v[0].abs() > 0.99, "{v:?}");
         }
@@ -682,7 +744,7 @@ mod tests {
             p[0] *= 1.3;
         }
         let topo = m.topology();
-        let smooth = face_field(&m, &topo, &[]);
+        let smooth = face_field(&m, &topo, &[], None);
         let (a1, _) = principal_axes(&m);
         assert!(a1.x.abs() > 0.99, "{a1:?}");
         let axis: Vec<[f32; 3]> = (0..m.triangles.len())
@@ -716,7 +778,7 @@ mod tests {
             m.positions.iter_mut().for_each(|p| *p = [p[0], 0.0, p[1]]);
             m
         }] {
-            let f = face_field(&m, &m.topology(), &[]);
+            let f = face_field(&m, &m.topology(), &[], None);
             for v in &f {
                 assert!(v[0] > 0.999, "{v:?}");
             }
@@ -777,13 +839,114 @@ mod tests {
         // Poincaré–Hopf: the torus 0, Spot (a sphere) 2
         let t = torus(24, 12, 3.0, 1.0);
         let topo = t.topology();
-        let s = singularities(&t, &topo, &face_field(&t, &topo, &[]));
+        let s = singularities(&t, &topo, &face_field(&t, &topo, &[], None));
         assert_eq!(s.iter().map(|s| s.index).sum::<i32>(), 0, "{s:?}");
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj");
         let (spot, _) = crate::mesh::io::load(&path, &Default::default()).unwrap();
         let topo = spot.topology();
-        let field = face_field(&spot, &topo, &[]);
+        let field = face_field(&spot, &topo, &[], None);
         let s = singularities(&spot, &topo, &field);
         assert_eq!(s.iter().map(|s| s.index).sum::<i32>(), 2, "{s:?}");
+    }
+
+    /// A unit sphere: an icosahedron subdivided `levels` times.
+    fn icosphere(levels: usize) -> Mesh {
+        let t = (1.0 + 5f32.sqrt()) / 2.0;
+        let mut m = Mesh::default();
+        for p in [
+            [-1.0, t, 0.0],
+            [1.0, t, 0.0],
+            [-1.0, -t, 0.0],
+            [1.0, -t, 0.0],
+            [0.0, -1.0, t],
+            [0.0, 1.0, t],
+            [0.0, -1.0, -t],
+            [0.0, 1.0, -t],
+            [t, 0.0, -1.0],
+            [t, 0.0, 1.0],
+            [-t, 0.0, -1.0],
+            [-t, 0.0, 1.0],
+        ] {
+            m.positions.push(Vec3::from(p).normalize().to_array());
+        }
+        m.triangles = vec![
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ];
+        for _ in 0..levels {
+            let mut mid = std::collections::HashMap::new();
+            let mut split = Vec::new();
+            for t in std::mem::take(&mut m.triangles) {
+                let mut c = [0u32; 3];
+                for k in 0..3 {
+                    let (a, b) = (t[k].min(t[(k + 1) % 3]), t[k].max(t[(k + 1) % 3]));
+                    c[k] = *mid.entry((a, b)).or_insert_with(|| {
+                        let p = Vec3::from(m.positions[a as usize]) + Vec3::from(m.positions[b as usize]);
+                        m.positions.push(p.normalize().to_array());
+                        (m.positions.len() - 1) as u32
+                    });
+                }
+                split.extend([[t[0], c[0], c[2]], [t[1], c[1], c[0]], [t[2], c[2], c[1]], c]);
+            }
+            m.triangles = split;
+        }
+        m
+    }
+
+    #[test]
+    fn singularities_move_where_turning_is_cheap() {
+        // the smoothest field of a sphere has its two +1 singularities where
+        // the (x) axis meets it; a cap (z > 0.5) where turning costs 1/20
+        // draws both in, one alone into a smaller cap (z > 0.85)
+        let m = icosphere(4);
+        let topo = m.topology();
+        let in_cap = |s: &Singularity, z: f32| s.position[2] > z;
+        let plain = singularities(&m, &topo, &face_field(&m, &topo, &[], None));
+        assert_eq!(plain.len(), 2, "{plain:?}");
+        assert!(
+            plain.iter().all(|s| s.index == 1 && s.position[0].abs() > 0.99),
+            "{plain:?}"
+        );
+        for (cap, want) in [(0.5, 2), (0.85, 1)] {
+            let turning: Vec<f64> = (0..m.triangles.len())
+                .map(|f| {
+                    if face_center(&m, f).normalize().z > cap {
+                        0.05
+                    } else {
+                        1.0
+                    }
+                })
+                .collect();
+            let s = singularities(&m, &topo, &face_field(&m, &topo, &[], Some(&turning)));
+            assert_eq!(s.iter().map(|s| s.index).sum::<i32>(), 2, "{s:?}");
+            assert_eq!(
+                s.iter().filter(|s| in_cap(s, cap)).count(),
+                want,
+                "cap z > {cap}: {s:?}"
+            );
+        }
+        // uniform weights leave the singularities where they were
+        let uniform = vec![0.3; m.triangles.len()];
+        let u = singularities(&m, &topo, &face_field(&m, &topo, &[], Some(&uniform)));
+        assert_eq!(u.len(), 2, "{u:?}");
+        assert!(u.iter().all(|s| s.position[0].abs() > 0.99), "{u:?}");
     }
 }

@@ -233,6 +233,11 @@ enum Command {
         /// Vector-field keys: JSON [{"face": 12, "dir": [1, 0, 0]}, …].
         #[arg(long)]
         field: Option<PathBuf>,
+        /// The default field turns where the surface is seen least: each
+        /// face's turning weighs its exposure to this power (0..=8; 0: all
+        /// faces alike). Moves singularities into creases and hidden places.
+        #[arg(long, default_value_t = AtlasConfig::default().field_exposure)]
+        field_exposure: f64,
         /// Weld vertices closer than this fraction of the median edge length (0..=0.5; 0: exact duplicates only).
         #[arg(long, default_value_t = AtlasConfig::default().load.weld_tolerance)]
         weld: f32,
@@ -906,6 +911,7 @@ fn run(cli: Cli) -> Result<()> {
             resolution,
             gutter,
             field,
+            field_exposure,
             weld,
             max_stretch,
             max_area_distortion,
@@ -919,6 +925,7 @@ fn run(cli: Cli) -> Result<()> {
                 resolution,
                 gutter,
                 field_keys: field,
+                field_exposure,
                 load: LoadOptions { weld_tolerance: weld },
                 ..AtlasConfig::default()
             };
@@ -930,6 +937,15 @@ fn run(cli: Cli) -> Result<()> {
             let report = atlas::build_gim(&mesh, &output, &cfg, &bars)?;
             say!("{}: {}", mesh.display(), report.repair);
             say!("wrote {}: {report}", output.display());
+            for s in &report.singularities {
+                let [x, y, z] = s.position;
+                say!(
+                    "  singularity of index {:+} at vertex {} ({x:.4}, {y:.4}, {z:.4}), exposure {:.2}",
+                    s.index,
+                    s.vertex,
+                    s.exposure
+                );
+            }
         }
         Command::Show {
             file,

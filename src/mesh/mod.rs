@@ -5,6 +5,7 @@
 //! every edge has at most two faces and every vertex a single fan, so face
 //! adjacency is well defined. Several components and open boundaries are fine.
 
+pub mod exposure;
 pub mod io;
 pub mod repair;
 

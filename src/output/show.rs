@@ -1,5 +1,6 @@
 //! `show`: debug pictures of a geometry image in atlas space: the chart map,
-//! the normal map, and the vector field drawn as short strokes.
+//! the normal map, and the vector field drawn as short strokes with its
+//! singularities ringed.
 
 use std::path::Path;
 use std::str::FromStr;
@@ -16,7 +17,8 @@ pub enum ShowWhat {
     Charts,
     /// The normal map.
     Normals,
-    /// The vector field as short strokes.
+    /// The vector field as short strokes; its singularities ringed (red
+    /// index +1, blue −1)
     Field,
 }
 
@@ -71,6 +73,7 @@ pub fn show(gim: &Gim, what: ShowWhat, out: &Path) -> Result<()> {
     }
     if what == ShowWhat::Field {
         draw_field(gim, &chart, &mut display)?;
+        draw_singularities(gim, &mut display)?;
     }
     let img = RgbImage {
         width: r,
@@ -128,6 +131,48 @@ fn draw_field(gim: &Gim, chart: &[u32], display: &mut [f32]) -> Result<()> {
                     [0.02, 0.02, 0.02]
                 };
                 display[p..p + 3].copy_from_slice(&c);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Rings around the field's singular vertices ([`crate::field::singularities`])
+/// at every corner of every face around them (a vertex on a chart border
+/// shows in each chart): red for index +1, blue for −1, white otherwise.
+fn draw_singularities(gim: &Gim, display: &mut [f32]) -> Result<()> {
+    let r = gim.resolution;
+    let mesh = gim.mesh()?;
+    let uv = gim.corner_uv()?;
+    let field: Vec<[f32; 3]> = gim
+        .read::<f32>("face_field")?
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+    let singular = crate::field::singularities(&mesh, &mesh.topology(), &field);
+    let radius = (r as f32 / 128.0).max(4.0);
+    for s in &singular {
+        let colour = match s.index {
+            1 => [1.0, 0.1, 0.1],
+            -1 => [0.2, 0.5, 1.0],
+            _ => [1.0, 1.0, 1.0],
+        };
+        for (f, t) in mesh.triangles.iter().enumerate() {
+            let Some(k) = t.iter().position(|&v| v == s.vertex) else {
+                continue;
+            };
+            let [u, v] = uv[f * 3 + k];
+            let (cx, cy) = (u * r as f32, v * r as f32);
+            let steps = (radius * 8.0) as usize;
+            for i in 0..steps {
+                let a = i as f32 / steps as f32 * std::f32::consts::TAU;
+                for dr in [-0.5f32, 0.0, 0.5] {
+                    let (x, y) = (cx + (radius + dr) * a.cos(), cy + (radius + dr) * a.sin());
+                    if x >= 0.0 && y >= 0.0 && (x as usize) < r && (y as usize) < r {
+                        let p = (y as usize * r + x as usize) * 3;
+                        display[p..p + 3].copy_from_slice(&colour);
+                    }
+                }
             }
         }
     }

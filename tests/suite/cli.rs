@@ -240,6 +240,77 @@ fn a_killed_factorization_leaves_nothing_that_looks_finished() {
     assert!(left.is_empty(), "{left:?}");
 }
 
+/// The singularities `atlas` lists: (index, exposure) per line, and the
+/// summary's count and summed exposure.
+fn listed_singularities(text: &str) -> (Vec<(i32, f64)>, usize, f64) {
+    let listed = text
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("singularity of index "))
+        .map(|l| {
+            let index: i32 = l.split_whitespace().next().unwrap().parse().unwrap();
+            let exposure: f64 = l.rsplit("exposure ").next().unwrap().trim().parse().unwrap();
+            (index, exposure)
+        })
+        .collect();
+    let count = text.split(" field singularities").next().unwrap();
+    let count: usize = count.rsplit(' ').next().unwrap().parse().unwrap();
+    let summed: f64 = text
+        .split("summed exposure ")
+        .nth(1)
+        .unwrap()
+        .split(')')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    (listed, count, summed)
+}
+
+#[test]
+fn atlas_lists_the_singularities_and_can_move_them_out_of_sight() {
+    let dir = tempfile::tempdir().unwrap();
+    let spot = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj");
+    let mut seen = Vec::new();
+    for exposure in ["0", "2"] {
+        let gim = dir.path().join(format!("spot{exposure}.gim"));
+        let text = crate::common::ok(&[
+            "atlas",
+            s(&spot),
+            "--resolution",
+            "256",
+            "--field-exposure",
+            exposure,
+            "-q",
+            "-o",
+            s(&gim),
+        ]);
+        let (listed, count, summed) = listed_singularities(&text);
+        assert_eq!(listed.len(), count, "{text}");
+        // Poincaré–Hopf on a sphere, and exposures are shares
+        assert_eq!(listed.iter().map(|l| l.0).sum::<i32>(), 2, "{text}");
+        assert!(listed.iter().all(|l| (0.0..=1.0).contains(&l.1)), "{text}");
+        let sum: f64 = listed.iter().map(|l| l.1).sum();
+        assert!(
+            (sum - summed).abs() < 0.01 * count as f64,
+            "{sum} against {summed}"
+        );
+        seen.push((count, summed));
+        // `show --what field` rings them: red +1, blue −1
+        let png = dir.path().join(format!("field{exposure}.png"));
+        crate::common::ok(&["show", s(&gim), "--what", "field", "-o", s(&png)]);
+        let img = image::open(&png).unwrap().to_rgb8();
+        let count_of = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
+        assert!(count_of([255, 26, 26]) > 0, "no red ring");
+        assert_eq!(
+            count_of([51, 128, 255]) > 0,
+            listed.iter().any(|l| l.0 == -1),
+            "blue rings and −1 singularities"
+        );
+    }
+    // weighing turning by exposure: fewer singularities, less in sight
+    assert!(seen[1].0 < seen[0].0 && seen[1].1 < seen[0].1, "{seen:?}");
+}
+
 #[test]
 fn atlas_show_and_export_a_mesh() {
     let dir = tempfile::tempdir().unwrap();

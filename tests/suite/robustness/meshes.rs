@@ -305,9 +305,13 @@ fn mesh_float_flags_must_be_finite() {
         ("--max-stretch", "NaN"),
         ("--max-area-distortion", "inf"),
         ("--max-linf-stretch", "NaN"),
+        ("--field-exposure", "NaN"),
+        ("--field-exposure", "-1"),
+        ("--field-exposure", "9"),
     ] {
+        let arg = format!("{flag}={value}");
         refuses(
-            &["atlas", s(&obj), flag, value, "-o", s(&out)],
+            &["atlas", s(&obj), &arg, "-o", s(&out)],
             &[flag, value],
             Some(&out),
         );
