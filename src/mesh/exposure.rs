@@ -12,6 +12,7 @@
 //! deeper than the nearest surface there.
 
 use glam::DVec3;
+use rayon::prelude::*;
 
 use super::Mesh;
 
@@ -27,7 +28,8 @@ const PIXELS: usize = 192;
 const DEPTH_SLACK: f64 = 1.5;
 
 /// Each face's exposure in 0..=1 (1: seen from its whole hemisphere).
-/// Deterministic: directions and faces are visited in a fixed order.
+/// Deterministic: the sums run over directions in a fixed order whatever
+/// the thread count.
 pub fn face_exposure(mesh: &Mesh) -> Vec<f32> {
     let nf = mesh.triangles.len();
     let mut seen = vec![0f64; nf];
@@ -51,10 +53,10 @@ pub fn face_exposure(mesh: &Mesh) -> Vec<f32> {
         .iter()
         .map(|t| t.iter().map(|&v| positions[v as usize]).sum::<DVec3>() / 3.0)
         .collect();
-    let mut depth = vec![f64::NEG_INFINITY; PIXELS * PIXELS];
-    let mut projected: Vec<(f64, f64, f64)> = vec![(0.0, 0.0, 0.0); positions.len()];
+    // each direction's seen faces, computed in parallel a group at a time
+    // and summed in direction order (the sums do not depend on threads)
     let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    for k in 0..DIRECTIONS {
+    let seen_from = |k: usize| -> (DVec3, Vec<bool>) {
         // the Fibonacci lattice on the sphere
         let z = 1.0 - (2 * k + 1) as f64 / DIRECTIONS as f64;
         let r = (1.0 - z * z).max(0.0).sqrt();
@@ -62,32 +64,47 @@ pub fn face_exposure(mesh: &Mesh) -> Vec<f32> {
         let d = DVec3::new(r * phi.cos(), r * phi.sin(), z);
         let (u, v) = d.any_orthonormal_pair();
         // project: (u, v) on the image plane, height along d (towards the viewer)
+        let projected: Vec<(f64, f64, f64)> =
+            positions.iter().map(|p| (p.dot(u), p.dot(v), p.dot(d))).collect();
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for (p, q) in positions.iter().zip(projected.iter_mut()) {
-            *q = (p.dot(u), p.dot(v), p.dot(d));
+        for q in &projected {
             lo = [lo[0].min(q.0), lo[1].min(q.1)];
             hi = [hi[0].max(q.0), hi[1].max(q.1)];
         }
         let extent = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(1e-30);
         let scale = (PIXELS - 1) as f64 / extent;
         let to_pixel = |q: (f64, f64, f64)| ((q.0 - lo[0]) * scale, (q.1 - lo[1]) * scale, q.2);
-        depth.fill(f64::NEG_INFINITY);
+        let mut depth = vec![f64::NEG_INFINITY; PIXELS * PIXELS];
         for t in &mesh.triangles {
             let [a, b, c] = t.map(|v| to_pixel(projected[v as usize]));
             rasterize_depth(&mut depth, a, b, c);
         }
         let slack = DEPTH_SLACK / scale;
-        for f in 0..nf {
-            let cos = normals[f].dot(d);
-            if !(cos > 0.0) {
-                continue;
-            }
-            facing[f] += cos;
-            let c = centres[f];
-            let (x, y, h) = to_pixel((c.dot(u), c.dot(v), c.dot(d)));
-            let (px, py) = (x.round() as usize, y.round() as usize);
-            if px < PIXELS && py < PIXELS && h + slack >= depth[py * PIXELS + px] {
-                seen[f] += cos;
+        let seen = (0..nf)
+            .map(|f| {
+                let c = centres[f];
+                let (x, y, h) = to_pixel((c.dot(u), c.dot(v), c.dot(d)));
+                let (px, py) = (x.round() as usize, y.round() as usize);
+                px < PIXELS && py < PIXELS && h + slack >= depth[py * PIXELS + px]
+            })
+            .collect();
+        (d, seen)
+    };
+    let group = rayon::current_num_threads().max(1) * 2;
+    for first in (0..DIRECTIONS).step_by(group) {
+        let views: Vec<(DVec3, Vec<bool>)> = (first..(first + group).min(DIRECTIONS))
+            .into_par_iter()
+            .map(seen_from)
+            .collect();
+        for (d, view) in &views {
+            for f in 0..nf {
+                let cos = normals[f].dot(*d);
+                if cos > 0.0 {
+                    facing[f] += cos;
+                    if view[f] {
+                        seen[f] += cos;
+                    }
+                }
             }
         }
     }

@@ -223,10 +223,21 @@ fn geometry_image_is_identical_with_one_or_two_threads() {
             let out = dir.path().join(format!("t{t}.gim"));
             let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
             pool.install(|| build(&data("spot_5.8k.obj"), &out, 200));
+            // the exposure's views run in parallel too
+            let hidden = dir.path().join(format!("e{t}.gim"));
+            let cfg = AtlasConfig {
+                resolution: 200,
+                field_exposure: 2.0,
+                ..AtlasConfig::default()
+            };
+            pool.install(|| atlas::build_gim(&data("spot_5.8k.obj"), &hidden, &cfg, &Silent).unwrap());
             out
         })
         .collect();
     assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
+    let hidden = |t: usize| std::fs::read(dir.path().join(format!("e{t}.gim"))).unwrap();
+    assert_eq!(hidden(1), hidden(2));
+    assert_ne!(hidden(1), std::fs::read(&outs[0]).unwrap(), "the field moved");
 }
 
 #[test]
