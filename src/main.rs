@@ -314,6 +314,11 @@ enum Command {
         /// longer runs).
         #[arg(long, default_value_t = TileConfig::default().refine_placements)]
         refine_placements: usize,
+        /// Seam refinement also visits seams where a feature ends (a mortar
+        /// line or strand one side would carry on), whatever their colour
+        /// step, and fits this many placements there; 0: off.
+        #[arg(long, default_value_t = TileConfig::default().refine_broken)]
+        refine_broken: usize,
         /// Work patches computed at once per round of the quilting loop (1: one
         /// at a time, as in the paper). Part of the recipe like the seed: the
         /// output depends on it, never on --threads.
@@ -988,6 +993,7 @@ fn run(cli: Cli) -> Result<()> {
             sample_mask,
             refine,
             refine_placements,
+            refine_broken,
             round,
             occurrence_weight,
             tolerance,
@@ -1002,6 +1008,7 @@ fn run(cli: Cli) -> Result<()> {
                 sample_mask,
                 refine: (refine != 0.0).then_some(refine),
                 refine_placements,
+                refine_broken,
                 round,
                 occurrence_weight,
                 tolerance,

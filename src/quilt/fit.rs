@@ -143,15 +143,6 @@ pub(super) fn fit_patch(
     }
     let a_at = |i: usize| &old_values[i * n..(i + 1) * n];
     let b_at = |i: usize| &new_features[i * n..(i + 1) * n];
-    // continue old patch at s one step (dx, dy in atlas texels) into t
-    let old_continued = |s_t: u32, step: (f64, f64), out: &mut [f32]| -> bool {
-        let (jc, cs) = state.texel(s_t, |s, i| (s.jacobian[i], s.coord[i]));
-        let cc = [
-            cs[0] as f64 + jc[0] as f64 * step.0 + jc[2] as f64 * step.1,
-            cs[1] as f64 + jc[1] as f64 * step.0 + jc[3] as f64 * step.1,
-        ];
-        sample.lookup(cc, out)
-    };
     let mut tmp_a = vec![0f32; n];
     let mut tmp_b = vec![0f32; n];
     let mut edges: Vec<(usize, usize, f64)> = Vec::new();
@@ -191,8 +182,8 @@ pub(super) fn fit_patch(
             match (old_seam, step) {
                 (true, Some(st)) => {
                     // seam node (Kwatra et al. 2003): s–n = M(A_s, B), n–t = M(A_t, B), n–sink = M(A_s, A_t)
-                    let ok_a = old_continued(t, st, &mut tmp_a); // A_s at nb
-                    let ok_b = old_continued(nb, (-st.0, -st.1), &mut tmp_b); // A_t at t
+                    let ok_a = state.continued(sample, t, st, &mut tmp_a); // A_s at nb
+                    let ok_b = state.continued(sample, nb, (-st.0, -st.1), &mut tmp_b); // A_t at t
                     if ok_a && ok_b {
                         let m_s = dist(a_at(i), b_at(i)) + dist(&tmp_a, b_at(k));
                         let m_t = dist(&tmp_b, b_at(i)) + dist(a_at(k), b_at(k));

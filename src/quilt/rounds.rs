@@ -312,17 +312,18 @@ impl Synthesis {
     }
 
     /// Seam refinement's patches at `seeds` (in the order
-    /// [`Synthesis::refine`] gives them): a round takes the next seeds in
+    /// [`Synthesis::refine`] gives them), each fitting `placements(seed)`
+    /// placements: a round takes the next seeds in
     /// order while their tiles are free, so the seeds visited and the quilt are those
     /// of one patch at a time. Returns how many were kept.
     pub(super) fn refine_seeds(
         &mut self,
         seeds: &[u32],
         radius: usize,
+        placements: &(dyn Fn(u32) -> usize + Sync),
         progress: &dyn Progress,
     ) -> Result<usize> {
         let grid = self.surface.grid();
-        let placements = self.cfg.refine_placements;
         let mut schedule = Schedule {
             seeds,
             next: 0,
@@ -343,7 +344,7 @@ impl Synthesis {
                 &jobs,
                 |w, v| {
                     w.counter = base;
-                    w.refinement(v, radius, placements, 3)
+                    w.refinement(v, radius, placements(v), 3)
                 },
                 |bfs, lend| schedule.round(bfs, lend),
             );
@@ -355,7 +356,7 @@ impl Synthesis {
                 };
                 let outcome = match outcome {
                     Some(outcome) => outcome?,
-                    None => self.worker().refinement(job.v, radius, placements, 3)?,
+                    None => self.worker().refinement(job.v, radius, placements(job.v), 3)?,
                 };
                 self.add_stats(&outcome.stats);
                 let fit = &outcome.fit;

@@ -356,6 +356,19 @@ impl State {
 
     /// The geometry-map vector of synthesized texel `t` in the active
     /// sample's basis, into `out` (`n` values).
+    /// The features `t`'s patch would show one atlas step `step` (dx, dy)
+    /// further on: its sample coordinate moved by its Jacobian (the old
+    /// patch's value across a seam, Kwatra et al. 2003). False where that
+    /// falls outside the sample.
+    pub(super) fn continued(&self, sample: &Sample, t: u32, step: (f64, f64), out: &mut [f32]) -> bool {
+        let (j, c) = self.texel(t, |s, i| (s.jacobian[i], s.coord[i]));
+        let moved = [
+            c[0] as f64 + j[0] as f64 * step.0 + j[2] as f64 * step.1,
+            c[1] as f64 + j[1] as f64 * step.0 + j[3] as f64 * step.1,
+        ];
+        sample.lookup(moved, out)
+    }
+
     pub(super) fn feature_into(&self, sample: &Sample, t: u32, out: &mut [f32]) {
         let (f, c) = self.texel(t, |s, i| (s.foreign[i], s.coord[i]));
         if f != NO_FOREIGN {

@@ -489,11 +489,21 @@ impl Synthesis {
     /// than 0.9 × the old seams it replaces. Returns how many were kept.
     /// Seams already inside a refined patch are not visited again. The seams
     /// are visited in [`visit_order`], which keeps the tiles a round reads
-    /// few.
-    pub(crate) fn refine(&mut self, radius: usize, step: f64, progress: &dyn Progress) -> Result<usize> {
+    /// few. With `broken_placements` > 0, seams where a feature ends
+    /// ([`super::BROKEN_CONTINUATION`]) are visited too, whatever their
+    /// step, and fitted with that many placements.
+    pub(crate) fn refine(
+        &mut self,
+        radius: usize,
+        step: f64,
+        broken_placements: usize,
+        progress: &dyn Progress,
+    ) -> Result<usize> {
         let n = self.state.n;
-        let (mut fa, mut fb) = (vec![0f32; n], vec![0f32; n]);
+        let (mut fa, mut fb, mut fc) = (vec![0f32; n], vec![0f32; n], vec![0f32; n]);
         let mut seeds: Vec<(f64, u32)> = Vec::new();
+        // seams where a feature ends, ascending
+        let mut broken: Vec<u32> = Vec::new();
         let mut across: Vec<u32> = Vec::with_capacity(8);
         let grid = self.surface.grid();
         // tile by tile (the seeds are sorted after)
@@ -517,17 +527,46 @@ impl Synthesis {
                 continue;
             }
             self.state.feature_into(&self.sample, t, &mut fa);
-            let mut worst = 0f64;
+            let (mut worst, mut ends) = (0f64, 0f64);
             for &nb in &across {
                 self.state.feature_into(&self.sample, nb, &mut fb);
                 worst = worst.max(dist(&fa, &fb));
+                // grid edges: each side continued one texel across against
+                // what the other shows (zipper links have no common step)
+                let along = if nb == t + 1 {
+                    Some((1.0, 0.0))
+                } else if nb == t + grid.r as u32 {
+                    Some((0.0, 1.0))
+                } else {
+                    None
+                };
+                if let (true, Some(d)) = (broken_placements > 0, along) {
+                    if self.state.continued(&self.sample, t, d, &mut fc) {
+                        ends = ends.max(dist(&fc, &fb));
+                    }
+                    if self.state.continued(&self.sample, nb, (-d.0, -d.1), &mut fc) {
+                        ends = ends.max(dist(&fc, &fa));
+                    }
+                }
             }
-            if worst > step * self.reference {
+            if ends > super::BROKEN_CONTINUATION * self.reference {
+                broken.push(t);
+                seeds.push((worst.max(ends), t));
+            } else if worst > step * self.reference {
                 seeds.push((worst, t));
             }
         }
         let seeds = visit_order(&grid, seeds, REFINE_RUNS);
-        self.refine_seeds(&seeds, radius, progress)
+        broken.sort_unstable();
+        let base = self.cfg.refine_placements;
+        let placements = |v: u32| {
+            if broken.binary_search(&v).is_ok() {
+                broken_placements
+            } else {
+                base
+            }
+        };
+        self.refine_seeds(&seeds, radius, &placements, progress)
     }
 
     /// Records an accepted fitting under the next patch id.
