@@ -145,11 +145,13 @@ pub struct TileConfig {
     /// carry on but the other does not show: a continuation differing by
     /// more than [`BROKEN_CONTINUATION`] × the sample's neighbour
     /// difference), whatever the colour step there, and fits this many
-    /// placements at such seams (the cheapest cut kept); 0 turns it off.
-    /// Default 4: on Spot and Bob at 1024² with the brick wall at the size
-    /// of a 4096² close-up, `evaluate`'s broken continuations fell by 13 %
-    /// (seeds 1–3) for 10 % more time, where 4 placements at every seam
-    /// took 33 % more (docs/measurements.md, "Structure across seams").
+    /// placements at such seams (the cheapest cut kept); 0 (the default)
+    /// turns it off. At 4 on Spot at 1024² with the brick wall at the size
+    /// of a 4096² close-up, `evaluate`'s broken continuations fell by 16 %
+    /// (Bob 13 %, seeds 1–3) for about 10 % more time, where 4 placements
+    /// at every seam took 33 % more; but on Spot 4096² from the 192² wall
+    /// (small bricks, many such seams) tiling took 22 % longer, so it is
+    /// off by default (docs/measurements.md, "Structure across seams").
     pub refine_broken: usize,
     /// Work patches per round of the quilting loop (section III-B's loop,
     /// computed a round at a time, [`rounds`]): the most constrained texel
@@ -200,7 +202,7 @@ impl Default for TileConfig {
             constraint_weight: 16.0,
             refine: Some(2.0),
             refine_placements: REFINE_PLACEMENTS,
-            refine_broken: 4,
+            refine_broken: 0,
             round: 4,
             sample_width: None,
             sample_pixel: None,

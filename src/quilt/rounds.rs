@@ -917,38 +917,50 @@ mod tests {
 
     /// Seam refinement a round at a time visits the same seeds and keeps
     /// the same patches as one at a time (the loop itself one at a time
-    /// here, so only refinement runs in rounds).
+    /// here, so only refinement runs in rounds), also with more placements
+    /// where features end (`refine_broken`).
     #[test]
     fn refinement_in_rounds_gives_the_quilt_of_one_patch_at_a_time() {
         let dir = tempfile::tempdir().unwrap();
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let gim = spot_256(dir.path());
         let sample = root.join("data/brick_wall.png");
-        let cfg = TileConfig {
-            round: 1,
-            seed: 3,
-            ..TileConfig::default()
-        };
-        let run = |refine_round: usize, threads: usize| -> (Vec<u8>, TileReport) {
-            let out = dir.path().join(format!("r{refine_round}-t{threads}.quilt"));
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            let report = pool
-                .install(|| tile_refining_by(&gim, &sample, &out, &cfg, refine_round, &Silent))
-                .unwrap();
-            (std::fs::read(&out).unwrap(), report)
-        };
-        let (one, alone) = run(1, 1);
-        let (many, rounds) = run(REFINE_ROUND, 2);
-        assert!(alone.refined > 2, "{alone}");
-        assert_eq!(alone.concurrent_patches, 0, "{alone}");
+        let mut quilts = Vec::new();
+        for refine_broken in [0, 4] {
+            let cfg = TileConfig {
+                round: 1,
+                seed: 3,
+                refine_broken,
+                ..TileConfig::default()
+            };
+            let run = |refine_round: usize, threads: usize| -> (Vec<u8>, TileReport) {
+                let out = dir
+                    .path()
+                    .join(format!("r{refine_round}-t{threads}-b{refine_broken}.quilt"));
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let report = pool
+                    .install(|| tile_refining_by(&gim, &sample, &out, &cfg, refine_round, &Silent))
+                    .unwrap();
+                (std::fs::read(&out).unwrap(), report)
+            };
+            let (one, alone) = run(1, 1);
+            let (many, rounds) = run(REFINE_ROUND, 2);
+            assert!(alone.refined > 2, "{alone}");
+            assert_eq!(alone.concurrent_patches, 0, "{alone}");
+            assert!(
+                rounds.concurrent_patches > 0,
+                "no refinement round held several patches: {rounds}"
+            );
+            assert_eq!((alone.refined, alone.patches), (rounds.refined, rounds.patches));
+            assert!(one == many, "refinement in rounds changed the quilt");
+            quilts.push(one);
+        }
         assert!(
-            rounds.concurrent_patches > 0,
-            "no refinement round held several patches: {rounds}"
+            quilts[0] != quilts[1],
+            "refining where features end changed nothing"
         );
-        assert_eq!((alone.refined, alone.patches), (rounds.refined, rounds.patches));
-        assert!(one == many, "refinement in rounds changed the quilt");
     }
 }
