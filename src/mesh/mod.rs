@@ -105,6 +105,81 @@ pub(crate) fn dunit_or(v: DVec3, fallback: DVec3) -> DVec3 {
 }
 
 impl Mesh {
+    /// A unit sphere: a regular icosahedron whose faces are split in four
+    /// `levels` times, new vertices pushed out to the sphere (test and
+    /// example geometry; 20 · 4^levels faces).
+    pub fn icosphere(levels: usize) -> Mesh {
+        let g = (1.0 + 5f32.sqrt()) / 2.0;
+        let mut p: Vec<[f32; 3]> = vec![
+            [-1.0, g, 0.0],
+            [1.0, g, 0.0],
+            [-1.0, -g, 0.0],
+            [1.0, -g, 0.0],
+            [0.0, -1.0, g],
+            [0.0, 1.0, g],
+            [0.0, -1.0, -g],
+            [0.0, 1.0, -g],
+            [g, 0.0, -1.0],
+            [g, 0.0, 1.0],
+            [-g, 0.0, -1.0],
+            [-g, 0.0, 1.0],
+        ];
+        let mut t: Vec<[u32; 3]> = vec![
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ];
+        let norm = |a: [f32; 3]| {
+            let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+            [a[0] / l, a[1] / l, a[2] / l]
+        };
+        for q in p.iter_mut() {
+            *q = norm(*q);
+        }
+        for _ in 0..levels {
+            let mut mid: std::collections::HashMap<(u32, u32), u32> = std::collections::HashMap::new();
+            let mut next = Vec::new();
+            for tri in &t {
+                let mut m = [0u32; 3];
+                for i in 0..3 {
+                    let (a, b) = (tri[i], tri[(i + 1) % 3]);
+                    m[i] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                        let (pa, pb) = (p[a as usize], p[b as usize]);
+                        p.push(norm([pa[0] + pb[0], pa[1] + pb[1], pa[2] + pb[2]]));
+                        (p.len() - 1) as u32
+                    });
+                }
+                next.push([tri[0], m[0], m[2]]);
+                next.push([tri[1], m[1], m[0]]);
+                next.push([tri[2], m[2], m[1]]);
+                next.push([m[0], m[1], m[2]]);
+            }
+            t = next;
+        }
+        Mesh {
+            positions: p,
+            triangles: t,
+            ..Mesh::default()
+        }
+    }
+
     /// The three corner positions of a face.
     pub fn corners(&self, f: usize) -> [[f32; 3]; 3] {
         let t = self.triangles[f];

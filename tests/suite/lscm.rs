@@ -284,78 +284,6 @@ fn hemisphere_has_no_flips_and_moderate_stretch() {
     assert!(l2 < 1.3, "L2 {l2}");
 }
 
-fn icosphere(levels: usize) -> Mesh {
-    let g = (1.0 + 5f32.sqrt()) / 2.0;
-    let mut p: Vec<[f32; 3]> = vec![
-        [-1.0, g, 0.0],
-        [1.0, g, 0.0],
-        [-1.0, -g, 0.0],
-        [1.0, -g, 0.0],
-        [0.0, -1.0, g],
-        [0.0, 1.0, g],
-        [0.0, -1.0, -g],
-        [0.0, 1.0, -g],
-        [g, 0.0, -1.0],
-        [g, 0.0, 1.0],
-        [-g, 0.0, -1.0],
-        [-g, 0.0, 1.0],
-    ];
-    let mut t: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    let norm = |a: [f32; 3]| {
-        let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
-        [a[0] / l, a[1] / l, a[2] / l]
-    };
-    for q in p.iter_mut() {
-        *q = norm(*q);
-    }
-    for _ in 0..levels {
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut next = Vec::new();
-        for tri in &t {
-            let mut m = [0u32; 3];
-            for i in 0..3 {
-                let (a, b) = (tri[i], tri[(i + 1) % 3]);
-                m[i] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                    let (pa, pb) = (p[a as usize], p[b as usize]);
-                    p.push(norm([pa[0] + pb[0], pa[1] + pb[1], pa[2] + pb[2]]));
-                    (p.len() - 1) as u32
-                });
-            }
-            next.push([tri[0], m[0], m[2]]);
-            next.push([tri[1], m[1], m[0]]);
-            next.push([tri[2], m[2], m[1]]);
-            next.push([m[0], m[1], m[2]]);
-        }
-        t = next;
-    }
-    Mesh {
-        positions: p,
-        triangles: t,
-        ..Mesh::default()
-    }
-}
-
 fn torus(ni: usize, nj: usize, big: f64, small: f64) -> Mesh {
     let mut p = Vec::new();
     for j in 0..nj {
@@ -601,7 +529,7 @@ fn run_with(name: &str, mesh: &Mesh, max_charts: usize, cfg: &ChartConfig) {
 
 #[test]
 fn sphere_charts() {
-    run("icosphere", &icosphere(4), 50);
+    run("icosphere", &Mesh::icosphere(4), 50);
 }
 
 #[test]
@@ -657,7 +585,10 @@ fn limits_are_enforced() {
         max_linf_stretch: 1.1,
         compact: false,
     };
-    for (name, mesh) in [("icosphere", icosphere(3)), ("torus", torus(48, 16, 1.0, 0.4))] {
+    for (name, mesh) in [
+        ("icosphere", Mesh::icosphere(3)),
+        ("torus", torus(48, 16, 1.0, 0.4)),
+    ] {
         run_with(&format!("{name} loose"), &mesh, 50, &loose);
         run_with(&format!("{name} strict"), &mesh, 400, &strict);
         let compact = |c: &ChartConfig| ChartConfig {
