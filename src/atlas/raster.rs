@@ -35,10 +35,12 @@ pub struct AtlasConfig {
     /// its exposure ([`crate::mesh::exposure`]) to this power, so the field
     /// turns, and its singularities sit, where the surface is seen least
     /// (in creases, under the chin, between the legs). 0 (the default)
-    /// weighs every face alike. At 1, Spot's field has 8 singularities
-    /// instead of 12 and their summed exposure falls from 8.9 to 6.7; on
+    /// weighs every face alike. At 2, Spot's field has 6 singularities
+    /// instead of 12 and their summed exposure falls from 8.9 to 4.7; on
     /// nine shared meshes no field gains a singularity, four change little
-    /// (docs/measurements.md, "Field singularities"). Keys ignore it.
+    /// (docs/measurements.md, "Field singularities"). Not the default: the
+    /// field turns more sharply where it is hidden, and on Spot tiled with
+    /// large bricks more courses end at seams. Keys ignore it.
     pub field_exposure: f64,
     pub level: i32,
 }

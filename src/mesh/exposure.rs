@@ -2,9 +2,9 @@
 //! directions around its normal from which it is seen unoccluded (one minus
 //! its ambient occlusion). A face in a crease, under a chin or between
 //! legs is seen from few directions; a face on a convex bulge from its
-//! whole hemisphere. The default vector field turns where this is low, so
-//! its singularities and sharp turns sit where they are seen least
-//! (`crate::field`).
+//! whole hemisphere. `atlas` reports it at the field's singularities, and
+//! with `--field-exposure` the default vector field turns where it is low,
+//! so its singularities sit where they are seen least (`crate::field`).
 //!
 //! Visibility comes from orthographic depth maps of the whole mesh along
 //! [`DIRECTIONS`] directions spread over the sphere (a Fibonacci lattice):

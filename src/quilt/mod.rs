@@ -475,6 +475,7 @@ pub const REFINE_PLACEMENTS: usize = 1;
 /// A seam edge breaks a feature when one side's patch, continued one texel
 /// across ([`state::State::continued`]), differs from what the other side
 /// shows by more than this × the sample's mean neighbour difference
-/// ([`TileConfig::refine_broken`]). Mortar against brick on the brick wall
-/// is about 10×; a cut through bland texture stays under 2×.
+/// ([`TileConfig::refine_broken`]). On the brick wall (linear RGB) mortar
+/// against brick is about 13×, and half of its neighbour differences are
+/// under 0.11×, 95 % under 6.5×.
 pub const BROKEN_CONTINUATION: f64 = 4.0;

@@ -504,7 +504,7 @@ impl Synthesis {
         let mut seeds: Vec<(f64, u32)> = Vec::new();
         // seams where a feature ends, ascending
         let mut broken: Vec<u32> = Vec::new();
-        let mut across: Vec<u32> = Vec::with_capacity(8);
+        let mut across: Vec<(u32, bool)> = Vec::with_capacity(8);
         let grid = self.surface.grid();
         // tile by tile (the seeds are sorted after)
         for t in (0..grid.tiles()).flat_map(|k| {
@@ -518,9 +518,9 @@ impl Synthesis {
             // along a chart border is as visible as any other
             across.clear();
             let own = self.state.patch(t);
-            self.surface.for_each_neighbour(t, |nb, _| {
+            self.surface.for_each_neighbour(t, |nb, zipper| {
                 if nb > t && self.state.patch(nb) != own {
-                    across.push(nb);
+                    across.push((nb, zipper));
                 }
             });
             if across.is_empty() {
@@ -528,12 +528,14 @@ impl Synthesis {
             }
             self.state.feature_into(&self.sample, t, &mut fa);
             let (mut worst, mut ends) = (0f64, 0f64);
-            for &nb in &across {
+            for &(nb, zipper) in &across {
                 self.state.feature_into(&self.sample, nb, &mut fb);
                 worst = worst.max(dist(&fa, &fb));
                 // grid edges: each side continued one texel across against
                 // what the other shows (zipper links have no common step)
-                let along = if nb == t + 1 {
+                let along = if zipper {
+                    None
+                } else if nb == t + 1 {
                     Some((1.0, 0.0))
                 } else if nb == t + grid.r as u32 {
                     Some((0.0, 1.0))
