@@ -666,6 +666,9 @@ fn parse_point(s: &str) -> std::result::Result<[f32; 3], String> {
         .ok_or_else(|| "expected x,y,z (three finite numbers)".to_string())
 }
 
+/// `atlas` lists at most this many singularities, the most exposed first.
+const LISTED_SINGULARITIES: usize = 24;
+
 fn parse_camera(s: &str) -> std::result::Result<Camera, String> {
     Camera::parse(s).map_err(|e| bare(e, "--camera", s))
 }
@@ -942,13 +945,22 @@ fn run(cli: Cli) -> Result<()> {
             let report = atlas::build_gim(&mesh, &output, &cfg, &bars)?;
             say!("{}: {}", mesh.display(), report.repair);
             say!("wrote {}: {report}", output.display());
-            for s in &report.singularities {
+            // the most exposed first: the ones a viewer sees
+            let mut listed: Vec<_> = report.singularities.iter().collect();
+            listed.sort_by(|a, b| b.exposure.total_cmp(&a.exposure).then(a.vertex.cmp(&b.vertex)));
+            for s in listed.iter().take(LISTED_SINGULARITIES) {
                 let [x, y, z] = s.position;
                 say!(
                     "  singularity of index {:+} at vertex {} ({x:.4}, {y:.4}, {z:.4}), exposure {:.2}",
                     s.index,
                     s.vertex,
                     s.exposure
+                );
+            }
+            if listed.len() > LISTED_SINGULARITIES {
+                say!(
+                    "  … and {} less exposed (`show --what field` rings them all)",
+                    listed.len() - LISTED_SINGULARITIES
                 );
             }
         }
