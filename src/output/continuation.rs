@@ -10,12 +10,10 @@
 
 use serde::Serialize;
 
-use crate::artifact::gim::{Gim, EMPTY};
+use crate::artifact::gim::EMPTY;
 use crate::io::imageio::{self, RgbImage};
 use crate::output::evaluate::ColourBand;
-use crate::output::BAND_ROWS;
-use crate::quilt::{Quilt, NO_PATCH};
-use crate::Result;
+use crate::quilt::NO_PATCH;
 
 /// A sample step longer than this (sample pixels) between two grid
 /// neighbours is not a continuation (a wrapped coordinate).
@@ -45,64 +43,69 @@ pub struct ContinuationFigures {
     pub broken_per_1000_texels: f64,
 }
 
-/// Measures the continuation of features across the seams of `quilt`,
-/// reading the atlas in bands of [`BAND_ROWS`] rows.
-pub(super) fn continuation(quilt: &Quilt, gim: &Gim, previews: &[RgbImage]) -> Result<ContinuationFigures> {
-    let r = quilt.resolution;
-    let mut seam = Vec::new();
-    let (mut inner_sum, mut inner_count, mut texels) = (0f64, 0usize, 0usize);
-    for y0 in (0..r).step_by(BAND_ROWS) {
-        let y1 = (y0 + BAND_ROWS).min(r);
-        let (lo, hi) = (y0.saturating_sub(1), (y1 + 2).min(r));
-        // one row above and two below: a vertical seam edge from the
-        // band's last row continues two rows down
-        let b = ColourBand::span(quilt, gim, previews, lo, hi, hi)?;
-        let rows = hi - lo;
-        for y in y0..y1 {
-            for x in 0..r {
-                let s = (y - lo) * r + x;
-                texels += b.covered[s] as usize;
-                // (x, y) and its right and lower neighbours, each edge once
-                for (dx, dy) in [(1usize, 0usize), (0, 1)] {
-                    let (xt, yt) = (x + dx, y - lo + dy);
-                    if xt >= r || yt >= rows {
+/// The continuation of features across seams, gathered band by band
+/// ([`Continuation::gather`]) in [`super::evaluate`]'s pass over the atlas.
+#[derive(Default)]
+pub(super) struct Continuation {
+    /// Each continuation across a seam edge.
+    seam: Vec<f64>,
+    /// Continuations inside patches, summed in the order a list would sum them.
+    inner_sum: f64,
+    inner_count: usize,
+}
+
+impl Continuation {
+    /// The continuations of the band's own rows: each grid edge from an own
+    /// texel to its right and lower neighbours, each way (the band holds
+    /// one row above its own and two below).
+    pub(super) fn gather(&mut self, b: &ColourBand, previews: &[RgbImage], r: usize) {
+        let rows = b.covered.len() / r;
+        for s in b.own_texels() {
+            let (x, ys) = (s % r, s / r);
+            for (dx, dy) in [(1usize, 0usize), (0, 1)] {
+                let (xt, yt) = (x + dx, ys + dy);
+                if xt >= r || yt >= rows {
+                    continue;
+                }
+                let t = yt * r + xt;
+                let d = dx + dy * r;
+                if !same_surface(b, s, t) {
+                    continue;
+                }
+                let behind_s = (x >= dx && ys >= dy).then(|| s - d);
+                let beyond_t = (xt + dx < r && yt + dy < rows).then(|| t + d);
+                for (from, behind, to) in [(s, behind_s, t), (t, beyond_t, s)] {
+                    let Some(e) = behind.and_then(|k| continued(b, previews, from, k, to)) else {
                         continue;
-                    }
-                    let t = yt * r + xt;
-                    let d = dx + dy * r;
-                    if !same_surface(&b, s, t) {
-                        continue;
-                    }
-                    let behind_s = (x >= dx && y - lo >= dy).then(|| s - d);
-                    let beyond_t = (xt + dx < r && yt + dy < rows).then(|| t + d);
-                    for (from, behind, to) in [(s, behind_s, t), (t, beyond_t, s)] {
-                        let Some(e) = behind.and_then(|k| continued(&b, previews, from, k, to)) else {
-                            continue;
-                        };
-                        if b.patch[s] != b.patch[t] {
-                            seam.push(e);
-                        } else {
-                            inner_sum += e;
-                            inner_count += 1;
-                        }
+                    };
+                    if b.patch[s] != b.patch[t] {
+                        self.seam.push(e);
+                    } else {
+                        self.inner_sum += e;
+                        self.inner_count += 1;
                     }
                 }
             }
         }
     }
-    let sample_edge = previews.first().map_or(0.0, edge_strength);
-    let broken = seam.iter().filter(|&&e| e > sample_edge).count();
-    let mean = seam.iter().sum::<f64>() / seam.len().max(1) as f64;
-    seam.sort_by(f64::total_cmp);
-    Ok(ContinuationFigures {
-        continuations: seam.len(),
-        mean,
-        p95: super::compare::nearest_rank(&seam, 0.95),
-        inside_patches_mean: inner_sum / inner_count.max(1) as f64,
-        sample_edge,
-        broken: broken as f64 / seam.len().max(1) as f64,
-        broken_per_1000_texels: 1000.0 * broken as f64 / texels.max(1) as f64,
-    })
+
+    /// The figures, over `texels` covered texels.
+    pub(super) fn figures(mut self, previews: &[RgbImage], texels: usize) -> ContinuationFigures {
+        let sample_edge = previews.first().map_or(0.0, edge_strength);
+        let seam = &mut self.seam;
+        let broken = seam.iter().filter(|&&e| e > sample_edge).count();
+        let mean = seam.iter().sum::<f64>() / seam.len().max(1) as f64;
+        seam.sort_by(f64::total_cmp);
+        ContinuationFigures {
+            continuations: seam.len(),
+            mean,
+            p95: super::compare::nearest_rank(seam, 0.95),
+            inside_patches_mean: self.inner_sum / self.inner_count.max(1) as f64,
+            sample_edge,
+            broken: broken as f64 / seam.len().max(1) as f64,
+            broken_per_1000_texels: 1000.0 * broken as f64 / texels.max(1) as f64,
+        }
+    }
 }
 
 /// Both texels covered, in one chart, from one sample.

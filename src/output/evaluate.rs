@@ -26,7 +26,7 @@ use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::MemoryBudget;
 use crate::factorize::rotate_maps;
 use crate::io::imageio::RgbImage;
-use crate::output::continuation::{continuation, ContinuationFigures};
+use crate::output::continuation::{Continuation, ContinuationFigures};
 use crate::output::{colour_rows, open_samples, OpenSample, BAND_ROWS};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
@@ -174,12 +174,23 @@ pub fn evaluate(
     // patches only summed, in the order a list would sum them
     let mut seam = Vec::new();
     let (mut inner_sum, mut inner_count) = (0f64, 0usize);
+    let mut continuation = Continuation::default();
     for y0 in (0..r).step_by(BAND_ROWS) {
         let y1 = (y0 + BAND_ROWS).min(r);
-        let b = ColourBand::read(&quilt, &gim, &previews, y0, y1)?;
-        let own = (y1 - y0) * r;
-        for t in 0..own {
-            let (x, y) = (t % r, y0 + t / r);
+        // one row above and two below the band's own: a vertical seam edge
+        // from the band's first row continues from the row above, one
+        // from its last row two rows down
+        let b = ColourBand::read(
+            &quilt,
+            &gim,
+            &previews,
+            y0.saturating_sub(1),
+            y0,
+            y1,
+            (y1 + 2).min(r),
+        )?;
+        for t in b.own_texels() {
+            let (x, y) = (t % r, b.y0 + t / r);
             texels += b.covered[t] as usize;
             if b.patch[t] != NO_PATCH {
                 patch_ids.insert(b.patch[t]);
@@ -203,6 +214,7 @@ pub fn evaluate(
         }
         zipper.gather(&b, r);
         windows.gather(&b, r);
+        continuation.gather(&b, &previews, r);
         count_usage(&mut usage, &previews, &b);
         if let Some(p) = painting.as_mut() {
             p.count(&quilt, &b, r)?;
@@ -231,7 +243,7 @@ pub fn evaluate(
     let seams_fraction = seam.len() as f64 / (seam.len() + inner_count).max(1) as f64;
     let width = previews.first().map_or(0, |p| p.width);
     let scale = scale(&quilt, &gim, width)?;
-    let continuation = continuation(&quilt, &gim, &previews)?;
+    let continuation = continuation.figures(&previews, texels);
     Ok(EvaluateReport {
         texels,
         patches: patch_ids.len(),
@@ -270,7 +282,7 @@ pub fn evaluate(
 /// Adds the band's covered texels to the use counts of the sample pixels
 /// their stored coordinates fall in (wrapped into the sample).
 fn count_usage(usage: &mut [Vec<u32>], previews: &[RgbImage], b: &ColourBand) {
-    for t in 0..b.own {
+    for t in b.own_texels() {
         let i = b.index[t] as usize;
         if !b.covered[t] || b.patch[t] == NO_PATCH || i >= usage.len() {
             continue;
@@ -303,11 +315,17 @@ fn usage_figures(sample: usize, counts: &[u32]) -> UsageFigures {
     }
 }
 
-/// Atlas rows `y0..y1` and the row below (when there is one): preview
-/// colour, covered mask, patch, sample index and chart, row-major from `y0`.
+/// Atlas rows `y0..hi` read for the band's own rows `first..first +
+/// own / r` (the rows around them are there for the neighbours of its
+/// texels): preview colour, covered mask, patch, sample index, chart,
+/// rotation and stored sample coordinates, row-major from `y0`.
 pub(super) struct ColourBand {
     pub(super) y0: usize,
-    /// Texels of the band's own rows (`(y1 - y0) * r`).
+    /// The band's first own row.
+    pub(super) first: usize,
+    /// Where the own rows start in the arrays (`(first - y0) * r`).
+    pub(super) start: usize,
+    /// Texels of the band's own rows.
     pub(super) own: usize,
     pub(super) colour: Vec<f32>,
     pub(super) covered: Vec<bool>,
@@ -315,23 +333,18 @@ pub(super) struct ColourBand {
     pub(super) index: Vec<u8>,
     pub(super) chart: Vec<u32>,
     pub(super) rotation: Vec<u8>,
-    /// Stored sample coordinates (sample pixels), own rows only.
+    /// Stored sample coordinates (sample pixels).
     pub(super) coords: Vec<[f32; 2]>,
 }
 
 impl ColourBand {
-    fn read(quilt: &Quilt, gim: &Gim, previews: &[RgbImage], y0: usize, y1: usize) -> Result<ColourBand> {
-        let r = quilt.resolution;
-        ColourBand::span(quilt, gim, previews, y0, y1, (y1 + 1).min(r))
-    }
-
-    /// Atlas rows `y0..hi`, rows `y0..y1` the band's own (the only ones
-    /// whose sample coordinates are read).
-    pub(super) fn span(
+    /// Atlas rows `y0..hi`, rows `first..y1` the band's own.
+    pub(super) fn read(
         quilt: &Quilt,
         gim: &Gim,
         previews: &[RgbImage],
         y0: usize,
+        first: usize,
         y1: usize,
         hi: usize,
     ) -> Result<ColourBand> {
@@ -339,15 +352,22 @@ impl ColourBand {
         let (colour, covered) = colour_rows(quilt, previews, y0, hi)?;
         Ok(ColourBand {
             y0,
-            own: (y1 - y0) * r,
+            first,
+            start: (first - y0) * r,
+            own: (y1 - first) * r,
             colour,
             covered,
             patch: quilt.patch_region(0, y0, r, h)?,
             index: quilt.sample_region(0, y0, r, h)?,
             chart: gim.chart_face_region(0, y0, r, h)?.0,
             rotation: quilt.rotation_region(0, y0, r, h)?,
-            coords: quilt.coord_region(0, y0, r, y1 - y0)?,
+            coords: quilt.coord_region(0, y0, r, h)?,
         })
+    }
+
+    /// The indices (into the band's arrays) of its own rows' texels.
+    pub(super) fn own_texels(&self) -> std::ops::Range<usize> {
+        self.start..self.start + self.own
     }
 }
 
@@ -373,7 +393,7 @@ impl ZipperEnds {
     }
 
     fn gather(&mut self, b: &ColourBand, r: usize) {
-        let (lo, hi) = ((b.y0 * r) as u64, (b.y0 * r + b.own) as u64);
+        let (lo, hi) = ((b.first * r) as u64, (b.first * r + b.own) as u64);
         let first = self.texels.partition_point(|&t| (t as u64) < lo);
         let last = self.texels.partition_point(|&t| (t as u64) < hi);
         for i in first..last {
@@ -447,7 +467,7 @@ impl Windows {
     }
 
     fn gather(&mut self, b: &ColourBand, r: usize) {
-        let end = b.y0 + b.own / r;
+        let end = b.first + b.own / r;
         while let Some(&(y, c, dy)) = self.rows.get(self.next_row) {
             if y >= end {
                 break;
@@ -560,21 +580,20 @@ impl Painting {
 
     fn count(&mut self, quilt: &Quilt, b: &ColourBand, r: usize) -> Result<()> {
         let rows = b.own / r;
-        let Some(m0) = quilt.constraint_region(0, b.y0, r, rows)? else {
+        let Some(m0) = quilt.constraint_region(0, b.first, r, rows)? else {
             return Ok(());
         };
-        let coords = quilt.coord_region(0, b.y0, r, rows)?;
         let (mw, mh) = self.mask_size;
-        for t in 0..b.own {
-            if b.chart[t] == EMPTY {
+        for (t, k) in b.own_texels().enumerate() {
+            if b.chart[k] == EMPTY {
                 continue;
             }
-            let foreground = b.index[t] as usize == self.painted
+            let foreground = b.index[k] as usize == self.painted
                 && crate::io::imageio::mask_bilinear(
                     &self.mask,
                     mw,
                     mh,
-                    coords[t].map(f64::from),
+                    b.coords[k].map(f64::from),
                     self.tileable,
                 ) >= 0.5;
             if m0[t] >= 1.0 {
