@@ -10,7 +10,8 @@ square, made once), `tile --seed S ARGS`, `evaluate` (its share of sample
 pixels never used), `bake`, the inner 400² cropped, and `compare` against the
 sample (5×5 windows, exact nearest neighbours; lower is better). Prints one
 row per sample (means over the seeds) and the geometric means. Needs Pillow
-for the crops; the samples come from data/ and ../shared/data/textures.
+for the crops; the samples come from data/ and ../shared/data/textures, or
+are generated (cracked, pebbles).
 """
 import argparse
 import json
@@ -30,6 +31,10 @@ SAMPLES = {
     'weave': (os.path.join(SHARED, 'classic', 'weave.png'), None),
     'text': (os.path.join(SHARED, 'classic', 'text.png'), None),
     'plaster with sparse cracks': (os.path.join(ROOT, 'data', 'plaster_cracks.png'), None),
+    # generated: `generate-btf --family F --size 192 --views 1x1 --lights 4x2`,
+    # the image at view 0,0 and light 25,0
+    'cracked (generated)': ('generate:cracked', None),
+    'pebbles (generated)': ('generate:pebbles', None),
     'CC0 gravel crop': (os.path.join(SHARED, 'cc0', 'gravel.png'), (100, 100)),
     'CC0 brick crop': (os.path.join(SHARED, 'cc0', 'brick.png'), (0, 0)),
     'CC0 grass crop': (os.path.join(SHARED, 'cc0', 'grass.png'), (160, 160)),
@@ -68,6 +73,12 @@ def main():
     logs = {k: [] for k in keys}
     for name in o.samples.split(','):
         path, crop = SAMPLES[name]
+        if path.startswith('generate:'):
+            family = path.split(':')[1]
+            btf, path = (os.path.join(o.work, family + e) for e in ('.btf', '.png'))
+            run(o.btfquilt, 'generate-btf', '--family', family, '--size', 192, '--views', '1x1',
+                '--lights', '4x2', '-o', btf, '-q')
+            run(o.btfquilt, 'export-btf', btf, '--view', '0,0', '--light', '25,0', '-o', path, '-q')
         if not os.path.exists(path):
             print(f'| {name} | skipped: {path} absent | | |')
             continue
