@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use crate::artifact::gim::EMPTY;
 use crate::io::imageio::{self, RgbImage};
-use crate::output::evaluate::ColourBand;
+use crate::output::evaluate::{diff, rgb_distance, ColourBand};
 use crate::quilt::NO_PATCH;
 
 /// A sample step longer than this (sample pixels) between two grid
@@ -134,24 +134,22 @@ fn continued(band: &ColourBand, previews: &[RgbImage], from: usize, behind: usiz
         return None;
     }
     let c = imageio::bilinear(&previews[band.index[from] as usize], u + du, v + dv);
-    let o = &band.colour[to * 3..to * 3 + 3];
-    Some((0..3).map(|k| ((c[k] - o[k]) as f64).powi(2)).sum::<f64>().sqrt())
+    Some(rgb_distance(&c, &band.colour[to * 3..to * 3 + 3]))
 }
 
 /// The 95th percentile (nearest rank) of an image's RGB differences
 /// between 4-neighbours.
 fn edge_strength(img: &RgbImage) -> f64 {
     let (w, h) = (img.width, img.height);
-    let px = |x: usize, y: usize| &img.data[(y * w + x) * 3..(y * w + x) * 3 + 3];
-    let d = |a: &[f32], b: &[f32]| (0..3).map(|k| ((a[k] - b[k]) as f64).powi(2)).sum::<f64>().sqrt();
     let mut steps = Vec::with_capacity(2 * w * h);
     for y in 0..h {
         for x in 0..w {
+            let i = y * w + x;
             if x + 1 < w {
-                steps.push(d(px(x, y), px(x + 1, y)));
+                steps.push(diff(&img.data, i, i + 1));
             }
             if y + 1 < h {
-                steps.push(d(px(x, y), px(x, y + 1)));
+                steps.push(diff(&img.data, i, i + w));
             }
         }
     }

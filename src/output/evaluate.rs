@@ -32,11 +32,13 @@ use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
 
 /// The RGB distance between texels `a` and `b` of `colour` (3 values a texel).
-fn diff(colour: &[f32], a: usize, b: usize) -> f64 {
-    (0..3)
-        .map(|k| ((colour[a * 3 + k] - colour[b * 3 + k]) as f64).powi(2))
-        .sum::<f64>()
-        .sqrt()
+pub(super) fn diff(colour: &[f32], a: usize, b: usize) -> f64 {
+    rgb_distance(&colour[a * 3..a * 3 + 3], &colour[b * 3..b * 3 + 3])
+}
+
+/// The distance between two RGB colours (their first 3 values).
+pub(super) fn rgb_distance(a: &[f32], b: &[f32]) -> f64 {
+    (0..3).map(|k| ((a[k] - b[k]) as f64).powi(2)).sum::<f64>().sqrt()
 }
 
 /// The quality figures of a decorated surface. Serialized (serde), its

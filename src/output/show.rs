@@ -150,20 +150,24 @@ fn draw_singularities(gim: &Gim, display: &mut [f32]) -> Result<()> {
         .map(|c| [c[0], c[1], c[2]])
         .collect();
     let singular = crate::field::singularities(&mesh, &mesh.topology(), &field);
-    let radius = (r as f32 / 128.0).max(4.0);
+    // each singular vertex's ring colour, found in one pass over the faces
+    let mut ring: Vec<Option<[f32; 3]>> = vec![None; mesh.positions.len()];
     for s in &singular {
-        let colour = match s.index {
+        ring[s.vertex as usize] = Some(match s.index {
             1 => [1.0, 0.1, 0.1],
             -1 => [0.2, 0.5, 1.0],
             _ => [1.0, 1.0, 1.0],
-        };
-        for (f, t) in mesh.triangles.iter().enumerate() {
-            let Some(k) = t.iter().position(|&v| v == s.vertex) else {
+        });
+    }
+    let radius = (r as f32 / 128.0).max(4.0);
+    let steps = (radius * 8.0) as usize;
+    for (f, t) in mesh.triangles.iter().enumerate() {
+        for (k, &v) in t.iter().enumerate() {
+            let Some(colour) = ring[v as usize] else {
                 continue;
             };
             let [u, v] = uv[f * 3 + k];
             let (cx, cy) = (u * r as f32, v * r as f32);
-            let steps = (radius * 8.0) as usize;
             for i in 0..steps {
                 let a = i as f32 / steps as f32 * std::f32::consts::TAU;
                 for dr in [-0.5f32, 0.0, 0.5] {
