@@ -855,7 +855,6 @@ impl Matcher {
                     .zip(ys.par_chunks(TASK_ELEMS))
                     .for_each(|((acc, zs), ys)| accumulate(acc, zs, ys));
             }
-            self.zm[..nn].copy_from_slice(&self.work_spectra[m_pair * nn..(m_pair + 1) * nn]);
         } else {
             self.work_tag = None;
             if tag.is_some() {
@@ -892,10 +891,11 @@ impl Matcher {
                     Some((&mut self.acc, ys)),
                 );
             }
-            if tag.is_some() {
-                self.zm[..nn].copy_from_slice(&self.work_spectra[m_pair * nn..(m_pair + 1) * nn]);
-                self.work_tag = tag;
-            }
+        }
+        if tag.is_some() {
+            // F(M) of the kept spectra, where the unkept path transforms it
+            self.zm[..nn].copy_from_slice(&self.work_spectra[m_pair * nn..(m_pair + 1) * nn]);
+            self.work_tag = tag;
         }
 
         // Hermitian part of the sum (→ SSD) + i F(M) conj F(V) (→ overlap)
