@@ -337,6 +337,11 @@ enum Command {
         /// matching and seams, in sample neighbour differences (0: colour only).
         #[arg(long, default_value_t = TileConfig::default().structure_weight)]
         structure_weight: f64,
+        /// Bend each new patch by up to this share of its radius so that its features
+        /// meet the old texels of the overlap before the cut (0: rigid patches; 0.1
+        /// keeps brick courses continuous across most seams)
+        #[arg(long, default_value_t = TileConfig::default().feature_align)]
+        feature_align: f64,
         /// Let matching turn the sample up to this many rotation steps (5°) off the
         /// field's mean direction where the field turns inside a work patch (0: never).
         #[arg(long, default_value_t = TileConfig::default().field_turn)]
@@ -1010,6 +1015,7 @@ fn run(cli: Cli) -> Result<()> {
             occurrence_weight,
             tolerance,
             structure_weight,
+            feature_align,
             field_turn,
             coarse_above,
             output,
@@ -1025,6 +1031,7 @@ fn run(cli: Cli) -> Result<()> {
                 occurrence_weight,
                 tolerance,
                 structure_weight,
+                feature_align,
                 field_turn,
                 coarse_above,
                 ..quilting.tile_config(memory)

@@ -36,7 +36,10 @@ pub(super) const INFINITE: f64 = 1e30;
 /// With `keep_outside_target` (region painting) texels where m0 = 0 keep
 /// their old values, so a stroke changes nothing outside F and its
 /// transition zone; synthesized texels less than `core` hops from the seed
-/// must take the new values (seam refinement).
+/// must take the new values (seam refinement). With `align` > 0 the new
+/// patch is first bent by up to that share of the patch's radius to meet
+/// the old texels of the overlap ([`super::align`]; `reference` is the
+/// sample's mean neighbour difference).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn fit_patch(
     sample: &Sample,
@@ -48,6 +51,7 @@ pub(super) fn fit_patch(
     data_weight: f64,
     keep_outside_target: bool,
     core: u16,
+    (align, reference): (f64, f64),
 ) -> Fit {
     let n = state.n;
     let r = state.r;
@@ -60,17 +64,23 @@ pub(super) fn fit_patch(
         (sample.height as f64 - 1.0) / 2.0,
     ];
     // B at every patch vertex: unrotated sample coordinate and value
-    let mut coord = vec![[0f64; 2]; m];
+    let mut coord: Vec<[f64; 2]> = work.coords[..m]
+        .iter()
+        .map(|w| {
+            let q = [w[0] - placement.dx - cen[0], w[1] - placement.dy - cen[1]];
+            [c * q[0] + s * q[1] + cen[0], -s * q[0] + c * q[1] + cen[1]]
+        })
+        .collect();
     let mut valid = vec![false; m];
     let mut new_features = vec![0f32; m * n];
-    for i in 0..m {
-        let q = [
-            work.coords[i][0] - placement.dx - cen[0],
-            work.coords[i][1] - placement.dy - cen[1],
-        ];
-        let cc = [c * q[0] + s * q[1] + cen[0], -s * q[0] + c * q[1] + cen[1]];
-        coord[i] = cc;
-        valid[i] = sample.lookup(cc, &mut new_features[i * n..(i + 1) * n]);
+    if align > 0.0 && !keep_outside_target {
+        // the largest shift scales with the patch (its BFS radius), at least a pixel
+        let radius = patch.depth.iter().copied().max().unwrap_or(0) as f64;
+        let shift = (align * radius).max(1.0);
+        super::align::align_to_overlap(&mut coord, sample, state, patch, work, shift, reference);
+    }
+    for (i, (v, c)) in valid.iter_mut().zip(&coord).enumerate() {
+        *v = sample.lookup(*c, &mut new_features[i * n..(i + 1) * n]);
     }
     // the Jacobian (sample offset per atlas +x / +y) for in-chart patches
     let j = work.atlas_to_work.map(|a| {

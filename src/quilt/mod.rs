@@ -33,6 +33,7 @@ use crate::container::MemoryBudget;
 use crate::progress::Progress;
 use crate::{Error, Result};
 
+mod align;
 mod coarse;
 mod fit;
 mod flatten;
@@ -99,6 +100,12 @@ pub struct TileConfig {
     /// from the field turning between patches, which a cut cost cannot
     /// undo.
     pub structure_weight: f64,
+    /// Feature alignment: before the cut, each new patch is bent by up to
+    /// this share of its radius so that its features meet the old texels
+    /// of the overlap (Wu & Yu 2004; `src/quilt/align.rs`), where a rigid
+    /// placement can line its courses up with only one of the patches
+    /// around it. 0 (the default) keeps patches rigid.
+    pub feature_align: f64,
     /// Matching may turn the sample up to this many rotation steps (5° for
     /// 72 rotated copies) away from the work patch's mean field direction
     /// where the field turns inside the patch: a climb from the direction
@@ -193,6 +200,7 @@ impl Default for TileConfig {
             tolerance: 0.0,
             occurrence_weight: 1.0,
             structure_weight: 0.0,
+            feature_align: 0.0,
             field_turn: 2,
             max_distortion: 4.0,
             seed: 1,
@@ -279,6 +287,12 @@ impl TileConfig {
             self.structure_weight,
             self.structure_weight >= 0.0,
             "a finite number ≥ 0 (sample neighbour differences; 0 turns the structure channel off)",
+        )?;
+        check(
+            "--feature-align",
+            self.feature_align,
+            (0.0..=0.5).contains(&self.feature_align),
+            "a number from 0 to 0.5 (a share of the work patch's radius; 0 keeps patches rigid)",
         )?;
         check(
             "--constraint-weight",

@@ -712,6 +712,7 @@ impl Synthesis {
             INFINITE.sqrt(),
             false,
             0,
+            (0.0, self.reference),
         );
         self.report.graphcut_seconds += t.elapsed().as_secs_f64();
         self.accept(&patch, &fit, progress);

@@ -225,6 +225,16 @@ impl Worker<'_> {
             self.cfg.constraint_weight * self.reference,
             keep_outside_target,
             core,
+            // (where the field is constant, as on a flat square, neighbouring
+            // patches are not turned against each other: nothing to align)
+            (
+                if self.painting || work.field_spread == 0.0 {
+                    0.0
+                } else {
+                    self.cfg.feature_align
+                },
+                self.reference,
+            ),
         )
     }
 
@@ -286,11 +296,11 @@ impl Worker<'_> {
         flattening: &mut Option<Flattening>,
     ) -> (WorkImage, bool) {
         let (mut work, unfolded) = self.work_image_of(patch, flattening);
-        // only matching that may turn the sample reads it
-        if !self.painting && self.cfg.field_turn > 0 {
+        // matching that may turn the sample and feature alignment read it
+        if !self.painting && (self.cfg.field_turn > 0 || self.cfg.feature_align > 0.0) {
             work.field_spread = field_spread(self.surface, patch);
             // only the rotation climb reads it, where the field turns
-            if work.field_spread > 0.0 {
+            if work.field_spread > 0.0 && self.cfg.field_turn > 0 {
                 work.neighbour_angle =
                     neighbour_angle(self.surface, self.state, patch, &self.bfs, &work.coords);
             }

@@ -326,6 +326,9 @@ fn mesh_float_flags_must_be_finite() {
         ("--tolerance", "-0.1"),
         ("--tolerance", "NaN"),
         ("--structure-weight", "-1"),
+        ("--feature-align", "NaN"),
+        ("--feature-align", "-0.1"),
+        ("--feature-align", "0.6"),
         ("--field-turn", "-1"),
     ] {
         let arg = format!("{flag}={value}");

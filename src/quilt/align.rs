@@ -1,0 +1,416 @@
+//! Feature alignment before the cut: the new patch's rigid placement is
+//! bent by a few sample pixels so that its features meet the old texels of
+//! the overlap (the feature matching and deformation of Wu & Yu 2004,
+//! "Feature matching and deformation for texture synthesis", §4, on the
+//! work patch). A rigid placement lines its courses up with the overlap on
+//! average; where the old texels come from patches whose courses disagree
+//! (the field turned between them), it can agree with only one, and the
+//! cut shows a step at the other. Each stretch of the overlap finds the
+//! shift of the new patch that best matches the old texels there; the
+//! shifts are blended smoothly over the patch and fade out beyond the
+//! overlap.
+
+use super::flatten::WorkImage;
+use super::placement::inside_sample;
+use super::sample::Sample;
+use super::state::{State, WorkPatch};
+
+/// Alignment points are at least this many × the largest shift apart.
+const POINT_SPACING: f64 = 2.0;
+
+/// Old texels within this many × the largest shift of a point judge its
+/// shift.
+const WINDOW: f64 = 1.5;
+
+/// At most this many old texels judge a shift (an even subset of the
+/// window's, in patch order).
+const WINDOW_TEXELS: usize = 32;
+
+/// A shift is kept only if it brings the window's difference below this
+/// share of the unshifted one.
+const GAIN: f64 = 0.7;
+
+/// A window whose root-mean-square difference from the new patch is below
+/// this many sample neighbour differences is aligned already (no search);
+/// one whose old texels vary by less has no features to align.
+const SETTLED: f64 = 1.0;
+
+/// Shifts blend over this many point spacings (the deviation of the
+/// blending kernel). On Spot, 1.5 kept courses continuous with gentle
+/// bends; 1 bent them into visible kinks, 2 and 3 left more ends.
+const BLEND: f64 = 1.5;
+
+/// Shifts `coord` (the new patch's unrotated sample coordinate per patch
+/// vertex) by up to `max_shift` sample pixels where that makes the new
+/// patch match the old texels of the overlap better (see the module doc);
+/// `reference` is the sample's mean neighbour difference.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn align_to_overlap(
+    coord: &mut [[f64; 2]],
+    sample: &Sample,
+    state: &State,
+    patch: &WorkPatch,
+    work: &WorkImage,
+    max_shift: f64,
+    reference: f64,
+) {
+    let n = state.n;
+    let mut feature = vec![0f32; n];
+    let old: Vec<Option<Vec<f32>>> = patch
+        .texels
+        .iter()
+        .map(|&t| {
+            state.synthesized(t).then(|| {
+                state.feature_into(sample, t, &mut feature);
+                feature.clone()
+            })
+        })
+        .collect();
+    let overlap = Overlap {
+        coords: &work.coords,
+        size: [work.width, work.height],
+        old: &old,
+        n,
+    };
+    overlap.align(
+        coord,
+        |c, out| sample.lookup(c, out),
+        |c| inside_sample(sample, c),
+        max_shift,
+        reference,
+    );
+}
+
+/// What alignment reads of a work patch: each vertex's work coordinate
+/// (inside `size`), and the old features of the vertices synthesized
+/// before (`n` channels).
+struct Overlap<'a> {
+    coords: &'a [[f64; 2]],
+    size: [usize; 2],
+    old: &'a [Option<Vec<f32>>],
+    n: usize,
+}
+
+impl Overlap<'_> {
+    /// [`align_to_overlap`] with the sample read through `lookup`
+    /// (bilinear, `false` outside) and `inside`.
+    fn align(
+        &self,
+        coord: &mut [[f64; 2]],
+        lookup: impl Fn([f64; 2], &mut [f32]) -> bool,
+        inside: impl Fn([f64; 2]) -> bool,
+        max_shift: f64,
+        reference: f64,
+    ) {
+        let (coords, m) = (self.coords, self.coords.len());
+        if max_shift <= 0.0 || m == 0 {
+            return;
+        }
+        let olds: Vec<usize> = (0..m).filter(|&i| self.old[i].is_some()).collect();
+        if olds.len() < 4 {
+            return;
+        }
+        let d2 = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
+        let spacing = POINT_SPACING * max_shift;
+        let window_radius = WINDOW * max_shift;
+        // the old texels and the points by cells `spacing` wide (wider than
+        // a window): a neighbourhood is the 3×3 cells around
+        let (cols, rows) = (
+            (self.size[0] as f64 / spacing).floor() as usize + 1,
+            (self.size[1] as f64 / spacing).floor() as usize + 1,
+        );
+        let cell = |c: [f64; 2]| {
+            let x = ((c[0] / spacing).floor().max(0.0) as usize).min(cols - 1);
+            let y = ((c[1] / spacing).floor().max(0.0) as usize).min(rows - 1);
+            y * cols + x
+        };
+        let around = |c: [f64; 2]| {
+            let k = cell(c);
+            let (x, y) = (k % cols, k / cols);
+            (y.saturating_sub(1)..(y + 2).min(rows))
+                .flat_map(move |yy| (x.saturating_sub(1)..(x + 2).min(cols)).map(move |xx| yy * cols + xx))
+        };
+        let mut old_cells: Vec<Vec<usize>> = vec![Vec::new(); cols * rows];
+        for &i in &olds {
+            old_cells[cell(coords[i])].push(i);
+        }
+        // points over the overlap, `spacing` apart (greedy in patch order)
+        let mut point_cells: Vec<Vec<usize>> = vec![Vec::new(); cols * rows];
+        let mut points: Vec<usize> = Vec::new();
+        for &i in &olds {
+            let free = around(coords[i]).all(|k| {
+                point_cells[k]
+                    .iter()
+                    .all(|&p| d2(coords[p], coords[i]) >= spacing * spacing)
+            });
+            if free {
+                point_cells[cell(coords[i])].push(i);
+                points.push(i);
+            }
+        }
+        let mut looked = vec![0f32; self.n];
+        let mut shifts: Vec<([f64; 2], usize)> = Vec::with_capacity(points.len());
+        for &p in &points {
+            let mut window: Vec<usize> = around(coords[p])
+                .flat_map(|k| old_cells[k].iter().copied())
+                .filter(|&j| d2(coords[j], coords[p]) <= window_radius * window_radius)
+                .collect();
+            window.sort_unstable();
+            if window.len() > WINDOW_TEXELS {
+                let stride = window.len().div_ceil(WINDOW_TEXELS);
+                window = window.into_iter().step_by(stride).collect();
+            }
+            if window.len() < 4 {
+                continue;
+            }
+            // a window without features (its old texels vary by less than
+            // the sample's neighbour difference) says nothing about a shift
+            let mut mean = vec![0f64; self.n];
+            for &j in &window {
+                for (m, &x) in mean.iter_mut().zip(self.old[j].as_deref().unwrap_or(&[])) {
+                    *m += x as f64 / window.len() as f64;
+                }
+            }
+            let spread: f64 = window
+                .iter()
+                .map(|&j| {
+                    let a = self.old[j].as_deref().unwrap_or(&[]);
+                    a.iter()
+                        .zip(&mean)
+                        .map(|(&x, m)| (x as f64 - m).powi(2))
+                        .sum::<f64>()
+                })
+                .sum();
+            if spread <= (SETTLED * reference).powi(2) * window.len() as f64 {
+                continue;
+            }
+            // the window's difference from the new patch shifted by
+            // (dx, dy), given up once above `limit`
+            let mut cost = |dx: f64, dy: f64, limit: f64| -> f64 {
+                let mut sum = 0.0;
+                for &j in &window {
+                    let c = coord[j];
+                    if !lookup([c[0] + dx, c[1] + dy], &mut looked) {
+                        return f64::INFINITY;
+                    }
+                    let a = self.old[j].as_deref().unwrap_or(&[]);
+                    sum += a
+                        .iter()
+                        .zip(&looked)
+                        .map(|(x, y)| ((x - y) as f64).powi(2))
+                        .sum::<f64>();
+                    if sum > limit {
+                        return f64::INFINITY;
+                    }
+                }
+                sum
+            };
+            let base = cost(0.0, 0.0, f64::INFINITY);
+            if !base.is_finite() || base <= (SETTLED * reference).powi(2) * window.len() as f64 {
+                shifts.push(([0.0, 0.0], p));
+                continue;
+            }
+            // coarse to fine: a grid of steps of half the largest shift,
+            // then halving steps around the best so far
+            let mut best = (base, 0.0, 0.0);
+            let mut step = (max_shift / 2.0).floor().max(1.0);
+            let mut span = (max_shift / step).ceil() as i32;
+            loop {
+                let (cx, cy) = (best.1, best.2);
+                for sy in -span..=span {
+                    for sx in -span..=span {
+                        let (dx, dy) = (cx + sx as f64 * step, cy + sy as f64 * step);
+                        if dx * dx + dy * dy > max_shift * max_shift || (sx == 0 && sy == 0) {
+                            continue;
+                        }
+                        // (the nearer of equals: flat stretches do not move)
+                        let c = cost(dx, dy, best.0);
+                        if c < best.0
+                            || (c == best.0 && dx * dx + dy * dy < best.1 * best.1 + best.2 * best.2)
+                        {
+                            best = (c, dx, dy);
+                        }
+                    }
+                }
+                if step <= 1.0 {
+                    break;
+                }
+                step = (step / 2.0).floor().max(1.0);
+                span = 1;
+            }
+            let shift = if best.0 < GAIN * base {
+                [best.1, best.2]
+            } else {
+                [0.0, 0.0]
+            };
+            shifts.push((shift, p));
+        }
+        if shifts.iter().all(|(s, _)| s == &[0.0, 0.0]) {
+            return;
+        }
+        // blend the shifts with a compact kernel, (1 − d²/R²)² with R = 2σ
+        // (close to a Gaussian of deviation σ), on nodes half a spacing
+        // apart, interpolated bilinearly between them; the full shift within
+        // a spacing of a point, fading to none at R
+        let reach2 = 4.0 * (BLEND * spacing).powi(2);
+        let reach = reach2.sqrt();
+        let node = 0.5 * spacing;
+        let (nx, ny) = (
+            (self.size[0] as f64 / node).ceil() as usize + 2,
+            (self.size[1] as f64 / node).ceil() as usize + 2,
+        );
+        // per node: Σ w·shift (x, y), Σ w, the distance to the nearest point
+        let mut nodes = vec![[0f64; 4]; nx * ny];
+        for (k, v) in nodes.iter_mut().enumerate() {
+            let at = [(k % nx) as f64 * node, (k / nx) as f64 * node];
+            let mut nearest = reach2;
+            for (s, p) in &shifts {
+                let d = d2(coords[*p], at);
+                if d < reach2 {
+                    let w = (1.0 - d / reach2).powi(2);
+                    v[0] += w * s[0];
+                    v[1] += w * s[1];
+                    v[2] += w;
+                    nearest = nearest.min(d);
+                }
+            }
+            v[3] = nearest.sqrt();
+        }
+        for (c, w) in coord.iter_mut().zip(coords) {
+            let (gx, gy) = (w[0] / node, w[1] / node);
+            let x0 = (gx.floor().max(0.0) as usize).min(nx - 2);
+            let y0 = (gy.floor().max(0.0) as usize).min(ny - 2);
+            let (fx, fy) = (gx - x0 as f64, gy - y0 as f64);
+            let mut v = [0f64; 4];
+            for (k, b) in [
+                (y0 * nx + x0, (1.0 - fx) * (1.0 - fy)),
+                (y0 * nx + x0 + 1, fx * (1.0 - fy)),
+                ((y0 + 1) * nx + x0, (1.0 - fx) * fy),
+                ((y0 + 1) * nx + x0 + 1, fx * fy),
+            ] {
+                for (acc, x) in v.iter_mut().zip(nodes[k]) {
+                    *acc += b * x;
+                }
+            }
+            let [wx, wy, wsum, nearest] = v;
+            if wsum <= 1e-12 {
+                continue;
+            }
+            let f = ((reach - nearest) / (reach - spacing)).clamp(0.0, 1.0);
+            let moved = [c[0] + f * wx / wsum, c[1] + f * wy / wsum];
+            if inside(moved) {
+                *c = moved;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sample of horizontal courses: a mortar line 2 pixels wide every
+    /// 12 rows (one channel), read bilinearly, `size` square.
+    fn courses(size: usize) -> (Vec<f32>, usize) {
+        let img = (0..size * size)
+            .map(|i| if (i / size) % 12 < 2 { 1.0 } else { 0.2 })
+            .collect();
+        (img, size)
+    }
+
+    fn lookup(img: &[f32], size: usize, c: [f64; 2], out: &mut [f32]) -> bool {
+        let s = size as f64 - 1.0;
+        if !(c[0] >= 0.0 && c[1] >= 0.0 && c[0] <= s && c[1] <= s) {
+            return false;
+        }
+        let (x0, y0) = (c[0].floor() as usize, c[1].floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(size - 1), (y0 + 1).min(size - 1));
+        let (fx, fy) = ((c[0] - x0 as f64) as f32, (c[1] - y0 as f64) as f32);
+        let at = |x: usize, y: usize| img[y * size + x];
+        let top = at(x0, y0) + (at(x1, y0) - at(x0, y0)) * fx;
+        let bottom = at(x0, y1) + (at(x1, y1) - at(x0, y1)) * fx;
+        out[0] = top + (bottom - top) * fy;
+        true
+    }
+
+    /// A 64×64 work patch (vertex = pixel) over the sample at offset
+    /// (40, 40); its left `old_columns` columns already show the sample
+    /// shifted down by `offset` rows. Returns the coordinates after
+    /// alignment with a largest shift of 4 pixels.
+    fn aligned(offset: f64, old_columns: usize) -> Vec<[f64; 2]> {
+        let (img, size) = courses(160);
+        let side = 64;
+        let coords: Vec<[f64; 2]> = (0..side * side)
+            .map(|i| [(i % side) as f64, (i / side) as f64])
+            .collect();
+        let mut coord: Vec<[f64; 2]> = coords.iter().map(|w| [w[0] + 40.0, w[1] + 40.0]).collect();
+        let old: Vec<Option<Vec<f32>>> = coords
+            .iter()
+            .map(|w| {
+                ((w[0] as usize) < old_columns).then(|| {
+                    let mut v = [0f32];
+                    lookup(&img, size, [w[0] + 40.0, w[1] + 40.0 + offset], &mut v);
+                    v.to_vec()
+                })
+            })
+            .collect();
+        let overlap = Overlap {
+            coords: &coords,
+            size: [side, side],
+            old: &old,
+            n: 1,
+        };
+        let inside = |c: [f64; 2]| c[0] >= 0.0 && c[1] >= 0.0 && c[0] <= 159.0 && c[1] <= 159.0;
+        overlap.align(&mut coord, |c, out| lookup(&img, size, c, out), inside, 4.0, 0.05);
+        coord
+    }
+
+    #[test]
+    fn the_new_patch_bends_to_meet_the_old_courses_and_stays_rigid_far_away() {
+        let side = 64;
+        for offset in [3.0, -2.0] {
+            let coord = aligned(offset, 24);
+            // deep in the overlap the new patch shows what the old one did:
+            // the sample moved by the offset, within a tenth of a pixel
+            for y in 16..48 {
+                let i = y * side + 8;
+                let d = [coord[i][0] - (8.0 + 40.0), coord[i][1] - (y as f64 + 40.0)];
+                assert!(
+                    d[0].abs() < 0.1 && (d[1] - offset).abs() < 0.1,
+                    "offset {offset}, row {y}: {d:?}"
+                );
+            }
+            // beyond the blending reach (2σ = 24 px from the last point) it
+            // keeps its rigid placement
+            for y in 0..side {
+                let i = y * side + 63;
+                assert_eq!(coord[i], [63.0 + 40.0, y as f64 + 40.0], "offset {offset}");
+            }
+            // and in between it fades, never beyond the offset, and only
+            // across the courses
+            for (i, c) in coord.iter().enumerate() {
+                let s = c[1] - ((i / side) as f64 + 40.0);
+                assert!(s.abs() <= offset.abs() + 1e-9, "offset {offset} at {i}: {s}");
+                assert!(
+                    (c[0] - ((i % side) as f64 + 40.0)).abs() < 1e-9,
+                    "offset {offset} at {i}: {c:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_new_patch_that_meets_the_old_one_stays_rigid_and_no_shift_exceeds_the_limit() {
+        let side = 64;
+        let rigid: Vec<[f64; 2]> = (0..side * side)
+            .map(|i| [(i % side) as f64 + 40.0, (i / side) as f64 + 40.0])
+            .collect();
+        // the old courses are where the new patch puts them
+        assert_eq!(aligned(0.0, 24), rigid);
+        // half a course (6 rows) off, beyond the 4-pixel limit
+        for (c, r) in aligned(6.0, 24).iter().zip(&rigid) {
+            let d = ((c[0] - r[0]).powi(2) + (c[1] - r[1]).powi(2)).sqrt();
+            assert!(d <= 4.0 + 1e-9, "{c:?} from {r:?}");
+        }
+    }
+}
