@@ -499,6 +499,27 @@ impl Synthesis {
         broken_placements: usize,
         progress: &dyn Progress,
     ) -> Result<usize> {
+        let (seeds, broken) = self.seams_to_refine(step, broken_placements > 0);
+        let grid = self.surface.grid();
+        let seeds = visit_order(&grid, seeds, REFINE_RUNS);
+        let base = self.cfg.refine_placements;
+        let placements = |v: u32| {
+            if broken.binary_search(&v).is_ok() {
+                broken_placements
+            } else {
+                base
+            }
+        };
+        self.refine_seeds(&seeds, radius, &placements, progress)
+    }
+
+    /// The seams [`Synthesis::refine`] visits: (the seam's step, texel) for
+    /// each texel with a neighbour of another patch whose colour step is
+    /// over `step` sample neighbour differences, or (with `broken`) where a
+    /// feature ends: one side's patch, continued one texel across, differs
+    /// from the other side by more than [`super::BROKEN_CONTINUATION`] of
+    /// them. Also those feature ends alone, ascending.
+    fn seams_to_refine(&self, step: f64, find_broken: bool) -> (Vec<(f64, u32)>, Vec<u32>) {
         let n = self.state.n;
         let (mut fa, mut fb, mut fc) = (vec![0f32; n], vec![0f32; n], vec![0f32; n]);
         let mut seeds: Vec<(f64, u32)> = Vec::new();
@@ -542,7 +563,7 @@ impl Synthesis {
                 } else {
                     None
                 };
-                if let (true, Some(d)) = (broken_placements > 0, along) {
+                if let (true, Some(d)) = (find_broken, along) {
                     if self.state.continued(&self.sample, t, d, &mut fc) {
                         ends = ends.max(dist(&fc, &fb));
                     }
@@ -558,17 +579,8 @@ impl Synthesis {
                 seeds.push((worst, t));
             }
         }
-        let seeds = visit_order(&grid, seeds, REFINE_RUNS);
         broken.sort_unstable();
-        let base = self.cfg.refine_placements;
-        let placements = |v: u32| {
-            if broken.binary_search(&v).is_ok() {
-                broken_placements
-            } else {
-                base
-            }
-        };
-        self.refine_seeds(&seeds, radius, &placements, progress)
+        (seeds, broken)
     }
 
     /// Records an accepted fitting under the next patch id.
@@ -874,9 +886,89 @@ fn visit_order(grid: &TileGrid, mut seeds: Vec<(f64, u32)>, runs: usize) -> Vec<
 
 #[cfg(test)]
 mod tests {
-    use super::visit_order;
-    use crate::artifact::gim::TILE;
+    use super::{visit_order, Synthesis};
+    use crate::artifact::gim::{Gim, TILE};
+    use crate::container::MemoryBudget;
+    use crate::progress::Silent;
     use crate::quilt::pager::TileGrid;
+    use crate::quilt::state::NO_FOREIGN;
+    use crate::quilt::TileConfig;
+
+    /// A flat square atlased at 64² whose left half (x < 32) shows a sample
+    /// of horizontal mortar lines (2 rows of every 8) as one patch, and
+    /// whose right half shows it as another patch, moved down by `offset`
+    /// rows; the seams [`Synthesis::seams_to_refine`] finds with and
+    /// without looking for feature ends (step 1000: none by colour step).
+    fn seams_between_halves(offset: f32) -> (Vec<u32>, usize, usize) {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let obj = d.join("square.obj");
+        std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n").unwrap();
+        let gim_path = d.join("square.gim");
+        let atlas = crate::atlas::AtlasConfig {
+            resolution: 64,
+            ..crate::atlas::AtlasConfig::default()
+        };
+        crate::atlas::build_gim(&obj, &gim_path, &atlas, &Silent).unwrap();
+        let size = 96;
+        let img = crate::io::imageio::RgbImage {
+            width: size,
+            height: size,
+            data: (0..size * size)
+                .flat_map(|i| [if (i / size) % 8 < 2 { 0.9f32 } else { 0.1 }; 3])
+                .collect(),
+        };
+        let png = d.join("courses.png");
+        crate::io::imageio::write_rgb(&png, &img).unwrap();
+        let gim = Gim::open(&gim_path, MemoryBudget(1 << 20)).unwrap();
+        let sized =
+            super::super::sample::sample_at_density(&png, gim.texel_size, None, false, &Silent).unwrap();
+        let cfg = TileConfig::default();
+        let mut syn = Synthesis::open(&gim, &png, &sized.svd, &d.join("out.quilt"), &cfg, false).unwrap();
+        let r = syn.surface.r;
+        let mut seam_rows = 0;
+        for t in 0..(r * r) as u32 {
+            if !syn.surface.covered(t) {
+                continue;
+            }
+            let (x, y) = ((t as usize % r) as f32, (t as usize / r) as f32);
+            let right = x >= 32.0;
+            seam_rows += (x == 31.0) as usize;
+            syn.state.texel_mut(t, |s, k| {
+                s.synthesized[k] = true;
+                s.coord[k] = [x + 8.0, y + 8.0 + if right { offset } else { 0.0 }];
+                s.jacobian[k] = [1.0, 0.0, 0.0, 1.0];
+                s.patch[k] = right as u32;
+                s.source[k] = 0;
+                s.foreign[k] = NO_FOREIGN;
+            });
+        }
+        let (by_step, _) = syn.seams_to_refine(1000.0, false);
+        let (seeds, broken) = syn.seams_to_refine(1000.0, true);
+        assert!(by_step.is_empty(), "no colour step is that large");
+        assert_eq!(seeds.iter().map(|s| s.1).collect::<Vec<_>>(), broken);
+        (broken, seam_rows, r)
+    }
+
+    #[test]
+    fn refinement_finds_the_mortar_lines_that_end_at_a_seam() {
+        // half a period down: every mortar line of the left half meets
+        // brick on the right and the other way round, on the seam's column
+        let (broken, seam_rows, r) = seams_between_halves(4.0);
+        assert!(broken.iter().all(|&t| t as usize % r == 31), "on the seam only");
+        // two mortar rows of every 8 on each side end there: half the
+        // seam's rows (give or take the rows blurred across a line's edge)
+        let rows = broken.len();
+        assert!(
+            rows * 2 >= seam_rows - 4 && rows * 2 <= seam_rows + 8,
+            "{rows} of {seam_rows} rows"
+        );
+        // a whole period down, or none: the lines run on, nothing is broken
+        for offset in [0.0, 8.0] {
+            let (broken, _, _) = seams_between_halves(offset);
+            assert!(broken.is_empty(), "offset {offset}: {broken:?}");
+        }
+    }
 
     #[test]
     fn seams_are_visited_once_each_by_runs_that_walk_the_tiles() {
