@@ -156,6 +156,7 @@ struct TileSection {
     occurrence_weight: Option<f64>,
     tolerance: Option<f64>,
     structure_weight: Option<f64>,
+    feature_align: Option<f64>,
     field_turn: Option<usize>,
     /// 0 turns seam refinement off.
     refine: Option<f64>,
@@ -174,6 +175,7 @@ impl Default for TileSection {
             occurrence_weight: None,
             tolerance: None,
             structure_weight: None,
+            feature_align: None,
             field_turn: None,
             refine: None,
         }
@@ -345,8 +347,16 @@ pub struct TileParams {
     pub occurrence_weight: f64,
     pub tolerance: f64,
     pub structure_weight: f64,
+    /// Left out of the key at 0 (its default), so plans that do not set it
+    /// keep their keys.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub feature_align: f64,
     pub field_turn: usize,
     pub refine: Option<f64>,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// A stage whose artifact several jobs share, computed once into
@@ -562,6 +572,7 @@ impl Plan {
             occurrence_weight: t.occurrence_weight.unwrap_or(defaults.occurrence_weight),
             tolerance: t.tolerance.unwrap_or(defaults.tolerance),
             structure_weight: t.structure_weight.unwrap_or(defaults.structure_weight),
+            feature_align: t.feature_align.unwrap_or(defaults.feature_align),
             field_turn: t.field_turn.unwrap_or(defaults.field_turn),
             refine: match t.refine {
                 Some(r) if r == 0.0 => None,
@@ -774,6 +785,7 @@ pub fn tile_config(p: &TileParams, seed: u64, sample_width: Option<f64>) -> Tile
         occurrence_weight: p.occurrence_weight,
         tolerance: p.tolerance,
         structure_weight: p.structure_weight,
+        feature_align: p.feature_align,
         field_turn: p.field_turn,
         refine: p.refine,
         seed,
