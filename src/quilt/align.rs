@@ -55,20 +55,22 @@ pub(super) fn align_to_overlap(
     reference: f64,
 ) {
     let n = state.n;
-    let mut feature = vec![0f32; n];
-    let old: Vec<Option<Vec<f32>>> = patch
+    let known: Vec<bool> = patch.texels.iter().map(|&t| state.synthesized(t)).collect();
+    let mut old = vec![0f32; known.len() * n];
+    for ((&t, &k), out) in patch
         .texels
         .iter()
-        .map(|&t| {
-            state.synthesized(t).then(|| {
-                state.feature_into(sample, t, &mut feature);
-                feature.clone()
-            })
-        })
-        .collect();
+        .zip(&known)
+        .zip(old.chunks_exact_mut(n.max(1)))
+    {
+        if k {
+            state.feature_into(sample, t, &mut out[..n]);
+        }
+    }
     let overlap = Overlap {
         coords: &work.coords,
         size: [work.width, work.height],
+        known: &known,
         old: &old,
         n,
     };
@@ -82,13 +84,21 @@ pub(super) fn align_to_overlap(
 }
 
 /// What alignment reads of a work patch: each vertex's work coordinate
-/// (inside `size`), and the old features of the vertices synthesized
-/// before (`n` channels).
+/// (inside `size`), whether it was synthesized before (`known`) and then
+/// its old features (`n` channels per vertex in `old`).
 struct Overlap<'a> {
     coords: &'a [[f64; 2]],
     size: [usize; 2],
-    old: &'a [Option<Vec<f32>>],
+    known: &'a [bool],
+    old: &'a [f32],
     n: usize,
+}
+
+impl Overlap<'_> {
+    /// The old features of vertex `j`.
+    fn old(&self, j: usize) -> &[f32] {
+        &self.old[j * self.n..(j + 1) * self.n]
+    }
 }
 
 impl Overlap<'_> {
@@ -106,7 +116,7 @@ impl Overlap<'_> {
         if max_shift <= 0.0 || m == 0 {
             return;
         }
-        let olds: Vec<usize> = (0..m).filter(|&i| self.old[i].is_some()).collect();
+        let olds: Vec<usize> = (0..m).filter(|&i| self.known[i]).collect();
         if olds.len() < 4 {
             return;
         }
@@ -167,14 +177,14 @@ impl Overlap<'_> {
             // the sample's neighbour difference) says nothing about a shift
             let mut mean = vec![0f64; self.n];
             for &j in &window {
-                for (m, &x) in mean.iter_mut().zip(self.old[j].as_deref().unwrap_or(&[])) {
+                for (m, &x) in mean.iter_mut().zip(self.old(j)) {
                     *m += x as f64 / window.len() as f64;
                 }
             }
             let spread: f64 = window
                 .iter()
                 .map(|&j| {
-                    let a = self.old[j].as_deref().unwrap_or(&[]);
+                    let a = self.old(j);
                     a.iter()
                         .zip(&mean)
                         .map(|(&x, m)| (x as f64 - m).powi(2))
@@ -193,7 +203,7 @@ impl Overlap<'_> {
                     if !lookup([c[0] + dx, c[1] + dy], &mut looked) {
                         return f64::INFINITY;
                     }
-                    let a = self.old[j].as_deref().unwrap_or(&[]);
+                    let a = self.old(j);
                     sum += a
                         .iter()
                         .zip(&looked)
@@ -344,19 +354,19 @@ mod tests {
             .map(|i| [(i % side) as f64, (i / side) as f64])
             .collect();
         let mut coord: Vec<[f64; 2]> = coords.iter().map(|w| [w[0] + 40.0, w[1] + 40.0]).collect();
-        let old: Vec<Option<Vec<f32>>> = coords
+        let known: Vec<bool> = coords.iter().map(|w| (w[0] as usize) < old_columns).collect();
+        let old: Vec<f32> = coords
             .iter()
             .map(|w| {
-                ((w[0] as usize) < old_columns).then(|| {
-                    let mut v = [0f32];
-                    lookup(&img, size, [w[0] + 40.0, w[1] + 40.0 + offset], &mut v);
-                    v.to_vec()
-                })
+                let mut v = [0f32];
+                lookup(&img, size, [w[0] + 40.0, w[1] + 40.0 + offset], &mut v);
+                v[0]
             })
             .collect();
         let overlap = Overlap {
             coords: &coords,
             size: [side, side],
+            known: &known,
             old: &old,
             n: 1,
         };
