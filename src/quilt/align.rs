@@ -13,7 +13,8 @@
 use super::flatten::WorkImage;
 use super::placement::inside_sample;
 use super::sample::Sample;
-use super::state::{State, WorkPatch};
+#[cfg(doc)]
+use super::state::State;
 
 /// Alignment points are at least this many × the largest shift apart.
 const POINT_SPACING: f64 = 2.0;
@@ -42,36 +43,26 @@ const BLEND: f64 = 1.5;
 
 /// Shifts `coord` (the new patch's unrotated sample coordinate per patch
 /// vertex) by up to `max_shift` sample pixels where that makes the new
-/// patch match the old texels of the overlap better (see the module doc);
-/// `reference` is the sample's mean neighbour difference.
+/// patch match the old texels of the overlap better (see the module doc).
+/// `known` and `old` say which vertices were synthesized and their
+/// features (`n` each, [`State::features_of`]); `reference` is the
+/// sample's mean neighbour difference.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn align_to_overlap(
     coord: &mut [[f64; 2]],
     sample: &Sample,
-    state: &State,
-    patch: &WorkPatch,
     work: &WorkImage,
+    known: &[bool],
+    old: &[f32],
+    n: usize,
     max_shift: f64,
     reference: f64,
 ) {
-    let n = state.n;
-    let known: Vec<bool> = patch.texels.iter().map(|&t| state.synthesized(t)).collect();
-    let mut old = vec![0f32; known.len() * n];
-    for ((&t, &k), out) in patch
-        .texels
-        .iter()
-        .zip(&known)
-        .zip(old.chunks_exact_mut(n.max(1)))
-    {
-        if k {
-            state.feature_into(sample, t, &mut out[..n]);
-        }
-    }
     let overlap = Overlap {
         coords: &work.coords,
         size: [work.width, work.height],
-        known: &known,
-        old: &old,
+        known,
+        old,
         n,
     };
     overlap.align(

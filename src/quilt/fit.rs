@@ -73,11 +73,22 @@ pub(super) fn fit_patch(
         .collect();
     let mut valid = vec![false; m];
     let mut new_features = vec![0f32; m * n];
+    // the old values A at the patch's synthesized vertices
+    let (synthesized, old_values) = state.features_of(sample, &patch.texels);
+    let max_depth = patch.depth.iter().copied().max().unwrap_or(0);
     if align > 0.0 && !keep_outside_target {
         // the largest shift scales with the patch (its BFS radius), at least a pixel
-        let radius = patch.depth.iter().copied().max().unwrap_or(0) as f64;
-        let shift = (align * radius).max(1.0);
-        super::align::align_to_overlap(&mut coord, sample, state, patch, work, shift, reference);
+        let shift = (align * max_depth as f64).max(1.0);
+        super::align::align_to_overlap(
+            &mut coord,
+            sample,
+            work,
+            &synthesized,
+            &old_values,
+            n,
+            shift,
+            reference,
+        );
     }
     for (i, (v, c)) in valid.iter_mut().zip(&coord).enumerate() {
         *v = sample.lookup(*c, &mut new_features[i * n..(i + 1) * n]);
@@ -111,7 +122,6 @@ pub(super) fn fit_patch(
             .ok()
             .map(|k| order[k].1 as usize)
     };
-    let max_depth = patch.depth.iter().copied().max().unwrap_or(0);
     let mut new_mask = vec![0f32; if sample.mask.is_some() { m } else { 0 }];
     for i in 0..new_mask.len() {
         new_mask[i] = sample.mask_at(coord[i]);
@@ -141,14 +151,6 @@ pub(super) fn fit_patch(
             g.fix(i as u32, Segment::Sink);
         } else if patch.depth[i] == max_depth && max_depth > 0 {
             g.fix(i as u32, Segment::Source);
-        }
-    }
-    // the old values A at the patch's synthesized vertices
-    let mut old_values = vec![0f32; m * n];
-    let synthesized: Vec<bool> = patch.texels.iter().map(|&t| state.synthesized(t)).collect();
-    for (i, &t) in patch.texels.iter().enumerate() {
-        if synthesized[i] {
-            state.feature_into(sample, t, &mut old_values[i * n..(i + 1) * n]);
         }
     }
     let a_at = |i: usize| &old_values[i * n..(i + 1) * n];

@@ -758,18 +758,7 @@ pub(super) fn raster_work_image(
     let mut work = WorkImage::blank(w, h, state, coords, angle);
     // each patch vertex's values once (a vertex is a corner of up to six
     // triangles): whether it is synthesized, its features and its m0
-    let synthesized: Vec<bool> = patch.texels.iter().map(|&t| state.synthesized(t)).collect();
-    let mut features = vec![0f32; patch.texels.len() * n];
-    for ((&t, &s), out) in patch
-        .texels
-        .iter()
-        .zip(&synthesized)
-        .zip(features.chunks_exact_mut(n.max(1)))
-    {
-        if s {
-            state.feature_into(sample, t, &mut out[..n]);
-        }
-    }
+    let (synthesized, features) = state.features_of(sample, &patch.texels);
     let m0: Vec<f32> = if state.constrained {
         patch
             .texels

@@ -369,6 +369,24 @@ impl State {
         sample.lookup(moved, out)
     }
 
+    /// Per texel of `texels`: whether it is synthesized, and its features
+    /// (`n` per texel, 0 where it is not).
+    pub(super) fn features_of(&self, sample: &Sample, texels: &[u32]) -> (Vec<bool>, Vec<f32>) {
+        let n = self.n;
+        let synthesized: Vec<bool> = texels.iter().map(|&t| self.synthesized(t)).collect();
+        let mut features = vec![0f32; texels.len() * n];
+        for ((&t, &s), out) in texels
+            .iter()
+            .zip(&synthesized)
+            .zip(features.chunks_exact_mut(n.max(1)))
+        {
+            if s {
+                self.feature_into(sample, t, &mut out[..n]);
+            }
+        }
+        (synthesized, features)
+    }
+
     pub(super) fn feature_into(&self, sample: &Sample, t: u32, out: &mut [f32]) {
         let (f, c) = self.texel(t, |s, i| (s.foreign[i], s.coord[i]));
         if f != NO_FOREIGN {
