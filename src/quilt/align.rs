@@ -11,7 +11,6 @@
 //! overlap.
 
 use super::flatten::WorkImage;
-use super::placement::inside_sample;
 use super::sample::Sample;
 #[cfg(doc)]
 use super::state::State;
@@ -65,13 +64,86 @@ pub(super) fn align_to_overlap(
         old,
         n,
     };
-    overlap.align(
-        coord,
-        |c, out| sample.lookup(c, out),
-        |c| inside_sample(sample, c),
-        max_shift,
-        reference,
-    );
+    let grid = Grid {
+        maps: &sample.maps,
+        width: sample.width,
+        height: sample.height,
+        n: sample.n,
+        tileable: sample.tileable,
+    };
+    overlap.align(coord, &grid, max_shift, reference);
+}
+
+/// The sample's feature maps (`n` per pixel, row-major) read bilinearly
+/// at whole-pixel shifts of a texel: the search only tries whole-pixel
+/// shifts, so each texel's pixel and bilinear weights are found once.
+struct Grid<'a> {
+    maps: &'a [f32],
+    width: usize,
+    height: usize,
+    n: usize,
+    tileable: bool,
+}
+
+/// A sample coordinate split into its pixel and its fraction.
+#[derive(Clone, Copy)]
+struct Texel {
+    x: i64,
+    y: i64,
+    fx: f32,
+    fy: f32,
+}
+
+impl Grid<'_> {
+    fn texel(c: [f64; 2]) -> Texel {
+        let (x, y) = (c[0].floor(), c[1].floor());
+        Texel {
+            x: x as i64,
+            y: y as i64,
+            fx: (c[0] - x) as f32,
+            fy: (c[1] - y) as f32,
+        }
+    }
+
+    /// The features at `t` shifted by (dx, dy) pixels, bilinear like
+    /// [`Sample::lookup`]; `false` outside a sample that does not tile.
+    fn read(&self, t: Texel, dx: i64, dy: i64, out: &mut [f32]) -> bool {
+        let (w, h) = (self.width as i64, self.height as i64);
+        let (x0, y0, x1, y1);
+        if self.tileable {
+            (x0, y0) = ((t.x + dx).rem_euclid(w), (t.y + dy).rem_euclid(h));
+            (x1, y1) = ((x0 + 1) % w, (y0 + 1) % h);
+        } else {
+            (x0, y0) = (t.x + dx, t.y + dy);
+            // (the last column or row only with no fraction beyond it)
+            if x0 < 0 || y0 < 0 || x0 > w - 1 || y0 > h - 1 {
+                return false;
+            }
+            if (x0 == w - 1 && t.fx > 0.0) || (y0 == h - 1 && t.fy > 0.0) {
+                return false;
+            }
+            (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        }
+        let n = self.n;
+        let at = |x: i64, y: i64| (y as usize * self.width + x as usize) * n;
+        let (a, b, c, d) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+        let m = self.maps;
+        for (i, o) in out.iter_mut().enumerate().take(n) {
+            let top = m[a + i] + (m[b + i] - m[a + i]) * t.fx;
+            let bottom = m[c + i] + (m[d + i] - m[c + i]) * t.fx;
+            *o = top + (bottom - top) * t.fy;
+        }
+        true
+    }
+
+    /// Whether a coordinate is on the sample ([`super::placement::inside_sample`]).
+    fn inside(&self, c: [f64; 2]) -> bool {
+        self.tileable
+            || (c[0] >= 0.0
+                && c[1] >= 0.0
+                && c[0] <= self.width as f64 - 1.0
+                && c[1] <= self.height as f64 - 1.0)
+    }
 }
 
 /// What alignment reads of a work patch: each vertex's work coordinate
@@ -90,20 +162,10 @@ impl Overlap<'_> {
     fn old(&self, j: usize) -> &[f32] {
         &self.old[j * self.n..(j + 1) * self.n]
     }
-}
 
-impl Overlap<'_> {
-    /// [`align_to_overlap`] with the sample read through `lookup`
-    /// (bilinear, `false` outside) and `inside`.
-    fn align(
-        &self,
-        coord: &mut [[f64; 2]],
-        lookup: impl Fn([f64; 2], &mut [f32]) -> bool,
-        inside: impl Fn([f64; 2]) -> bool,
-        max_shift: f64,
-        reference: f64,
-    ) {
-        let (coords, m) = (self.coords, self.coords.len());
+    /// [`align_to_overlap`] with the sample read through `grid`.
+    fn align(&self, coord: &mut [[f64; 2]], grid: &Grid, max_shift: f64, reference: f64) {
+        let (coords, m, n) = (self.coords, self.coords.len(), self.n);
         if max_shift <= 0.0 || m == 0 {
             return;
         }
@@ -115,86 +177,109 @@ impl Overlap<'_> {
         let spacing = POINT_SPACING * max_shift;
         let window_radius = WINDOW * max_shift;
         // the old texels and the points by cells `spacing` wide (wider than
-        // a window): a neighbourhood is the 3×3 cells around
+        // a window): a point's neighbours are in the 3×3 cells around it
         let (cols, rows) = (
             (self.size[0] as f64 / spacing).floor() as usize + 1,
             (self.size[1] as f64 / spacing).floor() as usize + 1,
         );
-        let cell = |c: [f64; 2]| {
-            let x = ((c[0] / spacing).floor().max(0.0) as usize).min(cols - 1);
-            let y = ((c[1] / spacing).floor().max(0.0) as usize).min(rows - 1);
-            y * cols + x
-        };
-        let around = |c: [f64; 2]| {
-            let k = cell(c);
-            let (x, y) = (k % cols, k / cols);
-            (y.saturating_sub(1)..(y + 2).min(rows))
-                .flat_map(move |yy| (x.saturating_sub(1)..(x + 2).min(cols)).map(move |xx| yy * cols + xx))
-        };
-        let mut old_cells: Vec<Vec<usize>> = vec![Vec::new(); cols * rows];
+        let axis = |v: f64, count: usize| ((v / spacing).floor().max(0.0) as usize).min(count - 1);
+        let cell = |c: [f64; 2]| axis(c[1], rows) * cols + axis(c[0], cols);
+        // old texels by cell, in patch order within a cell (counting sort)
+        let mut first = vec![0usize; cols * rows + 1];
         for &i in &olds {
-            old_cells[cell(coords[i])].push(i);
+            first[cell(coords[i]) + 1] += 1;
+        }
+        for k in 1..first.len() {
+            first[k] += first[k - 1];
+        }
+        let mut by_cell = vec![0usize; olds.len()];
+        let mut fill = first.clone();
+        for &i in &olds {
+            let k = cell(coords[i]);
+            by_cell[fill[k]] = i;
+            fill[k] += 1;
         }
         // points over the overlap, `spacing` apart (greedy in patch order)
         let mut point_cells: Vec<Vec<usize>> = vec![Vec::new(); cols * rows];
         let mut points: Vec<usize> = Vec::new();
         for &i in &olds {
-            let free = around(coords[i]).all(|k| {
+            let c = coords[i];
+            let (x, y) = (axis(c[0], cols), axis(c[1], rows));
+            let near = |k: usize| {
                 point_cells[k]
                     .iter()
-                    .all(|&p| d2(coords[p], coords[i]) >= spacing * spacing)
-            });
-            if free {
-                point_cells[cell(coords[i])].push(i);
+                    .any(|&p| d2(coords[p], c) < spacing * spacing)
+            };
+            // (its own cell first: most texels near a point are in it)
+            let taken = near(y * cols + x)
+                || (y.saturating_sub(1)..(y + 2).min(rows)).any(|yy| {
+                    (x.saturating_sub(1)..(x + 2).min(cols))
+                        .any(|xx| (yy, xx) != (y, x) && near(yy * cols + xx))
+                });
+            if !taken {
+                point_cells[y * cols + x].push(i);
                 points.push(i);
             }
         }
-        let mut looked = vec![0f32; self.n];
+        let mut looked = vec![0f32; n];
+        let mut window: Vec<usize> = Vec::new();
+        let (mut texels, mut olds_here, mut mean) = (Vec::new(), Vec::new(), vec![0f64; n]);
         let mut shifts: Vec<([f64; 2], usize)> = Vec::with_capacity(points.len());
         for &p in &points {
-            let mut window: Vec<usize> = around(coords[p])
-                .flat_map(|k| old_cells[k].iter().copied())
-                .filter(|&j| d2(coords[j], coords[p]) <= window_radius * window_radius)
-                .collect();
-            window.sort_unstable();
-            if window.len() > WINDOW_TEXELS {
-                let stride = window.len().div_ceil(WINDOW_TEXELS);
-                window = window.into_iter().step_by(stride).collect();
+            // the old texels within the window (in the cells its box meets)
+            let c = coords[p];
+            window.clear();
+            for yy in axis(c[1] - window_radius, rows)..=axis(c[1] + window_radius, rows) {
+                for xx in axis(c[0] - window_radius, cols)..=axis(c[0] + window_radius, cols) {
+                    let k = yy * cols + xx;
+                    window.extend(
+                        by_cell[first[k]..first[k + 1]]
+                            .iter()
+                            .filter(|&&j| d2(coords[j], c) <= window_radius * window_radius),
+                    );
+                }
             }
-            if window.len() < 4 {
+            window.sort_unstable();
+            let stride = window.len().div_ceil(WINDOW_TEXELS).max(1);
+            let count = window.len().div_ceil(stride);
+            if count < 4 {
                 continue;
+            }
+            texels.clear();
+            olds_here.clear();
+            for &j in window.iter().step_by(stride) {
+                texels.push(Grid::texel(coord[j]));
+                olds_here.extend_from_slice(self.old(j));
             }
             // a window without features (its old texels vary by less than
             // the sample's neighbour difference) says nothing about a shift
-            let mut mean = vec![0f64; self.n];
-            for &j in &window {
-                for (m, &x) in mean.iter_mut().zip(self.old(j)) {
-                    *m += x as f64 / window.len() as f64;
+            mean.iter_mut().for_each(|m| *m = 0.0);
+            for a in olds_here.chunks_exact(n) {
+                for (m, &x) in mean.iter_mut().zip(a) {
+                    *m += x as f64 / count as f64;
                 }
             }
-            let spread: f64 = window
-                .iter()
-                .map(|&j| {
-                    let a = self.old(j);
+            let spread: f64 = olds_here
+                .chunks_exact(n)
+                .map(|a| {
                     a.iter()
                         .zip(&mean)
                         .map(|(&x, m)| (x as f64 - m).powi(2))
                         .sum::<f64>()
                 })
                 .sum();
-            if spread <= (SETTLED * reference).powi(2) * window.len() as f64 {
+            let settled = (SETTLED * reference).powi(2) * count as f64;
+            if spread <= settled {
                 continue;
             }
             // the window's difference from the new patch shifted by
-            // (dx, dy), given up once above `limit`
-            let mut cost = |dx: f64, dy: f64, limit: f64| -> f64 {
+            // (dx, dy) whole pixels, given up once above `limit`
+            let mut cost = |dx: i64, dy: i64, limit: f64| -> f64 {
                 let mut sum = 0.0;
-                for &j in &window {
-                    let c = coord[j];
-                    if !lookup([c[0] + dx, c[1] + dy], &mut looked) {
+                for (&t, a) in texels.iter().zip(olds_here.chunks_exact(n)) {
+                    if !grid.read(t, dx, dy, &mut looked) {
                         return f64::INFINITY;
                     }
-                    let a = self.old(j);
                     sum += a
                         .iter()
                         .zip(&looked)
@@ -206,22 +291,23 @@ impl Overlap<'_> {
                 }
                 sum
             };
-            let base = cost(0.0, 0.0, f64::INFINITY);
-            if !base.is_finite() || base <= (SETTLED * reference).powi(2) * window.len() as f64 {
+            let base = cost(0, 0, f64::INFINITY);
+            if !base.is_finite() || base <= settled {
                 shifts.push(([0.0, 0.0], p));
                 continue;
             }
             // coarse to fine: a grid of steps of half the largest shift,
             // then halving steps around the best so far
-            let mut best = (base, 0.0, 0.0);
-            let mut step = (max_shift / 2.0).floor().max(1.0);
-            let mut span = (max_shift / step).ceil() as i32;
+            let mut best = (base, 0i64, 0i64);
+            let mut step = (max_shift / 2.0).floor().max(1.0) as i64;
+            let mut span = (max_shift / step as f64).ceil() as i64;
+            let reach = max_shift * max_shift;
             loop {
                 let (cx, cy) = (best.1, best.2);
                 for sy in -span..=span {
                     for sx in -span..=span {
-                        let (dx, dy) = (cx + sx as f64 * step, cy + sy as f64 * step);
-                        if dx * dx + dy * dy > max_shift * max_shift || (sx == 0 && sy == 0) {
+                        let (dx, dy) = (cx + sx * step, cy + sy * step);
+                        if (dx * dx + dy * dy) as f64 > reach || (sx == 0 && sy == 0) {
                             continue;
                         }
                         // (the nearer of equals: flat stretches do not move)
@@ -233,14 +319,14 @@ impl Overlap<'_> {
                         }
                     }
                 }
-                if step <= 1.0 {
+                if step <= 1 {
                     break;
                 }
-                step = (step / 2.0).floor().max(1.0);
+                step = (step / 2).max(1);
                 span = 1;
             }
             let shift = if best.0 < GAIN * base {
-                [best.1, best.2]
+                [best.1 as f64, best.2 as f64]
             } else {
                 [0.0, 0.0]
             };
@@ -299,7 +385,7 @@ impl Overlap<'_> {
             }
             let f = ((reach - nearest) / (reach - spacing)).clamp(0.0, 1.0);
             let moved = [c[0] + f * wx / wsum, c[1] + f * wy / wsum];
-            if inside(moved) {
+            if grid.inside(moved) {
                 *c = moved;
             }
         }
@@ -361,8 +447,14 @@ mod tests {
             old: &old,
             n: 1,
         };
-        let inside = |c: [f64; 2]| c[0] >= 0.0 && c[1] >= 0.0 && c[0] <= 159.0 && c[1] <= 159.0;
-        overlap.align(&mut coord, |c, out| lookup(&img, size, c, out), inside, 4.0, 0.05);
+        let grid = Grid {
+            maps: &img,
+            width: size,
+            height: size,
+            n: 1,
+            tileable: false,
+        };
+        overlap.align(&mut coord, &grid, 4.0, 0.05);
         coord
     }
 
