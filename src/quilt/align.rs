@@ -146,6 +146,12 @@ impl Grid<'_> {
     }
 }
 
+/// ⌊v⌋ clamped to `0..count` (truncation is the floor from 0 up, and a
+/// call to `floor` is not free in the hot loops here).
+fn clamped_floor(v: f64, count: usize) -> usize {
+    (v.max(0.0) as usize).min(count - 1)
+}
+
 /// What alignment reads of a work patch: each vertex's work coordinate
 /// (inside `size`), whether it was synthesized before (`known`) and then
 /// its old features (`n` channels per vertex in `old`).
@@ -182,29 +188,29 @@ impl Overlap<'_> {
             (self.size[0] as f64 / spacing).floor() as usize + 1,
             (self.size[1] as f64 / spacing).floor() as usize + 1,
         );
-        let axis = |v: f64, count: usize| ((v / spacing).floor().max(0.0) as usize).min(count - 1);
+        let axis = |v: f64, count: usize| clamped_floor(v / spacing, count);
         let cell = |c: [f64; 2]| axis(c[1], rows) * cols + axis(c[0], cols);
         // old texels by cell, in patch order within a cell (counting sort)
+        let cells: Vec<usize> = olds.iter().map(|&i| cell(coords[i])).collect();
         let mut first = vec![0usize; cols * rows + 1];
-        for &i in &olds {
-            first[cell(coords[i]) + 1] += 1;
+        for &k in &cells {
+            first[k + 1] += 1;
         }
         for k in 1..first.len() {
             first[k] += first[k - 1];
         }
         let mut by_cell = vec![0usize; olds.len()];
         let mut fill = first.clone();
-        for &i in &olds {
-            let k = cell(coords[i]);
+        for (&i, &k) in olds.iter().zip(&cells) {
             by_cell[fill[k]] = i;
             fill[k] += 1;
         }
         // points over the overlap, `spacing` apart (greedy in patch order)
         let mut point_cells: Vec<Vec<usize>> = vec![Vec::new(); cols * rows];
         let mut points: Vec<usize> = Vec::new();
-        for &i in &olds {
+        for (&i, &k) in olds.iter().zip(&cells) {
             let c = coords[i];
-            let (x, y) = (axis(c[0], cols), axis(c[1], rows));
+            let (x, y) = (k % cols, k / cols);
             let near = |k: usize| {
                 point_cells[k]
                     .iter()
@@ -365,16 +371,24 @@ impl Overlap<'_> {
         }
         for (c, w) in coord.iter_mut().zip(coords) {
             let (gx, gy) = (w[0] / node, w[1] / node);
-            let x0 = (gx.floor().max(0.0) as usize).min(nx - 2);
-            let y0 = (gy.floor().max(0.0) as usize).min(ny - 2);
+            let (x0, y0) = (clamped_floor(gx, nx - 1), clamped_floor(gy, ny - 1));
+            let corners = [
+                y0 * nx + x0,
+                y0 * nx + x0 + 1,
+                (y0 + 1) * nx + x0,
+                (y0 + 1) * nx + x0 + 1,
+            ];
+            if corners.iter().all(|&k| nodes[k][0] == 0.0 && nodes[k][1] == 0.0) {
+                // (no shift reaches here: it stays where it is)
+                continue;
+            }
             let (fx, fy) = (gx - x0 as f64, gy - y0 as f64);
             let mut v = [0f64; 4];
-            for (k, b) in [
-                (y0 * nx + x0, (1.0 - fx) * (1.0 - fy)),
-                (y0 * nx + x0 + 1, fx * (1.0 - fy)),
-                ((y0 + 1) * nx + x0, (1.0 - fx) * fy),
-                ((y0 + 1) * nx + x0 + 1, fx * fy),
-            ] {
+            for (k, b) in
+                corners
+                    .into_iter()
+                    .zip([(1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy])
+            {
                 for (acc, x) in v.iter_mut().zip(nodes[k]) {
                     *acc += b * x;
                 }
