@@ -160,7 +160,8 @@ impl Sample {
         } else if !(x >= 0.0 && y >= 0.0 && x <= w - 1.0 && y <= h - 1.0) {
             return false;
         }
-        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        // (x, y ≥ 0 here: truncation is the floor, without a call to libm)
+        let (x0, y0) = (x as usize, y as usize);
         let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
         let wrap = |v: usize, n: usize| if self.tileable { v % n } else { v.min(n - 1) };
         let (x0, y0) = (wrap(x0, self.width), wrap(y0, self.height));
