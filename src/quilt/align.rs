@@ -96,12 +96,17 @@ struct Texel {
 
 impl Grid<'_> {
     fn texel(c: [f64; 2]) -> Texel {
-        let (x, y) = (c[0].floor(), c[1].floor());
+        // ⌊v⌋ from the truncation (no call to libm)
+        let floor = |v: f64| {
+            let t = v as i64;
+            t - ((t as f64) > v) as i64
+        };
+        let (x, y) = (floor(c[0]), floor(c[1]));
         Texel {
-            x: x as i64,
-            y: y as i64,
-            fx: (c[0] - x) as f32,
-            fy: (c[1] - y) as f32,
+            x,
+            y,
+            fx: (c[0] - x as f64) as f32,
+            fy: (c[1] - y as f64) as f32,
         }
     }
 
