@@ -338,8 +338,7 @@ enum Command {
         #[arg(long, default_value_t = TileConfig::default().structure_weight)]
         structure_weight: f64,
         /// Bend each new patch by up to this share of its radius so that its features
-        /// meet the old texels of the overlap before the cut (0: rigid patches; at 0.09
-        /// brick courses on Spot ran on across most seams)
+        /// meet the old texels of the overlap before the cut (0: rigid patches)
         #[arg(long, default_value_t = TileConfig::default().feature_align)]
         feature_align: f64,
         /// Let matching turn the sample up to this many rotation steps (5°) off the

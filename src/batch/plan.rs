@@ -347,8 +347,9 @@ pub struct TileParams {
     pub occurrence_weight: f64,
     pub tolerance: f64,
     pub structure_weight: f64,
-    /// Left out of the key at 0 (its default), so plans that do not set it
-    /// keep their keys.
+    /// Left out of the key at 0 (rigid patches), so a job with rigid
+    /// patches keeps the key it had before the option existed: its outputs
+    /// are the same.
     #[serde(skip_serializing_if = "is_zero")]
     pub feature_align: f64,
     pub field_turn: usize,

@@ -104,7 +104,9 @@ pub struct TileConfig {
     /// this share of its radius so that its features meet the old texels
     /// of the overlap (Wu & Yu 2004; `src/quilt/align.rs`), where a rigid
     /// placement can line its courses up with only one of the patches
-    /// around it. 0 (the default) keeps patches rigid.
+    /// around it. 0 keeps patches rigid; the default, 0.09, is the share
+    /// that left fewest broken courses on Spot (docs/measurements.md,
+    /// "Feature alignment").
     pub feature_align: f64,
     /// Matching may turn the sample up to this many rotation steps (5° for
     /// 72 rotated copies) away from the work patch's mean field direction
@@ -200,7 +202,7 @@ impl Default for TileConfig {
             tolerance: 0.0,
             occurrence_weight: 1.0,
             structure_weight: 0.0,
-            feature_align: 0.0,
+            feature_align: 0.09,
             field_turn: 2,
             max_distortion: 4.0,
             seed: 1,

@@ -788,7 +788,7 @@ fn every_parameter_reaching_an_output_changes_the_key() {
     let k0 = key("");
     // the defaults written out are the same job
     assert_eq!(k0, key("[atlas]\nresolutions = [1024]\n[tile]\nseeds = [1]\n"));
-    assert_eq!(k0, key("[tile]\nfeature_align = 0\n"));
+    assert_eq!(k0, key("[tile]\nfeature_align = 0.09\n"));
     let variants = [
         "[atlas]\nresolutions = [512]\n",
         "[atlas]\ngutter = 3\n",
@@ -797,7 +797,7 @@ fn every_parameter_reaching_an_output_changes_the_key() {
         "[tile]\nrefine = 0\n",
         "[tile]\noccurrence_weight = 0.5\n",
         "[tile]\ntolerance = 0.1\n",
-        "[tile]\nfeature_align = 0.09\n",
+        "[tile]\nfeature_align = 0\n",
         "[factorize]\nterms = 8\n",
         "[render]\nwidth = 320\n",
         "[render]\nlights = [\"0,1,0\"]\n",
