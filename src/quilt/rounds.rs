@@ -517,9 +517,11 @@ impl Synthesis {
 /// in flight raised the peak RSS by about 62 MB, its 12.5 MB of matcher
 /// buffers included, about 580 bytes a texel. A program using the library
 /// with glibc's per-thread arenas may hold more (each thread keeps what it
-/// freed).
+/// freed). Feature alignment adds three indices per old texel (its cell,
+/// and the texels by cell: [`super::align`]), counted here for every
+/// texel.
 fn bytes_per_texel(channels: usize) -> u64 {
-    512 + 16 * channels as u64
+    512 + 3 * std::mem::size_of::<usize>() as u64 + 16 * channels as u64
 }
 
 /// The atlas tiles computing a work patch of `radius` at `v` may read (the
