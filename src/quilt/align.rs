@@ -439,6 +439,80 @@ mod tests {
         true
     }
 
+    /// Bilinear reading like `Sample::lookup`: `n` channels, `false`
+    /// outside [0, w − 1] × [0, h − 1] unless the image tiles.
+    fn bilinear(img: &[f32], [w, h, n]: [usize; 3], tileable: bool, c: [f64; 2], out: &mut [f32]) -> bool {
+        let (mut x, mut y) = (c[0], c[1]);
+        if tileable {
+            x = x.rem_euclid(w as f64);
+            y = y.rem_euclid(h as f64);
+        } else if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
+            return false;
+        }
+        let (x0, y0) = (x.floor() as usize % w, y.floor() as usize % h);
+        let (fx, fy) = ((x - x.floor()) as f32, (y - y.floor()) as f32);
+        let (x1, y1) = if tileable {
+            ((x0 + 1) % w, (y0 + 1) % h)
+        } else {
+            ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1))
+        };
+        for (i, o) in out.iter_mut().enumerate() {
+            let at = |x: usize, y: usize| img[(y * w + x) * n + i];
+            let top = at(x0, y0) + (at(x1, y0) - at(x0, y0)) * fx;
+            let bottom = at(x0, y1) + (at(x1, y1) - at(x0, y1)) * fx;
+            *o = top + (bottom - top) * fy;
+        }
+        true
+    }
+
+    #[test]
+    fn a_shifted_read_is_the_bilinear_read_at_the_shifted_coordinate() {
+        // 7×5 pixels of 2 channels, tiling and not, read at fractions and
+        // whole pixels in and around the image and shifted by up to 3
+        let (w, h, n) = (7, 5, 2);
+        let img: Vec<f32> = (0..w * h * n).map(|i| ((i * 37) % 11) as f32 / 10.0).collect();
+        for tileable in [false, true] {
+            let grid = Grid {
+                maps: &img,
+                width: w,
+                height: h,
+                n,
+                tileable,
+            };
+            let (mut inside, mut outside) = (0, 0);
+            for iy in -12..=28 {
+                for ix in -12..=36 {
+                    let c = [ix as f64 * 0.25 + 0.001 * (ix % 3) as f64, iy as f64 * 0.25];
+                    let t = Grid::texel(c);
+                    for (dx, dy) in [(0, 0), (1, 0), (-1, 2), (3, -3), (-2, -1)] {
+                        let (mut a, mut b) = ([0f32; 2], [0f32; 2]);
+                        let read = grid.read(t, dx, dy, &mut a);
+                        let shifted = [c[0] + dx as f64, c[1] + dy as f64];
+                        assert_eq!(
+                            read,
+                            bilinear(&img, [w, h, n], tileable, shifted, &mut b),
+                            "{c:?} + ({dx}, {dy})"
+                        );
+                        assert_eq!(read, grid.inside(shifted), "{c:?} + ({dx}, {dy})");
+                        if read {
+                            inside += 1;
+                            for (x, y) in a.iter().zip(&b) {
+                                assert!((x - y).abs() < 1e-5, "{c:?} + ({dx}, {dy}): {a:?} against {b:?}");
+                            }
+                        } else {
+                            outside += 1;
+                        }
+                    }
+                }
+            }
+            assert!(
+                inside > 1000 && (tileable || outside > 1000),
+                "{inside} in, {outside} out"
+            );
+            assert!(!tileable || outside == 0);
+        }
+    }
+
     /// A 64×64 work patch (vertex = pixel) over the sample at offset
     /// (40, 40); its left `old_columns` columns already show the sample
     /// shifted down by `offset` rows. Returns the coordinates after
