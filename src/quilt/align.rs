@@ -384,7 +384,7 @@ impl Overlap<'_> {
                 (y0 + 1) * nx + x0 + 1,
             ];
             if corners.iter().all(|&k| nodes[k][0] == 0.0 && nodes[k][1] == 0.0) {
-                // (no shift reaches here: it stays where it is)
+                // (every shift that reaches here is none: it stays where it is)
                 continue;
             }
             let (fx, fy) = (gx - x0 as f64, gy - y0 as f64);
