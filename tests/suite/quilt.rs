@@ -745,9 +745,20 @@ fn feature_alignment_ends_fewer_courses_at_seams_and_leaves_a_flat_square_alone(
         quilt::tile(&g, &wall, &out, &base, &Silent).unwrap();
         rigid += broken(&out);
         // bent patches are computed in rounds like rigid ones: the same
-        // quilt for any thread count
+        // quilt for any thread count, and (seed 1) for a budget that pages
+        // atlas tiles out to scratch
         let outs = tile_with_threads(&g, &wall, &cfg, d, &format!("aligned{seed}-"), |_| {});
         assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
+        if seed == 1 {
+            let tight = TileConfig {
+                memory: MemoryBudget(2 << 20),
+                ..cfg.clone()
+            };
+            let out = d.join("aligned-tight.quilt");
+            let report = quilt::tile(&g, &wall, &out, &tight, &Silent).unwrap();
+            assert!(report.scratch_bytes > 0, "{report}");
+            assert!(std::fs::read(&out).unwrap() == std::fs::read(&outs[0]).unwrap());
+        }
         aligned += broken(&outs[0]);
     }
     // courses (and mortar lines) that end at a seam: markedly fewer
