@@ -718,6 +718,52 @@ fn views_made_when_a_thread_takes_the_patch_change_no_byte() {
     assert!(tight == roomy, "the quilt depends on when views are made");
 }
 
+/// A texel's frame (its stored Jacobian) is the central difference of the
+/// stored sample coordinates of its atlas neighbours where all four belong
+/// to its patch and chart: a bent patch's frames turn with the bend.
+fn frames_follow_the_stored_coordinates(gim: &Path, quilt: &Path, r: usize) {
+    let budget = MemoryBudget::default();
+    let chart: Vec<u32> = Gim::open(gim, budget).unwrap().read("chart").unwrap();
+    let q = Quilt::open(quilt, budget).unwrap();
+    let (coords, jac, patch) = (q.coords().unwrap(), q.jacobians().unwrap(), q.patches().unwrap());
+    let (mut checked, mut turned) = (0, 0);
+    for y in 1..r - 1 {
+        for x in 1..r - 1 {
+            let t = y * r + x;
+            let around = [t - 1, t + 1, t - r, t + r];
+            if patch[t] == NO_PATCH
+                || around
+                    .iter()
+                    .any(|&n| patch[n] != patch[t] || chart[n] != chart[t])
+            {
+                continue;
+            }
+            let half = |a: usize, b: usize| {
+                [
+                    (coords[a][0] - coords[b][0]) / 2.0,
+                    (coords[a][1] - coords[b][1]) / 2.0,
+                ]
+            };
+            let (ax, ay) = (half(t + 1, t - 1), half(t + r, t - r));
+            let want = [ax[0], ax[1], ay[0], ay[1]];
+            for (j, w) in jac[t].iter().zip(want) {
+                assert!(
+                    (j - w).abs() < 1e-3,
+                    "texel {t}: frame {:?}, coordinates say {want:?}",
+                    jac[t]
+                );
+            }
+            // (and the frame differs from its right neighbour's: turned)
+            turned += (jac[t] != jac[t + 1]) as usize;
+            checked += 1;
+        }
+    }
+    assert!(
+        checked > 10_000 && turned > 0,
+        "{checked} texels checked, {turned} turned"
+    );
+}
+
 #[test]
 fn feature_alignment_ends_fewer_courses_at_seams_and_leaves_a_flat_square_alone() {
     let dir = tempfile::tempdir().unwrap();
@@ -758,6 +804,7 @@ fn feature_alignment_ends_fewer_courses_at_seams_and_leaves_a_flat_square_alone(
             let report = quilt::tile(&g, &wall, &out, &tight, &Silent).unwrap();
             assert!(report.scratch_bytes > 0, "{report}");
             assert!(std::fs::read(&out).unwrap() == std::fs::read(&outs[0]).unwrap());
+            frames_follow_the_stored_coordinates(&g, &outs[0], 512);
         }
         aligned += broken(&outs[0]);
     }
