@@ -41,6 +41,12 @@ pub struct ContinuationFigures {
     pub broken: f64,
     /// Broken continuations per 1000 covered texels.
     pub broken_per_1000_texels: f64,
+    /// The same, each broken continuation counted by the exposure (0..=1,
+    /// [`crate::mesh::exposure`]) of the face it lands on: a feature that
+    /// ends in a crease or under the chin, where the surface is seen from
+    /// few directions, counts little. Where the field's singularities sit
+    /// out of sight (`atlas --field-exposure`), courses end out of sight.
+    pub broken_seen_per_1000_texels: f64,
 }
 
 /// The continuation of features across seams, gathered band by band
@@ -49,6 +55,8 @@ pub struct ContinuationFigures {
 pub(super) struct Continuation {
     /// Each continuation across a seam edge.
     seam: Vec<f64>,
+    /// The exposure of the face each of those lands on.
+    seen: Vec<f32>,
     /// Continuations inside patches, summed in the order a list would sum them.
     inner_sum: f64,
     inner_count: usize,
@@ -57,8 +65,8 @@ pub(super) struct Continuation {
 impl Continuation {
     /// The continuations of the band's own rows: each grid edge from an own
     /// texel to its right and lower neighbours, each way (the band holds
-    /// one row above its own and two below).
-    pub(super) fn gather(&mut self, b: &ColourBand, previews: &[RgbImage], r: usize) {
+    /// one row above its own and two below). `exposure` is per mesh face.
+    pub(super) fn gather(&mut self, b: &ColourBand, previews: &[RgbImage], exposure: &[f32], r: usize) {
         let rows = b.covered.len() / r;
         for s in b.own_texels() {
             let (x, ys) = (s % r, s / r);
@@ -80,6 +88,8 @@ impl Continuation {
                     };
                     if b.patch[s] != b.patch[t] {
                         self.seam.push(e);
+                        self.seen
+                            .push(exposure.get(b.face[to] as usize).copied().unwrap_or(1.0));
                     } else {
                         self.inner_sum += e;
                         self.inner_count += 1;
@@ -94,6 +104,11 @@ impl Continuation {
         let sample_edge = previews.first().map_or(0.0, edge_strength);
         let seam = &mut self.seam;
         let broken = seam.iter().filter(|&&e| e > sample_edge).count();
+        let broken_seen: f64 = seam
+            .iter()
+            .zip(&self.seen)
+            .filter(|&(&e, _)| e > sample_edge)
+            .fold(0.0, |a, (_, &x)| a + x as f64);
         let mean = seam.iter().sum::<f64>() / seam.len().max(1) as f64;
         seam.sort_by(f64::total_cmp);
         ContinuationFigures {
@@ -104,6 +119,7 @@ impl Continuation {
             sample_edge,
             broken: broken as f64 / seam.len().max(1) as f64,
             broken_per_1000_texels: 1000.0 * broken as f64 / texels.max(1) as f64,
+            broken_seen_per_1000_texels: 1000.0 * broken_seen / texels.max(1) as f64,
         }
     }
 }

@@ -177,6 +177,7 @@ pub fn evaluate(
     let mut seam = Vec::new();
     let (mut inner_sum, mut inner_count) = (0f64, 0usize);
     let mut continuation = Continuation::default();
+    let exposure = crate::mesh::exposure::face_exposure(&gim.mesh()?);
     for y0 in (0..r).step_by(BAND_ROWS) {
         let y1 = (y0 + BAND_ROWS).min(r);
         // one row above and two below the band's own: a vertical seam edge
@@ -216,7 +217,7 @@ pub fn evaluate(
         }
         zipper.gather(&b, r);
         windows.gather(&b, r);
-        continuation.gather(&b, &previews, r);
+        continuation.gather(&b, &previews, &exposure, r);
         count_usage(&mut usage, &previews, &b);
         if let Some(p) = painting.as_mut() {
             p.count(&quilt, &b, r)?;
@@ -334,6 +335,8 @@ pub(super) struct ColourBand {
     pub(super) patch: Vec<u32>,
     pub(super) index: Vec<u8>,
     pub(super) chart: Vec<u32>,
+    /// The mesh face each texel samples.
+    pub(super) face: Vec<u32>,
     pub(super) rotation: Vec<u8>,
     /// Stored sample coordinates (sample pixels).
     pub(super) coords: Vec<[f32; 2]>,
@@ -352,6 +355,7 @@ impl ColourBand {
     ) -> Result<ColourBand> {
         let (r, h) = (quilt.resolution, hi - y0);
         let (colour, covered) = colour_rows(quilt, previews, y0, hi)?;
+        let (chart, face) = gim.chart_face_region(0, y0, r, h)?;
         Ok(ColourBand {
             y0,
             first,
@@ -361,7 +365,8 @@ impl ColourBand {
             covered,
             patch: quilt.patch_region(0, y0, r, h)?,
             index: quilt.sample_region(0, y0, r, h)?,
-            chart: gim.chart_face_region(0, y0, r, h)?.0,
+            chart,
+            face,
             rotation: quilt.rotation_region(0, y0, r, h)?,
             coords: quilt.coord_region(0, y0, r, h)?,
         })

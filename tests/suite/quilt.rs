@@ -772,7 +772,15 @@ fn feature_alignment_ends_fewer_courses_at_seams_and_leaves_a_flat_square_alone(
     let g = spot_atlas(d, 512);
     let broken = |q: &Path| {
         let report = btfquilt::output::evaluate::evaluate(q, None, None, MemoryBudget::default()).unwrap();
-        report.continuation.broken_per_1000_texels
+        let c = report.continuation;
+        // Spot's legs, udder and chin hide some faces: counted by their
+        // exposure, fewer features end in sight than end at all
+        assert!(
+            c.broken_seen_per_1000_texels < 0.97 * c.broken_per_1000_texels
+                && c.broken_seen_per_1000_texels > 0.5 * c.broken_per_1000_texels,
+            "{c:?}"
+        );
+        c.broken_per_1000_texels
     };
     let (mut rigid, mut aligned) = (0.0, 0.0);
     for seed in [1, 2] {
@@ -825,4 +833,15 @@ fn feature_alignment_ends_fewer_courses_at_seams_and_leaves_a_flat_square_alone(
     };
     quilt::tile(&square, &sample, &b, &cfg, &Silent).unwrap();
     assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    // an open plane is seen from (nearly) its whole hemisphere: features
+    // that end at its seams count (nearly) in full
+    let c = btfquilt::output::evaluate::evaluate(&a, None, None, MemoryBudget::default())
+        .unwrap()
+        .continuation;
+    assert!(
+        c.broken_per_1000_texels > 0.0
+            && c.broken_seen_per_1000_texels <= c.broken_per_1000_texels
+            && c.broken_seen_per_1000_texels > 0.9 * c.broken_per_1000_texels,
+        "{c:?}"
+    );
 }
