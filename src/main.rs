@@ -478,6 +478,10 @@ enum Command {
         gim: Option<PathBuf>,
         #[arg(long)]
         sample: Option<PathBuf>,
+        /// Output windows the coherence measures (each an exact search over
+        /// the sample; more steady the 95th percentile)
+        #[arg(long, default_value_t = evaluate::EvaluateConfig::default().windows)]
+        windows: usize,
         #[command(flatten)]
         res: Resources,
     },
@@ -1217,14 +1221,16 @@ fn run(cli: Cli) -> Result<()> {
             file,
             gim,
             sample,
+            windows,
             res,
         } => {
             let (memory, _) = res.apply()?;
-            print_json(&evaluate::evaluate(
+            let cfg = evaluate::EvaluateConfig { memory, windows };
+            print_json(&evaluate::evaluate_with(
                 &file,
                 gim.as_deref(),
                 sample.as_deref(),
-                memory,
+                &cfg,
             )?)?;
         }
         Command::Compare { image, sample, res } => {

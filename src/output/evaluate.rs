@@ -145,15 +145,64 @@ pub struct PaintingFigures {
     pub foreground_outside_region_and_transition: f64,
 }
 
-/// Computes the figures, reading the atlas in bands of 64 rows
-/// (and the row below each), so memory follows the band, the seam edges and
-/// the zipper links, not the atlas.
+/// How `evaluate` measures.
+#[derive(Clone, Debug)]
+pub struct EvaluateConfig {
+    /// Memory for decoded tiles.
+    pub memory: MemoryBudget,
+    /// Output windows the coherence measures at most (seeded places, the
+    /// same for every quilt of one resolution). Each costs an exact search
+    /// over its sample; its 95th percentile steadies with more.
+    pub windows: usize,
+}
+
+impl Default for EvaluateConfig {
+    fn default() -> Self {
+        EvaluateConfig {
+            memory: MemoryBudget::default(),
+            windows: 200,
+        }
+    }
+}
+
+impl EvaluateConfig {
+    /// Refuses a setting that cannot measure anything.
+    pub fn validate(&self) -> Result<()> {
+        if self.windows == 0 || self.windows > MAX_WINDOWS {
+            return Err(crate::Error::Config(format!(
+                "--windows {}: measure 1 to {MAX_WINDOWS} windows",
+                self.windows
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// [`evaluate_with`] with the default windows.
 pub fn evaluate(
     quilt_path: &Path,
     gim_path: Option<&Path>,
     sample: Option<&Path>,
     budget: MemoryBudget,
 ) -> Result<EvaluateReport> {
+    let cfg = EvaluateConfig {
+        memory: budget,
+        ..EvaluateConfig::default()
+    };
+    evaluate_with(quilt_path, gim_path, sample, &cfg)
+}
+
+/// Computes the figures, reading the atlas in bands of 64 rows
+/// (and the row below each), so memory follows the band, the seam edges and
+/// the zipper links, not the atlas.
+pub fn evaluate_with(
+    quilt_path: &Path,
+    gim_path: Option<&Path>,
+    sample: Option<&Path>,
+    cfg: &EvaluateConfig,
+) -> Result<EvaluateReport> {
+    cfg.validate()?;
+    let budget = cfg.memory;
     // decoded chunks of the quilt, the geometry image and the samples; the
     // rest for the seam steps, zipper links and bands
     let [quilt_budget, gim_budget, sample_budget, _work] = budget.split([2, 2, 1, 3]);
@@ -167,7 +216,7 @@ pub fn evaluate(
     let r = quilt.resolution;
     let links = gim.zipper_links()?;
     let mut zipper = ZipperEnds::new(&links);
-    let mut windows = Windows::new(r);
+    let mut windows = Windows::new(r, cfg.windows);
     let mut usage: Vec<Vec<u32>> = previews.iter().map(|p| vec![0; p.width * p.height]).collect();
     let mut painting = Painting::open(&quilt, &samples)?;
     let mut patch_ids = std::collections::HashSet::new();
@@ -438,16 +487,24 @@ struct Windows {
     /// `(atlas row, candidate, window row)`, by atlas row.
     rows: Vec<(usize, usize, usize)>,
     next_row: usize,
+    /// Windows measured at most.
+    windows: usize,
 }
 
-/// How many seeded places the coherence figure tries, and how many windows
-/// it measures at most.
-const WINDOW_TRIES: u64 = 20_000;
-const WINDOWS: usize = 200;
+/// How many seeded places the coherence figure tries: at least this many,
+/// and [`TRIES_PER_WINDOW`] for each window it measures at most (most
+/// places are inside a chart; the windows measured are the first that are,
+/// so a larger count measures the same windows and more).
+const MIN_TRIES: usize = 20_000;
+const TRIES_PER_WINDOW: usize = 4;
+
+/// The most windows `--windows` takes (their candidates hold 450 bytes a
+/// place).
+const MAX_WINDOWS: usize = 20_000;
 
 impl Windows {
-    fn new(r: usize) -> Windows {
-        let centres: Vec<usize> = (1..=WINDOW_TRIES)
+    fn new(r: usize, windows: usize) -> Windows {
+        let centres: Vec<usize> = (1..=(windows * TRIES_PER_WINDOW).max(MIN_TRIES) as u64)
             .map(|k| (crate::rng::mix64(k) % (r * r) as u64) as usize)
             .filter(|&t| {
                 let (x, y) = (t % r, t / r);
@@ -470,6 +527,7 @@ impl Windows {
             centres,
             rows,
             next_row: 0,
+            windows,
         }
     }
 
@@ -501,7 +559,7 @@ impl Windows {
         let mut cache: std::collections::BTreeMap<(u8, u8), (Vec<f32>, Vec<u8>)> = Default::default();
         let mut out = Vec::new();
         for c in 0..self.centres.len() {
-            if out.len() >= WINDOWS {
+            if out.len() >= self.windows {
                 break;
             }
             let w = c * 25;

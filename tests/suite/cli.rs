@@ -426,7 +426,19 @@ fn tile_bake_evaluate_render_export_a_square() {
     assert!((never - hist[0] as f64 / usage["pixels"].as_f64().unwrap()).abs() < 1e-12);
     let c = &doc["coherence"];
     assert!(c["p95_rgb_distance_to_nearest_sample_window"].as_f64().unwrap() >= 0.0);
-    assert!(c["windows"].as_u64().unwrap() > 0);
+    assert_eq!(c["windows"].as_u64().unwrap(), 200);
+    // more windows: the same figures but the coherence, measured on more
+    let more = btfquilt(&["evaluate", s(&quilt), "--windows", "600"]);
+    let mut more = serde_json::from_slice::<serde_json::Value>(&more.stdout).unwrap();
+    assert_eq!(more["coherence"]["windows"].as_u64().unwrap(), 600);
+    let mut same = doc.clone();
+    more["coherence"] = serde_json::Value::Null;
+    same["coherence"] = serde_json::Value::Null;
+    assert_eq!(more, same);
+    for bad in ["0", "20001"] {
+        let out = btfquilt(&["evaluate", s(&quilt), "--windows", bad]);
+        fails_clearly(&out, &["--windows", bad]);
+    }
     let png = dir.path().join("view.png");
     assert!(btfquilt(&[
         "render",
