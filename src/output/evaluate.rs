@@ -498,8 +498,10 @@ struct Windows {
 const MIN_TRIES: usize = 20_000;
 const TRIES_PER_WINDOW: usize = 4;
 
-/// The most windows `--windows` takes (their candidates hold 450 bytes a
-/// place).
+/// The most windows `--windows` takes: each place tried holds about 580
+/// bytes of [`Windows`] (its 5×5 colours, flags, charts and sample
+/// indices, its centre and its five rows), 46 MB for the 80 000 places of
+/// the most windows.
 const MAX_WINDOWS: usize = 20_000;
 
 impl Windows {
