@@ -31,6 +31,7 @@ SAMPLES = {
     'weave': (os.path.join(SHARED, 'classic', 'weave.png'), None),
     'text': (os.path.join(SHARED, 'classic', 'text.png'), None),
     'plaster with sparse cracks': (os.path.join(ROOT, 'data', 'plaster_cracks.png'), None),
+    'wood with few holes': (os.path.join(ROOT, 'data', 'wood_holes.png'), None),
     # generated: `generate-btf --family F --size 192 --views 1x1 --lights 4x2`,
     # the image at view 0,0 and light 25,0
     'cracked (generated)': ('generate:cracked', None),
