@@ -31,7 +31,6 @@ SAMPLES = {
     'weave': (os.path.join(SHARED, 'classic', 'weave.png'), None),
     'text': (os.path.join(SHARED, 'classic', 'text.png'), None),
     'plaster with sparse cracks': (os.path.join(ROOT, 'data', 'plaster_cracks.png'), None),
-    'wood with few holes': (os.path.join(ROOT, 'data', 'wood_holes.png'), None),
     # generated: `generate-btf --family F --size 192 --views 1x1 --lights 4x2`,
     # the image at view 0,0 and light 25,0
     'cracked (generated)': ('generate:cracked', None),
@@ -39,6 +38,7 @@ SAMPLES = {
     'CC0 gravel crop': (os.path.join(SHARED, 'cc0', 'gravel.png'), (100, 100)),
     'CC0 brick crop': (os.path.join(SHARED, 'cc0', 'brick.png'), (0, 0)),
     'CC0 grass crop': (os.path.join(SHARED, 'cc0', 'grass.png'), (160, 160)),
+    'wood with few holes': (os.path.join(ROOT, 'data', 'wood_holes.png'), None),
 }
 SQUARE = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n"
 
