@@ -3,7 +3,7 @@
 "Coherence and completeness in 2D").
 
 Usage: python3 benches/quality_2d.py [--btfquilt BIN] [--tile-args "ARGS"]
-           [--seeds 1,2,3] [--samples NAME,...] [--work DIR]
+           [--seeds 1,2,3] [--samples NAME,...] [--work DIR] [--peer BIN]
 
 For each sample and seed: `atlas square.obj --resolution 408` (a flat unit
 square, made once), `tile --seed S ARGS`, `evaluate` (its share of sample
@@ -11,7 +11,10 @@ pixels never used), `bake`, the inner 400² cropped, and `compare` against the
 sample (5×5 windows, exact nearest neighbours; lower is better). Prints one
 row per sample (means over the seeds) and the geometric means. Needs Pillow
 for the crops; the samples come from data/ and ../shared/data/textures, or
-are generated (cracked, pebbles).
+are generated (cracked, pebbles). With `--peer BIN` (the Embark
+texture-synthesis CLI, `cargo install texture-synthesis-cli --locked`) each
+sample is also synthesized by the peer (`--out-size 400 --seed 1 generate`)
+and measured by the same `compare`, in two more columns.
 """
 import argparse
 import json
@@ -57,6 +60,7 @@ def main():
     ap.add_argument('--seeds', default='1,2,3')
     ap.add_argument('--samples', default=','.join(SAMPLES))
     ap.add_argument('--work', default='/tmp/quality_2d')
+    ap.add_argument('--peer', help='texture-synthesis CLI to measure side by side (one seed)')
     argv = sys.argv[1:]  # let `--tile-args "--x 1"` through: glue the value on
     argv = [f'--tile-args={argv[k + 1]}' if a == '--tile-args' and k + 1 < len(argv) else a
             for k, a in enumerate(argv) if not (k and argv[k - 1] == '--tile-args')]
@@ -68,9 +72,14 @@ def main():
     run(o.btfquilt, 'atlas', obj, '--resolution', 408, '-o', gim, '-q')
     seeds = [int(s) for s in o.seeds.split(',')]
     keys = ['coh_mean', 'coh_p95', 'com_mean', 'com_p95', 'never']
+    if o.peer:
+        keys += ['peer_coh_mean', 'peer_coh_p95', 'peer_com_mean', 'peer_com_p95']
     print(f"btfquilt tile {o.tile_args or '(defaults)'}, seeds {o.seeds}\n")
-    print('| sample | coherence mean / p95 | completeness mean / p95 | never used |')
-    print('|---|---|---|---|')
+    head = '| sample | coherence mean / p95 | completeness mean / p95 | never used |'
+    if o.peer:
+        head += ' peer: coherence mean / p95 | peer: completeness mean / p95 |'
+    print(head)
+    print('|---' * (head.count('|') - 1) + '|')
     logs = {k: [] for k in keys}
     for name in o.samples.split(','):
         path, crop = SAMPLES[name]
@@ -81,7 +90,7 @@ def main():
                 '--lights', '4x2', '-o', btf, '-q')
             run(o.btfquilt, 'export-btf', btf, '--view', '0,0', '--light', '25,0', '-o', path, '-q')
         if not os.path.exists(path):
-            print(f'| {name} | skipped: {path} absent | | |')
+            print(f'| {name} | skipped: {path} absent |' + ' |' * (head.count('|') - 3))
             continue
         if crop:
             cropped = os.path.join(o.work, name.replace(' ', '_') + '.png')
@@ -103,14 +112,28 @@ def main():
             acc['com_mean'] += c['completeness']['mean'] / len(seeds)
             acc['com_p95'] += c['completeness']['p95'] / len(seeds)
             acc['never'] += 100.0 * ev['usage'][0]['never_used'] / len(seeds)
+        if o.peer:
+            out = os.path.join(o.work, 'peer.png')
+            run(o.peer, '--no-progress', '--out-size', 400, '--seed', 1, '--out', out, 'generate', path)
+            c = json.loads(run(o.btfquilt, 'compare', out, '--sample', path, '-q'))
+            acc['peer_coh_mean'], acc['peer_coh_p95'] = c['coherence']['mean'], c['coherence']['p95']
+            acc['peer_com_mean'], acc['peer_com_p95'] = c['completeness']['mean'], c['completeness']['p95']
         for k in keys:
             logs[k].append(math.log(max(acc[k], 1e-12)))
-        print(f"| {name} | {acc['coh_mean']:.4f} / {acc['coh_p95']:.4f} | "
-              f"{acc['com_mean']:.4f} / {acc['com_p95']:.4f} | {acc['never']:.0f} % |", flush=True)
+        print(row(name, acc, o.peer), flush=True)
     g = {k: math.exp(sum(v) / len(v)) for k, v in logs.items() if v}
     if g:
-        print(f"| geometric mean | {g['coh_mean']:.4f} / {g['coh_p95']:.4f} | "
-              f"{g['com_mean']:.4f} / {g['com_p95']:.4f} | {g['never']:.0f} % |")
+        print(row('geometric mean', g, o.peer))
+
+
+def row(name, f, peer):
+    """One table row of the figures `f`."""
+    r = (f"| {name} | {f['coh_mean']:.4f} / {f['coh_p95']:.4f} | "
+         f"{f['com_mean']:.4f} / {f['com_p95']:.4f} | {f['never']:.0f} % |")
+    if peer:
+        r += (f" {f['peer_coh_mean']:.4f} / {f['peer_coh_p95']:.4f} | "
+              f"{f['peer_com_mean']:.4f} / {f['peer_com_p95']:.4f} |")
+    return r
 
 
 if __name__ == '__main__':
