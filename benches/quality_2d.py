@@ -65,6 +65,9 @@ def main():
     argv = [f'--tile-args={argv[k + 1]}' if a == '--tile-args' and k + 1 < len(argv) else a
             for k, a in enumerate(argv) if not (k and argv[k - 1] == '--tile-args')]
     o = ap.parse_args(argv)
+    unknown = [n for n in o.samples.split(',') if n not in SAMPLES]
+    if unknown:
+        sys.exit(f"unknown sample {', '.join(unknown)}; the samples are: {', '.join(SAMPLES)}")
     os.makedirs(o.work, exist_ok=True)
     obj, gim = os.path.join(o.work, 'square.obj'), os.path.join(o.work, 'square.gim')
     with open(obj, 'w') as f:
