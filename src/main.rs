@@ -316,9 +316,15 @@ enum Command {
         refine_placements: usize,
         /// Seam refinement also visits seams where a feature ends (a mortar
         /// line or strand one side would carry on), whatever their colour
-        /// step, and fits this many placements there; 0: off.
+        /// step, fits this many placements there and keeps the one that ends
+        /// fewest features; 0: off.
         #[arg(long, default_value_t = TileConfig::default().refine_broken)]
         refine_broken: usize,
+        /// With --refine-broken: passes over the seams where features still
+        /// end (each refinement makes new seams); stops early when a pass
+        /// changes nothing.
+        #[arg(long, default_value_t = TileConfig::default().refine_passes)]
+        refine_passes: usize,
         /// Work patches computed at once per round of the quilting loop (1: one
         /// at a time, as in the paper). Part of the recipe like the seed: the
         /// output depends on it, never on --threads.
@@ -1014,6 +1020,7 @@ fn run(cli: Cli) -> Result<()> {
             refine,
             refine_placements,
             refine_broken,
+            refine_passes,
             round,
             occurrence_weight,
             tolerance,
@@ -1030,6 +1037,7 @@ fn run(cli: Cli) -> Result<()> {
                 refine: (refine != 0.0).then_some(refine),
                 refine_placements,
                 refine_broken,
+                refine_passes,
                 round,
                 occurrence_weight,
                 tolerance,

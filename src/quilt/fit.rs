@@ -27,6 +27,9 @@ pub(super) struct Fit {
     /// old seams inside the patch).
     pub(super) flow: f64,
     pub(super) baseline: f64,
+    /// Seam refinement by structure: features ending at the seams around
+    /// the patch before and after this cut ([`super::ends`]).
+    pub(super) ends: Option<(usize, usize)>,
 }
 
 pub(super) const INFINITE: f64 = 1e30;
@@ -259,6 +262,7 @@ pub(super) fn fit_patch(
         taken_new_synth,
         flow,
         baseline,
+        ends: None,
     }
 }
 
@@ -355,7 +359,19 @@ pub(super) fn local_jacobian(state: &State, surface: &Surface, t: u32, id: u32) 
         let n = n as u32;
         (state.patch(n) == id && surface.chart(n) == chart).then(|| state.coord(n))
     };
-    let c = state.coord(t);
+    jacobian_from(state.coord(t), x, y, same)
+}
+
+/// Sample offset per atlas +x and +y step at texel (`x`, `y`) with sample
+/// coordinate `c`, from `same`: the coordinate at an atlas position when
+/// that texel belongs to the same patch and chart. Central differences
+/// where both neighbours do, one-sided where one does.
+pub(super) fn jacobian_from(
+    c: [f32; 2],
+    x: usize,
+    y: usize,
+    same: impl Fn(isize, isize) -> Option<[f32; 2]>,
+) -> Option<[f32; 4]> {
     let axis = |dx: isize, dy: isize| -> Option<[f32; 2]> {
         let (x, y) = (x as isize, y as isize);
         match (same(x + dx, y + dy), same(x - dx, y - dy)) {

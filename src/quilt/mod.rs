@@ -35,6 +35,7 @@ use crate::{Error, Result};
 
 mod align;
 mod coarse;
+mod ends;
 mod fit;
 mod flatten;
 pub mod matching;
@@ -154,14 +155,24 @@ pub struct TileConfig {
     /// carry on but the other does not show: a continuation differing by
     /// more than [`BROKEN_CONTINUATION`] × the sample's neighbour
     /// difference), whatever the colour step there, and fits this many
-    /// placements at such seams (the cheapest cut kept); 0 (the default)
-    /// turns it off. At 4 on Spot at 1024² with the brick wall at the size
-    /// of a 4096² close-up, `evaluate`'s broken continuations fell by 16 %
-    /// (Bob 13 %, seeds 1–3) for about 10 % more time, where 4 placements
-    /// at every seam took 33 % more; but on Spot 4096² from the 192² wall
-    /// (small bricks, many such seams) tiling took 22 % longer, so it is
-    /// off by default (docs/measurements.md, "Structure across seams").
+    /// placements at such seams: the cut that ends fewest features at the
+    /// patch's seams is kept ([`ends`], [`ENDS_DEARER`]); 0 (the default)
+    /// turns it off. At 4 on Spot and Bob at 1024² with the brick wall at
+    /// the size of a 4096² close-up, `evaluate`'s broken continuations fell
+    /// by 35–40 % (seeds 1–3) for about a fifth more time; with
+    /// [`TileConfig::refine_passes`] 3 by 76–88 % at about twice the
+    /// time. It is off by default for its time (docs/measurements.md,
+    /// "Structure across seams").
     pub refine_broken: usize,
+    /// Passes of seam refinement where features end: with
+    /// [`TileConfig::refine_broken`], after the first refinement this many
+    /// − 1 more passes visit the seams where features still end (the
+    /// refinements kept make new seams), stopping early when a pass keeps
+    /// no patch. Default 1. On Spot at 1024² with the brick wall at the
+    /// size of a 4096² close-up and `refine_broken` 4, the second, third
+    /// and fourth passes kept 104, 44 and 20 patches (seed 1);
+    /// docs/measurements.md, "Structure across seams".
+    pub refine_passes: usize,
     /// Work patches per round of the quilting loop (section III-B's loop,
     /// computed a round at a time, [`rounds`]): the most constrained texel
     /// and up to this − 1 more of the most constrained ones whose atlas
@@ -213,6 +224,7 @@ impl Default for TileConfig {
             refine: Some(2.0),
             refine_placements: REFINE_PLACEMENTS,
             refine_broken: 0,
+            refine_passes: 1,
             round: 4,
             sample_width: None,
             sample_pixel: None,
@@ -333,6 +345,17 @@ impl TileConfig {
         }
         if self.refine_placements == 0 {
             return Err(Error::Config("--refine-placements must be at least 1".into()));
+        }
+        if self.refine_passes == 0 {
+            return Err(Error::Config(
+                "--refine-passes 0: must be at least 1 (passes of seam refinement)".into(),
+            ));
+        }
+        if self.refine_passes > 1 && self.refine_broken == 0 {
+            return Err(Error::Config(format!(
+                "--refine-passes {} repeats refinement where features end: it needs --refine-broken P with P ≥ 1",
+                self.refine_passes
+            )));
         }
         if self.round == 0 {
             return Err(Error::Config(
@@ -477,6 +500,21 @@ pub(crate) fn tile_refining_by(
     progress.end();
     if let Some(step) = cfg.refine {
         syn.refine(radius0.max(cfg.min_radius), step, cfg.refine_broken, progress)?;
+        // more passes over the seams where features still end (a kept
+        // refinement makes new seams), until one keeps nothing
+        if cfg.refine_broken > 0 {
+            for _ in 1..cfg.refine_passes {
+                if syn.refine(
+                    radius0.max(cfg.min_radius),
+                    f64::INFINITY,
+                    cfg.refine_broken,
+                    progress,
+                )? == 0
+                {
+                    break;
+                }
+            }
+        }
     }
     syn.finish_report(start);
     let report = syn.report.clone();
@@ -495,3 +533,11 @@ pub const REFINE_PLACEMENTS: usize = 1;
 /// against brick is about 13×, and half of its neighbour differences are
 /// under 0.11×, 95 % under 6.5×.
 pub const BROKEN_CONTINUATION: f64 = 4.0;
+
+/// Seam refinement where features end ([`TileConfig::refine_broken`])
+/// keeps a patch that ends fewer features than the seams it replaces if
+/// its cut costs less than this × what they cost (any patch is kept whose
+/// cut costs under 0.9× as much and ends no more features). At 1 on Spot
+/// at 1024² with the brick wall at the size of a 4096² close-up, 0.42
+/// broken continuations per 1000 texels were left, at 1.5 and 3 0.36.
+pub const ENDS_DEARER: f64 = 1.5;

@@ -320,7 +320,7 @@ impl Synthesis {
         &mut self,
         seeds: &[u32],
         radius: usize,
-        placements: &(dyn Fn(u32) -> usize + Sync),
+        placements: &(dyn Fn(u32) -> (usize, bool) + Sync),
         progress: &dyn Progress,
     ) -> Result<usize> {
         let grid = self.surface.grid();
@@ -360,7 +360,17 @@ impl Synthesis {
                 };
                 self.add_stats(&outcome.stats);
                 let fit = &outcome.fit;
-                if fit.taken > 0 && fit.flow < 0.9 * fit.baseline {
+                let cheaper = fit.flow < 0.9 * fit.baseline;
+                let keep = match fit.ends {
+                    // fewer features end, at a cut not much dearer than the
+                    // seams it replaces; or as many, more cheaply
+                    Some((before, after)) => {
+                        (after < before && fit.flow < super::ENDS_DEARER * fit.baseline)
+                            || (after <= before && cheaper)
+                    }
+                    None => cheaper,
+                };
+                if fit.taken > 0 && keep {
                     self.accept(&outcome.patch, fit, progress);
                     self.report.refined += 1;
                     kept += 1;
@@ -920,7 +930,7 @@ mod tests {
     /// Seam refinement a round at a time visits the same seeds and keeps
     /// the same patches as one at a time (the loop itself one at a time
     /// here, so only refinement runs in rounds), also with more placements
-    /// where features end (`refine_broken`).
+    /// where features end (`refine_broken`) and more passes there.
     #[test]
     fn refinement_in_rounds_gives_the_quilt_of_one_patch_at_a_time() {
         let dir = tempfile::tempdir().unwrap();
@@ -928,11 +938,12 @@ mod tests {
         let gim = spot_256(dir.path());
         let sample = root.join("data/brick_wall.png");
         let mut quilts = Vec::new();
-        for refine_broken in [0, 4] {
+        for (refine_broken, refine_passes) in [(0, 1), (4, 3)] {
             let cfg = TileConfig {
                 round: 1,
                 seed: 3,
                 refine_broken,
+                refine_passes,
                 ..TileConfig::default()
             };
             let run = |refine_round: usize, threads: usize| -> (Vec<u8>, TileReport) {

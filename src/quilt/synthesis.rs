@@ -491,7 +491,11 @@ impl Synthesis {
     /// are visited in [`visit_order`], which keeps the tiles a round reads
     /// few. With `broken_placements` > 0, seams where a feature ends
     /// ([`super::BROKEN_CONTINUATION`]) are visited too, whatever their
-    /// step, and fitted with that many placements.
+    /// step, and fitted with that many placements: the one whose cut ends
+    /// fewest features at the patch's seams ([`super::ends`]) is chosen, and
+    /// kept if it ends fewer than before at a cut under
+    /// [`super::ENDS_DEARER`] × the old seams' cost (or as many, at under
+    /// 0.9×). With `step` infinite only those seams are visited.
     pub(crate) fn refine(
         &mut self,
         radius: usize,
@@ -505,9 +509,9 @@ impl Synthesis {
         let base = self.cfg.refine_placements;
         let placements = |v: u32| {
             if broken.binary_search(&v).is_ok() {
-                broken_placements
+                (broken_placements, true)
             } else {
-                base
+                (base, false)
             }
         };
         self.refine_seeds(&seeds, radius, &placements, progress)
@@ -890,16 +894,16 @@ mod tests {
     use crate::artifact::gim::{Gim, TILE};
     use crate::container::MemoryBudget;
     use crate::progress::Silent;
+    use crate::quilt::ends::broken_around;
     use crate::quilt::pager::TileGrid;
     use crate::quilt::state::NO_FOREIGN;
     use crate::quilt::TileConfig;
 
-    /// A flat square atlased at 64² whose left half (x < 32) shows a sample
-    /// of horizontal mortar lines (2 rows of every 8) as one patch, and
-    /// whose right half shows it as another patch, moved down by `offset`
-    /// rows; the seams [`Synthesis::seams_to_refine`] finds with and
-    /// without looking for feature ends (step 1000: none by colour step).
-    fn seams_between_halves(offset: f32) -> (Vec<u32>, usize, usize) {
+    /// A flat square atlased at 64² that shows a sample of horizontal
+    /// mortar lines (2 rows of every 8) as one patch, except where `other`
+    /// (x, y) holds, which shows it as another patch, moved down by
+    /// `offset` rows; and how many texels of column 31 there are.
+    fn halves(offset: f32, other: impl Fn(f32, f32) -> bool) -> (tempfile::TempDir, Synthesis, usize) {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
         let obj = d.join("square.obj");
@@ -922,9 +926,9 @@ mod tests {
         crate::io::imageio::write_rgb(&png, &img).unwrap();
         let gim = Gim::open(&gim_path, MemoryBudget(1 << 20)).unwrap();
         let sized =
-            super::super::sample::sample_at_density(&png, gim.texel_size, None, false, &Silent).unwrap();
+            super::super::sample::sample_at_density(&png, gim.texel_size, None, true, &Silent).unwrap();
         let cfg = TileConfig::default();
-        let mut syn = Synthesis::open(&gim, &png, &sized.svd, &d.join("out.quilt"), &cfg, false).unwrap();
+        let mut syn = Synthesis::open(&gim, &png, &sized.svd, &d.join("out.quilt"), &cfg, true).unwrap();
         let r = syn.surface.r;
         let mut seam_rows = 0;
         for t in 0..(r * r) as u32 {
@@ -932,7 +936,7 @@ mod tests {
                 continue;
             }
             let (x, y) = ((t as usize % r) as f32, (t as usize / r) as f32);
-            let right = x >= 32.0;
+            let right = other(x, y);
             seam_rows += (x == 31.0) as usize;
             syn.state.texel_mut(t, |s, k| {
                 s.synthesized[k] = true;
@@ -943,6 +947,16 @@ mod tests {
                 s.foreign[k] = NO_FOREIGN;
             });
         }
+        syn.state.next_patch = 2;
+        (dir, syn, seam_rows)
+    }
+
+    /// The seams [`Synthesis::seams_to_refine`] finds between [`halves`]
+    /// with and without looking for feature ends (step 1000: none by
+    /// colour step).
+    fn seams_between_halves(offset: f32) -> (Vec<u32>, usize, usize) {
+        let (_dir, syn, seam_rows) = halves(offset, |x, _| x >= 32.0);
+        let r = syn.surface.r;
         let (by_step, _) = syn.seams_to_refine(1000.0, false);
         let (seeds, broken) = syn.seams_to_refine(1000.0, true);
         assert!(by_step.is_empty(), "no colour step is that large");
@@ -968,6 +982,41 @@ mod tests {
             let (broken, _, _) = seams_between_halves(offset);
             assert!(broken.is_empty(), "offset {offset}: {broken:?}");
         }
+    }
+
+    /// Refinement where features end predicts, for the cut it chooses, the
+    /// features ending at the patch's seams once it is accepted: the count
+    /// over the changed surface is the one predicted, and it is lower than
+    /// before around an island of courses offset by half a period.
+    #[test]
+    fn refinement_counts_the_features_its_cut_would_end() {
+        let island = |x: f32, y: f32| (x - 31.0).powi(2) + (y - 30.0).powi(2) < 100.0;
+        let (_dir, mut syn, _) = halves(4.0, island);
+        let r = syn.surface.r;
+        let limit = crate::quilt::BROKEN_CONTINUATION * syn.reference;
+        // on the island's edge
+        let v = (30 * r + 41) as u32;
+        let outcome = syn.worker().refinement(v, 8, (4, true), 3).unwrap();
+        let (before, after) = outcome.fit.ends.expect("counted");
+        let count = |syn: &Synthesis, patch| {
+            broken_around(
+                &syn.sample,
+                &syn.state,
+                &syn.surface,
+                &syn.bfs,
+                patch,
+                None,
+                limit,
+            )
+        };
+        assert_eq!(count(&syn, &outcome.patch), before, "the surface as it is");
+        assert!(before > 0 && after < before, "{before} → {after}");
+        syn.accept(&outcome.patch, &outcome.fit, &Silent);
+        assert_eq!(
+            count(&syn, &outcome.patch),
+            after,
+            "the surface once the patch is accepted"
+        );
     }
 
     #[test]

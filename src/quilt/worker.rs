@@ -7,6 +7,7 @@
 use std::path::Path;
 use std::time::Instant;
 
+use super::ends::broken_around;
 use super::fit::{fit_patch, Fit};
 use super::flatten::{chart_work_image, flattened_work_image, unfolded_work_image, Flattening, WorkImage};
 use super::matching::Matcher;
@@ -160,12 +161,12 @@ impl Worker<'_> {
         &mut self,
         v: u32,
         radius: usize,
-        placements: usize,
+        (placements, by_ends): (usize, bool),
         core: u16,
     ) -> Result<Outcome> {
         let patch = self.patch_at(v, radius);
         let (work, _) = self.work_image(&patch, &mut None);
-        let fit = self.best_of_placements(&patch, &work, placements, core)?;
+        let fit = self.best_of_placements(&patch, &work, placements, core, by_ends)?;
         Ok(Outcome {
             patch,
             fit,
@@ -241,13 +242,17 @@ impl Worker<'_> {
     /// Seam refinement's fitting: the graphcut of each of the `count` best
     /// covering placements ([`distinct_best`]), the one with the cheapest cut
     /// kept. A refinement has to beat the seams already there, and the
-    /// cheapest match is not always the cheapest cut.
+    /// cheapest match is not always the cheapest cut. With `by_ends` (a seam
+    /// where a feature ends) the cut that ends fewest features at the
+    /// patch's seams is kept, the cheapest among those, and [`Fit::ends`]
+    /// says how many ended there before and would after.
     fn best_of_placements(
         &mut self,
         patch: &WorkPatch,
         work: &WorkImage,
         count: usize,
         core: u16,
+        by_ends: bool,
     ) -> Result<Fit> {
         let t = Instant::now();
         let (rotation, covering) =
@@ -276,9 +281,20 @@ impl Worker<'_> {
         self.stats.matching_seconds += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let mut best: Option<Fit> = None;
+        let limit = super::BROKEN_CONTINUATION * self.reference;
+        let around = |fit: Option<&Fit>| {
+            broken_around(self.sample, self.state, self.surface, self.bfs, patch, fit, limit)
+        };
+        let before = by_ends.then(|| around(None));
         for placement in picks {
-            let fit = self.fit_placement(patch, work, &placement, false, core);
-            if best.as_ref().map_or(true, |b| fit.flow < b.flow) {
+            let mut fit = self.fit_placement(patch, work, &placement, false, core);
+            fit.ends = before.map(|b| (b, around(Some(&fit))));
+            // fewest features ending at its seams, then the cheapest cut
+            let rank = |f: &Fit| (f.ends.map_or(0, |e| e.1), f.flow);
+            if best.as_ref().map_or(true, |b| {
+                let (x, y) = (rank(&fit), rank(b));
+                x.0 < y.0 || (x.0 == y.0 && x.1 < y.1)
+            }) {
                 best = Some(fit);
             }
         }
