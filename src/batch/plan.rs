@@ -160,6 +160,8 @@ struct TileSection {
     field_turn: Option<usize>,
     /// 0 turns seam refinement off.
     refine: Option<f64>,
+    refine_broken: Option<usize>,
+    refine_passes: Option<usize>,
 }
 
 fn default_seeds() -> Vec<u64> {
@@ -178,6 +180,8 @@ impl Default for TileSection {
             feature_align: None,
             field_turn: None,
             refine: None,
+            refine_broken: None,
+            refine_passes: None,
         }
     }
 }
@@ -354,10 +358,23 @@ pub struct TileParams {
     pub feature_align: f64,
     pub field_turn: usize,
     pub refine: Option<f64>,
+    /// Left out of the key at 0 (off) and 1, as `feature_align` at 0.
+    #[serde(skip_serializing_if = "is_zero_count")]
+    pub refine_broken: usize,
+    #[serde(skip_serializing_if = "is_one")]
+    pub refine_passes: usize,
 }
 
 fn is_zero(v: &f64) -> bool {
     *v == 0.0
+}
+
+fn is_zero_count(v: &usize) -> bool {
+    *v == 0
+}
+
+fn is_one(v: &usize) -> bool {
+    *v == 1
 }
 
 /// A stage whose artifact several jobs share, computed once into
@@ -580,6 +597,8 @@ impl Plan {
                 Some(r) => Some(r),
                 None => defaults.refine,
             },
+            refine_broken: t.refine_broken.unwrap_or(defaults.refine_broken),
+            refine_passes: t.refine_passes.unwrap_or(defaults.refine_passes),
         };
         let sample_widths: Vec<Option<f64>> = if t.sample_widths.is_empty() {
             vec![None]
@@ -789,6 +808,8 @@ pub fn tile_config(p: &TileParams, seed: u64, sample_width: Option<f64>) -> Tile
         feature_align: p.feature_align,
         field_turn: p.field_turn,
         refine: p.refine,
+        refine_broken: p.refine_broken,
+        refine_passes: p.refine_passes,
         seed,
         sample_width,
         ..TileConfig::default()

@@ -401,6 +401,10 @@ fn bad_plans_are_refused_naming_the_plan_and_the_fault_with_nothing_written() {
             vec!["[tile]", "--sample-width -1"],
         ),
         (
+            text.replace("seeds = [1, 2]", "seeds = [1]\nrefine_passes = 2"),
+            vec!["[tile]", "--refine-passes 2", "--refine-broken"],
+        ),
+        (
             text.replace("lights = [", "cameras = [\"1,2\"]\nlights = ["),
             vec!["[render] cameras", "10 numbers"],
         ),
@@ -789,6 +793,7 @@ fn every_parameter_reaching_an_output_changes_the_key() {
     // the defaults written out are the same job
     assert_eq!(k0, key("[atlas]\nresolutions = [1024]\n[tile]\nseeds = [1]\n"));
     assert_eq!(k0, key("[tile]\nfeature_align = 0.09\n"));
+    assert_eq!(k0, key("[tile]\nrefine_broken = 0\nrefine_passes = 1\n"));
     let variants = [
         "[atlas]\nresolutions = [512]\n",
         "[atlas]\ngutter = 3\n",
@@ -798,6 +803,8 @@ fn every_parameter_reaching_an_output_changes_the_key() {
         "[tile]\noccurrence_weight = 0.5\n",
         "[tile]\ntolerance = 0.1\n",
         "[tile]\nfeature_align = 0\n",
+        "[tile]\nrefine_broken = 4\n",
+        "[tile]\nrefine_broken = 4\nrefine_passes = 3\n",
         "[factorize]\nterms = 8\n",
         "[render]\nwidth = 320\n",
         "[render]\nlights = [\"0,1,0\"]\n",
