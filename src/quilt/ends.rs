@@ -22,7 +22,7 @@ const NEW: u32 = u32::MAX;
 
 /// The grid step from `t` to its neighbour `nb` in an `r`-wide atlas, or
 /// `None` for a zipper link (no common step).
-fn step(t: u32, nb: u32, r: usize, zipper: bool) -> Option<(f64, f64)> {
+pub(super) fn step(t: u32, nb: u32, r: usize, zipper: bool) -> Option<(f64, f64)> {
     let r = r as u32;
     match () {
         _ if zipper => None,

@@ -558,15 +558,7 @@ impl Synthesis {
                 worst = worst.max(dist(&fa, &fb));
                 // grid edges: each side continued one texel across against
                 // what the other shows (zipper links have no common step)
-                let along = if zipper {
-                    None
-                } else if nb == t + 1 {
-                    Some((1.0, 0.0))
-                } else if nb == t + grid.r as u32 {
-                    Some((0.0, 1.0))
-                } else {
-                    None
-                };
+                let along = super::ends::step(t, nb, grid.r, zipper);
                 if let (true, Some(d)) = (find_broken, along) {
                     if self.state.continued(&self.sample, t, d, &mut fc) {
                         ends = ends.max(dist(&fc, &fb));

@@ -291,10 +291,7 @@ impl Worker<'_> {
             fit.ends = before.map(|b| (b, around(Some(&fit))));
             // fewest features ending at its seams, then the cheapest cut
             let rank = |f: &Fit| (f.ends.map_or(0, |e| e.1), f.flow);
-            if best.as_ref().map_or(true, |b| {
-                let (x, y) = (rank(&fit), rank(b));
-                x.0 < y.0 || (x.0 == y.0 && x.1 < y.1)
-            }) {
+            if best.as_ref().map_or(true, |b| rank(&fit) < rank(b)) {
                 best = Some(fit);
             }
         }
