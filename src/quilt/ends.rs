@@ -34,6 +34,26 @@ pub(super) fn step(t: u32, nb: u32, r: usize, zipper: bool) -> Option<(f64, f64)
     }
 }
 
+/// How far a feature ends at the seam edge between sides a and b: the larger
+/// of each side continued one step across (`continued(false, ..)` for a,
+/// `continued(true, ..)` for b, false outside the sample) against what the
+/// other side shows (`fa`, `fb`). `fc` is scratch.
+pub(super) fn gap(
+    fa: &[f32],
+    fb: &[f32],
+    fc: &mut [f32],
+    mut continued: impl FnMut(bool, &mut [f32]) -> bool,
+) -> f64 {
+    let mut ends = 0f64;
+    if continued(false, fc) {
+        ends = ends.max(dist(fc, fb));
+    }
+    if continued(true, fc) {
+        ends = ends.max(dist(fc, fa));
+    }
+    ends
+}
+
 /// Broken continuations on the seam edges that touch `patch`'s texels:
 /// with `fit`, as they would be once it is accepted (its taken texels show
 /// the new patch); without, as the surface is now. `bfs` holds `patch`
@@ -59,28 +79,35 @@ pub(super) fn broken_around(
         let c = fit.expect("a taken texel has a fit").coord[i];
         [c[0] as f32, c[1] as f32]
     };
+    // the new patch's coordinate and Jacobian per taken texel, once
+    let new: Vec<Option<([f32; 2], [f32; 4])>> = match fit {
+        None => Vec::new(),
+        Some(fit) => (0..patch.texels.len())
+            .map(|i| {
+                fit.take[i].then(|| {
+                    let t = patch.texels[i];
+                    let chart = surface.chart(t);
+                    let (x, y) = (t as usize % r, t as usize / r);
+                    let same = |nx: isize, ny: isize| -> Option<[f32; 2]> {
+                        if nx < 0 || ny < 0 || nx >= r as isize || ny >= r as isize {
+                            return None;
+                        }
+                        let nb = (ny as usize * r + nx as usize) as u32;
+                        taken(nb).filter(|_| surface.chart(nb) == chart).map(stored)
+                    };
+                    let c = stored(i);
+                    (c, jacobian_from(c, x, y, same).unwrap_or(fit.jacobian))
+                })
+            })
+            .collect(),
+    };
     let side = |t: u32| -> Side {
-        let Some(i) = taken(t) else {
-            return Side {
+        match taken(t) {
+            Some(i) => Side { id: NEW, new: new[i] },
+            None => Side {
                 id: state.patch(t),
                 new: None,
-            };
-        };
-        let fit = fit.expect("a taken texel has a fit");
-        let chart = surface.chart(t);
-        let (x, y) = (t as usize % r, t as usize / r);
-        let same = |nx: isize, ny: isize| -> Option<[f32; 2]> {
-            if nx < 0 || ny < 0 || nx >= r as isize || ny >= r as isize {
-                return None;
-            }
-            let nb = (ny as usize * r + nx as usize) as u32;
-            taken(nb).filter(|_| surface.chart(nb) == chart).map(stored)
-        };
-        let c = stored(i);
-        let j = jacobian_from(c, x, y, same).unwrap_or(fit.jacobian);
-        Side {
-            id: NEW,
-            new: Some((c, j)),
+            },
         }
     };
     let features = |t: u32, s: Side, out: &mut [f32]| match s.new {
@@ -135,13 +162,10 @@ pub(super) fn broken_around(
                 shown = true;
             }
             features(nb, b, &mut fb);
-            let mut ends = 0f64;
-            if continued(t, a, d, &mut fc) {
-                ends = ends.max(dist(&fc, &fb));
-            }
-            if continued(nb, b, (-d.0, -d.1), &mut fc) {
-                ends = ends.max(dist(&fc, &fa));
-            }
+            let ends = gap(&fa, &fb, &mut fc, |back, out| match back {
+                false => continued(t, a, d, out),
+                true => continued(nb, b, (-d.0, -d.1), out),
+            });
             if ends > limit {
                 broken += 1;
             }

@@ -560,12 +560,11 @@ impl Synthesis {
                 // what the other shows (zipper links have no common step)
                 let along = super::ends::step(t, nb, grid.r, zipper);
                 if let (true, Some(d)) = (find_broken, along) {
-                    if self.state.continued(&self.sample, t, d, &mut fc) {
-                        ends = ends.max(dist(&fc, &fb));
-                    }
-                    if self.state.continued(&self.sample, nb, (-d.0, -d.1), &mut fc) {
-                        ends = ends.max(dist(&fc, &fa));
-                    }
+                    let gap = super::ends::gap(&fa, &fb, &mut fc, |back, out| match back {
+                        false => self.state.continued(&self.sample, t, d, out),
+                        true => self.state.continued(&self.sample, nb, (-d.0, -d.1), out),
+                    });
+                    ends = ends.max(gap);
                 }
             }
             if ends > super::BROKEN_CONTINUATION * self.reference {
