@@ -1,0 +1,551 @@
+//! `paint`: graphcut texture painting (the paper's section IV; docs/design.md
+//! section 7): imperfections — cracks, dirt, scratches — from a sample's
+//! foreground S_f put into a region F the user marks on a decorated
+//! surface, merged seamlessly with the background.
+//!
+//! The constraint function m0 is 1 on F and falls linearly to 0 over a
+//! transition zone of `transition` texels (hops on the dense mesh) outside
+//! F. Every texel with m0 > 0 is then re-synthesized by the quilting loop
+//! with the constrained graphcut: the data term D_p(σ) = |m_σ(p) − m0(p)|
+//! (m_σ the sample's foreground mask at the texel's sample coordinate) on
+//! the t-links, the quilting smoothness term on the n-links, one min-cut per
+//! fitting (the optimal swap move between the old values A and the new patch
+//! B), and patch matching jointly on features and constraint values.
+//!
+//! Regions come as an atlas-space mask PNG, per-vertex weights on the input
+//! mesh (PLY `quality`/`weight`, or vertex colours as painted in Blender),
+//! or JSON strokes `[{"point": [x, y, z], "radius": r}, …]` (geodesic disks
+//! on the dense mesh). Verbatim copy places the foreground at a surface
+//! point (`--preview` writes the direct projection without a graphcut).
+//!
+//! Painting writes a new `.quilt` (the old one stays: undo is free) whose
+//! `paint_log` parameter records the base quilt and every stroke, so a
+//! painted surface can be replayed ([`replay`]).
+
+use std::collections::{BinaryHeap, VecDeque};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crate::artifact::gim::{Gim, EMPTY};
+use crate::container::Param;
+use crate::progress::Progress;
+pub use crate::quilt::Projection;
+use crate::quilt::{same_file, sample_at_density, sample_role, Quilt, SizedSample, Synthesis, TileConfig};
+use crate::{Error, Result};
+
+mod log;
+mod region;
+use log::*;
+use region::*;
+
+/// A verbatim copy: where and how the foreground goes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Verbatim {
+    /// A point on (or near) the surface; the nearest dense vertex is used.
+    pub at: [f32; 3],
+    /// Turn of the sample against the field direction, in degrees.
+    pub angle: f64,
+}
+
+/// Options of [`paint`].
+#[derive(Clone, Debug)]
+pub struct PaintConfig {
+    /// The sample to paint with: the one the surface was tiled with, or any
+    /// other with the same direction set (a colour image on a colour
+    /// surface, a BTF measured like the surface's). Default: the sample of
+    /// the last stroke (the tiling's for a surface not yet painted).
+    pub sample: Option<PathBuf>,
+    /// The sample's foreground mask m_P (a PNG the sample's size); default:
+    /// the one recorded in the quilt, when it belongs to that sample.
+    pub sample_mask: Option<PathBuf>,
+    /// The target region F: a mask PNG (atlas space), a PLY/OBJ with vertex
+    /// weights or colours, or JSON strokes.
+    pub region: Option<PathBuf>,
+    /// Width of the transition zone in texels.
+    pub transition: usize,
+    /// Verbatim copy instead of a region.
+    pub verbatim: Option<Verbatim>,
+    /// Verbatim only: write the direct projection to this image.
+    pub preview: Option<PathBuf>,
+    /// Quilting options (seed, radius, T_c, constraint weight, memory).
+    pub tile: TileConfig,
+}
+
+impl Default for PaintConfig {
+    fn default() -> Self {
+        PaintConfig {
+            sample: None,
+            sample_mask: None,
+            region: None,
+            transition: 8,
+            verbatim: None,
+            preview: None,
+            tile: TileConfig::default(),
+        }
+    }
+}
+
+impl PaintConfig {
+    /// Checks the numbers a user gives: the quilting options
+    /// ([`TileConfig::validate`]) and a verbatim copy's point and angle.
+    pub fn validate(&self) -> Result<()> {
+        self.tile.validate()?;
+        if let Some(v) = &self.verbatim {
+            check_verbatim(v)?;
+        }
+        Ok(())
+    }
+}
+
+/// What [`paint`] did.
+#[derive(Clone, Debug, Default)]
+pub struct PaintReport {
+    /// Texels in F (m0 = 1).
+    pub region_texels: usize,
+    /// Texels in F plus the transition zone (m0 > 0).
+    pub zone_texels: usize,
+    /// Patches fitted.
+    pub patches: usize,
+    /// Texels that took a new patch.
+    pub repainted: usize,
+    pub seconds: f64,
+    /// Verbatim preview: the direct projection alone (after opening the
+    /// artifacts), in seconds.
+    pub projection_seconds: f64,
+}
+
+impl std::fmt::Display for PaintReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "region {} texels ({} with the transition zone), {} patches, {} texels repainted, {:.2} s",
+            self.region_texels, self.zone_texels, self.patches, self.repainted, self.seconds
+        )
+    }
+}
+
+/// Paints `quilt_path` into a new artifact `out` (see the module docs); with
+/// `cfg.preview` set, only the preview is written, as by [`preview`].
+pub fn paint(
+    quilt_path: &Path,
+    out: &Path,
+    cfg: &PaintConfig,
+    progress: &dyn Progress,
+) -> Result<PaintReport> {
+    run(quilt_path, out, cfg, progress)
+}
+
+/// Only the verbatim copy's preview (`cfg.preview` and `cfg.verbatim`
+/// must be set): no quilt is written. For many previews of one surface,
+/// open a [`PreviewSession`] once instead.
+pub fn preview(quilt_path: &Path, cfg: &PaintConfig, progress: &dyn Progress) -> Result<PaintReport> {
+    let start = Instant::now();
+    let (Some(out), Some(v)) = (&cfg.preview, cfg.verbatim) else {
+        return Err(Error::Config(
+            "a preview needs --verbatim and --preview IMAGE".into(),
+        ));
+    };
+    check_paint_output(&Quilt::open(quilt_path, cfg.tile.memory)?, cfg, out)?;
+    let mut session = PreviewSession::open(quilt_path, cfg, progress)?;
+    let t = Instant::now();
+    let taken = session.preview(v, out, progress)?;
+    Ok(PaintReport {
+        region_texels: taken,
+        zone_texels: taken,
+        projection_seconds: t.elapsed().as_secs_f64(),
+        seconds: start.elapsed().as_secs_f64(),
+        ..PaintReport::default()
+    })
+}
+
+/// A decorated surface and a sample opened once for interactive verbatim
+/// previews (§IV's fast preview): each [`PreviewSession::preview`] is only
+/// the direct projection of the foreground at a point (no graphcut, no
+/// re-reading of the artifacts), about 30 ms on Spot at 1024².
+pub struct PreviewSession {
+    syn: Synthesis,
+    _tmp: SizedSample,
+}
+
+impl PreviewSession {
+    /// Opens `quilt_path` with the sample and foreground mask of `cfg` (their
+    /// defaults as for [`paint`]; `cfg.region`, `cfg.verbatim` and
+    /// `cfg.preview` are not used).
+    pub fn open(quilt_path: &Path, cfg: &PaintConfig, progress: &dyn Progress) -> Result<PreviewSession> {
+        let base = Quilt::open(quilt_path, cfg.tile.memory)?;
+        // a stroke resolves the sample and mask defaults; its place is
+        // given per preview
+        let stroke = Stroke::from_config(
+            &PaintConfig {
+                region: None,
+                preview: None,
+                verbatim: Some(cfg.verbatim.unwrap_or(Verbatim {
+                    at: [0.0; 3],
+                    angle: 0.0,
+                })),
+                ..cfg.clone()
+            },
+            &base,
+            quilt_path,
+        )?;
+        let (syn, _, tmp) = open_synthesis(&base, &stroke, quilt_path, progress)?;
+        Ok(PreviewSession { syn, _tmp: tmp })
+    }
+
+    /// Writes the direct projection of the foreground placed as `v` (the
+    /// atlas box of the work patch, foreground pasted over the surface's
+    /// colours) to `out`; returns the foreground texels it covers.
+    pub fn preview(&mut self, v: Verbatim, out: &Path, progress: &dyn Progress) -> Result<usize> {
+        let (taken, projection) = self.project(v, progress)?;
+        crate::io::imageio::write_png(out, &projection.image, crate::io::imageio::PngDepth::Eight)?;
+        Ok(taken)
+    }
+
+    /// The direct projection of the foreground placed as `v`, in memory:
+    /// the foreground texels it covers and the atlas box ([`Projection`]).
+    pub fn project(&mut self, v: Verbatim, progress: &dyn Progress) -> Result<(usize, Projection)> {
+        let (centre, extent) = foreground_extent(&self.syn);
+        let vertex = verbatim_vertex(&self.syn, &v)?;
+        let radius = (extent * 1.15).ceil() as usize + 4;
+        let (taken, projection) =
+            self.syn
+                .verbatim(vertex, radius, v.angle.to_radians(), centre, true, progress)?;
+        Ok((taken, projection.expect("a preview returns its projection")))
+    }
+}
+
+/// Opens the synthesis for a stroke on `base`: its geometry image, the
+/// stroke's sample (factorized into a temporary directory if it is an
+/// image; rotated copies only for a region stroke, whose matching needs
+/// them) and foreground mask, and the surface's state.
+fn open_synthesis(
+    base: &Quilt,
+    stroke: &Stroke,
+    beside: &Path,
+    progress: &dyn Progress,
+) -> Result<(Synthesis, Gim, SizedSample)> {
+    let start = Instant::now();
+    let cfg = TileConfig {
+        sample_mask: Some(stroke.sample_mask.clone()),
+        ..stroke.tile.clone()
+    };
+    let gim = base.open_gim(None, cfg.memory)?;
+    let matching = stroke.verbatim.is_none();
+    let sized = sample_at_density(
+        &stroke.sample,
+        gim.texel_size,
+        cfg.sample_size(),
+        matching,
+        progress,
+    )?;
+    let trace = |what: &str| crate::progress::trace(progress, start, what);
+    trace("factorized");
+    let mut syn = Synthesis::open(&gim, &stroke.sample, &sized.svd, beside, &cfg, matching)?;
+    syn.set_scale(&sized);
+    trace("opened");
+    syn.set_mask(&stroke.sample_mask)?;
+    syn.load(base, progress)?;
+    syn.painting = true;
+    trace("loaded");
+    Ok((syn, gim, sized))
+}
+
+/// [`paint`]: applies the stroke of `cfg` and writes `out`.
+fn run(quilt_path: &Path, out: &Path, cfg: &PaintConfig, progress: &dyn Progress) -> Result<PaintReport> {
+    if cfg.preview.is_some() {
+        return Err(Error::Config(
+            "--preview writes only the preview: give no output quilt".into(),
+        ));
+    }
+    let base = Quilt::open(quilt_path, cfg.tile.memory)?;
+    check_paint_output(&base, cfg, out)?;
+    let log = match base.container().metadata().param("paint_log") {
+        Some(Param::Text(s)) => PaintLog::parse(s, quilt_path, &base.samples[0])?.resolved_in(quilt_path),
+        _ => PaintLog {
+            base: quilt_path.to_path_buf(),
+            base_hash: base.container().content_hash(),
+            strokes: Vec::new(),
+        },
+    };
+    let stroke = Stroke::from_config(cfg, &base, quilt_path)?;
+    apply_stroke(&base, &stroke, out, &log, progress)
+}
+
+/// Refuses `out` when it is the surface, a file it depends on, or a file
+/// the stroke reads.
+fn check_paint_output(base: &Quilt, cfg: &PaintConfig, out: &Path) -> Result<()> {
+    base.check_output(out)?;
+    let mut inputs = Vec::new();
+    if let Some(p) = &cfg.sample {
+        inputs.push(("the sample to paint with", p.as_path()));
+    }
+    if let Some(p) = &cfg.sample_mask {
+        inputs.push(("the sample's foreground mask", p.as_path()));
+    }
+    if let Some(p) = &cfg.region {
+        inputs.push(("the target region", p.as_path()));
+    }
+    crate::io::staging::check_output(out, &inputs)
+}
+
+/// Replays the paint log of `painted` onto its recorded base quilt, writing
+/// the result to `out` (byte-identical to `painted` when nothing changed).
+pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<PaintReport> {
+    let q = Quilt::open(painted, crate::container::MemoryBudget::default())?;
+    let Some(Param::Text(text)) = q.container().metadata().param("paint_log") else {
+        return Err(Error::input(painted, "has no paint log (it was not painted)"));
+    };
+    let log = PaintLog::parse(text, painted, &q.samples[0])?.resolved_in(painted);
+    q.check_output(out)?;
+    let base = Quilt::open(&log.base, crate::container::MemoryBudget::default())?;
+    base.check_output(out)?;
+    if base.container().content_hash() != log.base_hash {
+        return Err(Error::input(
+            &log.base,
+            format!("changed since {} was painted from it", painted.display()),
+        ));
+    }
+    let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+    let mut current = log.base.clone();
+    let mut done = PaintLog {
+        strokes: Vec::new(),
+        ..log.clone()
+    };
+    let mut report = PaintReport::default();
+    for (k, stroke) in log.strokes.iter().enumerate() {
+        let last = k + 1 == log.strokes.len();
+        let target = if last {
+            out.to_path_buf()
+        } else {
+            dir.path().join(format!("step{k}.quilt"))
+        };
+        let q = Quilt::open(&current, stroke.tile.memory)?;
+        report = apply_stroke(&q, stroke, &target, &done, progress)?;
+        done.strokes.push(stroke.clone());
+        current = target;
+    }
+    Ok(report)
+}
+
+/// One recorded stroke: everything needed to apply it again.
+#[derive(Clone, Debug, PartialEq)]
+struct Stroke {
+    sample: PathBuf,
+    sample_mask: PathBuf,
+    region: Option<PathBuf>,
+    verbatim: Option<Verbatim>,
+    transition: usize,
+    /// The quilting options: the paint log records the seed, the patch
+    /// radius, T_c and the constraint weight; the rest are
+    /// [`TileConfig::default`]'s, so a replay quilts exactly the same.
+    tile: TileConfig,
+}
+
+impl Stroke {
+    fn from_config(cfg: &PaintConfig, base: &Quilt, quilt_path: &Path) -> Result<Stroke> {
+        let masked = base.samples.get(base.mask_sample()).unwrap_or(&base.samples[0]);
+        let sample = cfg.sample.clone().unwrap_or_else(|| masked.clone());
+        if !sample.exists() {
+            return Err(Error::input(&sample, "does not exist (the sample to paint with)"));
+        }
+        let recorded = match &base.sample_mask {
+            Some(p) if same_file(masked, &sample) => {
+                base.verify("sample_mask", p)?;
+                Some(p.clone())
+            }
+            _ => None,
+        };
+        let sample_mask = match (&cfg.sample_mask, recorded) {
+            (Some(p), _) => p.clone(),
+            (None, Some(p)) => p,
+            _ => {
+                return Err(Error::Config(format!(
+                    "give --sample-mask: {} records no foreground mask for the sample {}",
+                    quilt_path.display(),
+                    sample.display()
+                )))
+            }
+        };
+        match (&cfg.region, &cfg.verbatim) {
+            (None, None) => return Err(Error::Config("give --region or --verbatim".into())),
+            (Some(_), Some(_)) => {
+                return Err(Error::Config(
+                    "give either --region or --verbatim, not both".into(),
+                ))
+            }
+            _ => {}
+        }
+        if cfg.preview.is_some() && cfg.verbatim.is_none() {
+            return Err(Error::Config("--preview needs --verbatim".into()));
+        }
+        if let Some(v) = &cfg.verbatim {
+            check_verbatim(v)?;
+        }
+        cfg.tile.validate()?;
+        let t = &cfg.tile;
+        // painting with the tiling's sample keeps its recorded width
+        let (sample_width, sample_pixel) = match (t.sample_width, t.sample_pixel) {
+            (None, None) => (recorded_span(base, &sample), None),
+            given => given,
+        };
+        Ok(Stroke {
+            tile: Stroke::tiling(
+                t.seed,
+                t.patch_radius,
+                t.seam_threshold,
+                t.constraint_weight,
+                sample_width,
+                sample_pixel,
+                t.memory,
+            ),
+            sample,
+            sample_mask,
+            region: cfg.region.clone(),
+            verbatim: cfg.verbatim,
+            transition: cfg.transition,
+        })
+    }
+
+    /// The quilting options of a stroke: the recorded ones over
+    /// [`TileConfig::default`] (the memory budget does not change the
+    /// result; the foreground mask is the stroke's `sample_mask`).
+    fn tiling(
+        seed: u64,
+        patch_radius: Option<usize>,
+        seam_threshold: f64,
+        constraint_weight: f64,
+        sample_width: Option<f64>,
+        sample_pixel: Option<f64>,
+        memory: crate::container::MemoryBudget,
+    ) -> TileConfig {
+        TileConfig {
+            seed,
+            patch_radius,
+            seam_threshold,
+            constraint_weight,
+            sample_width,
+            sample_pixel,
+            memory,
+            ..TileConfig::default()
+        }
+    }
+
+    /// The stroke as the paint log records it.
+    fn to_record(&self) -> StrokeRecord {
+        let text = |p: &Path| p.display().to_string();
+        StrokeRecord {
+            sample: Some(text(&self.sample)),
+            sample_mask: text(&self.sample_mask),
+            region: self.region.as_deref().map(text),
+            verbatim: self.verbatim.map(|v| VerbatimRecord {
+                at: v.at,
+                angle: v.angle,
+            }),
+            transition: self.transition,
+            seed: self.tile.seed,
+            patch_radius: self.tile.patch_radius,
+            seam_threshold: self.tile.seam_threshold,
+            constraint_weight: self.tile.constraint_weight,
+            sample_width: self.tile.sample_width,
+            sample_pixel: self.tile.sample_pixel,
+        }
+    }
+
+    /// `base_sample`: the sample of logs written before strokes recorded
+    /// theirs (the tiling's, the only one they could use).
+    fn from_record(r: StrokeRecord, base_sample: &Path) -> Stroke {
+        Stroke {
+            tile: Stroke::tiling(
+                r.seed,
+                r.patch_radius,
+                r.seam_threshold,
+                r.constraint_weight,
+                r.sample_width,
+                r.sample_pixel,
+                crate::container::MemoryBudget::default(),
+            ),
+            sample: r.sample.map_or_else(|| base_sample.to_path_buf(), PathBuf::from),
+            sample_mask: PathBuf::from(r.sample_mask),
+            region: r.region.map(PathBuf::from),
+            verbatim: r.verbatim.map(|v| Verbatim {
+                at: v.at,
+                angle: v.angle,
+            }),
+            transition: r.transition,
+        }
+    }
+}
+
+/// The width (mesh units) the surface `base` records for `sample`, if it
+/// draws from that sample and was given one: painting with the tiling's
+/// sample keeps its size on the surface.
+fn recorded_span(base: &Quilt, sample: &Path) -> Option<f64> {
+    let k = base.samples.iter().position(|p| same_file(p, sample))?;
+    match base
+        .container()
+        .metadata()
+        .param(&format!("{}_span", sample_role(k)))
+    {
+        Some(Param::Float(v)) => Some(*v),
+        _ => None,
+    }
+}
+
+/// Applies one stroke to `base`, writing `out` with `log` + the stroke.
+fn apply_stroke(
+    base: &Quilt,
+    stroke: &Stroke,
+    out: &Path,
+    log: &PaintLog,
+    progress: &dyn Progress,
+) -> Result<PaintReport> {
+    let start = Instant::now();
+    let trace = |what: &str| crate::progress::trace(progress, start, what);
+    let (mut syn, gim, _tmp) = open_synthesis(base, stroke, out, progress)?;
+    let mut report = PaintReport::default();
+    if let Some(v) = stroke.verbatim {
+        let (centre, extent) = foreground_extent(&syn);
+        let vertex = verbatim_vertex(&syn, &v)?;
+        let radius = (extent * 1.15).ceil() as usize + 4;
+        let (taken, _) = syn.verbatim(vertex, radius, v.angle.to_radians(), centre, false, progress)?;
+        report.repainted = taken;
+        report.patches = 1;
+        (report.region_texels, report.zone_texels) = syn.target_summary();
+    } else {
+        let region_path = stroke.region.as_deref().expect("checked: a region or verbatim");
+        let region = read_region(&syn, &gim, region_path)?;
+        let zone = constraint_function(&syn, &region, stroke.transition);
+        report.region_texels = region.len();
+        report.zone_texels = zone.len();
+        if report.region_texels == 0 {
+            return Err(Error::input(region_path, "marks no texel of the surface"));
+        }
+        syn.set_target_zone(&zone);
+        trace("region");
+        // every texel of the zone is re-synthesized once, as the seed or
+        // inside (not on the rim of) a work patch; seeds deepest in F first
+        // (highest m0, then lowest id), so the first patch lays the feature
+        // where it must be and later ones continue it
+        let mut order = zone;
+        order.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+        let order: Vec<u32> = order.into_iter().map(|(t, _)| t).collect();
+        let radius0 = syn.radius0();
+        progress.begin("paint", report.zone_texels as u64);
+        syn.paint_seeds(&order, radius0, &|n| progress.advance(n as u64), progress)?;
+        progress.end();
+        trace("painted");
+        report.patches = syn.report.patches;
+        report.repainted = syn.changed_patches(base)?;
+    }
+    let mut log = log.clone();
+    log.strokes.push(stroke.clone());
+    syn.write(
+        out,
+        &gim,
+        &base.gim,
+        Some(&log.relative_to(out).to_json()?),
+        start,
+    )?;
+    report.seconds = start.elapsed().as_secs_f64();
+    Ok(report)
+}
