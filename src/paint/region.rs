@@ -1,5 +1,5 @@
 //! Where paint goes: regions from masks, strokes or a point, and the
-//! constraint function over them (§6: a weight per texel, falling off over
+//! constraint function over them (§IV: a weight per texel, falling off over
 //! the transition zone).
 
 use super::*;
