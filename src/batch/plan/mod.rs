@@ -39,6 +39,11 @@ use crate::output::render::{Camera, Light, RenderConfig};
 use crate::quilt::TileConfig;
 use crate::{Error, Result};
 
+mod file;
+mod shard;
+pub use file::*;
+pub use shard::*;
+
 /// Version of the job description: part of every key, raised whenever a
 /// job's outputs would change for the same description.
 const SPEC_VERSION: u32 = 1;
@@ -77,181 +82,6 @@ impl Serialize for Key {
 }
 
 // ---------------------------------------------------------------- the file
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct PlanFile {
-    #[serde(default)]
-    mesh: Vec<MeshEntry>,
-    #[serde(default)]
-    sample: Vec<SampleEntry>,
-    #[serde(default)]
-    atlas: AtlasSection,
-    #[serde(default)]
-    factorize: FactorizeSection,
-    #[serde(default)]
-    tile: TileSection,
-    #[serde(default)]
-    render: RenderSection,
-    #[serde(default)]
-    outputs: Outputs,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct MeshEntry {
-    path: PathBuf,
-    name: Option<String>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct SampleEntry {
-    path: PathBuf,
-    mask: Option<PathBuf>,
-    name: Option<String>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct AtlasSection {
-    #[serde(default = "default_resolutions")]
-    resolutions: Vec<usize>,
-    #[serde(default = "default_gutter")]
-    gutter: usize,
-}
-
-fn default_resolutions() -> Vec<usize> {
-    vec![AtlasConfig::default().resolution]
-}
-
-fn default_gutter() -> usize {
-    AtlasConfig::default().gutter
-}
-
-impl Default for AtlasSection {
-    fn default() -> Self {
-        AtlasSection {
-            resolutions: default_resolutions(),
-            gutter: default_gutter(),
-        }
-    }
-}
-
-#[derive(Deserialize, Default)]
-#[serde(deny_unknown_fields)]
-struct FactorizeSection {
-    terms: Option<usize>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct TileSection {
-    #[serde(default = "default_seeds")]
-    seeds: Vec<u64>,
-    /// Absent or empty: one sample pixel per atlas texel.
-    #[serde(default)]
-    sample_widths: Vec<f64>,
-    seam_threshold: Option<f64>,
-    occurrence_weight: Option<f64>,
-    tolerance: Option<f64>,
-    structure_weight: Option<f64>,
-    feature_align: Option<f64>,
-    field_turn: Option<usize>,
-    /// 0 turns seam refinement off.
-    refine: Option<f64>,
-    refine_broken: Option<usize>,
-    refine_passes: Option<usize>,
-}
-
-fn default_seeds() -> Vec<u64> {
-    vec![TileConfig::default().seed]
-}
-
-impl Default for TileSection {
-    fn default() -> Self {
-        TileSection {
-            seeds: default_seeds(),
-            sample_widths: Vec::new(),
-            seam_threshold: None,
-            occurrence_weight: None,
-            tolerance: None,
-            structure_weight: None,
-            feature_align: None,
-            field_turn: None,
-            refine: None,
-            refine_broken: None,
-            refine_passes: None,
-        }
-    }
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RenderSection {
-    width: Option<usize>,
-    height: Option<usize>,
-    exposure: Option<f32>,
-    /// "auto" (a three-quarter view framing the mesh) or `render --camera`'s
-    /// ten numbers.
-    #[serde(default = "default_cameras")]
-    cameras: Vec<String>,
-    /// `render --light`'s x,y,z[,intensity]: one render per light; absent:
-    /// `render`'s default light.
-    lights: Option<Vec<String>>,
-}
-
-fn default_cameras() -> Vec<String> {
-    vec!["auto".into()]
-}
-
-impl Default for RenderSection {
-    fn default() -> Self {
-        RenderSection {
-            width: None,
-            height: None,
-            exposure: None,
-            cameras: default_cameras(),
-            lights: None,
-        }
-    }
-}
-
-/// The outputs a job writes besides its decorated surface
-/// (`decorated.quilt`, always).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct Outputs {
-    /// The atlas texture, `baked.png`.
-    #[serde(default = "yes")]
-    pub bake: bool,
-    /// One picture per camera and light, `render-cC-lL.png`.
-    #[serde(default = "yes")]
-    pub render: bool,
-    /// The textured mesh as binary glTF, `gltf/mesh.glb`.
-    #[serde(default)]
-    pub gltf: bool,
-    /// The surface BTF, `surface-btf/`.
-    #[serde(default)]
-    pub btf: bool,
-}
-
-fn yes() -> bool {
-    true
-}
-
-impl Default for Outputs {
-    fn default() -> Self {
-        Outputs {
-            bake: true,
-            render: true,
-            gltf: false,
-            btf: false,
-        }
-    }
-}
-
-// ---------------------------------------------------------------- the plan
 
 /// An input file of the plan, with its content identity.
 #[derive(Clone, Debug)]
@@ -813,47 +643,5 @@ pub fn tile_config(p: &TileParams, seed: u64, sample_width: Option<f64>) -> Tile
         seed,
         sample_width,
         ..TileConfig::default()
-    }
-}
-
-/// A deterministic share of a list: shard `index` of `count` (0-based)
-/// takes the contiguous run `[index·len/count, (index+1)·len/count)`, so
-/// the shards together take every item exactly once.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Shard {
-    pub index: usize,
-    pub count: usize,
-}
-
-impl Shard {
-    /// Every item.
-    pub const ALL: Shard = Shard { index: 0, count: 1 };
-
-    /// Parses `I/N` with 0 ≤ I < N.
-    pub fn parse(s: &str) -> Result<Shard> {
-        let bad = || {
-            Error::Config(format!(
-                "--shard '{s}': expected I/N with 0 ≤ I < N (shard I of N, counted from 0)"
-            ))
-        };
-        let (i, n) = s.split_once('/').ok_or_else(bad)?;
-        let index: usize = i.trim().parse().map_err(|_| bad())?;
-        let count: usize = n.trim().parse().map_err(|_| bad())?;
-        if count == 0 || index >= count {
-            return Err(bad());
-        }
-        Ok(Shard { index, count })
-    }
-
-    /// This shard's part of `len` items, as an index range.
-    pub fn range(&self, len: usize) -> std::ops::Range<usize> {
-        let at = |i: usize| (i as u128 * len as u128 / self.count as u128) as usize;
-        at(self.index)..at(self.index + 1)
-    }
-}
-
-impl std::fmt::Display for Shard {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}/{}", self.index, self.count)
     }
 }

@@ -1,0 +1,222 @@
+//! Rotated and resampled copies of a factorization: the geometry maps
+//! turned for each of the field-aligned rotations, and resized to a scale.
+
+use super::*;
+
+/// Writes `src` (whose geometry maps `maps` the caller has read) resampled
+/// to `width`×`height` texels as the `.svd` `out`: the geometry maps and the
+/// preview resampled
+/// ([`crate::io::imageio::resample`]), the appearance functions, singular
+/// values and directions unchanged (the BTF's columns do not depend on the
+/// texel grid), and `rotations` rotated copies made from the resampled maps.
+/// Quilting uses it to give a sample its size on the surface.
+pub fn resample_svd(
+    src: &SvdArtifact,
+    maps: &[f32],
+    out: &Path,
+    width: usize,
+    height: usize,
+    rotations: usize,
+    progress: &dyn Progress,
+) -> Result<()> {
+    let (w0, h0, terms) = (src.width, src.height, src.terms);
+    let g = crate::io::imageio::resample(maps, w0, h0, terms, width, height);
+    let preview = crate::io::imageio::resample(&src.preview()?.data, w0, h0, 3, width, height);
+    let meta = src.container().metadata();
+    let cfg = FactorizeConfig {
+        rotations,
+        tileable: src.tileable(),
+        seed: meta.seed.unwrap_or(FactorizeConfig::default().seed),
+        ..FactorizeConfig::default()
+    };
+    let (w, h, t) = (width as u64, height as u64, SVD_TILE);
+    let mut c = ContainerWriter::create(out, KIND)?;
+    c.set_level(cfg.level);
+    c.set_seed(cfg.seed);
+    c.add_input(
+        &src.container().path().display().to_string(),
+        src.container().content_hash(),
+    );
+    for (name, value) in &meta.params {
+        let value = match name.as_str() {
+            "width" => Param::Int(w as i64),
+            "height" => Param::Int(h as i64),
+            "rotations" => Param::Int(rotations as i64),
+            _ => value.clone(),
+        };
+        c.set_param(name, value);
+    }
+    c.set_param("resampled_from", Param::Text(format!("{w0}x{h0}")));
+    for name in ["view_dirs", "light_dirs", "singular_values"] {
+        let id = src.container().array(name)?;
+        let spec = src.container().spec(id).clone();
+        let values: Vec<f32> = src.container().read_array(id)?;
+        let id = c.add_array(spec)?;
+        c.write_array(id, &values)?;
+    }
+    let id = c.add_array(ArraySpec::new(
+        "geometry_maps",
+        DType::F32,
+        &[h, w, terms as u64],
+        &[t, t, terms as u64],
+    )?)?;
+    c.write_array(id, &g)?;
+    let id = src.container().array("appearance")?;
+    let spec = src.container().spec(id).clone();
+    let appearance: Vec<f32> = src.container().read_array(id)?;
+    let id = c.add_array(spec)?;
+    c.write_array(id, &appearance)?;
+    let id = c.add_array(ArraySpec::new("preview", DType::F32, &[h, w, 3], &[t, t, 3])?)?;
+    c.write_array(id, &preview)?;
+    if rotations > 0 {
+        write_rotations(&mut c, &cfg, width, height, terms, &g, progress)?;
+    }
+    c.finish()
+}
+
+/// Bilinear rotation of multi-channel maps about the sample centre: copy r
+/// shows the sample turned by r·360°/R (output texel x reads the input at
+/// R(−θ)(x − c) + c). Invalid where that point leaves the sample (unless
+/// `tileable`, which wraps).
+pub fn rotate_maps(
+    maps: &[f32],
+    width: usize,
+    height: usize,
+    channels: usize,
+    degrees: f64,
+    tileable: bool,
+) -> (Vec<f32>, Vec<u8>) {
+    let (sin, cos) = degrees.to_radians().sin_cos();
+    let (cx, cy) = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
+    let mut out = vec![0f32; width * height * channels];
+    let mut valid = vec![0u8; width * height];
+    let texel = |x: usize, y: usize| &maps[(y * width + x) * channels..(y * width + x + 1) * channels];
+    for y in 0..height {
+        for x in 0..width {
+            let (dx, dy) = (x as f64 - cx, y as f64 - cy);
+            let mut sx = cos * dx + sin * dy + cx;
+            let mut sy = -sin * dx + cos * dy + cy;
+            if tileable {
+                sx = sx.rem_euclid(width as f64);
+                sy = sy.rem_euclid(height as f64);
+            } else {
+                // snap rounding noise (e.g. at 90°) back onto the sample
+                let snap = |v: f64, hi: f64| {
+                    if v < 0.0 && v > -1e-9 {
+                        0.0
+                    } else if v > hi && v < hi + 1e-9 {
+                        hi
+                    } else {
+                        v
+                    }
+                };
+                sx = snap(sx, width as f64 - 1.0);
+                sy = snap(sy, height as f64 - 1.0);
+                if !(0.0..=width as f64 - 1.0).contains(&sx) || !(0.0..=height as f64 - 1.0).contains(&sy) {
+                    continue;
+                }
+            }
+            let (x0, y0) = (sx.floor() as usize, sy.floor() as usize);
+            let (fx, fy) = ((sx - x0 as f64) as f32, (sy - y0 as f64) as f32);
+            let (x0, y0) = (x0.min(width - 1), y0.min(height - 1));
+            let x1 = if tileable {
+                (x0 + 1) % width
+            } else {
+                (x0 + 1).min(width - 1)
+            };
+            let y1 = if tileable {
+                (y0 + 1) % height
+            } else {
+                (y0 + 1).min(height - 1)
+            };
+            let (a, b, c, d) = (texel(x0, y0), texel(x1, y0), texel(x0, y1), texel(x1, y1));
+            let o = &mut out[(y * width + x) * channels..(y * width + x + 1) * channels];
+            for i in 0..channels {
+                let top = a[i] + (b[i] - a[i]) * fx;
+                let bottom = c[i] + (d[i] - c[i]) * fx;
+                o[i] = top + (bottom - top) * fy;
+            }
+            valid[y * width + x] = 1;
+        }
+    }
+    (out, valid)
+}
+
+pub(super) fn write_rotations(
+    c: &mut ContainerWriter,
+    cfg: &FactorizeConfig,
+    width: usize,
+    height: usize,
+    terms: usize,
+    g: &[f32],
+    progress: &dyn Progress,
+) -> Result<()> {
+    let r = cfg.rotations as u64;
+    let (w, h, t) = (width as u64, height as u64, SVD_TILE);
+    let maps = c.add_array(ArraySpec::new(
+        "rotated_maps",
+        DType::F16,
+        &[r, h, w, terms as u64],
+        &[1, t, t, terms as u64],
+    )?)?;
+    let valid = c.add_array(ArraySpec::new(
+        "rotated_valid",
+        DType::U8,
+        &[r, h, w],
+        &[1, t, t],
+    )?)?;
+    let (maps_spec, valid_spec) = (c.spec(maps).clone(), c.spec(valid).clone());
+    let per_rotation = maps_spec.chunk_count() / r;
+    progress.begin("rotations", r);
+    let level = c.level();
+    let group = 4;
+    for r0 in (0..cfg.rotations).step_by(group) {
+        let r1 = (r0 + group).min(cfg.rotations);
+        let encoded: Vec<(Vec<codec::EncodedChunk>, Vec<codec::EncodedChunk>)> = (r0..r1)
+            .into_par_iter()
+            .map(|ri| {
+                let degrees = 360.0 * ri as f64 / cfg.rotations as f64;
+                let (rot, ok) = rotate_maps(g, width, height, terms, degrees, cfg.tileable);
+                let mut rot16 = vec![f16::ZERO; rot.len()];
+                rot16.convert_from_f32_slice(&rot);
+                // the chunks of rotation ri: origin and extent of each → encoded
+                let chunks = |spec: &ArraySpec, enc: &dyn Fn(&[u64], &[u64]) -> codec::EncodedChunk| {
+                    (0..per_rotation)
+                        .map(|k| {
+                            let (o, e) = spec.chunk_region(ri as u64 * per_rotation + k);
+                            enc(&o, &e)
+                        })
+                        .collect::<Vec<_>>()
+                };
+                let map_chunks = chunks(&maps_spec, &|o, e| {
+                    let mut v = Vec::with_capacity((e[1] * e[2]) as usize * terms);
+                    for y in o[1]..o[1] + e[1] {
+                        let row = (y as usize * width + o[2] as usize) * terms;
+                        v.extend_from_slice(&rot16[row..row + e[2] as usize * terms]);
+                    }
+                    codec::encode(&v, level)
+                });
+                let valid_chunks = chunks(&valid_spec, &|o, e| {
+                    let mut v = Vec::with_capacity((e[1] * e[2]) as usize);
+                    for y in o[1]..o[1] + e[1] {
+                        let row = y as usize * width + o[2] as usize;
+                        v.extend_from_slice(&ok[row..row + e[2] as usize]);
+                    }
+                    codec::encode(&v, level)
+                });
+                (map_chunks, valid_chunks)
+            })
+            .collect();
+        for (ri, (mc, vc)) in (r0..r1).zip(encoded) {
+            for (k, e) in mc.into_iter().enumerate() {
+                c.write_encoded(maps, ri as u64 * per_rotation + k as u64, e)?;
+            }
+            for (k, e) in vc.into_iter().enumerate() {
+                c.write_encoded(valid, ri as u64 * per_rotation + k as u64, e)?;
+            }
+        }
+        progress.advance((r1 - r0) as u64);
+    }
+    progress.end();
+    Ok(())
+}
