@@ -10,9 +10,11 @@ use half::f16;
 
 use crate::artifact::btf::{Angles, Btf};
 use crate::container::{Container, DType, MemoryBudget, Param};
-use crate::factorize::{is_image_path, KIND};
-use crate::io::imageio::{self, RgbImage};
+use crate::io::imageio::{self, is_image_path, RgbImage};
 use crate::{Error, Result};
+
+/// The artifact kind of a factorized sample.
+pub const KIND: &str = "svd";
 
 /// A factorization opened for reading.
 pub struct SvdArtifact {

@@ -44,8 +44,8 @@ mod stream;
 pub use rotate::*;
 use stream::*;
 
-/// The artifact kind of a factorization.
-pub const KIND: &str = "svd";
+pub use crate::artifact::svd::KIND;
+
 /// The number of rotated copies of the geometry maps (5° steps).
 pub const DEFAULT_ROTATIONS: usize = 72;
 /// Edge of the spatial chunks of the `.svd` arrays.

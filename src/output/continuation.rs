@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use crate::artifact::gim::EMPTY;
 use crate::io::imageio::{self, RgbImage};
-use crate::output::evaluate::{diff, rgb_distance, ColourBand};
+use crate::output::band::{diff, rgb_distance, ColourBand};
 use crate::quilt::NO_PATCH;
 
 /// A sample step longer than this (sample pixels) between two grid

@@ -6,6 +6,7 @@
 //! writes new files; none writes an artifact another stage reads.
 
 pub mod bake;
+mod band;
 pub mod compare;
 pub mod continuation;
 pub mod evaluate;

@@ -50,15 +50,14 @@ mod streamed;
 mod structure;
 mod synthesis;
 mod worker;
-mod write;
 
 pub use crate::artifact::quilt::{
     Dependency, Quilt, KIND, MAX_SAMPLES, NO_PATCH, SEAM_X, SEAM_Y, SEAM_ZIPPER,
 };
 pub(crate) use sample::*;
+use synthesis::write_quilt;
 pub use synthesis::Projection;
 pub(crate) use synthesis::*;
-use write::write_quilt;
 
 /// Options of [`tile`].
 #[derive(Clone, Debug, PartialEq)]
@@ -453,7 +452,7 @@ pub fn tile(
     cfg: &TileConfig,
     progress: &dyn Progress,
 ) -> Result<TileReport> {
-    tile_refining_by(gim_path, sample_path, out, cfg, rounds::REFINE_ROUND, progress)
+    tile_refining_by(gim_path, sample_path, out, cfg, synthesis::REFINE_ROUND, progress)
 }
 
 /// [`tile`], seam refinement taking up to `refine_round` patches per round

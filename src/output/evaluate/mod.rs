@@ -26,20 +26,11 @@ use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::MemoryBudget;
 use crate::factorize::rotate_maps;
 use crate::io::imageio::RgbImage;
+use crate::output::band::{diff, ColourBand};
 use crate::output::continuation::{Continuation, ContinuationFigures};
-use crate::output::{colour_rows, open_samples, OpenSample, BAND_ROWS};
+use crate::output::{open_samples, OpenSample, BAND_ROWS};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
-
-/// The RGB distance between texels `a` and `b` of `colour` (3 values a texel).
-pub(super) fn diff(colour: &[f32], a: usize, b: usize) -> f64 {
-    rgb_distance(&colour[a * 3..a * 3 + 3], &colour[b * 3..b * 3 + 3])
-}
-
-/// The distance between two RGB colours (their first 3 values).
-pub(super) fn rgb_distance(a: &[f32], b: &[f32]) -> f64 {
-    (0..3).map(|k| ((a[k] - b[k]) as f64).powi(2)).sum::<f64>().sqrt()
-}
 
 /// The quality figures of a decorated surface. Serialized (serde), its
 /// field names and nesting are those of `btfquilt evaluate`'s JSON.
@@ -364,66 +355,6 @@ fn usage_figures(sample: usize, counts: &[u32]) -> UsageFigures {
         pixels: counts.len(),
         never_used: histogram[0] as f64 / counts.len().max(1) as f64,
         histogram,
-    }
-}
-
-/// Atlas rows `y0..hi` read for the band's own rows `first..first +
-/// own / r` (the rows around them are there for the neighbours of its
-/// texels): preview colour, covered mask, patch, sample index, chart,
-/// rotation and stored sample coordinates, row-major from `y0`.
-pub(super) struct ColourBand {
-    pub(super) y0: usize,
-    /// The band's first own row.
-    pub(super) first: usize,
-    /// Where the own rows start in the arrays (`(first - y0) * r`).
-    pub(super) start: usize,
-    /// Texels of the band's own rows.
-    pub(super) own: usize,
-    pub(super) colour: Vec<f32>,
-    pub(super) covered: Vec<bool>,
-    pub(super) patch: Vec<u32>,
-    pub(super) index: Vec<u8>,
-    pub(super) chart: Vec<u32>,
-    /// The mesh face each texel samples.
-    pub(super) face: Vec<u32>,
-    pub(super) rotation: Vec<u8>,
-    /// Stored sample coordinates (sample pixels).
-    pub(super) coords: Vec<[f32; 2]>,
-}
-
-impl ColourBand {
-    /// Atlas rows `y0..hi`, rows `first..y1` the band's own.
-    pub(super) fn read(
-        quilt: &Quilt,
-        gim: &Gim,
-        previews: &[RgbImage],
-        y0: usize,
-        first: usize,
-        y1: usize,
-        hi: usize,
-    ) -> Result<ColourBand> {
-        let (r, h) = (quilt.resolution, hi - y0);
-        let (colour, covered) = colour_rows(quilt, previews, y0, hi)?;
-        let (chart, face) = gim.chart_face_region(0, y0, r, h)?;
-        Ok(ColourBand {
-            y0,
-            first,
-            start: (first - y0) * r,
-            own: (y1 - first) * r,
-            colour,
-            covered,
-            patch: quilt.patch_region(0, y0, r, h)?,
-            index: quilt.sample_region(0, y0, r, h)?,
-            chart,
-            face,
-            rotation: quilt.rotation_region(0, y0, r, h)?,
-            coords: quilt.coord_region(0, y0, r, h)?,
-        })
-    }
-
-    /// The indices (into the band's arrays) of its own rows' texels.
-    pub(super) fn own_texels(&self) -> std::ops::Range<usize> {
-        self.start..self.start + self.own
     }
 }
 

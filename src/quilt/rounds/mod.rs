@@ -1,5 +1,5 @@
 //! The quilting loop and seam refinement a round at a time: up to
-//! [`TileConfig::round`](super::TileConfig::round) ([`REFINE_ROUND`])
+//! [`TileConfig::round`](super::TileConfig::round) ([`REFINE_ROUND`](super::synthesis::REFINE_ROUND))
 //! work patches that share no atlas tile are computed at once, each over
 //! read-only views of its tiles ([`Worker`]), then accepted in order.
 //!
@@ -29,10 +29,6 @@ use super::TileConfig;
 use crate::artifact::gim::TILE;
 use crate::progress::{Progress, Silent};
 use crate::Result;
-
-/// Work patches per round of seam refinement: any number gives the quilt
-/// of one patch at a time; more keep the threads busier.
-pub(crate) const REFINE_ROUND: usize = 16;
 
 /// Candidates tried for each further seed of a round before it ends short.
 const TRIES: usize = 8;

@@ -1,8 +1,8 @@
 use std::path::Path;
 
-use super::REFINE_ROUND;
 use crate::atlas::AtlasConfig;
 use crate::progress::Silent;
+use crate::quilt::synthesis::REFINE_ROUND;
 use crate::quilt::{tile_refining_by, TileConfig, TileReport};
 
 /// The surface of [`spot_256`] (16 MiB for its tiles).

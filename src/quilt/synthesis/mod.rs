@@ -14,7 +14,6 @@ use super::placement::{to_sample, PlacementChoice};
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
 use super::state::{Bfs, State, Surface, WorkPatch, NO_FOREIGN};
 use super::worker::{Outcome, StepStats, Worker};
-use super::write::write_quilt;
 use super::{TileConfig, TileReport};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{Quilt, MAX_SAMPLES, NO_PATCH};
@@ -27,6 +26,13 @@ use crate::{Error, Result};
 mod load;
 mod refine;
 mod verbatim;
+mod write;
+
+pub(super) use write::write_quilt;
+
+/// Work patches per round of seam refinement: any number gives the quilt
+/// of one patch at a time; more keep the threads busier.
+pub(crate) const REFINE_ROUND: usize = 16;
 
 /// The quilting loop's working set: the surface, the sample, the synthesis
 /// state and the reusable buffers. [`tile`](super::tile) runs it from an empty surface;
@@ -49,7 +55,7 @@ pub(crate) struct Synthesis {
     /// Matchers (sharing `matcher`'s spectrum cache) and traversals of work
     /// patches computed at once ([`super::rounds`]).
     pub(super) spares: Vec<(Matcher, Bfs)>,
-    /// Seam refinement's patches per round ([`super::rounds::REFINE_ROUND`]).
+    /// Seam refinement's patches per round ([`REFINE_ROUND`]).
     pub(crate) refine_round: usize,
     /// How often each sample region shows on the surface (tiling only).
     pub(super) occurrence: Occurrence,
@@ -120,7 +126,7 @@ impl Synthesis {
             bfs: Bfs::default(),
             matcher: Matcher::with_cache_budget(quarter.bytes() as usize),
             spares: Vec::new(),
-            refine_round: super::rounds::REFINE_ROUND,
+            refine_round: REFINE_ROUND,
             occurrence,
             reference,
             report: TileReport {
@@ -447,7 +453,7 @@ pub(crate) fn sample_role(k: usize) -> String {
 }
 
 /// Runs of [`visit_order`]: enough for a refinement round
-/// ([`super::rounds::REFINE_ROUND`]) to hold about half as many patches.
+/// ([`REFINE_ROUND`]) to hold about half as many patches.
 /// Not tied to the round, so the quilt is the same for any round size.
 const REFINE_RUNS: usize = 8;
 

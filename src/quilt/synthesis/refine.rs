@@ -49,7 +49,7 @@ impl Synthesis {
     /// feature ends: one side's patch, continued one texel across, differs
     /// from the other side by more than [`super::super::BROKEN_CONTINUATION`] of
     /// them. Also those feature ends alone, ascending.
-    fn seams_to_refine(&self, step: f64, find_broken: bool) -> (Vec<(f64, u32)>, Vec<u32>) {
+    pub(super) fn seams_to_refine(&self, step: f64, find_broken: bool) -> (Vec<(f64, u32)>, Vec<u32>) {
         let n = self.state.n;
         let (mut fa, mut fb, mut fc) = (vec![0f32; n], vec![0f32; n], vec![0f32; n]);
         let mut seeds: Vec<(f64, u32)> = Vec::new();

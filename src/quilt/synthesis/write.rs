@@ -5,18 +5,18 @@ use std::path::Path;
 
 use rayon::prelude::*;
 
-use super::state::{State, Surface};
-use super::synthesis::{sample_role, Synthesis};
-use super::{TileConfig, TileReport};
+use super::{sample_role, Synthesis};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{KIND, SEAM_X, SEAM_Y, SEAM_ZIPPER};
 use crate::container::codec::EncodedChunk;
 use crate::container::{codec, ArrayId, ArraySpec, ContainerWriter, DType, Param};
+use crate::quilt::state::{State, Surface};
+use crate::quilt::{TileConfig, TileReport};
 use crate::Result;
 
 /// Writes the synthesis state as a `.quilt`; `paint_log` (a JSON array of
 /// strokes) when the surface was painted.
-pub(super) fn write_quilt(
+pub(in crate::quilt) fn write_quilt(
     out: &Path,
     cfg: &TileConfig,
     gim: &Gim,
@@ -217,7 +217,7 @@ impl TileValues {
 /// that name): its path relative to the quilt's folder (so the quilt and its
 /// inputs can move together, and be read from any working directory), its
 /// length (`ROLE_bytes`) and its content hash (an input of that name).
-pub(super) fn record_dependency(w: &mut ContainerWriter, out: &Path, role: &str, path: &Path) -> Result<()> {
+fn record_dependency(w: &mut ContainerWriter, out: &Path, role: &str, path: &Path) -> Result<()> {
     let (bytes, hash) = crate::container::file_identity(path)?;
     w.add_input(role, hash);
     w.set_param(
