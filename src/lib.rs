@@ -70,6 +70,7 @@ pub mod paint;
 pub mod progress;
 pub mod quilt;
 mod rng;
+mod sparse;
 pub mod studio;
 
 pub use error::{Error, Result};

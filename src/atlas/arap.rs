@@ -10,8 +10,9 @@
 
 use faer::sparse::{SparseColMat, Triplet};
 
-use super::lscm::{degenerate, local_frame, SpdFactor};
+use super::lscm::{degenerate, local_frame};
 use crate::mesh::to_dvec3;
+use crate::sparse::SpdFactor;
 
 /// Local/global iterations: a fixed count, so the result does not depend on
 /// a tolerance met at a different step on another machine.

@@ -433,7 +433,7 @@ fn smoothest_field(
             trip.push(Triplet::new(2 * f + 1, 2 * f + 1, d));
         }
         let h = SparseColMat::<usize, f64>::try_new_from_triplets(2 * nf, 2 * nf, &trip).ok()?;
-        crate::atlas::lscm::SpdFactor::new(&h).ok()
+        crate::sparse::SpdFactor::new(&h).ok()
     };
     let factor = factorize(SMOOTHEST_SHIFT / (diag * diag), None)?;
     let components = topology.components.max(1);
