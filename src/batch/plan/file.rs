@@ -120,7 +120,7 @@ pub(super) struct RenderSection {
     /// ten numbers.
     #[serde(default = "default_cameras")]
     pub(super) cameras: Vec<String>,
-    /// `render --light`'s x,y,z[,intensity]: one render per light; absent:
+    /// `render --light`'s `x,y,z[,intensity]`: one render per light; absent:
     /// `render`'s default light.
     pub(super) lights: Option<Vec<String>>,
 }

@@ -24,10 +24,10 @@ pub struct RgbImage {
     pub data: Vec<f32>,
 }
 
-mod dilate;
+mod dilation;
 mod sampling;
 mod write;
-pub use dilate::*;
+pub use dilation::*;
 pub use sampling::*;
 pub use write::*;
 

@@ -44,7 +44,7 @@ pub struct EvaluateReport {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub painting: Option<PaintingFigures>,
     pub seam: SeamFigures,
-    /// Whether features continue across seams ([`continuation`]).
+    /// Whether features continue across seams ([`continuation`](crate::output::continuation)).
     pub continuation: ContinuationFigures,
     pub zipper: ZipperFigures,
     pub coherence: CoherenceFigures,

@@ -11,10 +11,10 @@ use glam::Vec3;
 use super::sample::Sample;
 use super::state::{Bfs, State, Surface, WorkPatch};
 
+mod aligned;
 mod membrane;
-mod unfold;
+pub(super) use aligned::*;
 pub(super) use membrane::*;
-pub(super) use unfold::*;
 
 /// The work image of a patch and where each patch vertex sits in it.
 pub(super) struct WorkImage {

@@ -351,7 +351,7 @@ pub struct Matcher {
     /// The spectra Z_j of the last keyed work image ([`Matcher::cost_map_for`]).
     work_spectra: Vec<C64>,
     work_tag: Option<WorkTag>,
-    /// Shared with the matchers of [`Matcher::sibling`].
+    /// Shared with the matchers of [`Matcher::sharing`].
     cache: Arc<Mutex<BoundedCache<CacheKey, Arc<SampleSpectra>>>>,
     computed: u64,
     reused: u64,
