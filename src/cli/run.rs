@@ -21,7 +21,7 @@ use btfquilt::{
     output::bake, output::compare, output::evaluate, output::export, output::render, output::show,
 };
 
-use super::args::*;
+use super::args::{Cli, Command, LISTED_SINGULARITIES};
 use super::bars::Bars;
 
 /// Prints quality figures as pretty JSON on stdout.

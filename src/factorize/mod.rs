@@ -42,7 +42,7 @@ use crate::{Error, Result};
 mod rotate;
 mod stream;
 pub use rotate::*;
-use stream::*;
+use stream::{orth, to_f64, MatrixStream};
 
 pub use crate::artifact::svd::KIND;
 

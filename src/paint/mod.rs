@@ -35,8 +35,8 @@ use crate::{Error, Result};
 
 mod log;
 mod region;
-use log::*;
-use region::*;
+use log::{PaintLog, StrokeRecord, VerbatimRecord};
+use region::{check_verbatim, constraint_function, foreground_extent, read_region, verbatim_vertex};
 
 /// A verbatim copy: where and how the foreground goes.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -35,8 +35,8 @@ use std::collections::BinaryHeap;
 
 mod maps;
 mod patch;
-use maps::*;
-use patch::*;
+use maps::{evaluate, parameterize_relaxing, within_cone, Outcome};
+use patch::Patch;
 
 const NONE: u32 = u32::MAX;
 /// Lloyd iterations (re-seeding at chart centres) of the segmentation.

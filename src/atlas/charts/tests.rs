@@ -1,3 +1,4 @@
+use super::maps::{area_distortion_tail, parameterize};
 use super::*;
 
 fn mesh(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Mesh {

@@ -20,8 +20,8 @@ use crate::{Error, Result};
 
 mod faces;
 mod zipper;
-use faces::*;
-use zipper::*;
+use faces::{tile_arrays, BoundaryTexel, FaceRaster};
+use zipper::{zipper_links, zipper_triangles};
 
 pub use crate::artifact::gim::{TexelId, EMPTY, KIND, MAX_LINK, MAX_RESOLUTION, TILE};
 
