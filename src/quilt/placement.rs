@@ -2,11 +2,12 @@
 //! rotations from FFT matching, and the seeded choice among near-minimal ones.
 
 use super::coarse::{self, Coarse};
+use super::config::TileConfig;
 use super::flatten::{rotation_index, WorkImage};
+use super::matching;
 use super::matching::{Image, MatchConfig, Matcher};
 use super::occurrence::Occurrence;
 use super::sample::Sample;
-use super::{matching, TileConfig};
 use crate::Result;
 use std::sync::atomic::{AtomicU64, Ordering};
 

@@ -301,7 +301,7 @@ pub(crate) struct SizedSample {
 pub(crate) fn sample_at_density(
     sample_path: &Path,
     texel_size: f64,
-    on_surface: Option<super::SampleSize>,
+    on_surface: Option<super::config::SampleSize>,
     matching: bool,
     progress: &dyn Progress,
 ) -> Result<SizedSample> {

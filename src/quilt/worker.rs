@@ -7,6 +7,7 @@
 use std::path::Path;
 use std::time::Instant;
 
+use super::config::TileConfig;
 use super::ends::broken_around;
 use super::fit::{fit_patch, Fit};
 use super::flatten::{chart_work_image, flattened_work_image, unfolded_work_image, Flattening, WorkImage};
@@ -17,7 +18,6 @@ use super::placement::{
 };
 use super::sample::Sample;
 use super::state::{Bfs, State, Surface, WorkPatch};
-use super::TileConfig;
 use crate::progress::Progress;
 use crate::{Error, Result};
 
@@ -281,7 +281,7 @@ impl Worker<'_> {
         self.stats.matching_seconds += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let mut best: Option<Fit> = None;
-        let limit = super::BROKEN_CONTINUATION * self.reference;
+        let limit = super::config::BROKEN_CONTINUATION * self.reference;
         let around = |fit: Option<&Fit>| {
             broken_around(self.sample, self.state, self.surface, self.bfs, patch, fit, limit)
         };

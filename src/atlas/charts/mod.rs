@@ -267,7 +267,7 @@ fn owners(ctx: &Ctx, charts: &[Chart]) -> Vec<u32> {
 }
 
 /// Merges charts into neighbours, smallest first, while the union stays a
-/// disk that [`parameterize`] maps and within the normal cone (waived for
+/// disk that [`parameterize`](maps::parameterize) maps and within the normal cone (waived for
 /// tiny charts).
 fn merge(ctx: &Ctx, mut charts: Vec<Chart>) -> Vec<Chart> {
     let mut owner = owners(ctx, &charts);

@@ -19,13 +19,13 @@
 use std::path::Path;
 use std::sync::Mutex;
 
+use super::config::TileConfig;
 use super::matching::{Matcher, SpectraCache};
 use super::occurrence::Occurrence;
 use super::sample::Sample;
 use super::state::{Bfs, State, Surface, WorkPatch};
 use super::synthesis::Synthesis;
 use super::worker::{Outcome, StepStats, Worker};
-use super::TileConfig;
 use crate::artifact::gim::TILE;
 use crate::progress::{Progress, Silent};
 use crate::Result;
@@ -361,7 +361,7 @@ impl Synthesis {
                     // fewer features end, at a cut not much dearer than the
                     // seams it replaces; or as many, more cheaply
                     Some((before, after)) => {
-                        (after < before && fit.flow < super::ENDS_DEARER * fit.baseline)
+                        (after < before && fit.flow < super::config::ENDS_DEARER * fit.baseline)
                             || (after <= before && cheaper)
                     }
                     None => cheaper,

@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use super::config::{TileConfig, TileReport};
 use super::fit::{apply, fit_patch, Fit, INFINITE};
 use super::flatten::rotation_index;
 use super::matching::Matcher;
@@ -14,7 +15,6 @@ use super::placement::{to_sample, PlacementChoice};
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
 use super::state::{Bfs, State, Surface, WorkPatch, NO_FOREIGN};
 use super::worker::{Outcome, StepStats, Worker};
-use super::{TileConfig, TileReport};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{Quilt, MAX_SAMPLES, NO_PATCH};
 use crate::artifact::svd::SvdArtifact;

@@ -16,11 +16,11 @@ impl Synthesis {
     /// Seams already inside a refined patch are not visited again. The seams
     /// are visited in [`visit_order`], which keeps the tiles a round reads
     /// few. With `broken_placements` > 0, seams where a feature ends
-    /// ([`super::super::BROKEN_CONTINUATION`]) are visited too, whatever their
+    /// ([`crate::quilt::config::BROKEN_CONTINUATION`]) are visited too, whatever their
     /// step, and fitted with that many placements: the one whose cut ends
     /// fewest features at the patch's seams ([`super::super::ends`]) is chosen, and
     /// kept if it ends fewer than before at a cut under
-    /// [`super::super::ENDS_DEARER`] × the old seams' cost (or as many, at under
+    /// [`ENDS_DEARER`](crate::quilt::config::ENDS_DEARER) × the old seams' cost (or as many, at under
     /// 0.9×). With `step` infinite only those seams are visited.
     pub(crate) fn refine(
         &mut self,
@@ -47,7 +47,7 @@ impl Synthesis {
     /// each texel with a neighbour of another patch whose colour step is
     /// over `step` sample neighbour differences, or (with `broken`) where a
     /// feature ends: one side's patch, continued one texel across, differs
-    /// from the other side by more than [`super::super::BROKEN_CONTINUATION`] of
+    /// from the other side by more than [`crate::quilt::config::BROKEN_CONTINUATION`] of
     /// them. Also those feature ends alone, ascending.
     pub(super) fn seams_to_refine(&self, step: f64, find_broken: bool) -> (Vec<(f64, u32)>, Vec<u32>) {
         let n = self.state.n;
@@ -93,7 +93,7 @@ impl Synthesis {
                     ends = ends.max(gap);
                 }
             }
-            if ends > super::super::BROKEN_CONTINUATION * self.reference {
+            if ends > crate::quilt::config::BROKEN_CONTINUATION * self.reference {
                 broken.push(t);
                 seeds.push((worst.max(ends), t));
             } else if worst > step * self.reference {

@@ -10,8 +10,8 @@ use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{KIND, SEAM_X, SEAM_Y, SEAM_ZIPPER};
 use crate::container::codec::EncodedChunk;
 use crate::container::{codec, ArrayId, ArraySpec, ContainerWriter, DType, Param};
+use crate::quilt::config::{TileConfig, TileReport};
 use crate::quilt::state::{State, Surface};
-use crate::quilt::{TileConfig, TileReport};
 use crate::Result;
 
 /// Writes the synthesis state as a `.quilt`; `paint_log` (a JSON array of
