@@ -81,7 +81,7 @@ impl Serialize for Key {
     }
 }
 
-// ---------------------------------------------------------------- the file
+// ---------------------------------------------------------------- the plan
 
 /// An input file of the plan, with its content identity.
 #[derive(Clone, Debug)]

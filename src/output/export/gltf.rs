@@ -327,5 +327,3 @@ pub fn glb_bytes(mesh: &SplitMesh, png: &[u8]) -> std::result::Result<Vec<u8>, S
     debug_assert_eq!(out.len(), total);
     Ok(out)
 }
-
-// ------------------------------------------------------- surface BTF ----
