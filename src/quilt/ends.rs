@@ -35,20 +35,21 @@ pub(super) fn step(t: u32, nb: u32, r: usize, zipper: bool) -> Option<(f64, f64)
 }
 
 /// How far a feature ends at the seam edge between sides a and b: the larger
-/// of each side continued one step across (`continued(false, ..)` for a,
-/// `continued(true, ..)` for b, false outside the sample) against what the
-/// other side shows (`fa`, `fb`). `fc` is scratch.
+/// of each side continued one step across (`continued_a`, `continued_b`,
+/// false outside the sample) against what the other side shows (`fb`,
+/// `fa`). `fc` is scratch.
 pub(super) fn gap(
     fa: &[f32],
     fb: &[f32],
     fc: &mut [f32],
-    mut continued: impl FnMut(bool, &mut [f32]) -> bool,
+    continued_a: impl FnOnce(&mut [f32]) -> bool,
+    continued_b: impl FnOnce(&mut [f32]) -> bool,
 ) -> f64 {
     let mut ends = 0f64;
-    if continued(false, fc) {
+    if continued_a(fc) {
         ends = ends.max(dist(fc, fb));
     }
-    if continued(true, fc) {
+    if continued_b(fc) {
         ends = ends.max(dist(fc, fa));
     }
     ends
@@ -162,10 +163,13 @@ pub(super) fn broken_around(
                 shown = true;
             }
             features(nb, b, &mut fb);
-            let ends = gap(&fa, &fb, &mut fc, |back, out| match back {
-                false => continued(t, a, d, out),
-                true => continued(nb, b, (-d.0, -d.1), out),
-            });
+            let ends = gap(
+                &fa,
+                &fb,
+                &mut fc,
+                |out| continued(t, a, d, out),
+                |out| continued(nb, b, (-d.0, -d.1), out),
+            );
             if ends > limit {
                 broken += 1;
             }

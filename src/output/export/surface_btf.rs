@@ -25,7 +25,7 @@ pub fn sample_file(stem: &str, k: usize, ext: &str) -> String {
 
 /// Writes the surface BTF of a decorated mesh into the stage: `svds` and
 /// `paths` are its samples in [`Quilt::samples`] order (sharing one direction
-/// set, as [`open_samples`](super::super::open_samples) checks).
+/// set, as [`open_samples`](crate::output::open_samples) checks).
 pub(super) fn stage_surface_btf(
     quilt_path: &Path,
     quilt: &Quilt,

@@ -149,7 +149,7 @@ impl Synthesis {
         Ok(())
     }
 
-    /// Writes the state as a `.quilt` (see [`tile`](super::super::tile)); `paint_log` for a
+    /// Writes the state as a `.quilt` (see [`tile`](crate::quilt::tile)); `paint_log` for a
     /// painted surface.
     pub(crate) fn write(
         &mut self,

@@ -18,7 +18,7 @@ impl Synthesis {
     /// few. With `broken_placements` > 0, seams where a feature ends
     /// ([`crate::quilt::config::BROKEN_CONTINUATION`]) are visited too, whatever their
     /// step, and fitted with that many placements: the one whose cut ends
-    /// fewest features at the patch's seams ([`super::super::ends`]) is chosen, and
+    /// fewest features at the patch's seams ([`ends`](crate::quilt::ends)) is chosen, and
     /// kept if it ends fewer than before at a cut under
     /// [`ENDS_DEARER`](crate::quilt::config::ENDS_DEARER) × the old seams' cost (or as many, at under
     /// 0.9×). With `step` infinite only those seams are visited.
@@ -84,12 +84,15 @@ impl Synthesis {
                 worst = worst.max(dist(&fa, &fb));
                 // grid edges: each side continued one texel across against
                 // what the other shows (zipper links have no common step)
-                let along = super::super::ends::step(t, nb, grid.r, zipper);
+                let along = crate::quilt::ends::step(t, nb, grid.r, zipper);
                 if let (true, Some(d)) = (find_broken, along) {
-                    let gap = super::super::ends::gap(&fa, &fb, &mut fc, |back, out| match back {
-                        false => self.state.continued(&self.sample, t, d, out),
-                        true => self.state.continued(&self.sample, nb, (-d.0, -d.1), out),
-                    });
+                    let gap = crate::quilt::ends::gap(
+                        &fa,
+                        &fb,
+                        &mut fc,
+                        |out| self.state.continued(&self.sample, t, d, out),
+                        |out| self.state.continued(&self.sample, nb, (-d.0, -d.1), out),
+                    );
                     ends = ends.max(gap);
                 }
             }

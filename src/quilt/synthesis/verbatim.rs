@@ -27,7 +27,7 @@ impl Synthesis {
         trace("work patch");
         // (a preview reads only the work coordinates)
         let (work, coords, field) = if preview {
-            let (coords, field) = super::super::flatten::work_coords(
+            let (coords, field) = crate::quilt::flatten::work_coords(
                 &self.surface,
                 &patch,
                 &self.bfs,
