@@ -75,6 +75,88 @@ impl Quilting {
     }
 }
 
+/// `tile`'s own options (defaults from [`TileConfig`]).
+#[derive(Args, Clone)]
+pub(super) struct Tiling {
+    /// The sample's foreground mask (PNG, the sample's size): keep the
+    /// foreground (cracks, stains…) out of the tiling.
+    #[arg(long)]
+    sample_mask: Option<PathBuf>,
+    /// Seam refinement once covered: seams stepping more than this × the
+    /// sample's neighbour difference get another work patch; 0 turns it off.
+    #[arg(long, default_value_t = TileConfig::default().refine.unwrap_or(0.0))]
+    refine: f64,
+    /// Seam refinement fits this many distinct good placements per seam and
+    /// keeps the cheapest cut (1: only the best match; more: lower seams,
+    /// longer runs).
+    #[arg(long, default_value_t = TileConfig::default().refine_placements)]
+    refine_placements: usize,
+    /// Seam refinement also visits seams where a feature ends (a mortar
+    /// line or strand one side would carry on), whatever their colour
+    /// step, fits this many placements there and keeps the one that ends
+    /// fewest features; 0: off.
+    #[arg(long, default_value_t = TileConfig::default().refine_broken)]
+    refine_broken: usize,
+    /// With --refine-broken: passes over the seams where features still
+    /// end (each refinement makes new seams); stops early when a pass
+    /// changes nothing.
+    #[arg(long, default_value_t = TileConfig::default().refine_passes)]
+    refine_passes: usize,
+    /// Work patches computed at once per round of the quilting loop (1: one
+    /// at a time, as in the paper). Part of the recipe like the seed: the
+    /// output depends on it, never on --threads.
+    #[arg(long, default_value_t = TileConfig::default().round)]
+    round: usize,
+    /// Penalise sample regions in proportion to how often the surface
+    /// already shows them (0 turns it off; higher: more of the sample's
+    /// variety, at some cost in seam quality).
+    #[arg(long, default_value_t = TileConfig::default().occurrence_weight)]
+    occurrence_weight: f64,
+    /// Choose among placements costing at most (1 + this) × the best one,
+    /// by the seed (0: the best; higher: more variety, weaker seams).
+    #[arg(long, default_value_t = TileConfig::default().tolerance)]
+    tolerance: f64,
+    /// Weight of the structure channel (distance to the sample's edges) in
+    /// matching and seams, in sample neighbour differences (0: colour only).
+    #[arg(long, default_value_t = TileConfig::default().structure_weight)]
+    structure_weight: f64,
+    /// Bend each new patch by up to this share of its radius so that its features
+    /// meet the old texels of the overlap before the cut (0: rigid patches)
+    #[arg(long, default_value_t = TileConfig::default().feature_align)]
+    feature_align: f64,
+    /// Let matching turn the sample up to this many rotation steps (5°) off the
+    /// field's mean direction where the field turns inside a work patch (0: never).
+    #[arg(long, default_value_t = TileConfig::default().field_turn)]
+    field_turn: usize,
+    /// Match samples longer than this many pixels a side (after resampling)
+    /// coarse to fine: on copies averaged down to at most this size, then
+    /// exactly around the best coarse placements (0: always at full
+    /// resolution). Part of the recipe like the seed.
+    #[arg(long, default_value_t = TileConfig::default().coarse_above)]
+    coarse_above: usize,
+}
+
+impl Tiling {
+    /// These options over `base`.
+    pub(super) fn tile_config(self, base: TileConfig) -> TileConfig {
+        TileConfig {
+            sample_mask: self.sample_mask,
+            refine: (self.refine != 0.0).then_some(self.refine),
+            refine_placements: self.refine_placements,
+            refine_broken: self.refine_broken,
+            refine_passes: self.refine_passes,
+            round: self.round,
+            occurrence_weight: self.occurrence_weight,
+            tolerance: self.tolerance,
+            structure_weight: self.structure_weight,
+            feature_align: self.feature_align,
+            field_turn: self.field_turn,
+            coarse_above: self.coarse_above,
+            ..base
+        }
+    }
+}
+
 /// Options shared by the stages that process data.
 #[derive(Args, Clone)]
 pub(super) struct Resources {
@@ -278,62 +360,8 @@ pub(super) enum Command {
         sample: PathBuf,
         #[command(flatten)]
         quilting: Quilting,
-        /// The sample's foreground mask (PNG, the sample's size): keep the
-        /// foreground (cracks, stains…) out of the tiling.
-        #[arg(long)]
-        sample_mask: Option<PathBuf>,
-        /// Seam refinement once covered: seams stepping more than this × the
-        /// sample's neighbour difference get another work patch; 0 turns it off.
-        #[arg(long, default_value_t = TileConfig::default().refine.unwrap_or(0.0))]
-        refine: f64,
-        /// Seam refinement fits this many distinct good placements per seam and
-        /// keeps the cheapest cut (1: only the best match; more: lower seams,
-        /// longer runs).
-        #[arg(long, default_value_t = TileConfig::default().refine_placements)]
-        refine_placements: usize,
-        /// Seam refinement also visits seams where a feature ends (a mortar
-        /// line or strand one side would carry on), whatever their colour
-        /// step, fits this many placements there and keeps the one that ends
-        /// fewest features; 0: off.
-        #[arg(long, default_value_t = TileConfig::default().refine_broken)]
-        refine_broken: usize,
-        /// With --refine-broken: passes over the seams where features still
-        /// end (each refinement makes new seams); stops early when a pass
-        /// changes nothing.
-        #[arg(long, default_value_t = TileConfig::default().refine_passes)]
-        refine_passes: usize,
-        /// Work patches computed at once per round of the quilting loop (1: one
-        /// at a time, as in the paper). Part of the recipe like the seed: the
-        /// output depends on it, never on --threads.
-        #[arg(long, default_value_t = TileConfig::default().round)]
-        round: usize,
-        /// Penalise sample regions in proportion to how often the surface
-        /// already shows them (0 turns it off; higher: more of the sample's
-        /// variety, at some cost in seam quality).
-        #[arg(long, default_value_t = TileConfig::default().occurrence_weight)]
-        occurrence_weight: f64,
-        /// Choose among placements costing at most (1 + this) × the best one,
-        /// by the seed (0: the best; higher: more variety, weaker seams).
-        #[arg(long, default_value_t = TileConfig::default().tolerance)]
-        tolerance: f64,
-        /// Weight of the structure channel (distance to the sample's edges) in
-        /// matching and seams, in sample neighbour differences (0: colour only).
-        #[arg(long, default_value_t = TileConfig::default().structure_weight)]
-        structure_weight: f64,
-        /// Bend each new patch by up to this share of its radius so that its features
-        /// meet the old texels of the overlap before the cut (0: rigid patches)
-        #[arg(long, default_value_t = TileConfig::default().feature_align)]
-        feature_align: f64,
-        /// Let matching turn the sample up to this many rotation steps (5°) off the
-        /// field's mean direction where the field turns inside a work patch (0: never).
-        #[arg(long, default_value_t = TileConfig::default().field_turn)]
-        field_turn: usize,
-        /// Match samples longer than this many pixels a side (after resampling)
-        /// coarse to fine: on copies averaged down to at most this size, then
-        /// exactly around the best coarse placements (0: always at full
-        /// resolution). Part of the recipe like the seed.
-        #[arg(long, default_value_t = TileConfig::default().coarse_above)]
-        coarse_above: usize,
+        #[command(flatten)]
+        tiling: Tiling,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]

@@ -15,7 +15,7 @@ use btfquilt::ingest::{self, IngestConfig};
 use btfquilt::mesh::io::LoadOptions;
 use btfquilt::output::render::RenderConfig;
 use btfquilt::paint::PaintConfig;
-use btfquilt::quilt::{self, TileConfig};
+use btfquilt::quilt;
 use btfquilt::studio::ServeConfig;
 use btfquilt::{
     output::bake, output::compare, output::evaluate, output::export, output::render, output::show,
@@ -263,37 +263,12 @@ pub(crate) fn run(cli: Cli) -> Result<()> {
             gim,
             sample,
             quilting,
-            sample_mask,
-            refine,
-            refine_placements,
-            refine_broken,
-            refine_passes,
-            round,
-            occurrence_weight,
-            tolerance,
-            structure_weight,
-            feature_align,
-            field_turn,
-            coarse_above,
+            tiling,
             output,
             res,
         } => {
             let (memory, bars) = res.apply()?;
-            let cfg = TileConfig {
-                sample_mask,
-                refine: (refine != 0.0).then_some(refine),
-                refine_placements,
-                refine_broken,
-                refine_passes,
-                round,
-                occurrence_weight,
-                tolerance,
-                structure_weight,
-                feature_align,
-                field_turn,
-                coarse_above,
-                ..quilting.tile_config(memory)
-            };
+            let cfg = tiling.tile_config(quilting.tile_config(memory));
             let report = quilt::tile(&gim, &sample, &output, &cfg, &bars)?;
             say!("wrote {}: {report}", output.display());
         }
