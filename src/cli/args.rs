@@ -157,6 +157,83 @@ impl Tiling {
     }
 }
 
+/// The options of `generate-btf` that describe the BTF.
+#[derive(Args)]
+pub(super) struct Generating {
+    /// The material family.
+    #[arg(long, value_enum, ignore_case = true, default_value_t = GenerateConfig::default().family)]
+    family: Family,
+    /// The imperfection layer (its mask is written beside the output as *.mask.png).
+    #[arg(long, value_enum, ignore_case = true, default_value_t = GenerateConfig::default().imperfection)]
+    imperfection: Imperfection,
+    /// Texels per side (width = height).
+    #[arg(long, default_value_t = GenerateConfig::default().width)]
+    size: usize,
+    /// View directions as PHIxTHETA.
+    #[arg(long, value_parser = parse_grid, default_value_t = Grid(GenerateConfig::default().views))]
+    views: Grid,
+    /// Light directions as PHIxTHETA.
+    #[arg(long, value_parser = parse_grid, default_value_t = Grid(GenerateConfig::default().lights))]
+    lights: Grid,
+    #[arg(long, default_value_t = GenerateConfig::default().seed)]
+    seed: u64,
+}
+
+impl Generating {
+    /// The generator's configuration with these options and `memory`.
+    pub(super) fn generate_config(self, memory: MemoryBudget) -> GenerateConfig {
+        GenerateConfig {
+            family: self.family,
+            imperfection: self.imperfection,
+            width: self.size,
+            height: self.size,
+            views: self.views.0,
+            lights: self.lights.0,
+            seed: self.seed,
+            memory,
+            ..GenerateConfig::default()
+        }
+    }
+}
+
+/// The options of `factorize` that shape the factorization.
+#[derive(Args)]
+pub(super) struct Factorizing {
+    /// Number of terms n (default 40, or fewer if the matrix is smaller).
+    #[arg(long)]
+    terms: Option<usize>,
+    /// Oversampling p of the randomized SVD.
+    #[arg(long, default_value_t = FactorizeConfig::default().oversampling)]
+    oversampling: usize,
+    /// Power iterations q of the randomized SVD.
+    #[arg(long, default_value_t = FactorizeConfig::default().power_iterations)]
+    power_iterations: usize,
+    /// Rotated copies of the geometry maps (5° steps for 72).
+    #[arg(long, default_value_t = FactorizeConfig::default().rotations)]
+    rotations: usize,
+    /// The sample wraps around: rotated copies sample it toroidally.
+    #[arg(long)]
+    tileable: bool,
+    #[arg(long, default_value_t = FactorizeConfig::default().seed)]
+    seed: u64,
+}
+
+impl Factorizing {
+    /// The factorization's configuration with these options and `memory`.
+    pub(super) fn factorize_config(self, memory: MemoryBudget) -> FactorizeConfig {
+        FactorizeConfig {
+            terms: self.terms,
+            oversampling: self.oversampling,
+            power_iterations: self.power_iterations,
+            rotations: self.rotations,
+            tileable: self.tileable,
+            seed: self.seed,
+            memory,
+            ..FactorizeConfig::default()
+        }
+    }
+}
+
 /// Options shared by the stages that process data.
 #[derive(Args, Clone)]
 pub(super) struct Resources {
@@ -184,23 +261,8 @@ pub(super) enum Command {
     },
     /// Generate a synthetic BTF (procedural mesostructure, ray-marched).
     GenerateBtf {
-        /// The material family.
-        #[arg(long, value_enum, ignore_case = true, default_value_t = GenerateConfig::default().family)]
-        family: Family,
-        /// The imperfection layer (its mask is written beside the output as *.mask.png).
-        #[arg(long, value_enum, ignore_case = true, default_value_t = GenerateConfig::default().imperfection)]
-        imperfection: Imperfection,
-        /// Texels per side (width = height).
-        #[arg(long, default_value_t = GenerateConfig::default().width)]
-        size: usize,
-        /// View directions as PHIxTHETA.
-        #[arg(long, value_parser = parse_grid, default_value_t = Grid(GenerateConfig::default().views))]
-        views: Grid,
-        /// Light directions as PHIxTHETA.
-        #[arg(long, value_parser = parse_grid, default_value_t = Grid(GenerateConfig::default().lights))]
-        lights: Grid,
-        #[arg(long, default_value_t = GenerateConfig::default().seed)]
-        seed: u64,
+        #[command(flatten)]
+        generating: Generating,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -240,23 +302,8 @@ pub(super) enum Command {
     Factorize {
         /// A .btf, or a colour image (PNG/JPEG/TIFF/EXR) taken as a one-direction BTF.
         input: PathBuf,
-        /// Number of terms n (default 40, or fewer if the matrix is smaller).
-        #[arg(long)]
-        terms: Option<usize>,
-        /// Oversampling p of the randomized SVD.
-        #[arg(long, default_value_t = FactorizeConfig::default().oversampling)]
-        oversampling: usize,
-        /// Power iterations q of the randomized SVD.
-        #[arg(long, default_value_t = FactorizeConfig::default().power_iterations)]
-        power_iterations: usize,
-        /// Rotated copies of the geometry maps (5° steps for 72).
-        #[arg(long, default_value_t = FactorizeConfig::default().rotations)]
-        rotations: usize,
-        /// The sample wraps around: rotated copies sample it toroidally.
-        #[arg(long)]
-        tileable: bool,
-        #[arg(long, default_value_t = FactorizeConfig::default().seed)]
-        seed: u64,
+        #[command(flatten)]
+        factorizing: Factorizing,
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]

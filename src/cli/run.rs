@@ -9,8 +9,8 @@ use btfquilt::artifact::svd::SvdArtifact;
 use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::batch;
 use btfquilt::container::Container;
-use btfquilt::factorize::{self, FactorizeConfig};
-use btfquilt::generate::{self, GenerateConfig};
+use btfquilt::factorize;
+use btfquilt::generate;
 use btfquilt::ingest::{self, IngestConfig};
 use btfquilt::mesh::io::LoadOptions;
 use btfquilt::output::render::RenderConfig;
@@ -59,27 +59,12 @@ pub(crate) fn run(cli: Cli) -> Result<()> {
             }
         }
         Command::GenerateBtf {
-            family,
-            imperfection,
-            size,
-            views,
-            lights,
-            seed,
+            generating,
             output,
             res,
         } => {
             let (memory, bars) = res.apply()?;
-            let cfg = GenerateConfig {
-                family,
-                imperfection,
-                width: size,
-                height: size,
-                views: views.0,
-                lights: lights.0,
-                seed,
-                memory,
-                ..GenerateConfig::default()
-            };
+            let cfg = generating.generate_config(memory);
             let report = generate::generate_btf(&cfg, &output, &bars)?;
             say!("wrote {} ({})", output.display(), report);
         }
@@ -128,26 +113,12 @@ pub(crate) fn run(cli: Cli) -> Result<()> {
         }
         Command::Factorize {
             input,
-            terms,
-            oversampling,
-            power_iterations,
-            rotations,
-            tileable,
-            seed,
+            factorizing,
             output,
             res,
         } => {
             let (memory, bars) = res.apply()?;
-            let cfg = FactorizeConfig {
-                terms,
-                oversampling,
-                power_iterations,
-                rotations,
-                tileable,
-                seed,
-                memory,
-                ..FactorizeConfig::default()
-            };
+            let cfg = factorizing.factorize_config(memory);
             let report = factorize::factorize(&input, &output, &cfg, &bars)?;
             say!("wrote {}: {report}", output.display());
         }

@@ -25,6 +25,20 @@ pub(super) struct Header {
 }
 
 impl Header {
+    /// The header of a file that ends with its metadata block (`meta_len`
+    /// bytes at `meta_offset`) followed by its index block (`index_len`).
+    pub(super) fn for_trailer(meta_offset: u64, meta_len: u64, index_len: u64) -> Header {
+        let index_offset = meta_offset + meta_len;
+        Header {
+            version: FORMAT_VERSION,
+            meta_offset,
+            meta_len,
+            index_offset,
+            index_len,
+            file_len: index_offset + index_len,
+        }
+    }
+
     pub(super) fn to_bytes(&self) -> [u8; HEADER_LEN] {
         let mut b = [0u8; HEADER_LEN];
         b[0..8].copy_from_slice(&MAGIC);

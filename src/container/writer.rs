@@ -183,16 +183,8 @@ impl ContainerWriter {
         let io = |e| Error::io(&path, e);
         let meta_offset = self.offset;
         self.out.write_all(&meta_block).map_err(io)?;
-        let index_offset = meta_offset + meta_block.len() as u64;
         self.out.write_all(&index_block).map_err(io)?;
-        let header = Header {
-            version: FORMAT_VERSION,
-            meta_offset,
-            meta_len: meta_block.len() as u64,
-            index_offset,
-            index_len: index_block.len() as u64,
-            file_len: index_offset + index_block.len() as u64,
-        };
+        let header = Header::for_trailer(meta_offset, meta_block.len() as u64, index_block.len() as u64);
         self.out.flush().map_err(io)?;
         let file = self.out.get_mut();
         file.seek(SeekFrom::Start(0)).map_err(io)?;
@@ -227,17 +219,9 @@ pub fn write_unchecked(path: &Path, meta: &Metadata, chunks: &[Vec<EncodedChunk>
     let meta_offset = bytes.len() as u64;
     let meta_block = encode_block(meta);
     bytes.extend_from_slice(&meta_block);
-    let index_offset = bytes.len() as u64;
     let index_block = encode_block(&index);
     bytes.extend_from_slice(&index_block);
-    let header = Header {
-        version: FORMAT_VERSION,
-        meta_offset,
-        meta_len: meta_block.len() as u64,
-        index_offset,
-        index_len: index_block.len() as u64,
-        file_len: bytes.len() as u64,
-    };
+    let header = Header::for_trailer(meta_offset, meta_block.len() as u64, index_block.len() as u64);
     bytes[..HEADER_LEN].copy_from_slice(&header.to_bytes());
     std::fs::write(path, bytes).map_err(|e| Error::io(path, e))
 }
