@@ -239,13 +239,13 @@ impl Factorizing {
 pub(super) struct Resources {
     /// Worker threads (default: all cores). Results do not depend on it.
     #[arg(long, global = true)]
-    pub(super) threads: Option<usize>,
+    threads: Option<usize>,
     /// Memory budget for decoded tiles, e.g. 512MiB or 2GiB.
     #[arg(long, global = true, value_parser = parse_memory, default_value_t = Memory(MemoryBudget::default()))]
-    pub(super) memory: Memory,
+    memory: Memory,
     /// Hide progress bars.
     #[arg(long, short, global = true)]
-    pub(super) quiet: bool,
+    quiet: bool,
 }
 
 #[derive(Subcommand)]
@@ -599,7 +599,7 @@ pub(super) enum Command {
 
 /// A library message without the `--flag 'value': ` it starts with: clap's
 /// error names the flag and the value already.
-pub(super) fn bare(e: impl std::fmt::Display, flag: &str, s: &str) -> String {
+fn bare(e: impl std::fmt::Display, flag: &str, s: &str) -> String {
     let m = e.to_string();
     match m.strip_prefix(&format!("{flag} '{s}': ")) {
         Some(rest) => rest.to_string(),
@@ -608,19 +608,19 @@ pub(super) fn bare(e: impl std::fmt::Display, flag: &str, s: &str) -> String {
 }
 
 /// `--shard I/N`.
-pub(super) fn parse_shard(s: &str) -> std::result::Result<batch::Shard, String> {
+fn parse_shard(s: &str) -> std::result::Result<batch::Shard, String> {
     batch::Shard::parse(s).map_err(|e| bare(e, "--shard", s))
 }
 
 /// `--job KEY`: 32 hexadecimal digits.
-pub(super) fn parse_key(s: &str) -> std::result::Result<batch::Key, String> {
+fn parse_key(s: &str) -> std::result::Result<batch::Key, String> {
     batch::Key::parse(s)
         .ok_or_else(|| "expected a job key: 32 hexadecimal digits, as `batch --list` prints".into())
 }
 
 /// `--memory`: a size like 512MiB or 2GiB.
 #[derive(Clone, Copy)]
-pub(super) struct Memory(pub(super) MemoryBudget);
+struct Memory(pub(super) MemoryBudget);
 
 impl std::fmt::Display for Memory {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -635,7 +635,7 @@ impl std::fmt::Display for Memory {
     }
 }
 
-pub(super) fn parse_memory(s: &str) -> std::result::Result<Memory, String> {
+fn parse_memory(s: &str) -> std::result::Result<Memory, String> {
     MemoryBudget::parse(s)
         .map(Memory)
         .map_err(|e| bare(e, "--memory", s))
@@ -643,7 +643,7 @@ pub(super) fn parse_memory(s: &str) -> std::result::Result<Memory, String> {
 
 /// `--views`/`--lights`: a direction grid PHIxTHETA.
 #[derive(Clone)]
-pub(super) struct Grid(pub(super) Vec<Angles>);
+struct Grid(pub(super) Vec<Angles>);
 
 impl std::fmt::Display for Grid {
     /// The grid as PHIxTHETA: its numbers of distinct φ and θ.
@@ -658,12 +658,12 @@ impl std::fmt::Display for Grid {
     }
 }
 
-pub(super) fn parse_grid(s: &str) -> std::result::Result<Grid, String> {
+fn parse_grid(s: &str) -> std::result::Result<Grid, String> {
     btf::parse_grid(s).map(Grid).map_err(|e| e.to_string())
 }
 
 /// `--view`/`--light` θ,φ in degrees.
-pub(super) fn parse_angles(s: &str) -> std::result::Result<Angles, String> {
+fn parse_angles(s: &str) -> std::result::Result<Angles, String> {
     let (t, p) = s.split_once(',').ok_or("expected θ,φ in degrees")?;
     let theta: f32 = t.trim().parse().map_err(|_| "θ is not a number")?;
     let phi: f32 = p.trim().parse().map_err(|_| "φ is not a number")?;
@@ -674,7 +674,7 @@ pub(super) fn parse_angles(s: &str) -> std::result::Result<Angles, String> {
 }
 
 /// `paint --at x,y,z`.
-pub(super) fn parse_point(s: &str) -> std::result::Result<[f32; 3], String> {
+fn parse_point(s: &str) -> std::result::Result<[f32; 3], String> {
     s.split(',')
         .map(|c| c.trim().parse::<f32>())
         .collect::<std::result::Result<Vec<f32>, _>>()
@@ -687,21 +687,21 @@ pub(super) fn parse_point(s: &str) -> std::result::Result<[f32; 3], String> {
 /// `atlas` lists at most this many singularities, the most exposed first.
 pub(super) const LISTED_SINGULARITIES: usize = 24;
 
-pub(super) fn parse_camera(s: &str) -> std::result::Result<Camera, String> {
+fn parse_camera(s: &str) -> std::result::Result<Camera, String> {
     Camera::parse(s).map_err(|e| bare(e, "--camera", s))
 }
 
-pub(super) fn parse_directional(s: &str) -> std::result::Result<Light, String> {
+fn parse_directional(s: &str) -> std::result::Result<Light, String> {
     Light::parse_directional(s).map_err(|e| bare(e, "--light", s))
 }
 
-pub(super) fn parse_point_light(s: &str) -> std::result::Result<Light, String> {
+fn parse_point_light(s: &str) -> std::result::Result<Light, String> {
     Light::parse_point(s).map_err(|e| bare(e, "--point-light", s))
 }
 
 /// The most worker threads `--threads` may ask for, per core: beyond a few
 /// per core, threads only add scheduling and memory cost.
-pub(super) const MAX_THREADS_PER_CORE: usize = 4;
+const MAX_THREADS_PER_CORE: usize = 4;
 
 impl Resources {
     pub(super) fn apply(&self) -> Result<(MemoryBudget, Bars)> {

@@ -21,7 +21,7 @@ pub(super) struct Header {
     pub(super) meta_len: u64,
     pub(super) index_offset: u64,
     pub(super) index_len: u64,
-    pub(super) file_len: u64,
+    file_len: u64,
 }
 
 impl Header {

@@ -9,12 +9,12 @@ use super::*;
 /// dropped (or the process killed before the rename).
 pub struct ContainerWriter {
     pub(super) path: PathBuf,
-    pub(super) tmp: Option<tempfile::NamedTempFile>,
-    pub(super) out: BufWriter<File>,
+    tmp: Option<tempfile::NamedTempFile>,
+    out: BufWriter<File>,
     pub(super) offset: u64,
-    pub(super) meta: Metadata,
+    meta: Metadata,
     pub(super) index: Vec<Vec<Option<ChunkEntry>>>,
-    pub(super) level: i32,
+    level: i32,
 }
 
 impl ContainerWriter {

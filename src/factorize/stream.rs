@@ -7,13 +7,13 @@ use super::*;
 /// (row-major inside each tile), so a tile's rows are contiguous.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct TileRows {
-    pub(super) tx: usize,
-    pub(super) ty: usize,
-    pub(super) x0: usize,
+    tx: usize,
+    ty: usize,
+    x0: usize,
     pub(super) y0: usize,
     pub(super) w: usize,
     pub(super) h: usize,
-    pub(super) row0: usize,
+    row0: usize,
 }
 
 impl TileRows {
@@ -24,8 +24,8 @@ impl TileRows {
 
 /// The BTF seen as a matrix streamed chunk by chunk.
 pub(super) struct MatrixStream<'a> {
-    pub(super) btf: &'a Btf,
-    pub(super) rgb: ArrayId,
+    btf: &'a Btf,
+    rgb: ArrayId,
     pub(super) tiles: Vec<TileRows>,
     pub(super) rows: usize,
     pub(super) cols: usize,
@@ -74,12 +74,7 @@ impl<'a> MatrixStream<'a> {
 
     /// The chunk (tile, band) as f32 values, row-major (texel × column), into
     /// `buf`; non-finite values are an error naming the texel and pair.
-    pub(super) fn chunk<'b>(
-        &self,
-        t: &TileRows,
-        band: usize,
-        buf: &'b mut Vec<f32>,
-    ) -> Result<MatRef<'b, f32>> {
+    fn chunk<'b>(&self, t: &TileRows, band: usize, buf: &'b mut Vec<f32>) -> Result<MatRef<'b, f32>> {
         let l = self.btf.layout();
         let chunk = self
             .btf
@@ -218,7 +213,7 @@ impl<'a> MatrixStream<'a> {
     }
 }
 
-pub(super) fn sum_squares(m: MatRef<'_, f32>) -> f64 {
+fn sum_squares(m: MatRef<'_, f32>) -> f64 {
     let mut s = 0f64;
     for j in 0..m.ncols() {
         let mut c = 0f32;
@@ -235,7 +230,7 @@ pub(super) fn to_f64(m: &Mat<f32>) -> Mat<f64> {
     Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f64)
 }
 
-pub(super) fn to_f32(m: MatRef<'_, f64>) -> Mat<f32> {
+fn to_f32(m: MatRef<'_, f64>) -> Mat<f32> {
     Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32)
 }
 

@@ -27,7 +27,7 @@ pub(super) struct ColourBand {
     /// The band's first own row.
     pub(super) first: usize,
     /// Where the own rows start in the arrays (`(first - y0) * r`).
-    pub(super) start: usize,
+    start: usize,
     /// Texels of the band's own rows.
     pub(super) own: usize,
     pub(super) colour: Vec<f32>,

@@ -38,7 +38,7 @@ pub(super) struct VerbatimRecord {
 /// The paint log's JSON: its base, the base's content hash (16 hex digits)
 /// and the strokes.
 #[derive(serde::Serialize, serde::Deserialize)]
-pub(super) struct LogRecord {
+struct LogRecord {
     pub(super) base: String,
     pub(super) base_hash: String,
     pub(super) strokes: Vec<StrokeRecord>,
@@ -48,7 +48,7 @@ pub(super) struct LogRecord {
 /// stored in `.quilt` files and replayed): `", "` and `": "` between items,
 /// numbers as Rust prints them (`3`, not `3.0`), and control characters
 /// other than a line feed as `\u00XX`.
-pub(super) struct LogFormatter;
+struct LogFormatter;
 
 impl serde_json::ser::Formatter for LogFormatter {
     fn begin_array_value<W: ?Sized + std::io::Write>(

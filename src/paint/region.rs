@@ -32,7 +32,7 @@ pub(super) fn foreground_extent(syn: &Synthesis) -> ([f64; 2], f64) {
 /// than the surface's own size (its bounding-box diagonal): such a point was
 /// meant for another mesh or other units, and its "nearest vertex" would be
 /// an arbitrary one.
-pub(super) fn nearest_vertex(syn: &Synthesis, p: [f64; 3]) -> std::result::Result<u32, String> {
+fn nearest_vertex(syn: &Synthesis, p: [f64; 3]) -> std::result::Result<u32, String> {
     let show = |p: [f64; 3]| format!("({}, {}, {})", short(p[0]), short(p[1]), short(p[2]));
     if !p.iter().all(|c| c.is_finite()) {
         return Err(format!("point {} is not a finite position", show(p)));
@@ -76,7 +76,7 @@ pub(super) fn nearest_vertex(syn: &Synthesis, p: [f64; 3]) -> std::result::Resul
 }
 
 /// A number for a message: 4 decimals in ordinary ranges, else scientific.
-pub(super) fn short(x: f64) -> String {
+fn short(x: f64) -> String {
     if x != 0.0 && x.is_finite() && !(1e-3..1e6).contains(&x.abs()) {
         format!("{x:.3e}")
     } else {
@@ -109,7 +109,7 @@ pub(super) fn verbatim_vertex(syn: &Synthesis, v: &Verbatim) -> Result<u32> {
 
 /// Checks stroke `k` of the strokes file `path` after parsing: a finite
 /// point and a finite radius > 0; the error names the file and the stroke.
-pub(super) fn check_stroke(path: &Path, k: usize, point: [f64; 3], radius: f64) -> Result<()> {
+fn check_stroke(path: &Path, k: usize, point: [f64; 3], radius: f64) -> Result<()> {
     if !point.iter().all(|c| c.is_finite()) {
         return Err(Error::input(
             path,
@@ -165,7 +165,7 @@ pub(super) fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec
 /// when its colour differs from the mesh's dominant (unpainted) colour by
 /// ≥ ½ in some channel. Per texel the corner weights are interpolated with
 /// the texel's barycentrics on its face.
-pub(super) fn vertex_paint_region(gim: &Gim, chart: &[u32], path: &Path) -> Result<Vec<bool>> {
+fn vertex_paint_region(gim: &Gim, chart: &[u32], path: &Path) -> Result<Vec<bool>> {
     let (painted, _) = crate::mesh::io::load(path, &crate::mesh::io::LoadOptions::default())?;
     let weights: Vec<f32> = if let Some(w) = &painted.vertex_weights {
         w.clone()
@@ -232,7 +232,7 @@ pub(super) fn vertex_paint_region(gim: &Gim, chart: &[u32], path: &Path) -> Resu
 
 /// One stroke of a strokes file.
 #[derive(serde::Deserialize)]
-pub(super) struct StrokeSpec {
+struct StrokeSpec {
     point: [f64; 3],
     radius: f64,
 }
@@ -240,7 +240,7 @@ pub(super) struct StrokeSpec {
 /// F from JSON strokes `[{"point": [x, y, z], "radius": r}, …]`: the union
 /// of geodesic disks on the dense mesh (Dijkstra over its edges with their
 /// 3D lengths, from the vertex nearest each point).
-pub(super) fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<u32>> {
+fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<u32>> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let bad = |why: &str| Error::input(path, format!("is not a stroke list ({why})"));
     let strokes: Vec<StrokeSpec> = serde_json::from_slice(&bytes)
@@ -300,7 +300,7 @@ pub(super) fn strokes_region(syn: &Synthesis, path: &Path) -> Result<Vec<u32>> {
 
 /// A totally ordered f32 for the Dijkstra heap.
 #[derive(Clone, Copy, PartialEq)]
-pub(super) struct OrdF32(f32);
+struct OrdF32(f32);
 
 impl Eq for OrdF32 {}
 

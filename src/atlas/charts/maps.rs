@@ -68,7 +68,7 @@ pub(super) fn parameterize_relaxing(ctx: &Ctx, faces: &[u32], relax_stretched: b
     })
 }
 
-pub(super) enum Check {
+enum Check {
     /// No flip, no fold, within every stretch limit.
     Within,
     /// No flip and no fold, but over a stretch or area-distortion limit.
@@ -78,7 +78,7 @@ pub(super) enum Check {
 /// Judges a map of several faces against the chart limits, with `max_linf`
 /// for its L∞ stretch: `None` if a triangle flips or the map folds over
 /// itself (two boundary edges cross).
-pub(super) fn acceptable(
+fn acceptable(
     ctx: &Ctx,
     faces: &[u32],
     positions: &[[f32; 3]],
@@ -109,7 +109,7 @@ pub(super) fn acceptable(
 
 /// A chart is split when more than this fraction of its area is off its
 /// mean texel density by more than [`ChartConfig::max_area_distortion`].
-pub(super) const AREA_DISTORTION_SHARE: f64 = 0.05;
+const AREA_DISTORTION_SHARE: f64 = 0.05;
 
 /// The chart's area distortion at the [`AREA_DISTORTION_SHARE`] tail: the
 /// area-weighted (1 − share)-quantile of max(r, 1/r), r a triangle's
@@ -120,7 +120,7 @@ pub(super) fn area_distortion_tail(positions: &[[f32; 3]], triangles: &[[u32; 3]
 
 /// Scales uv to the 3D area, rotates the longer side of the minimum-area
 /// bounding rectangle onto u, and moves the minimum to the origin.
-pub(super) fn normalize_uv(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) -> Vec<[f32; 2]> {
+fn normalize_uv(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]]) -> Vec<[f32; 2]> {
     let mut a3 = 0.0;
     let mut auv = 0.0;
     for t in triangles {
@@ -173,7 +173,7 @@ pub(super) fn within_cone(ctx: &Ctx, faces: &[u32]) -> bool {
 /// Angle of the direction to rotate onto +u: the longer side of the
 /// minimum-area bounding rectangle (one side lies on a convex-hull edge), or
 /// the principal axis (PCA) when the hull is degenerate.
-pub(super) fn orientation(uv: &[[f64; 2]]) -> f64 {
+fn orientation(uv: &[[f64; 2]]) -> f64 {
     let mut pts: Vec<[f64; 2]> = uv.to_vec();
     pts.sort_unstable_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
     pts.dedup();

@@ -7,7 +7,7 @@ use super::*;
 /// patch border).
 pub(super) struct Patch {
     pub(super) faces: Vec<u32>,
-    pub(super) adj: Vec<[u32; 3]>,
+    adj: Vec<[u32; 3]>,
 }
 
 impl Patch {
@@ -94,7 +94,7 @@ impl Patch {
 
     /// Connected components of equal-label faces: (component per face,
     /// count), components numbered in order of their smallest face.
-    pub(super) fn components(&self, label: &[u32]) -> (Vec<u32>, usize) {
+    fn components(&self, label: &[u32]) -> (Vec<u32>, usize) {
         let mut comp = vec![NONE; self.len()];
         let mut count = 0u32;
         let mut stack = Vec::new();
@@ -174,7 +174,7 @@ impl Patch {
     }
 
     /// The face farthest from `s` (dual geodesic distance within the patch).
-    pub(super) fn farthest_from(&self, ctx: &Ctx, s: u32) -> u32 {
+    fn farthest_from(&self, ctx: &Ctx, s: u32) -> u32 {
         let mut d = vec![f64::INFINITY; self.len()];
         d[s as usize] = 0.0;
         let mut heap = BinaryHeap::new();

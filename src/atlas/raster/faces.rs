@@ -20,12 +20,12 @@ pub(super) struct FaceRaster<'a> {
 /// The best triangle found for one texel.
 #[derive(Clone, Copy)]
 pub(super) struct Cover {
-    pub(super) dist: f64,
+    dist: f64,
     pub(super) face: u32,
     pub(super) bary: [f64; 3],
 }
 
-pub(super) const NO_COVER: Cover = Cover {
+const NO_COVER: Cover = Cover {
     dist: f64::INFINITY,
     face: NO_FACE,
     bary: [0.0; 3],
@@ -33,15 +33,15 @@ pub(super) const NO_COVER: Cover = Cover {
 
 /// One rasterized tile plus a one-texel margin.
 pub(super) struct TileRaster {
-    pub(super) x0: usize,
+    x0: usize,
     pub(super) y0: usize,
     pub(super) w: usize,
     pub(super) h: usize,
     /// (w + 2) × (h + 2) covers, margin included.
-    pub(super) cover: Vec<Cover>,
+    cover: Vec<Cover>,
     /// Per texel of the tile (w × h), how many triangles hold its centre
     /// strictly inside (saturating): above one where charts overlap.
-    pub(super) inside: Vec<u8>,
+    inside: Vec<u8>,
 }
 
 impl TileRaster {
@@ -61,7 +61,7 @@ pub(super) struct BoundaryTexel {
 }
 
 impl FaceRaster<'_> {
-    pub(super) fn chart_of(&self, c: &Cover) -> u32 {
+    fn chart_of(&self, c: &Cover) -> u32 {
         if c.face == NO_FACE {
             EMPTY
         } else {
@@ -120,7 +120,7 @@ impl FaceRaster<'_> {
     }
 
     /// The attributes of a covered texel: position, normal, tangent.
-    pub(super) fn attributes(&self, c: &Cover) -> ([f32; 3], [f32; 3], [f32; 3]) {
+    fn attributes(&self, c: &Cover) -> ([f32; 3], [f32; 3], [f32; 3]) {
         let t = self.mesh.triangles[c.face as usize];
         let mut pos = DVec3::ZERO;
         let mut nrm = Vec3::ZERO;

@@ -4,7 +4,7 @@
 use super::*;
 
 /// Faces within two vertex-rings of `f` (sorted).
-pub(super) fn two_ring(mesh: &Mesh, vertex_faces: &[Vec<u32>], f: u32) -> Vec<u32> {
+fn two_ring(mesh: &Mesh, vertex_faces: &[Vec<u32>], f: u32) -> Vec<u32> {
     let mut ring: Vec<u32> = mesh.triangles[f as usize]
         .iter()
         .flat_map(|&v| vertex_faces[v as usize].iter().copied())
@@ -145,7 +145,7 @@ pub(super) fn zipper_triangles(links: &[[u32; 2]], boundary: &[BoundaryTexel], r
     tris
 }
 
-pub(super) fn sorted3(mut t: [u32; 3]) -> [u32; 3] {
+fn sorted3(mut t: [u32; 3]) -> [u32; 3] {
     t.sort_unstable();
     t
 }

@@ -45,11 +45,11 @@ pub(super) struct AtlasSection {
     pub(super) gutter: usize,
 }
 
-pub(super) fn default_resolutions() -> Vec<usize> {
+fn default_resolutions() -> Vec<usize> {
     vec![AtlasConfig::default().resolution]
 }
 
-pub(super) fn default_gutter() -> usize {
+fn default_gutter() -> usize {
     AtlasConfig::default().gutter
 }
 
@@ -88,7 +88,7 @@ pub(super) struct TileSection {
     pub(super) refine_passes: Option<usize>,
 }
 
-pub(super) fn default_seeds() -> Vec<u64> {
+fn default_seeds() -> Vec<u64> {
     vec![TileConfig::default().seed]
 }
 
@@ -125,7 +125,7 @@ pub(super) struct RenderSection {
     pub(super) lights: Option<Vec<String>>,
 }
 
-pub(super) fn default_cameras() -> Vec<String> {
+fn default_cameras() -> Vec<String> {
     vec!["auto".into()]
 }
 
@@ -160,7 +160,7 @@ pub struct Outputs {
     pub btf: bool,
 }
 
-pub(super) fn yes() -> bool {
+fn yes() -> bool {
     true
 }
 

@@ -57,14 +57,14 @@ pub(super) fn unit_lo(h: u64) -> f32 {
 }
 
 #[inline]
-pub(super) fn fade(t: f32) -> f32 {
+fn fade(t: f32) -> f32 {
     t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
 }
 
 /// Periodic value noise in `[0, 1)` on a lattice of `px × py` cells; `(u, v)`
 /// are in cell units.
 #[inline]
-pub(super) fn value_noise(u: f32, v: f32, px: i64, py: i64, seed: u64) -> f32 {
+fn value_noise(u: f32, v: f32, px: i64, py: i64, seed: u64) -> f32 {
     let fu = u.floor();
     let fv = v.floor();
     let su = fade(u - fu);
@@ -135,8 +135,8 @@ pub(super) struct VorHit {
 pub(super) struct Cells {
     pub(super) nx: i64,
     pub(super) ny: i64,
-    pub(super) cw: f32,
-    pub(super) ch: f32,
+    cw: f32,
+    ch: f32,
     pub(super) seed: u64,
 }
 
@@ -216,7 +216,7 @@ pub(super) struct Texel {
 }
 
 /// 1-D value-noise fBm in `[0, 1)` (not periodic), `t` in lattice units.
-pub(super) fn fbm1(t: f32, octaves: u32, seed: u64) -> f32 {
+fn fbm1(t: f32, octaves: u32, seed: u64) -> f32 {
     let mut sum = 0.0;
     let mut norm = 0.0;
     let mut amp = 1.0;

@@ -43,7 +43,7 @@ pub fn bilinear_with(
 /// pixels and their weights (summing to 1). Shrinking averages each output
 /// pixel's footprint (a box filter, so no aliasing); enlarging interpolates
 /// linearly between pixel centres.
-pub(super) fn resample_weights(n: usize, m: usize) -> Vec<Vec<(usize, f32)>> {
+fn resample_weights(n: usize, m: usize) -> Vec<Vec<(usize, f32)>> {
     let s = n as f64 / m as f64;
     (0..m)
         .map(|o| {

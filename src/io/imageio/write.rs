@@ -4,13 +4,7 @@
 use super::*;
 
 /// Checks dimensions and buffer length before writing.
-pub(super) fn check_write(
-    path: &Path,
-    width: usize,
-    height: usize,
-    channels: usize,
-    len: usize,
-) -> Result<()> {
+fn check_write(path: &Path, width: usize, height: usize, channels: usize, len: usize) -> Result<()> {
     if width == 0 || height == 0 {
         return Err(Error::input(
             path,
@@ -28,7 +22,7 @@ pub(super) fn check_write(
 }
 
 /// Image dimensions as u32 for the `image` encoders.
-pub(super) fn dims_u32(path: &Path, width: usize, height: usize) -> Result<(u32, u32)> {
+fn dims_u32(path: &Path, width: usize, height: usize) -> Result<(u32, u32)> {
     match (u32::try_from(width), u32::try_from(height)) {
         (Ok(w), Ok(h)) => Ok((w, h)),
         _ => Err(Error::input(

@@ -3,18 +3,18 @@
 
 use super::*;
 
-pub(super) const GLB_MAGIC: u32 = 0x4654_6C67; // "glTF"
-pub(super) const CHUNK_JSON: u32 = 0x4E4F_534A; // "JSON"
-pub(super) const CHUNK_BIN: u32 = 0x004E_4942; // "BIN\0"
-pub(super) const ARRAY_BUFFER: u32 = 34962;
-pub(super) const ELEMENT_ARRAY_BUFFER: u32 = 34963;
-pub(super) const FLOAT: u32 = 5126;
-pub(super) const UNSIGNED_INT: u32 = 5125;
+const GLB_MAGIC: u32 = 0x4654_6C67; // "glTF"
+const CHUNK_JSON: u32 = 0x4E4F_534A; // "JSON"
+const CHUNK_BIN: u32 = 0x004E_4942; // "BIN\0"
+const ARRAY_BUFFER: u32 = 34962;
+const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+const FLOAT: u32 = 5126;
+const UNSIGNED_INT: u32 = 5125;
 
 /// serde_json's compact layout with numbers as Rust prints them (`1`, not
 /// `1.0`; `-0`; never an exponent), as the glTF JSON has always been
 /// written.
-pub(super) struct GltfFormatter;
+struct GltfFormatter;
 
 impl serde_json::ser::Formatter for GltfFormatter {
     fn write_f64<W: ?Sized + Write>(&mut self, w: &mut W, v: f64) -> std::io::Result<()> {
@@ -25,117 +25,117 @@ impl serde_json::ser::Formatter for GltfFormatter {
 // The glTF document of `glb_bytes`: the fields in key order.
 
 #[derive(Serialize)]
-pub(super) struct Gltf {
-    pub(super) asset: Asset,
-    pub(super) scene: u32,
-    pub(super) scenes: [Scene; 1],
-    pub(super) nodes: [Node; 1],
-    pub(super) meshes: [GltfMesh; 1],
-    pub(super) materials: [Material; 1],
-    pub(super) textures: [Texture; 1],
-    pub(super) images: [Image; 1],
-    pub(super) samplers: [Sampler; 1],
-    pub(super) accessors: [Accessor; 4],
+struct Gltf {
+    asset: Asset,
+    scene: u32,
+    scenes: [Scene; 1],
+    nodes: [Node; 1],
+    meshes: [GltfMesh; 1],
+    materials: [Material; 1],
+    textures: [Texture; 1],
+    images: [Image; 1],
+    samplers: [Sampler; 1],
+    accessors: [Accessor; 4],
     #[serde(rename = "bufferViews")]
-    pub(super) buffer_views: Vec<BufferView>,
-    pub(super) buffers: [Buffer; 1],
+    buffer_views: Vec<BufferView>,
+    buffers: [Buffer; 1],
 }
 
 #[derive(Serialize)]
-pub(super) struct Asset {
+struct Asset {
     pub(super) version: &'static str,
-    pub(super) generator: &'static str,
+    generator: &'static str,
 }
 
 #[derive(Serialize)]
-pub(super) struct Scene {
-    pub(super) nodes: [u32; 1],
+struct Scene {
+    nodes: [u32; 1],
 }
 
 #[derive(Serialize)]
-pub(super) struct Node {
+struct Node {
     pub(super) mesh: u32,
     pub(super) name: &'static str,
 }
 
 #[derive(Serialize)]
-pub(super) struct GltfMesh {
+struct GltfMesh {
     pub(super) name: &'static str,
-    pub(super) primitives: [Primitive; 1],
+    primitives: [Primitive; 1],
 }
 
 #[derive(Serialize)]
-pub(super) struct Primitive {
-    pub(super) attributes: Attributes,
-    pub(super) indices: u32,
-    pub(super) material: u32,
-    pub(super) mode: u32,
+struct Primitive {
+    attributes: Attributes,
+    indices: u32,
+    material: u32,
+    mode: u32,
 }
 
 #[derive(Serialize)]
 #[serde(rename_all = "SCREAMING_SNAKE_CASE")]
-pub(super) struct Attributes {
+struct Attributes {
     pub(super) position: u32,
     pub(super) normal: u32,
-    pub(super) texcoord_0: u32,
+    texcoord_0: u32,
 }
 
 #[derive(Serialize)]
 #[serde(rename_all = "camelCase")]
-pub(super) struct Material {
+struct Material {
     pub(super) name: &'static str,
-    pub(super) pbr_metallic_roughness: Pbr,
-    pub(super) double_sided: bool,
+    pbr_metallic_roughness: Pbr,
+    double_sided: bool,
 }
 
 #[derive(Serialize)]
 #[serde(rename_all = "camelCase")]
-pub(super) struct Pbr {
-    pub(super) base_color_texture: TextureRef,
-    pub(super) base_color_factor: [f64; 4],
-    pub(super) metallic_factor: f64,
-    pub(super) roughness_factor: f64,
+struct Pbr {
+    base_color_texture: TextureRef,
+    base_color_factor: [f64; 4],
+    metallic_factor: f64,
+    roughness_factor: f64,
 }
 
 #[derive(Serialize)]
 #[serde(rename_all = "camelCase")]
-pub(super) struct TextureRef {
+struct TextureRef {
     pub(super) index: u32,
-    pub(super) tex_coord: u32,
+    tex_coord: u32,
 }
 
 #[derive(Serialize)]
-pub(super) struct Texture {
-    pub(super) sampler: u32,
+struct Texture {
+    sampler: u32,
     pub(super) source: u32,
 }
 
 #[derive(Serialize)]
 #[serde(rename_all = "camelCase")]
-pub(super) struct Image {
+struct Image {
     pub(super) name: &'static str,
-    pub(super) buffer_view: usize,
-    pub(super) mime_type: &'static str,
+    buffer_view: usize,
+    mime_type: &'static str,
 }
 
 #[derive(Serialize)]
 #[serde(rename_all = "camelCase")]
-pub(super) struct Sampler {
-    pub(super) mag_filter: u32,
-    pub(super) min_filter: u32,
-    pub(super) wrap_s: u32,
-    pub(super) wrap_t: u32,
+struct Sampler {
+    mag_filter: u32,
+    min_filter: u32,
+    wrap_s: u32,
+    wrap_t: u32,
 }
 
 #[derive(Serialize)]
 #[serde(rename_all = "camelCase")]
-pub(super) struct Accessor {
-    pub(super) buffer_view: usize,
-    pub(super) byte_offset: usize,
-    pub(super) component_type: u32,
+struct Accessor {
+    buffer_view: usize,
+    byte_offset: usize,
+    component_type: u32,
     pub(super) count: usize,
     #[serde(rename = "type")]
-    pub(super) kind: &'static str,
+    kind: &'static str,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub(super) min: Option<[f64; 3]>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -144,18 +144,18 @@ pub(super) struct Accessor {
 
 #[derive(Serialize)]
 #[serde(rename_all = "camelCase")]
-pub(super) struct BufferView {
-    pub(super) buffer: u32,
-    pub(super) byte_offset: usize,
-    pub(super) byte_length: usize,
+struct BufferView {
+    buffer: u32,
+    byte_offset: usize,
+    byte_length: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub(super) target: Option<u32>,
 }
 
 #[derive(Serialize)]
 #[serde(rename_all = "camelCase")]
-pub(super) struct Buffer {
-    pub(super) byte_length: usize,
+struct Buffer {
+    byte_length: usize,
 }
 
 /// A binary glTF 2.0 file: one node with one mesh (POSITION with min/max,

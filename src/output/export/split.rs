@@ -75,7 +75,7 @@ pub fn split_by_uv(mesh: &Mesh, corner_uv: &[[f32; 2]]) -> std::result::Result<S
 
 /// The smooth normal of vertex `v`, or the normal of face `f` (or +z) where
 /// the smooth one vanishes; unit length in f32.
-pub(super) fn unit_normal(mesh: &Mesh, normals: &[[f32; 3]], v: usize, f: usize) -> [f32; 3] {
+fn unit_normal(mesh: &Mesh, normals: &[[f32; 3]], v: usize, f: usize) -> [f32; 3] {
     let unit = |n: [f32; 3]| {
         let l = (n[0] as f64).hypot(n[1] as f64).hypot(n[2] as f64);
         (l > 1e-20 && l.is_finite()).then(|| n.map(|c| (c as f64 / l) as f32))

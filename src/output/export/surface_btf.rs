@@ -10,7 +10,7 @@ pub fn term_names(prefix: &str, n: usize) -> Vec<String> {
 }
 
 /// A value in the shortest decimal that reads back to the same f32.
-pub(super) fn num(v: f32) -> String {
+fn num(v: f32) -> String {
     format!("{v:?}")
 }
 
@@ -143,7 +143,7 @@ pub(super) fn stage_surface_btf(
 /// frame's angle and Jacobian (and, with 8 channels, its sample index); NaN
 /// elsewhere. Computed by bands of rows as the EXR writer asks for them, the
 /// last four held.
-pub(super) fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names: [&str; N]) -> Result<()> {
+fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names: [&str; N]) -> Result<()> {
     let r = quilt.resolution;
     let band = |y0: usize| -> Result<Vec<f32>> {
         let h = BAND_ROWS.min(r - y0);
@@ -194,7 +194,7 @@ pub(super) fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names:
 /// per term), its appearance table (one row per direction pair of the
 /// shared `views` × `lights`) and its singular values, under
 /// [`sample_file`] names.
-pub(super) fn stage_factors(
+fn stage_factors(
     svd: &SvdArtifact,
     k: usize,
     views: &[crate::artifact::btf::Angles],
@@ -265,26 +265,26 @@ pub(super) fn stage_factors(
 }
 
 /// What FORMAT.md says about one sample.
-pub(super) struct SampleFacts<'a> {
+struct SampleFacts<'a> {
     pub(super) path: &'a Path,
     pub(super) w: usize,
     pub(super) h: usize,
     pub(super) n: usize,
-    pub(super) tileable: bool,
+    tileable: bool,
 }
 
-pub(super) struct Facts<'a> {
-    pub(super) quilt: &'a Path,
+struct Facts<'a> {
+    quilt: &'a Path,
     /// In [`Quilt::samples`] order.
-    pub(super) samples: Vec<SampleFacts<'a>>,
+    samples: Vec<SampleFacts<'a>>,
     pub(super) r: usize,
-    pub(super) views: usize,
+    views: usize,
     pub(super) lights: usize,
     pub(super) covered: usize,
 }
 
 /// The description written beside a surface BTF export.
-pub(super) fn format_md(f: &Facts) -> String {
+fn format_md(f: &Facts) -> String {
     let s0 = &f.samples[0];
     let several = f.samples.len() > 1;
     let last = |c: &str| term_names(c, s0.n).pop().unwrap_or_default();

@@ -122,7 +122,7 @@ impl Default for Light {
 }
 
 /// Parses `n` comma-separated finite numbers for `flag`, `n` in `counts`.
-pub(super) fn numbers(flag: &str, s: &str, what: &str, counts: &[usize]) -> Result<Vec<f32>> {
+fn numbers(flag: &str, s: &str, what: &str, counts: &[usize]) -> Result<Vec<f32>> {
     let bad = || Error::Config(format!("{flag} '{s}': expected {what}"));
     let v: Vec<f32> = s
         .split(',')
@@ -193,7 +193,7 @@ impl Light {
 }
 
 /// Rodrigues' rotation of `v` by `angle` about the unit `axis`.
-pub(super) fn rotate(v: Vec3, axis: Vec3, angle: f32) -> Vec3 {
+fn rotate(v: Vec3, axis: Vec3, angle: f32) -> Vec3 {
     let (s, c) = angle.sin_cos();
     let kxv = axis.cross(v);
     let kdv = axis.dot(v);

@@ -23,7 +23,7 @@ pub struct Scene {
 /// chart), so that, interpolated over a face, the sample frame turns
 /// smoothly across the face edges inside a chart instead of stepping at
 /// every edge. `None` where every such face is degenerate.
-pub(super) fn corner_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3]; 2]>> {
+fn corner_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3]; 2]>> {
     let faces = face_maps(mesh, corner_uv, r);
     // wedge key: vertex and uv bits; sums accumulated in face order
     let mut wedges: std::collections::HashMap<(u32, u32, u32), ([Vec3; 2], u32)> =
@@ -55,7 +55,7 @@ pub(super) fn corner_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Op
 
 /// Per face: the atlas→3D derivatives ∂P/∂X, ∂P/∂Y in 3D units per atlas
 /// texel, from the corners' positions and atlas uv (constant on a face).
-pub(super) fn face_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3]; 2]>> {
+fn face_maps(mesh: &Mesh, corner_uv: &[[f32; 2]], r: f32) -> Vec<Option<[[f32; 3]; 2]>> {
     (0..mesh.triangles.len())
         .map(|f| {
             let [p0, p1, p2] = mesh.corners(f).map(Vec3::from);
@@ -217,7 +217,7 @@ impl Scene {
     }
 
     /// A camera in the mesh's units as the scene's positions see it.
-    pub(super) fn in_scene_units(&self, c: Camera) -> Camera {
+    fn in_scene_units(&self, c: Camera) -> Camera {
         if self.unit == 1.0 {
             return c;
         }
@@ -303,7 +303,7 @@ impl Scene {
     }
 
     /// Unit direction towards the light and its irradiance scale at `pos`.
-    pub(super) fn light_at(&self, light: &Light, pos: Vec3) -> (Vec3, f32) {
+    fn light_at(&self, light: &Light, pos: Vec3) -> (Vec3, f32) {
         match *light {
             Light::Directional { direction, intensity } => (unit_or(direction.into(), Vec3::ZERO), intensity),
             Light::Point { position, intensity } => {
@@ -319,7 +319,7 @@ impl Scene {
 
     /// BTF value of a surface point: see the module documentation.
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn shade_btf(
+    fn shade_btf(
         &self,
         btf: &BtfShading,
         texels: &mut TileView<'_, BtfTile>,
@@ -563,7 +563,7 @@ pub(super) struct GBuffer {
 
 /// Dot product in eight lanes (vectorises; fixed summation order).
 #[inline]
-pub(super) fn dot_n(a: &[f32], b: &[f32]) -> f32 {
+fn dot_n(a: &[f32], b: &[f32]) -> f32 {
     let mut acc = [0f32; 8];
     let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
     let (ra, rb) = (ca.remainder(), cb.remainder());
@@ -627,7 +627,7 @@ pub(crate) fn nearest_covered(
 
 /// Adds `weight` × sample `b`'s geometry-map vector at sample position
 /// `(sx, sy)` (bilinear, clamped to the sample) to its segment of `scratch`.
-pub(super) fn add_geometry(b: &Basis, sx: f32, sy: f32, weight: f32, scratch: &mut [f32]) {
+fn add_geometry(b: &Basis, sx: f32, sy: f32, weight: f32, scratch: &mut [f32]) {
     let nt = b.terms;
     let (w, h) = (b.width, b.height);
     let out = &mut scratch[b.offset..b.offset + nt];

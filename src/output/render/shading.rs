@@ -8,7 +8,7 @@ use super::*;
 pub(crate) struct Directions {
     pub(crate) dirs: Vec<Vec3>,
     pub(crate) cos_max: f32,
-    pub(super) sin_max: f32,
+    sin_max: f32,
 }
 
 impl Directions {

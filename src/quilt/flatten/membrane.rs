@@ -63,7 +63,7 @@ pub(super) fn jacobi_cg(
 }
 
 /// Side of the atlas blocks whose texels (of one chart) [`Coarse`] merges.
-pub(super) const COARSE_BLOCK: usize = 4;
+const COARSE_BLOCK: usize = 4;
 
 /// A coarse copy of the gap-closing membrane: the patch's texels merged by
 /// chart and [`COARSE_BLOCK`]² atlas block (piecewise-constant
@@ -73,9 +73,9 @@ pub(super) const COARSE_BLOCK: usize = 4;
 /// iteration only has to mend what varies within a block.
 pub(super) struct Coarse {
     /// Aggregate of each texel.
-    pub(super) of: Vec<u32>,
-    pub(super) op: SparseRowMat<usize, f64>,
-    pub(super) diag: Vec<f64>,
+    of: Vec<u32>,
+    op: SparseRowMat<usize, f64>,
+    diag: Vec<f64>,
 }
 
 impl Coarse {

@@ -43,13 +43,7 @@ pub(super) struct WorkImage {
 impl WorkImage {
     /// A `width`×`height` work image with nothing known yet: `n` feature
     /// channels, and an m0 channel when the synthesis is constrained.
-    pub(super) fn blank(
-        width: usize,
-        height: usize,
-        state: &State,
-        coords: Vec<[f64; 2]>,
-        angle: f64,
-    ) -> WorkImage {
+    fn blank(width: usize, height: usize, state: &State, coords: Vec<[f64; 2]>, angle: f64) -> WorkImage {
         WorkImage {
             width,
             height,
@@ -65,7 +59,7 @@ impl WorkImage {
     }
 }
 
-pub(super) fn mean_angle(angles: impl Iterator<Item = f64>) -> f64 {
+fn mean_angle(angles: impl Iterator<Item = f64>) -> f64 {
     let (mut c, mut s) = (0.0, 0.0);
     for a in angles {
         c += a.cos();
@@ -119,7 +113,7 @@ pub(super) fn chart_work_image(
 
 /// The patch's triangles (local indices): grid blocks inside charts, then
 /// zipper triangles, all wound like the surface; and how many are grid ones.
-pub(super) fn patch_triangles(
+fn patch_triangles(
     surface: &Surface,
     patch: &WorkPatch,
     bfs: &Bfs,
@@ -173,7 +167,7 @@ pub(super) fn patch_triangles(
 /// near-isometric, so that is the area distortion against the surface — or
 /// if gaps of more than a texel remain across the zippers (a patch around a
 /// cone point).
-pub(super) fn flatten(
+fn flatten(
     surface: &Surface,
     patch: &WorkPatch,
     bfs: &Bfs,
@@ -269,7 +263,7 @@ pub(super) fn flatten(
 
 /// Shifts work-image coordinates so they start at 0; the pixel size of the
 /// image that holds them.
-pub(super) fn shift_to_origin(coords: &mut [[f64; 2]]) -> (usize, usize) {
+fn shift_to_origin(coords: &mut [[f64; 2]]) -> (usize, usize) {
     let minx = coords.iter().map(|c| c[0]).fold(f64::INFINITY, f64::min);
     let miny = coords.iter().map(|c| c[1]).fold(f64::INFINITY, f64::min);
     for c in coords.iter_mut() {
@@ -291,7 +285,7 @@ fn shift_within_bound(coords: &mut [[f64; 2]], r: usize) -> Option<(usize, usize
 /// The work image of a flattened patch: coordinates shifted to start at 0,
 /// a pixel known where a triangle of three synthesized vertices covers it
 /// (features interpolated). `None` if the patch flattened implausibly large.
-pub(super) fn raster_work_image(
+fn raster_work_image(
     sample: &Sample,
     state: &State,
     patch: &WorkPatch,
@@ -476,7 +470,7 @@ pub(super) fn unfolded_work_image(
 /// The rigid unfolding of a patch: each chart's part keeps its atlas layout,
 /// turned so the vector field agrees across the zipper it was entered
 /// through. Work coordinates per patch vertex and the mean field angle.
-pub(super) fn unfold(surface: &Surface, patch: &WorkPatch, bfs: &Bfs) -> (Vec<[f64; 2]>, f64) {
+fn unfold(surface: &Surface, patch: &WorkPatch, bfs: &Bfs) -> (Vec<[f64; 2]>, f64) {
     let r = surface.r;
     let m = patch.texels.len();
     let atlas = |t: u32| [(t as usize % r) as f64, (t as usize / r) as f64];

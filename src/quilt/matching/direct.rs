@@ -17,14 +17,7 @@ pub fn brute_force_cost(
     Ok(brute(work, sample, cfg, &lay, dx, dy))
 }
 
-pub(super) fn brute(
-    work: &Work,
-    sample: &Sample,
-    cfg: &MatchConfig,
-    lay: &Layout,
-    dx: i32,
-    dy: i32,
-) -> Placement {
+fn brute(work: &Work, sample: &Sample, cfg: &MatchConfig, lay: &Layout, dx: i32, dy: i32) -> Placement {
     let (wi, si) = (&work.image, &sample.image);
     let w = if work.constraint.is_some() {
         cfg.constraint_weight
@@ -63,7 +56,7 @@ pub(super) fn brute(
 }
 
 /// Σ (a − b)² in f64.
-pub(super) fn sq_diff(a: &[f32], b: &[f32]) -> f64 {
+fn sq_diff(a: &[f32], b: &[f32]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
@@ -72,7 +65,7 @@ pub(super) fn sq_diff(a: &[f32], b: &[f32]) -> f64 {
 
 /// The placement (dx, dy) with its direct sums: cost SSD / overlap, or +∞
 /// where [`accept`] rejects the overlap.
-pub(super) fn scored(dx: i32, dy: i32, ssd: f64, overlap: f64, min_overlap: f64, tol: f64) -> Placement {
+fn scored(dx: i32, dy: i32, ssd: f64, overlap: f64, min_overlap: f64, tol: f64) -> Placement {
     let cost = if accept(overlap, min_overlap, tol) {
         ssd / overlap
     } else {
@@ -207,13 +200,13 @@ pub fn direct_costs(
 /// The work image's known pixels as [`direct_costs`] gathers them: (x, y),
 /// weight, features and constraint (f64), and the sample index each lands
 /// on at placement (0, 0).
-pub(super) struct Known<'a> {
+struct Known<'a> {
     /// Each known pixel's (x, y) in the work image.
-    pub(super) xy: &'a [[i64; 2]],
+    xy: &'a [[i64; 2]],
     pub(super) weight: &'a [f64],
     pub(super) features: &'a [f64],
     pub(super) constraint: &'a [f64],
-    pub(super) at_origin: &'a [i64],
+    at_origin: &'a [i64],
 }
 
 impl Known<'_> {
@@ -221,7 +214,7 @@ impl Known<'_> {
     /// placement of `group` (at most [`DIRECT_GROUP`]; `inside`: wholly
     /// inside the sample, `shift`: its sample index offset), each summed in
     /// pixel order, with `diff` the features' squared distance.
-    pub(super) fn pass(
+    fn pass(
         &self,
         sample: &Sample,
         group: &[(i32, i32)],
@@ -240,7 +233,7 @@ impl Known<'_> {
 
     /// [`Known::pass`], testing each placement's sample bounds if `BOUNDS`.
     #[inline(always)]
-    pub(super) fn sums<const BOUNDS: bool>(
+    fn sums<const BOUNDS: bool>(
         &self,
         sample: &Sample,
         group: &[(i32, i32)],
@@ -283,13 +276,13 @@ impl Known<'_> {
 
 /// [`sq_diff`] with `a` converted to f64 already (the same sum).
 #[inline]
-pub(super) fn sq_diff_f64(a: &[f64], b: &[f32]) -> f64 {
+fn sq_diff_f64(a: &[f64], b: &[f32]) -> f64 {
     a.iter().zip(b).map(|(&a, &b)| (a - b as f64).powi(2)).sum()
 }
 
 /// [`sq_diff_f64`] of three channels.
 #[inline(always)]
-pub(super) fn sq_diff3(a: &[f64], b: &[f32]) -> f64 {
+fn sq_diff3(a: &[f64], b: &[f32]) -> f64 {
     let (a, b): (&[f64; 3], &[f32; 3]) = (a.try_into().expect("3"), b.try_into().expect("3"));
     let d = [a[0] - b[0] as f64, a[1] - b[1] as f64, a[2] - b[2] as f64];
     -0.0 + d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
@@ -297,7 +290,7 @@ pub(super) fn sq_diff3(a: &[f64], b: &[f32]) -> f64 {
 
 /// Placements [`direct_costs`] sums in one pass over the known pixels: the
 /// ±1 window around a coarse placement of factor 2.
-pub(super) const DIRECT_GROUP: usize = 9;
+const DIRECT_GROUP: usize = 9;
 
 /// An owned sample copy in f32: maps `[y][x][c]` and validity `[y][x]`.
 #[derive(Clone, Debug)]

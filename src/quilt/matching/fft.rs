@@ -23,7 +23,7 @@ pub(super) struct CacheKey {
     pub(super) key: u64,
     pub(super) width: usize,
     pub(super) height: usize,
-    pub(super) channels: usize,
+    channels: usize,
     pub(super) constraint: Option<usize>,
     pub(super) nx: usize,
     pub(super) ny: usize,
@@ -245,14 +245,7 @@ pub(super) fn fft_rows(fft: &Arc<dyn Fft<f64>>, len: usize, buf: &mut [C64]) {
 /// Columns `kx0..` of the row-transformed `rows` (`h` rows of `nx`) into the
 /// spectrum chunk `out` (`[kx][ky]`, columns of `ny`), zero-padded and
 /// transformed along y.
-pub(super) fn column_stage(
-    p: &Plans,
-    rows: &[C64],
-    h: usize,
-    kx0: usize,
-    out: &mut [C64],
-    scratch: &mut [C64],
-) {
+fn column_stage(p: &Plans, rows: &[C64], h: usize, kx0: usize, out: &mut [C64], scratch: &mut [C64]) {
     let (nx, ny) = (p.nx, p.ny);
     let cols = out.len() / ny;
     for y in 0..h {

@@ -118,7 +118,7 @@ impl StateTile {
 }
 
 /// State tiles: blank until first evicted, then from the scratch store.
-pub(super) struct StateTiles {
+struct StateTiles {
     scratch: Scratch,
     /// The value of m0 on a tile never written (0 when constrained
     /// everywhere, e.g. by a foreground mask).

@@ -56,20 +56,20 @@ impl Hasher for TexelHasher {
 #[derive(Default)]
 pub(in crate::quilt) struct Bfs {
     /// Local index per texel of the window (`u32::MAX`: not in the patch).
-    pub(super) window: Vec<u32>,
+    window: Vec<u32>,
     /// The window's first column and row and its side.
-    pub(super) x0: i64,
+    x0: i64,
     pub(super) y0: i64,
-    pub(super) side: usize,
-    pub(super) grid: Option<TileGrid>,
+    side: usize,
+    grid: Option<TileGrid>,
     /// Window slots set by the last patch, to clear.
-    pub(super) set: Vec<u32>,
+    set: Vec<u32>,
     pub(super) index: HashMap<u32, u32, BuildHasherDefault<TexelHasher>>,
 }
 
 impl Bfs {
     /// Empties the index and centres its window of `radius` on `v`.
-    pub(super) fn window_around(&mut self, surface: &Surface, v: u32, radius: usize) {
+    fn window_around(&mut self, surface: &Surface, v: u32, radius: usize) {
         for &slot in &self.set {
             self.window[slot as usize] = u32::MAX;
         }
@@ -164,14 +164,14 @@ impl Bfs {
 
     /// The window slot of texel `t`, if it lies in the window.
     #[inline]
-    pub(super) fn slot(&self, t: u32) -> Option<usize> {
+    fn slot(&self, t: u32) -> Option<usize> {
         let (x, y) = self.grid?.xy(t);
         let (dx, dy) = (x as i64 - self.x0, y as i64 - self.y0);
         let side = self.side as i64;
         (dx >= 0 && dy >= 0 && dx < side && dy < side).then(|| (dy * side + dx) as usize)
     }
 
-    pub(super) fn insert(&mut self, t: u32, i: u32) {
+    fn insert(&mut self, t: u32, i: u32) {
         match self.slot(t) {
             Some(slot) => {
                 self.window[slot] = i;

@@ -14,12 +14,12 @@ pub(in crate::quilt) struct SurfaceTile {
 }
 
 /// Bytes of a surface tile.
-pub(super) const SURFACE_TILE_BYTES: usize = TILE_TEXELS * (4 + 4 + 12 + 12);
+const SURFACE_TILE_BYTES: usize = TILE_TEXELS * (4 + 4 + 12 + 12);
 
 /// Surface tiles read from the geometry image (never written back).
 pub(in crate::quilt) struct GimTiles {
-    pub(super) gim: Gim,
-    pub(super) grid: TileGrid,
+    gim: Gim,
+    grid: TileGrid,
     pub(super) unit: f32,
 }
 
@@ -62,7 +62,7 @@ impl TileSource<SurfaceTile> for GimTiles {
 pub(in crate::quilt) struct Surface {
     pub(in crate::quilt) r: usize,
     pub(super) tiles: Pager<SurfaceTile, GimTiles>,
-    pub(super) zippers: Arc<ZipperLinks>,
+    zippers: Arc<ZipperLinks>,
     /// Dense positions are multiplied by `unit` (exactly: a power of two, 1
     /// but for a mesh of extreme size, see [`crate::mesh::extreme_scale`]).
     pub(in crate::quilt) unit: f32,

@@ -42,10 +42,10 @@ pub(crate) struct Synthesis {
     pub(super) sample_path: PathBuf,
     /// Every sample the surface draws from ([`Quilt::samples`]); the active
     /// one is `sample_paths[state.active]`.
-    pub(super) sample_paths: Vec<PathBuf>,
+    sample_paths: Vec<PathBuf>,
     /// The preview colours of the other samples a loaded surface draws
     /// from (by index; `None` for the active one and unused ones).
-    pub(super) other_previews: Vec<Option<crate::io::imageio::RgbImage>>,
+    other_previews: Vec<Option<crate::io::imageio::RgbImage>>,
     pub(super) surface: Surface,
     pub(super) zipper_triangles: Vec<[u32; 3]>,
     pub(super) sample: Sample,
@@ -69,13 +69,13 @@ pub(crate) struct Synthesis {
     pub(super) seam_cnt: usize,
     /// Original sample pixels per pixel of the (resampled) sample the loop
     /// works in; the quilt stores coordinates in original pixels.
-    pub(super) scale: [f64; 2],
+    scale: [f64; 2],
     /// The original sample's size in pixels.
-    pub(super) original_size: [usize; 2],
+    original_size: [usize; 2],
     /// Mesh units each sample's width spans, where one was given (by index
     /// like `sample_paths`; the active one's is `active_span`).
-    pub(super) sample_spans: Vec<Option<f64>>,
-    pub(super) active_span: Option<f64>,
+    sample_spans: Vec<Option<f64>>,
+    active_span: Option<f64>,
 }
 
 impl Synthesis {
