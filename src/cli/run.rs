@@ -423,10 +423,15 @@ pub(crate) fn run(cli: Cli) -> Result<()> {
             gim,
             sample,
             windows,
+            forced_ends,
             res,
         } => {
             let (memory, _) = res.apply()?;
-            let cfg = evaluate::EvaluateConfig { memory, windows };
+            let cfg = evaluate::EvaluateConfig {
+                memory,
+                windows,
+                forced_ends,
+            };
             print_json(&evaluate::evaluate_with(
                 &file,
                 gim.as_deref(),

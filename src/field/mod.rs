@@ -11,6 +11,9 @@
 //! of genus ≠ 1 must have where they cost least (a torus gets none), instead
 //! of wherever the axis meets the surface head-on.
 
+mod stripes;
+pub use stripes::{forced_ends, ForcedEnds};
+
 use std::path::Path;
 
 use glam::{DVec3, Vec3};

@@ -72,6 +72,38 @@ impl ColourBand {
         })
     }
 
+    /// A band from its arrays (tests): every row its own, faces and
+    /// rotations zero.
+    #[cfg(test)]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn from_parts(
+        y0: usize,
+        first: usize,
+        own: usize,
+        colour: Vec<f32>,
+        covered: Vec<bool>,
+        patch: Vec<u32>,
+        index: Vec<u8>,
+        chart: Vec<u32>,
+        coords: Vec<[f32; 2]>,
+    ) -> ColourBand {
+        let n = covered.len();
+        ColourBand {
+            y0,
+            first,
+            start: 0,
+            own,
+            colour,
+            covered,
+            patch,
+            index,
+            chart,
+            face: vec![0; n],
+            rotation: vec![0; n],
+            coords,
+        }
+    }
+
     /// The indices (into the band's arrays) of its own rows' texels.
     pub(super) fn own_texels(&self) -> std::ops::Range<usize> {
         self.start..self.start + self.own

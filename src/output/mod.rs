@@ -9,6 +9,7 @@ pub mod bake;
 mod band;
 pub mod compare;
 pub mod continuation;
+pub mod courses;
 pub mod evaluate;
 pub mod export;
 pub mod render;

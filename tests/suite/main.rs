@@ -11,6 +11,7 @@ mod batch;
 mod btf;
 mod cli;
 mod container;
+mod courses;
 mod export;
 mod factorize;
 mod gim;

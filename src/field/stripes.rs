@@ -1,0 +1,351 @@
+//! The course ends a field forces: a sample whose features run in rows
+//! (brick courses, lines of text) laid along the field with the rows
+//! `period` mesh units apart cannot keep every row unbroken wherever the
+//! field's lines converge or diverge, nor around its singularities. The
+//! smoothest stripe pattern along the field (F. Knöppel, K. Crane, U.
+//! Pinkall, P. Schröder, "Stripe Patterns on Surfaces", ACM TOG 34(4),
+//! 2015) places the fewest such ends its energy allows; their number is a
+//! floor for what a tiling that follows the field shows.
+//!
+//! The pattern is a complex value ψ per vertex whose argument is the row
+//! phase. Its energy Σ_ij w_ij |ψ_j − e^{iω_ij} ψ_i|² (cotangent weights
+//! w_ij, ω_ij the phase the rows should gain along edge ij: 2π/period
+//! times the edge's length across the field) is minimised over unit
+//! mass-norm ψ, the smallest eigenvector of its Hermitian form against the
+//! lumped vertex masses, found by inverse iteration. A face where the
+//! corrected phase differences around its edges add up to ±2π·k holds k
+//! row ends (the paper's singular faces). The mesh is subdivided until its
+//! edges are a third of `period` long on average.
+
+use faer::sparse::{SparseColMat, Triplet};
+use glam::DVec3;
+
+use crate::mesh::Mesh;
+use crate::{Error, Result};
+
+/// How the forced ends were counted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ForcedEnds {
+    /// Row ends: the sum over faces of |winding| of the smoothest pattern.
+    pub ends: usize,
+    /// Midpoint subdivisions applied to the mesh.
+    pub subdivisions: usize,
+    /// Vertices of the subdivided mesh.
+    pub vertices: usize,
+}
+
+/// Inverse iterations; the count settles long before.
+const ITERATIONS: usize = 40;
+
+/// Vertices past which the mesh is not subdivided further (the count on a
+/// coarser mesh differs by a few per cent).
+pub const MAX_VERTICES: usize = 100_000;
+
+/// Memory the solve takes per vertex of the subdivided mesh (measured:
+/// about 2.9 kB on Spot).
+pub const BYTES_PER_VERTEX: u64 = 3 << 10;
+
+/// The row ends that rows `period` mesh units apart, laid along `field`
+/// (one unit tangent per face of `mesh`), must show. The mesh is
+/// subdivided by its geometry alone, never past [`MAX_VERTICES`], so the
+/// count is the same for any budget; a solve that would take more than
+/// `budget` bytes is refused. Deterministic.
+pub fn forced_ends(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64) -> Result<ForcedEnds> {
+    if !(period.is_finite() && period > 0.0) {
+        return Err(Error::Config(format!(
+            "row period {period}: must be a positive number of mesh units"
+        )));
+    }
+    if field.len() != mesh.triangles.len() {
+        return Err(Error::Config(format!(
+            "the field has {} directions for {} faces",
+            field.len(),
+            mesh.triangles.len()
+        )));
+    }
+    let mut positions: Vec<DVec3> = mesh
+        .positions
+        .iter()
+        .map(|p| DVec3::from(p.map(f64::from)))
+        .collect();
+    let mut triangles = mesh.triangles.clone();
+    let mut field: Vec<DVec3> = field.iter().map(|f| DVec3::from(f.map(f64::from))).collect();
+    let mut subdivisions = 0;
+    loop {
+        let edges = edge_list(&triangles);
+        let mean = edges
+            .iter()
+            .map(|&(a, b)| positions[a as usize].distance(positions[b as usize]))
+            .sum::<f64>()
+            / edges.len().max(1) as f64;
+        if mean <= period / 3.0 || positions.len() + edges.len() > MAX_VERTICES {
+            break;
+        }
+        (positions, triangles, field) = subdivide(&positions, &triangles, &field, &edges);
+        subdivisions += 1;
+    }
+    let vertices = positions.len();
+    let needed = vertices as u64 * BYTES_PER_VERTEX;
+    if needed > budget {
+        let mib = |b: u64| b.div_ceil(1 << 20);
+        return Err(Error::Config(format!(
+            "counting the course ends the field forces solves on {vertices} vertices, about {} MiB, \
+             more than the {} MiB this step may use: raise --memory",
+            mib(needed),
+            mib(budget)
+        )));
+    }
+    let ends = count_ends(&positions, &triangles, &field, period);
+    Ok(ForcedEnds {
+        ends,
+        subdivisions,
+        vertices,
+    })
+}
+
+/// The mesh's edges as sorted (low, high) vertex pairs, each once.
+fn edge_list(triangles: &[[u32; 3]]) -> Vec<(u32, u32)> {
+    let mut e: Vec<(u32, u32)> = triangles
+        .iter()
+        .flat_map(|t| (0..3).map(move |k| (t[k].min(t[(k + 1) % 3]), t[k].max(t[(k + 1) % 3]))))
+        .collect();
+    e.sort_unstable();
+    e.dedup();
+    e
+}
+
+fn edge_index(edges: &[(u32, u32)], a: u32, b: u32) -> usize {
+    edges
+        .binary_search(&(a.min(b), a.max(b)))
+        .expect("an edge of the mesh")
+}
+
+/// One midpoint subdivision (each face into four); the new faces keep
+/// their parent's field direction.
+fn subdivide(
+    positions: &[DVec3],
+    triangles: &[[u32; 3]],
+    field: &[DVec3],
+    edges: &[(u32, u32)],
+) -> (Vec<DVec3>, Vec<[u32; 3]>, Vec<DVec3>) {
+    let n = positions.len() as u32;
+    let mut p = positions.to_vec();
+    p.extend(
+        edges
+            .iter()
+            .map(|&(a, b)| 0.5 * (positions[a as usize] + positions[b as usize])),
+    );
+    let mut t = Vec::with_capacity(4 * triangles.len());
+    let mut f = Vec::with_capacity(4 * triangles.len());
+    for (tri, dir) in triangles.iter().zip(field) {
+        let m = |k: usize| n + edge_index(edges, tri[k], tri[(k + 1) % 3]) as u32;
+        let (ab, bc, ca) = (m(0), m(1), m(2));
+        for c in [[tri[0], ab, ca], [ab, tri[1], bc], [ca, bc, tri[2]], [ab, bc, ca]] {
+            t.push(c);
+            f.push(*dir);
+        }
+    }
+    (p, t, f)
+}
+
+/// Σ |winding| over the faces of the smoothest stripe pattern.
+fn count_ends(positions: &[DVec3], triangles: &[[u32; 3]], field: &[DVec3], period: f64) -> usize {
+    use std::f64::consts::{PI, TAU};
+    let nv = positions.len();
+    let nu = TAU / period;
+    let edges = edge_list(triangles);
+    // per edge: cotangent weight and the sum of its faces' across-field directions
+    let mut weight = vec![0f64; edges.len()];
+    let mut across = vec![DVec3::ZERO; edges.len()];
+    let mut mass = vec![0f64; nv];
+    for (t, dir) in triangles.iter().zip(field) {
+        let c = t.map(|v| positions[v as usize]);
+        let normal = (c[1] - c[0]).cross(c[2] - c[0]);
+        let area = 0.5 * normal.length();
+        let n = normal.normalize_or_zero().cross(*dir).normalize_or_zero();
+        for k in 0..3 {
+            mass[t[k] as usize] += area / 3.0;
+            let o = (k + 2) % 3;
+            let (u, v) = (c[k] - c[o], c[(k + 1) % 3] - c[o]);
+            let e = edge_index(&edges, t[k], t[(k + 1) % 3]);
+            weight[e] += 0.5 * u.dot(v) / u.cross(v).length().max(1e-300);
+            across[e] += n;
+        }
+    }
+    // ω along each edge from its low to its high vertex
+    let omega: Vec<f64> = edges
+        .iter()
+        .zip(&across)
+        .map(|(&(a, b), n)| {
+            nu * n
+                .normalize_or_zero()
+                .dot(positions[b as usize] - positions[a as usize])
+        })
+        .collect();
+    let total_mass: f64 = mass.iter().sum();
+    let floor = 1e-9 * total_mass / nv.max(1) as f64;
+    // the real 2V × 2V form (upper triangle) of A + shift·M; a negative
+    // cotangent weight (an obtuse pair) is clamped to keep A positive
+    let mut diagonal: Vec<f64> = mass.iter().map(|m| 1e-4 * nu * nu * m.max(floor)).collect();
+    let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(4 * edges.len() + 2 * nv);
+    for ((&(i, j), &w), &om) in edges.iter().zip(&weight).zip(&omega) {
+        let w = w.max(1e-6);
+        let (i, j) = (i as usize, j as usize);
+        diagonal[i] += w;
+        diagonal[j] += w;
+        // entry (i, j) = −w e^{−iω} as the real block [[a, −b], [b, a]]
+        let (a, b) = (-w * om.cos(), w * om.sin());
+        trip.push(Triplet::new(2 * i, 2 * j, a));
+        trip.push(Triplet::new(2 * i, 2 * j + 1, -b));
+        trip.push(Triplet::new(2 * i + 1, 2 * j, b));
+        trip.push(Triplet::new(2 * i + 1, 2 * j + 1, a));
+    }
+    for (i, &d) in diagonal.iter().enumerate() {
+        trip.push(Triplet::new(2 * i, 2 * i, d));
+        trip.push(Triplet::new(2 * i + 1, 2 * i + 1, d));
+    }
+    let Ok(h) = SparseColMat::<usize, f64>::try_new_from_triplets(2 * nv, 2 * nv, &trip) else {
+        return 0;
+    };
+    let Ok(factor) = crate::sparse::SpdFactor::new(&h) else {
+        return 0;
+    };
+    let mut psi: Vec<f64> = (0..2 * nv)
+        .map(|k| (k as f64 * 0.618_034).fract() - 0.5)
+        .collect();
+    for _ in 0..ITERATIONS {
+        let b: Vec<f64> = (0..2 * nv).map(|k| mass[k / 2] * psi[k]).collect();
+        psi = factor.solve(b);
+        let norm = (0..nv)
+            .map(|i| mass[i] * (psi[2 * i].powi(2) + psi[2 * i + 1].powi(2)))
+            .sum::<f64>()
+            .sqrt();
+        if !(norm.is_finite() && norm > 0.0) {
+            return 0;
+        }
+        psi.iter_mut().for_each(|x| *x /= norm);
+    }
+    let arg = |v: u32| psi[2 * v as usize + 1].atan2(psi[2 * v as usize]);
+    let wrap = |a: f64| a - TAU * ((a + PI) / TAU).floor();
+    let mut ends = 0usize;
+    for t in triangles {
+        let mut turn = 0.0;
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            let e = edge_index(&edges, a, b);
+            let om = if a < b { omega[e] } else { -omega[e] };
+            turn += om + wrap(arg(b) - arg(a) - om);
+        }
+        ends += (turn / TAU).round().abs() as usize;
+    }
+    ends
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A UV sphere of radius 1: `rings` × `segments` quads split in two.
+    fn sphere(rings: usize, segments: usize) -> Mesh {
+        let mut m = Mesh::default();
+        m.positions.push([0.0, 0.0, 1.0]);
+        for r in 1..rings {
+            let th = std::f64::consts::PI * r as f64 / rings as f64;
+            for s in 0..segments {
+                let ph = std::f64::consts::TAU * s as f64 / segments as f64;
+                m.positions.push([
+                    (th.sin() * ph.cos()) as f32,
+                    (th.sin() * ph.sin()) as f32,
+                    th.cos() as f32,
+                ]);
+            }
+        }
+        m.positions.push([0.0, 0.0, -1.0]);
+        let ring = |r: usize, s: usize| (1 + (r - 1) * segments + s % segments) as u32;
+        let south = (m.positions.len() - 1) as u32;
+        for s in 0..segments {
+            m.triangles.push([0, ring(1, s), ring(1, s + 1)]);
+            m.triangles
+                .push([south, ring(rings - 1, s + 1), ring(rings - 1, s)]);
+        }
+        for r in 1..rings - 1 {
+            for s in 0..segments {
+                let (a, b, c, d) = (ring(r, s), ring(r + 1, s), ring(r + 1, s + 1), ring(r, s + 1));
+                m.triangles.push([a, b, c]);
+                m.triangles.push([a, c, d]);
+            }
+        }
+        m
+    }
+
+    /// Per face: the unit tangent along the latitude circle (east), or along
+    /// the meridian (south).
+    fn sphere_field(m: &Mesh, east: bool) -> Vec<[f32; 3]> {
+        (0..m.triangles.len())
+            .map(|f| {
+                let c = m.triangles[f].map(|v| DVec3::from(m.positions[v as usize].map(f64::from)));
+                let p = ((c[0] + c[1] + c[2]) / 3.0).normalize();
+                let e = DVec3::Z.cross(p).normalize();
+                let d = if east { e } else { p.cross(e) };
+                d.as_vec3().to_array()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn rows_on_a_plane_never_end() {
+        let mut m = Mesh::default();
+        let n = 12;
+        for y in 0..=n {
+            for x in 0..=n {
+                m.positions.push([x as f32 / n as f32, y as f32 / n as f32, 0.0]);
+            }
+        }
+        let w = (n + 1) as u32;
+        for y in 0..n as u32 {
+            for x in 0..n as u32 {
+                let i = y * w + x;
+                m.triangles.push([i, i + 1, i + w + 1]);
+                m.triangles.push([i, i + w + 1, i + w]);
+            }
+        }
+        let field = vec![[0.6f32, 0.8, 0.0]; m.triangles.len()];
+        let r = forced_ends(&m, &field, 0.07, u64::MAX).unwrap();
+        assert_eq!(r.ends, 0);
+        assert!(r.subdivisions >= 1, "edges of 1/12 are longer than 0.07 / 4");
+    }
+
+    #[test]
+    fn rows_must_end_where_the_field_converges() {
+        // rows along the latitude circles stay parallel (spacing measured
+        // along the meridians); rows along the meridians converge at the
+        // poles, where all of them must end: 2π / period rows cross the
+        // equator, so at least that many ends in each hemisphere
+        let m = sphere(24, 48);
+        let period = 0.35;
+        let along_latitudes = forced_ends(&m, &sphere_field(&m, true), period, u64::MAX).unwrap();
+        assert!(along_latitudes.ends <= 2, "{along_latitudes:?}");
+        let along_meridians = forced_ends(&m, &sphere_field(&m, false), period, u64::MAX).unwrap();
+        let crossing = std::f64::consts::TAU / period;
+        assert!(
+            along_meridians.ends as f64 >= 2.0 * crossing - 2.0,
+            "{along_meridians:?} < 2 × {crossing:.1}"
+        );
+        assert!(
+            along_meridians.ends as f64 <= 3.0 * crossing,
+            "{along_meridians:?}"
+        );
+    }
+
+    #[test]
+    fn bad_periods_are_refused() {
+        let m = sphere(4, 8);
+        let f = sphere_field(&m, true);
+        for p in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(forced_ends(&m, &f, p, u64::MAX).is_err());
+        }
+        assert!(forced_ends(&m, &f[1..], 0.5, u64::MAX).is_err());
+        let e = forced_ends(&m, &f, 0.5, 1 << 10).unwrap_err().to_string();
+        assert!(e.contains("raise --memory"), "{e}");
+    }
+}
