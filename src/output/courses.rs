@@ -136,7 +136,7 @@ impl Courses {
             }
         }
         marks.sort_by(f64::total_cmp);
-        (marks.len() >= 3).then(|| Courses {
+        (marks.len() >= 3).then_some(Courses {
             marks,
             height: h as f64,
         })
