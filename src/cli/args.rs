@@ -541,9 +541,9 @@ pub(super) enum Command {
         #[arg(long, default_value_t = evaluate::EvaluateConfig::default().windows)]
         windows: usize,
         /// For a sample whose features run in rows: also count the course
-        /// ends the atlas's field forces at the sample's course period (a
-        /// stripe solve on the subdivided mesh; about a second and 150 MB
-        /// on Spot).
+        /// ends of the smoothest stripe pattern along the atlas's field at
+        /// the sample's course period (a stripe solve on the subdivided
+        /// mesh; about a second and 140 MB on Spot).
         #[arg(long)]
         forced_ends: bool,
         #[command(flatten)]

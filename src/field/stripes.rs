@@ -4,8 +4,9 @@
 //! field's lines converge or diverge, nor around its singularities. The
 //! smoothest stripe pattern along the field (F. Knöppel, K. Crane, U.
 //! Pinkall, P. Schröder, "Stripe Patterns on Surfaces", ACM TOG 34(4),
-//! 2015) places the fewest such ends its energy allows; their number is a
-//! floor for what a tiling that follows the field shows.
+//! 2015) places the fewest such ends its energy allows, letting the row
+//! spacing vary where that costs less than an end; their number is a
+//! reference for what a tiling that follows the field shows.
 //!
 //! The pattern is a complex value ψ per vertex whose argument is the row
 //! phase. Its energy Σ_ij w_ij |ψ_j − e^{iω_ij} ψ_i|² (cotangent weights

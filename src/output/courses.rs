@@ -11,8 +11,8 @@
 //!   multiplicity;
 //! - forced ends (when asked for): the ends the smoothest stripe pattern
 //!   along the atlas's field needs at this course period
-//!   ([`crate::field::forced_ends`]); a tiling that follows the field
-//!   shows about as many at least.
+//!   ([`crate::field::forced_ends`]), a reference for how many the field's
+//!   geometry asks for.
 
 use std::f64::consts::{PI, TAU};
 
@@ -46,8 +46,9 @@ pub struct CourseFigures {
     /// Course ends: grid squares inside charts around which the course
     /// phase turns by whole courses, each counted that many times.
     pub ends: usize,
-    /// The ends the atlas's field forces at this course period on the
-    /// surface, a floor for `ends` (with `evaluate --forced-ends`).
+    /// The ends of the smoothest stripe pattern along the atlas's field at
+    /// this course period (with `evaluate --forced-ends`): a reference for
+    /// `ends`, how many the field's geometry asks for.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub forced_ends: Option<usize>,
 }

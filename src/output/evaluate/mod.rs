@@ -153,9 +153,10 @@ pub struct EvaluateConfig {
     /// same for every quilt of one resolution). Each costs an exact search
     /// over its sample; its 95th percentile steadies with more.
     pub windows: usize,
-    /// Also count the course ends the field forces at the sample's course
-    /// period ([`crate::field::forced_ends`]): a stripe solve on the
-    /// subdivided mesh, about a second and 150 MB on Spot.
+    /// Also count the course ends of the smoothest stripe pattern along
+    /// the field at the sample's course period
+    /// ([`crate::field::forced_ends`]): a stripe solve on the subdivided
+    /// mesh, about a second and 140 MB on Spot.
     pub forced_ends: bool,
 }
 
