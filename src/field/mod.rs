@@ -290,6 +290,32 @@ pub fn singularities(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> Ve
     out
 }
 
+/// The sparse Cholesky factorization of a Hermitian positive definite
+/// form given by its complex entries above the diagonal (`(i, j, a, b)`
+/// for a + ib at row i < column j) and its real diagonal, as the real
+/// 2N × 2N symmetric matrix whose complex entry a + ib is the block
+/// [[a, −b], [b, a]] (upper triangle).
+pub(crate) fn factorize_hermitian(
+    upper: &[(usize, usize, f64, f64)],
+    diagonal: &[f64],
+) -> Option<crate::sparse::SpdFactor> {
+    use faer::sparse::{SparseColMat, Triplet};
+    let n = diagonal.len();
+    let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(4 * upper.len() + 2 * n);
+    for &(i, j, a, b) in upper {
+        trip.push(Triplet::new(2 * i, 2 * j, a));
+        trip.push(Triplet::new(2 * i, 2 * j + 1, -b));
+        trip.push(Triplet::new(2 * i + 1, 2 * j, b));
+        trip.push(Triplet::new(2 * i + 1, 2 * j + 1, a));
+    }
+    for (i, &d) in diagonal.iter().enumerate() {
+        trip.push(Triplet::new(2 * i, 2 * i, d));
+        trip.push(Triplet::new(2 * i + 1, 2 * i + 1, d));
+    }
+    let h = SparseColMat::<usize, f64>::try_new_from_triplets(2 * n, 2 * n, &trip).ok()?;
+    crate::sparse::SpdFactor::new(&h).ok()
+}
+
 /// The shift ε of L + εM in the inverse iteration, in units of
 /// 1 / (bounding-box diagonal)²: small against the eigenvalues of a curved
 /// surface's smoothest fields, large enough to keep a flat one's (zero)
@@ -400,7 +426,6 @@ fn smoothest_field(
     prior: &[[f32; 3]],
     turning: Option<&[f64]>,
 ) -> Option<Vec<[f32; 3]>> {
-    use faer::sparse::{SparseColMat, Triplet};
     let nf = mesh.triangles.len();
     if nf == 0 {
         return Some(Vec::new());
@@ -416,27 +441,17 @@ fn smoothest_field(
     // the real 2F × 2F form of L + shift·M, each dual edge's weight × the
     // mean of its faces' `turning` weights when given
     let factorize = |shift: f64, turning: Option<&[f64]>| {
-        let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(nf * 12);
         let mut diagonal: Vec<f64> = mass.iter().map(|m| shift * m.max(floor)).collect();
+        let mut upper = Vec::with_capacity(edges.len());
         for &(f, g, w, rho) in &edges {
             let (f, g) = (f as usize, g as usize);
             let w = turning.map_or(w, |t| w * 0.5 * (t[f] + t[g]));
             diagonal[f] += w;
             diagonal[g] += w;
-            // the complex entry −w e^{iρ} at (f, g) as the real block [[a, −b], [b, a]];
-            // only the upper triangle (row ≤ column) is given, and f < g
-            let (a, b) = (-w * rho.cos(), -w * rho.sin());
-            trip.push(Triplet::new(2 * f, 2 * g, a));
-            trip.push(Triplet::new(2 * f, 2 * g + 1, -b));
-            trip.push(Triplet::new(2 * f + 1, 2 * g, b));
-            trip.push(Triplet::new(2 * f + 1, 2 * g + 1, a));
+            // the complex entry −w e^{iρ} at (f, g), f < g
+            upper.push((f, g, -w * rho.cos(), -w * rho.sin()));
         }
-        for (f, &d) in diagonal.iter().enumerate() {
-            trip.push(Triplet::new(2 * f, 2 * f, d));
-            trip.push(Triplet::new(2 * f + 1, 2 * f + 1, d));
-        }
-        let h = SparseColMat::<usize, f64>::try_new_from_triplets(2 * nf, 2 * nf, &trip).ok()?;
-        crate::sparse::SpdFactor::new(&h).ok()
+        factorize_hermitian(&upper, &diagonal)
     };
     let factor = factorize(SMOOTHEST_SHIFT / (diag * diag), None)?;
     let components = topology.components.max(1);

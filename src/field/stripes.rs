@@ -18,7 +18,6 @@
 //! row ends (the paper's singular faces). The mesh is subdivided until its
 //! edges are a third of `period` long on average.
 
-use faer::sparse::{SparseColMat, Triplet};
 use glam::DVec3;
 
 use crate::mesh::Mesh;
@@ -188,27 +187,16 @@ fn count_ends(positions: &[DVec3], triangles: &[[u32; 3]], field: &[DVec3], peri
     // the real 2V × 2V form (upper triangle) of A + shift·M; a negative
     // cotangent weight (an obtuse pair) is clamped to keep A positive
     let mut diagonal: Vec<f64> = mass.iter().map(|m| 1e-4 * nu * nu * m.max(floor)).collect();
-    let mut trip: Vec<Triplet<usize, usize, f64>> = Vec::with_capacity(4 * edges.len() + 2 * nv);
+    let mut upper = Vec::with_capacity(edges.len());
     for ((&(i, j), &w), &om) in edges.iter().zip(&weight).zip(&omega) {
         let w = w.max(1e-6);
         let (i, j) = (i as usize, j as usize);
         diagonal[i] += w;
         diagonal[j] += w;
-        // entry (i, j) = −w e^{−iω} as the real block [[a, −b], [b, a]]
-        let (a, b) = (-w * om.cos(), w * om.sin());
-        trip.push(Triplet::new(2 * i, 2 * j, a));
-        trip.push(Triplet::new(2 * i, 2 * j + 1, -b));
-        trip.push(Triplet::new(2 * i + 1, 2 * j, b));
-        trip.push(Triplet::new(2 * i + 1, 2 * j + 1, a));
+        // entry (i, j) = −w e^{−iω}
+        upper.push((i, j, -w * om.cos(), w * om.sin()));
     }
-    for (i, &d) in diagonal.iter().enumerate() {
-        trip.push(Triplet::new(2 * i, 2 * i, d));
-        trip.push(Triplet::new(2 * i + 1, 2 * i + 1, d));
-    }
-    let Ok(h) = SparseColMat::<usize, f64>::try_new_from_triplets(2 * nv, 2 * nv, &trip) else {
-        return 0;
-    };
-    let Ok(factor) = crate::sparse::SpdFactor::new(&h) else {
+    let Some(factor) = super::factorize_hermitian(&upper, &diagonal) else {
         return 0;
     };
     let mut psi: Vec<f64> = (0..2 * nv)

@@ -20,20 +20,21 @@ fn courses_run_on_across_the_seams_of_a_flat_wall() {
         s(&gim),
     ]);
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
-    let wall = dir.path().join("wall.quilt");
-    let sample = data.join("brick_wall.png");
-    ok(&[
-        "tile",
-        "--gim",
-        s(&gim),
-        "--sample",
-        s(&sample),
-        "--seed",
-        "1",
-        "-q",
-        "-o",
-        s(&wall),
-    ]);
+    let tile = |sample: &str, out: &str| {
+        let (sample, quilt) = (data.join(sample), dir.path().join(out));
+        ok(&[
+            "tile",
+            "--gim",
+            s(&gim),
+            "--sample",
+            s(&sample),
+            "-q",
+            "-o",
+            s(&quilt),
+        ]);
+        quilt
+    };
+    let wall = tile("brick_wall.png", "wall.quilt");
     let doc: serde_json::Value = serde_json::from_str(&ok(&["evaluate", s(&wall), "--forced-ends"])).unwrap();
     let c = &doc["courses"];
     // the wall has ten courses of 19.2 pixels on average
@@ -56,18 +57,7 @@ fn courses_run_on_across_the_seams_of_a_flat_wall() {
         &["raise --memory"],
     );
     // plaster has no rows
-    let plaster = dir.path().join("plaster.quilt");
-    let sample = data.join("plaster_cracks.png");
-    ok(&[
-        "tile",
-        "--gim",
-        s(&gim),
-        "--sample",
-        s(&sample),
-        "-q",
-        "-o",
-        s(&plaster),
-    ]);
+    let plaster = tile("plaster_cracks.png", "plaster.quilt");
     let doc: serde_json::Value =
         serde_json::from_str(&ok(&["evaluate", s(&plaster), "--forced-ends"])).unwrap();
     assert!(doc.get("courses").is_none(), "{doc}");
