@@ -1,10 +1,14 @@
 //! Features that end at seams around a work patch: the seam edges where one
 //! side's patch, continued one texel across, differs from what the other
 //! side shows by more than a limit (a mortar line or a strand that stops at
-//! the seam; Kwatra et al. 2003's "old patch value across a seam"). Seam
+//! the seam; Kwatra et al. 2003's "old patch value across a seam"), and for
+//! a sample in rows those where the course is offset
+//! ([`super::courses::course_offset`]): two offset brick bodies are grey
+//! against grey, but the course phase sees the step. Seam
 //! refinement counts them before and after a candidate cut, to choose a cut
 //! that ends fewer features than the seams it replaces.
 
+use super::courses::course_offset;
 use super::fit::{jacobian_from, Fit};
 use super::sample::{dist, Sample};
 use super::state::{Bfs, State, Surface, WorkPatch};
@@ -129,6 +133,13 @@ pub(super) fn broken_around(
         }
         None => state.continued(sample, t, d, out),
     };
+    // a side's sample coordinate and Jacobian, for the course phase
+    let coord_jac = |t: u32, s: Side| -> ([f32; 2], [f32; 4]) {
+        match s.new {
+            Some(cj) => cj,
+            None => state.texel(t, |st, i| (st.coord[i], st.jacobian[i])),
+        }
+    };
     let mut edges: Vec<(u32, (f64, f64))> = Vec::with_capacity(8);
     let mut broken = 0;
     for &t in &patch.texels {
@@ -170,7 +181,13 @@ pub(super) fn broken_around(
                 |out| continued(t, a, d, out),
                 |out| continued(nb, b, (-d.0, -d.1), out),
             );
-            if ends > limit {
+            let offset = || {
+                sample
+                    .courses
+                    .as_ref()
+                    .is_some_and(|c| course_offset(c, coord_jac(t, a), coord_jac(nb, b), d))
+            };
+            if ends > limit || offset() {
                 broken += 1;
             }
         }

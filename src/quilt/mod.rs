@@ -36,6 +36,7 @@ use crate::{Error, Result};
 mod align;
 mod coarse;
 mod config;
+pub mod courses;
 mod ends;
 mod fit;
 mod flatten;

@@ -40,6 +40,8 @@ pub(super) struct Sample {
     /// The weighted structure channel (`[y][x]`), when it is on: the last of
     /// the `n` feature channels of `maps` and of every rotated copy.
     pub(super) structure: Option<Vec<f32>>,
+    /// The sample's courses, when its features run in rows.
+    pub(super) courses: Option<super::courses::Courses>,
 }
 
 impl Sample {
@@ -52,7 +54,14 @@ impl Sample {
         } else {
             factorize::DEFAULT_ROTATIONS
         };
+        // a preview that cannot be made only means no courses are looked for
+        let courses = svd
+            .preview()
+            .ok()
+            .as_ref()
+            .and_then(super::courses::Courses::detect);
         Ok(Sample {
+            courses,
             width: svd.width,
             height: svd.height,
             n: svd.terms,

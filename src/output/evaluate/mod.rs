@@ -31,8 +31,9 @@ use crate::factorize::rotate_maps;
 use crate::io::imageio::RgbImage;
 use crate::output::band::{diff, ColourBand};
 use crate::output::continuation::{Continuation, ContinuationFigures};
-use crate::output::courses::{CourseCount, CourseFigures, Courses};
+use crate::output::courses::{CourseCount, CourseFigures};
 use crate::output::{open_samples, OpenSample, BAND_ROWS};
+use crate::quilt::courses::Courses;
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
 

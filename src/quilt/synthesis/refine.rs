@@ -94,6 +94,13 @@ impl Synthesis {
                         |out| self.state.continued(&self.sample, nb, (-d.0, -d.1), out),
                     );
                     ends = ends.max(gap);
+                    // a course offset at the seam is an end, whatever the colours
+                    let side = |u: u32| self.state.texel(u, |s, i| (s.coord[i], s.jacobian[i]));
+                    if let Some(c) = &self.sample.courses {
+                        if crate::quilt::courses::course_offset(c, side(t), side(nb), d) {
+                            ends = f64::MAX;
+                        }
+                    }
                 }
             }
             if ends > crate::quilt::config::BROKEN_CONTINUATION * self.reference {
