@@ -107,6 +107,23 @@ impl SvdArtifact {
         })
     }
 
+    /// The mean luminance of each row of the preview colour (Rec. 709
+    /// weights), read 64 rows at a time.
+    pub fn preview_row_means(&self) -> Result<Vec<f64>> {
+        let array = self.container.array("preview")?;
+        let (w, h) = (self.width as u64, self.height as u64);
+        let mut means = Vec::with_capacity(self.height);
+        for y0 in (0..h).step_by(64) {
+            let rows = 64.min(h - y0);
+            let band: Vec<f32> = self.container.read_region(array, &[y0, 0, 0], &[rows, w, 3])?;
+            means.extend(
+                band.chunks_exact(3 * w as usize)
+                    .map(crate::io::imageio::row_luminance),
+            );
+        }
+        Ok(means)
+    }
+
     /// Rotated copy `r` (r·360°/R): maps `[y][x][i]` and validity `[y][x]`.
     pub fn rotated(&self, r: usize) -> Result<(Vec<f16>, Vec<u8>)> {
         if r >= self.rotations {

@@ -32,19 +32,25 @@ impl Courses {
     /// when the profile is not periodic enough or holds fewer than three
     /// courses.
     pub fn detect(sample: &RgbImage) -> Option<Courses> {
-        let (w, h) = (sample.width, sample.height);
-        if w == 0 || h < 9 {
+        let w = sample.width;
+        if w == 0 {
             return None;
         }
-        let profile: Vec<f64> = (0..h)
-            .map(|y| {
-                let row = &sample.data[y * w * 3..(y + 1) * w * 3];
-                row.chunks_exact(3)
-                    .map(|c| 0.2126 * c[0] as f64 + 0.7152 * c[1] as f64 + 0.0722 * c[2] as f64)
-                    .sum::<f64>()
-                    / w as f64
-            })
+        let rows: Vec<f64> = sample
+            .data
+            .chunks_exact(w * 3)
+            .map(crate::io::imageio::row_luminance)
             .collect();
+        Courses::from_profile(&rows)
+    }
+
+    /// [`Courses::detect`] from the sample's row profile: the mean
+    /// luminance of each row ([`crate::io::imageio::row_luminance`]).
+    pub fn from_profile(profile: &[f64]) -> Option<Courses> {
+        let h = profile.len();
+        if h < 9 {
+            return None;
+        }
         let mean = profile.iter().sum::<f64>() / h as f64;
         let p: Vec<f64> = profile.iter().map(|v| v - mean).collect();
         if !(p.iter().any(|v| v.abs() > 1e-9)) {

@@ -54,12 +54,11 @@ impl Sample {
         } else {
             factorize::DEFAULT_ROTATIONS
         };
-        // a preview that cannot be made only means no courses are looked for
+        // a preview that cannot be read only means no courses are looked for
         let courses = svd
-            .preview()
+            .preview_row_means()
             .ok()
-            .as_ref()
-            .and_then(super::courses::Courses::detect);
+            .and_then(|rows| super::courses::Courses::from_profile(&rows));
         Ok(Sample {
             courses,
             width: svd.width,

@@ -165,6 +165,37 @@ fn a_colour_image_is_a_one_pair_btf_factorized_exactly() {
     assert!(sigma[0] > sigma[1] && sigma[1] >= sigma[2]);
 }
 
+/// The preview's row means, read 64 rows at a time, are those of the whole
+/// preview, over a last band of fewer rows too.
+#[test]
+fn preview_row_means_read_in_bands_equal_the_whole_preview() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("rows.png");
+    let (w, h) = (23, 150);
+    let img = RgbImage {
+        width: w,
+        height: h,
+        data: (0..w * h * 3)
+            .map(|i| ((i * 31 + i / (3 * w)) % 97) as f32 / 96.0)
+            .collect(),
+    };
+    imageio::write_png(&png, &img, imageio::PngDepth::Eight).unwrap();
+    let out = dir.path().join("rows.svd");
+    run(&png, &out, &FactorizeConfig::default());
+    let svd = SvdArtifact::open(&out, MemoryBudget::default()).unwrap();
+    let whole: Vec<f64> = svd
+        .preview()
+        .unwrap()
+        .data
+        .chunks_exact(3 * w)
+        .map(imageio::row_luminance)
+        .collect();
+    let banded = svd.preview_row_means().unwrap();
+    assert_eq!(banded.len(), h);
+    assert_eq!(banded, whole);
+    assert!(whole.windows(2).any(|p| p[0] != p[1]), "rows that differ");
+}
+
 #[test]
 fn rotated_copies_rotate_the_geometry_maps() {
     let (w, h, c) = (9usize, 9usize, 2usize);

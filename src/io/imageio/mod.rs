@@ -513,5 +513,14 @@ pub fn linear_to_srgb(v: f32) -> f32 {
     s as f32
 }
 
+/// The mean luminance (Rec. 709 weights) of one row of RGB values.
+pub fn row_luminance(row: &[f32]) -> f64 {
+    let n = (row.len() / 3).max(1);
+    row.chunks_exact(3)
+        .map(|c| 0.2126 * c[0] as f64 + 0.7152 * c[1] as f64 + 0.0722 * c[2] as f64)
+        .sum::<f64>()
+        / n as f64
+}
+
 #[cfg(test)]
 mod tests;
