@@ -131,6 +131,10 @@ impl Courses {
     /// course, linear between the marks, wrapped with the sample.
     pub fn phase(&self, v: f64) -> f64 {
         let (m, h) = (&self.marks, self.height);
+        // a stored row that is not a number (a damaged file) has phase 0
+        if !v.is_finite() {
+            return 0.0;
+        }
         let mut v = v.rem_euclid(h);
         if v < m[0] {
             v += h;
@@ -197,6 +201,12 @@ mod tests {
         let across = 170.0 + (188.0 + 3.0 - 170.0) / 2.0;
         assert!(wrap(c.phase(across) - (9.0 * TAU + PI)).abs() < 1e-9);
         assert!(wrap(c.phase(across + 188.0) - c.phase(across)).abs() < 1e-9);
+        // far from the sample, below it and not a number
+        assert!(wrap(c.phase(3.0 + 188.0 * 1e6) - 0.0).abs() < 1e-6);
+        assert!(wrap(c.phase(-185.0) - 0.0).abs() < 1e-9);
+        for v in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            assert_eq!(c.phase(v), 0.0);
+        }
         // dark lines on a light ground as well
         let mut dark = row_sample(32, 188, &marks);
         dark.data.iter_mut().for_each(|v| *v = 1.3 - *v);
