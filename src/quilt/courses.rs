@@ -150,11 +150,11 @@ pub(crate) fn wrap(a: f64) -> f64 {
     a - TAU * ((a + PI) / TAU).floor()
 }
 
-/// Whether the course runs on across the grid edge from texel a to texel b
-/// (atlas step `d`): false when the course phase b shows differs from the
-/// one a's patch would show there (its sample row moved by its Jacobian)
-/// by more than [`OFFSET`], judged from both sides (the smaller). Each side
-/// is its stored sample coordinate and Jacobian (per atlas +x, +y).
+/// Whether the course is offset at the grid edge from texel a to texel b
+/// (atlas step `d`): the course phase b shows differs from the one a's
+/// patch would show there (its sample row moved by its Jacobian) by more
+/// than [`OFFSET`], judged from both sides (the smaller). Each side is its
+/// stored sample coordinate and Jacobian (per atlas +x, +y).
 pub(crate) fn course_offset(
     courses: &Courses,
     a: ([f32; 2], [f32; 4]),
