@@ -257,6 +257,12 @@ impl Gim {
         })
     }
 
+    /// The vector field: a unit tangent per face of [`Gim::mesh`].
+    pub fn face_field(&self) -> Result<Vec<[f32; 3]>> {
+        let f: Vec<f32> = self.read("face_field")?;
+        Ok(f.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+    }
+
     /// Atlas uv (0..1, y down) of every face corner.
     pub fn corner_uv(&self) -> Result<Vec<[f32; 2]>> {
         Ok(self

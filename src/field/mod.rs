@@ -220,7 +220,7 @@ pub struct Singularity {
 /// faces, plus the vertex's angle defect.
 /// Boundary and non-manifold vertices are skipped.
 pub fn singularities(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> Vec<Singularity> {
-    use std::f64::consts::{PI, TAU};
+    use std::f64::consts::TAU;
     let nf = mesh.triangles.len();
     let frames = face_frames(mesh);
     // one face (and its corner) per vertex to start the walk from
@@ -232,7 +232,6 @@ pub fn singularities(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> Ve
             }
         }
     }
-    let wrap = |a: f64| a - TAU * ((a + PI) / TAU).floor();
     let corner_angle = |f: usize, k: usize| {
         let c = mesh.corners(f).map(|p| Vec3::from(p).as_dvec3());
         let (a, b) = (c[(k + 1) % 3] - c[k], c[(k + 2) % 3] - c[k]);
@@ -267,7 +266,7 @@ pub fn singularities(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> Ve
                 frame_angle(field[f].into(), frames[f]),
                 frame_angle(field[g].into(), frames[g]),
             );
-            turning += wrap(b - (a + rho));
+            turning += wrap_angle(b - (a + rho));
             (f, k) = (g, kg);
             if f == f0 as usize {
                 closed = true;
@@ -288,6 +287,12 @@ pub fn singularities(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> Ve
         }
     }
     out
+}
+
+/// `a` (radians) wrapped into [−π, π).
+pub(crate) fn wrap_angle(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    a - TAU * ((a + PI) / TAU).floor()
 }
 
 /// The sparse Cholesky factorization of a Hermitian positive definite

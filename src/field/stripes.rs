@@ -150,7 +150,7 @@ fn subdivide(
 
 /// Σ |winding| over the faces of the smoothest stripe pattern.
 fn count_ends(positions: &[DVec3], triangles: &[[u32; 3]], field: &[DVec3], period: f64) -> usize {
-    use std::f64::consts::{PI, TAU};
+    use std::f64::consts::TAU;
     let nv = positions.len();
     let nu = TAU / period;
     let edges = edge_list(triangles);
@@ -215,7 +215,6 @@ fn count_ends(positions: &[DVec3], triangles: &[[u32; 3]], field: &[DVec3], peri
         psi.iter_mut().for_each(|x| *x /= norm);
     }
     let arg = |v: u32| psi[2 * v as usize + 1].atan2(psi[2 * v as usize]);
-    let wrap = |a: f64| a - TAU * ((a + PI) / TAU).floor();
     let mut ends = 0usize;
     for t in triangles {
         let mut turn = 0.0;
@@ -223,7 +222,7 @@ fn count_ends(positions: &[DVec3], triangles: &[[u32; 3]], field: &[DVec3], peri
             let (a, b) = (t[k], t[(k + 1) % 3]);
             let e = edge_index(&edges, a, b);
             let om = if a < b { omega[e] } else { -omega[e] };
-            turn += om + wrap(arg(b) - arg(a) - om);
+            turn += om + super::wrap_angle(arg(b) - arg(a) - om);
         }
         ends += (turn / TAU).round().abs() as usize;
     }

@@ -19,8 +19,9 @@ use std::f64::consts::TAU;
 use serde::Serialize;
 
 use crate::artifact::gim::EMPTY;
+use crate::field::wrap_angle as wrap;
 use crate::output::band::ColourBand;
-use crate::quilt::courses::{wrap, Courses, OFFSET};
+use crate::quilt::courses::{Courses, OFFSET};
 use crate::quilt::NO_PATCH;
 
 /// How courses continue across seams.

@@ -144,11 +144,7 @@ fn draw_singularities(gim: &Gim, display: &mut [f32]) -> Result<()> {
     let r = gim.resolution;
     let mesh = gim.mesh()?;
     let uv = gim.corner_uv()?;
-    let field: Vec<[f32; 3]> = gim
-        .read::<f32>("face_field")?
-        .chunks_exact(3)
-        .map(|c| [c[0], c[1], c[2]])
-        .collect();
+    let field = gim.face_field()?;
     let singular = crate::field::singularities(&mesh, &mesh.topology(), &field);
     // each singular vertex's ring colour, found in one pass over the faces
     let mut ring: Vec<Option<[f32; 3]>> = vec![None; mesh.positions.len()];

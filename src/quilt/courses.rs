@@ -6,6 +6,7 @@
 
 use std::f64::consts::{PI, TAU};
 
+use crate::field::wrap_angle as wrap;
 use crate::io::imageio::RgbImage;
 
 /// The sample has rows when its row profile correlates with itself
@@ -143,11 +144,6 @@ impl Courses {
         let next = if k + 1 < m.len() { m[k + 1] } else { m[0] + h };
         TAU * (k as f64 + (v - m[k]) / (next - m[k]))
     }
-}
-
-/// `a` wrapped into [−π, π).
-pub(crate) fn wrap(a: f64) -> f64 {
-    a - TAU * ((a + PI) / TAU).floor()
 }
 
 /// Whether the course is offset at the grid edge from texel a to texel b

@@ -137,7 +137,7 @@ pub(super) fn broken_around(
     let coord_jac = |t: u32, s: Side| -> ([f32; 2], [f32; 4]) {
         match s.new {
             Some(cj) => cj,
-            None => state.texel(t, |st, i| (st.coord[i], st.jacobian[i])),
+            None => state.coord_jacobian(t),
         }
     };
     let mut edges: Vec<(u32, (f64, f64))> = Vec::with_capacity(8);

@@ -89,6 +89,21 @@ pub fn ok(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// Runs `btfquilt tile --gim GIM --sample SAMPLE -q -o QUILT` with the
+/// defaults and asserts it succeeded.
+pub fn tile(gim: &Path, sample: &Path, quilt: &Path) {
+    ok(&[
+        "tile",
+        "--gim",
+        s(gim),
+        "--sample",
+        s(sample),
+        "-q",
+        "-o",
+        s(quilt),
+    ]);
+}
+
 /// Asserts a run failed with a non-zero exit, without a panic, and that
 /// its standard error names every needle; the standard error.
 pub fn fails_clearly(out: &Output, needles: &[&str]) -> String {

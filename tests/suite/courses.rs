@@ -22,16 +22,7 @@ fn courses_run_on_across_the_seams_of_a_flat_wall() {
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
     let tile = |sample: &str, out: &str| {
         let (sample, quilt) = (data.join(sample), dir.path().join(out));
-        ok(&[
-            "tile",
-            "--gim",
-            s(&gim),
-            "--sample",
-            s(&sample),
-            "-q",
-            "-o",
-            s(&quilt),
-        ]);
+        crate::common::tile(&gim, &sample, &quilt);
         quilt
     };
     let wall = tile("brick_wall.png", "wall.quilt");

@@ -38,16 +38,7 @@ fn btf_quilt(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
     ]);
     ok(&["factorize", s(&btf), "--terms", "8", "-q", "-o", s(&svd)]);
     ok(&["atlas", s(&spot()), "--resolution", "96", "-q", "-o", s(&gim)]);
-    ok(&[
-        "tile",
-        "--gim",
-        s(&gim),
-        "--sample",
-        s(&svd),
-        "-q",
-        "-o",
-        s(&quilt),
-    ]);
+    crate::common::tile(&gim, &svd, &quilt);
     (gim, svd, quilt)
 }
 

@@ -310,11 +310,7 @@ pub fn evaluate_with(
     let continuation = continuation.figures(&previews, texels);
     let courses = match courses {
         Some(c) if cfg.forced_ends && scale.sample_pixels_per_unit > 0.0 => {
-            let field: Vec<[f32; 3]> = gim
-                .read::<f32>("face_field")?
-                .chunks_exact(3)
-                .map(|v| [v[0], v[1], v[2]])
-                .collect();
+            let field = gim.face_field()?;
             let period = c.period() / scale.sample_pixels_per_unit;
             let forced = crate::field::forced_ends(&mesh, &field, period, work.0)?;
             Some(course_count.figures(&c, Some(forced.ends)))

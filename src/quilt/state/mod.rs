@@ -359,6 +359,12 @@ impl State {
         }
     }
 
+    /// Texel `t`'s stored sample coordinate and Jacobian (sample offset
+    /// per atlas +x, +y).
+    pub(super) fn coord_jacobian(&self, t: u32) -> ([f32; 2], [f32; 4]) {
+        self.texel(t, |s, i| (s.coord[i], s.jacobian[i]))
+    }
+
     /// The geometry-map vector of synthesized texel `t` in the active
     /// sample's basis, into `out` (`n` values).
     /// The features `t`'s patch would show one atlas step `step` (dx, dy)
@@ -366,7 +372,7 @@ impl State {
     /// patch's value across a seam, Kwatra et al. 2003). False where that
     /// falls outside the sample.
     pub(super) fn continued(&self, sample: &Sample, t: u32, step: (f64, f64), out: &mut [f32]) -> bool {
-        let (j, c) = self.texel(t, |s, i| (s.jacobian[i], s.coord[i]));
+        let (c, j) = self.coord_jacobian(t);
         let moved = [
             c[0] as f64 + j[0] as f64 * step.0 + j[2] as f64 * step.1,
             c[1] as f64 + j[1] as f64 * step.0 + j[3] as f64 * step.1,

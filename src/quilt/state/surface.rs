@@ -252,14 +252,10 @@ pub(in crate::quilt) fn face_angles(gim: &Gim) -> Result<Vec<f64>> {
     // angles do not depend on the scale; f32 products of extreme ones would overflow
     mesh.normalize_extreme_scale();
     let uv = gim.corner_uv()?;
-    let field: Vec<f32> = gim.read("face_field")?;
+    let field = gim.face_field()?;
     Ok((0..mesh.triangles.len())
         .map(|f| {
-            let v = [
-                field[f * 3] as f64,
-                field[f * 3 + 1] as f64,
-                field[f * 3 + 2] as f64,
-            ];
+            let v = field[f].map(f64::from);
             crate::artifact::gim::atlas_direction(&mesh, &uv, f, v).map_or(0.0, |d| d[1].atan2(d[0]))
         })
         .collect())

@@ -95,9 +95,9 @@ impl Synthesis {
                     );
                     ends = ends.max(gap);
                     // a course offset at the seam is an end, whatever the colours
-                    let side = |u: u32| self.state.texel(u, |s, i| (s.coord[i], s.jacobian[i]));
                     if let Some(c) = &self.sample.courses {
-                        if crate::quilt::courses::course_offset(c, side(t), side(nb), d) {
+                        let (a, b) = (self.state.coord_jacobian(t), self.state.coord_jacobian(nb));
+                        if crate::quilt::courses::course_offset(c, a, b, d) {
                             ends = f64::MAX;
                         }
                     }

@@ -98,16 +98,7 @@ fn mesh_extreme_scales_give_an_atlas_in_the_users_units() {
     );
     let sample = crate::common::brick_crop(dir.path(), 32, None);
     let unit_quilt = dir.path().join("unit.quilt");
-    crate::common::ok(&[
-        "tile",
-        "--gim",
-        s(&unit),
-        "--sample",
-        s(&sample),
-        "-q",
-        "-o",
-        s(&unit_quilt),
-    ]);
+    crate::common::tile(&unit, &sample, &unit_quilt);
     let unit_png = dir.path().join("unit.png");
     crate::common::ok(&[
         "render",
@@ -158,16 +149,7 @@ fn mesh_extreme_scales_give_an_atlas_in_the_users_units() {
         // decorated and rendered, it looks as the unit square does (no
         // blank image from f32 overflow in the renderer)
         let quilt = dir.path().join("scaled.quilt");
-        crate::common::ok(&[
-            "tile",
-            "--gim",
-            s(&gim),
-            "--sample",
-            s(&sample),
-            "-q",
-            "-o",
-            s(&quilt),
-        ]);
+        crate::common::tile(&gim, &sample, &quilt);
         let png = dir.path().join("scaled.png");
         crate::common::ok(&[
             "render",

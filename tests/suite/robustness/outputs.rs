@@ -15,16 +15,7 @@ fn decorated(dir: &Path) -> (PathBuf, PathBuf, PathBuf, PathBuf) {
     ok(&["atlas", s(&mesh), "--resolution", "64", "-q", "-o", s(&gim)]);
     let sample = brick_crop(dir, 32, None);
     let quilt = dir.join("sq.quilt");
-    ok(&[
-        "tile",
-        "--gim",
-        s(&gim),
-        "--sample",
-        s(&sample),
-        "-q",
-        "-o",
-        s(&quilt),
-    ]);
+    crate::common::tile(&gim, &sample, &quilt);
     (mesh, gim, sample, quilt)
 }
 
@@ -151,7 +142,7 @@ fn an_output_equal_to_an_input_is_refused_and_the_input_kept() {
     let img = clash.join("atlas.png");
     std::fs::copy(&sample, &img).unwrap();
     let q2 = clash.join("q.quilt");
-    ok(&["tile", "--gim", s(&gim), "--sample", s(&img), "-q", "-o", s(&q2)]);
+    crate::common::tile(&gim, &img, &q2);
     refuses(
         &["export", s(&q2), "-o", s(&clash)],
         &["atlas.png", "would destroy"],
