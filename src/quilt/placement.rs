@@ -30,16 +30,17 @@ pub(super) fn covering_candidates(
     let (rotation, candidates) = match_candidates(sample, matcher, work, weight, penalty, cfg)?;
     let step = (work.coords.len() / 400).max(1);
     let probe: Vec<[f64; 2]> = work.coords.iter().step_by(step).copied().collect();
+    let turn = Turn::new(sample, rotation);
     let covering = candidates
         .into_iter()
         .filter(|p| {
             let (dx, dy) = (p.dx as f64, p.dy as f64);
-            if !inside_sample(sample, to_sample(sample, rotation, dx, dy, work.coords[0])) {
+            if !inside_sample(sample, turn.to_sample(dx, dy, work.coords[0])) {
                 return false;
             }
             let ok = probe
                 .iter()
-                .filter(|w| inside_sample(sample, to_sample(sample, rotation, dx, dy, **w)))
+                .filter(|w| inside_sample(sample, turn.to_sample(dx, dy, **w)))
                 .count();
             ok as f64 >= 0.95 * probe.len() as f64
         })
@@ -82,14 +83,36 @@ pub(super) struct PlacementChoice {
 /// Maps a work-image coordinate through a placement to unrotated sample
 /// coordinates (the inverse of the rotated copy's construction).
 pub(super) fn to_sample(sample: &Sample, rotation: usize, dx: f64, dy: f64, w: [f64; 2]) -> [f64; 2] {
-    let theta = rotation as f64 * std::f64::consts::TAU / sample.rotations as f64;
-    let (s, c) = theta.sin_cos();
-    let cen = [
-        (sample.width as f64 - 1.0) / 2.0,
-        (sample.height as f64 - 1.0) / 2.0,
-    ];
-    let q = [w[0] - dx - cen[0], w[1] - dy - cen[1]];
-    [c * q[0] + s * q[1] + cen[0], -s * q[0] + c * q[1] + cen[1]]
+    Turn::new(sample, rotation).to_sample(dx, dy, w)
+}
+
+/// [`to_sample`] for one rotated copy, its rotation's sine and cosine
+/// taken once.
+#[derive(Clone, Copy)]
+pub(super) struct Turn {
+    s: f64,
+    c: f64,
+    cen: [f64; 2],
+}
+
+impl Turn {
+    pub(super) fn new(sample: &Sample, rotation: usize) -> Turn {
+        let theta = rotation as f64 * std::f64::consts::TAU / sample.rotations as f64;
+        let (s, c) = theta.sin_cos();
+        let cen = [
+            (sample.width as f64 - 1.0) / 2.0,
+            (sample.height as f64 - 1.0) / 2.0,
+        ];
+        Turn { s, c, cen }
+    }
+
+    /// Work coordinate `w` through placement (`dx`, `dy`) of this copy.
+    #[inline]
+    pub(super) fn to_sample(self, dx: f64, dy: f64, w: [f64; 2]) -> [f64; 2] {
+        let (s, c, cen) = (self.s, self.c, self.cen);
+        let q = [w[0] - dx - cen[0], w[1] - dy - cen[1]];
+        [c * q[0] + s * q[1] + cen[0], -s * q[0] + c * q[1] + cen[1]]
+    }
 }
 
 pub(super) fn inside_sample(sample: &Sample, c: [f64; 2]) -> bool {
@@ -161,6 +184,7 @@ pub(super) fn choose_placement(
         // whose foreground best agrees with m0 over the patch (outside the
         // sample counts as a full mismatch), the first of equals
         let probe: Vec<usize> = (0..work.coords.len()).step_by(step).collect();
+        let turn = Turn::new(sample, rotation);
         let mut best = (f64::INFINITY, place([mid[0], mid[1]]));
         for k in 0..64u64 {
             let b = crate::rng::mix64(h ^ crate::rng::mix64(k + 1));
@@ -171,7 +195,7 @@ pub(super) fn choose_placement(
                     let w = work.coords[i];
                     let m0 = work.constraint[(w[1].round() as usize).min(work.height - 1) * work.width
                         + (w[0].round() as usize).min(work.width - 1)];
-                    let cs = to_sample(sample, rotation, choice.dx, choice.dy, w);
+                    let cs = turn.to_sample(choice.dx, choice.dy, w);
                     if inside_sample(sample, cs) {
                         (sample.mask_at(cs) - m0).abs() as f64
                     } else {
@@ -356,7 +380,8 @@ fn penalize(
     step: i32,
 ) {
     if let Some((occurrence, weight)) = penalty {
-        let to_unrotated = |p: [f64; 2]| to_sample(sample, rot, 0.0, 0.0, p);
+        let turn = Turn::new(sample, rot);
+        let to_unrotated = |p: [f64; 2]| turn.to_sample(0.0, 0.0, p);
         occurrence.penalize(map, rot, to_unrotated, [work.width, work.height], *weight, step);
     }
 }

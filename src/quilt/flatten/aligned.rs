@@ -207,7 +207,7 @@ pub(in crate::quilt) const LINK_WEIGHT: f64 = 4.0;
 /// matched by discrete choices, which does not hold for every input. (With
 /// `InitialGuessStatus::Zero`, faer 0.24.4 also leaves the residual
 /// uninitialised and returned garbage.) The vectors stay plain slices so
-/// every dot product is summed in index order; [`apply_membrane`] is exact
+/// every dot product is summed in index order; [`Membrane::apply`] is exact
 /// against the former hand-written product, as p never holds −0 (r starts
 /// at b, whose entries are +0 or non-zero, and a difference never rounds to
 /// −0).

@@ -5,9 +5,11 @@ use super::*;
 
 /// Jacobi-preconditioned conjugate gradients on `op · x = b` from `x0`
 /// (or 0), at most `iterations` steps, until the residual is below
-/// 10⁻³ ‖b‖; `None` when b = 0.
+/// 10⁻³ ‖b‖; `None` when b = 0. Every dot product is summed in index
+/// order from −0 (as `Iterator::sum` sums), the updates that feed one
+/// fused into one pass.
 pub(super) fn jacobi_cg(
-    op: &SparseRowMat<usize, f64>,
+    op: &Membrane,
     diag: &[f64],
     b: &[f64],
     x0: Option<Vec<f64>>,
@@ -18,17 +20,17 @@ pub(super) fn jacobi_cg(
     if bnorm == 0.0 {
         return None;
     }
-    let converged = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>().sqrt() < 1e-3 * bnorm;
+    let converged = |rr: f64| rr.sqrt() < 1e-3 * bnorm;
     let (mut x, mut r) = match x0 {
         Some(x0) => {
             let mut ax = vec![0.0f64; m];
-            apply_membrane(op, &x0, &mut ax);
+            op.apply(&x0, &mut ax);
             let r = b.iter().zip(&ax).map(|(b, a)| b - a).collect();
             (x0, r)
         }
         None => (vec![0.0f64; m], b.to_vec()),
     };
-    if converged(&r) {
+    if converged(r.iter().map(|v| v * v).sum::<f64>()) {
         return Some(x);
     }
     let mut z: Vec<f64> = r.iter().zip(diag).map(|(r, d)| r / d).collect();
@@ -36,23 +38,22 @@ pub(super) fn jacobi_cg(
     let mut ap = vec![0.0f64; m];
     let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
     for _ in 0..iterations {
-        apply_membrane(op, &p, &mut ap);
-        let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
+        let pap = op.apply_dot(&p, &mut ap);
         if !(pap > 0.0) {
             break;
         }
         let alpha = rz / pap;
+        let (mut rr, mut rz_new) = (-0.0f64, -0.0f64);
         for k in 0..m {
             x[k] += alpha * p[k];
             r[k] -= alpha * ap[k];
+            rr += r[k] * r[k];
+            z[k] = r[k] / diag[k];
+            rz_new += r[k] * z[k];
         }
-        if converged(&r) {
+        if converged(rr) {
             break;
         }
-        for k in 0..m {
-            z[k] = r[k] / diag[k];
-        }
-        let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
         let beta = rz_new / rz;
         rz = rz_new;
         for k in 0..m {
@@ -60,6 +61,52 @@ pub(super) fn jacobi_cg(
         }
     }
     Some(x)
+}
+
+/// A sparse matrix by rows (compressed): row i's entries are
+/// `val[row_ptr[i]..row_ptr[i + 1]]` at columns `col[..]`, in storage order.
+pub(in crate::quilt) struct Membrane {
+    row_ptr: Vec<usize>,
+    col: Vec<u32>,
+    val: Vec<f64>,
+}
+
+impl Membrane {
+    fn rows(&self) -> usize {
+        self.row_ptr.len() - 1
+    }
+
+    /// Row i of `op · x`: its entries' products summed in storage order
+    /// from +0 with plain multiplies and adds (for a
+    /// [`membrane_operator`] this rounds exactly like `(diag_i·x_i −
+    /// w_1·x_j1) − w_2·x_j2 …`, unless `x_i` is −0).
+    #[inline]
+    fn row(&self, i: usize, x: &[f64]) -> f64 {
+        let (a, b) = (self.row_ptr[i], self.row_ptr[i + 1]);
+        let mut v = 0.0f64;
+        for (&c, &w) in self.col[a..b].iter().zip(&self.val[a..b]) {
+            v += w * x[c as usize];
+        }
+        v
+    }
+
+    /// `out = op · x`.
+    pub(in crate::quilt) fn apply(&self, x: &[f64], out: &mut [f64]) {
+        for (i, o) in out.iter_mut().enumerate().take(self.rows()) {
+            *o = self.row(i, x);
+        }
+    }
+
+    /// `out = op · x`, and x · out summed in index order from −0.
+    fn apply_dot(&self, x: &[f64], out: &mut [f64]) -> f64 {
+        let mut dot = -0.0f64;
+        for i in 0..self.rows() {
+            let v = self.row(i, x);
+            out[i] = v;
+            dot += x[i] * v;
+        }
+        dot
+    }
 }
 
 /// Side of the atlas blocks whose texels (of one chart) [`Coarse`] merges.
@@ -74,7 +121,7 @@ const COARSE_BLOCK: usize = 4;
 pub(super) struct Coarse {
     /// Aggregate of each texel.
     of: Vec<u32>,
-    op: SparseRowMat<usize, f64>,
+    op: Membrane,
     diag: Vec<f64>,
 }
 
@@ -137,7 +184,7 @@ impl Coarse {
                 if c as usize == a {
                     cdiag[a] = v;
                 }
-                col_idx.push(c as usize);
+                col_idx.push(c);
                 values.push(v);
             }
             row_ptr.push(col_idx.len());
@@ -145,10 +192,11 @@ impl Coarse {
         if cdiag.iter().any(|&d| !(d > 0.0)) {
             return None;
         }
-        let op = SparseRowMat::new(
-            SymbolicSparseRowMat::new_unsorted_checked(n, n, row_ptr, None, col_idx),
-            values,
-        );
+        let op = Membrane {
+            row_ptr,
+            col: col_idx,
+            val: values,
+        };
         Some(Coarse { of, op, diag: cdiag })
     }
 
@@ -166,42 +214,20 @@ impl Coarse {
 /// The operator diag − W of [`close_gaps`] as a sparse matrix: row i holds
 /// its diagonal first, then −w per neighbour in `nbr[start[i]..start[i+1]]`
 /// order (unsorted, repeats kept).
-pub(in crate::quilt) fn membrane_operator(
-    start: &[usize],
-    nbr: &[(u32, f64)],
-    diag: &[f64],
-) -> SparseRowMat<usize, f64> {
+pub(in crate::quilt) fn membrane_operator(start: &[usize], nbr: &[(u32, f64)], diag: &[f64]) -> Membrane {
     let m = diag.len();
     let mut row_ptr = Vec::with_capacity(m + 1);
-    let mut col_idx = Vec::with_capacity(m + nbr.len());
-    let mut values = Vec::with_capacity(m + nbr.len());
+    let mut col = Vec::with_capacity(m + nbr.len());
+    let mut val = Vec::with_capacity(m + nbr.len());
     row_ptr.push(0);
     for i in 0..m {
-        col_idx.push(i);
-        values.push(diag[i]);
+        col.push(i as u32);
+        val.push(diag[i]);
         for &(j, w) in &nbr[start[i]..start[i + 1]] {
-            col_idx.push(j as usize);
-            values.push(-w);
+            col.push(j);
+            val.push(-w);
         }
-        row_ptr.push(col_idx.len());
+        row_ptr.push(col.len());
     }
-    SparseRowMat::new(
-        SymbolicSparseRowMat::new_unsorted_checked(m, m, row_ptr, None, col_idx),
-        values,
-    )
-}
-
-/// `out = op · x` by faer's sparse × dense product, which (0.24) sums a
-/// row's entries in storage order from +0 with plain multiplies and adds:
-/// for a [`membrane_operator`] that rounds exactly like
-/// `(diag_i·x_i − w_1·x_j1) − w_2·x_j2 …` unless `x_i` is −0.
-pub(in crate::quilt) fn apply_membrane(op: &SparseRowMat<usize, f64>, x: &[f64], out: &mut [f64]) {
-    sparse_dense_matmul(
-        ColMut::from_slice_mut(out).as_mat_mut(),
-        Accum::Replace,
-        op.as_ref(),
-        ColRef::from_slice(x).as_mat(),
-        1.0,
-        Par::Seq,
-    );
+    Membrane { row_ptr, col, val }
 }

@@ -3,9 +3,7 @@
 //! zipper links and their gaps closed, else the rigid field-based unfolding)
 //! and resampled at one texel per pixel.
 
-use faer::sparse::linalg::matmul::sparse_dense_matmul;
-use faer::sparse::{SparseRowMat, SymbolicSparseRowMat};
-use faer::{c64, Accum, ColMut, ColRef, Mat, Par};
+use faer::{c64, Mat};
 use glam::Vec3;
 
 use super::sample::Sample;
@@ -474,11 +472,15 @@ fn unfold(surface: &Surface, patch: &WorkPatch, bfs: &Bfs) -> (Vec<[f64; 2]>, f6
     let r = surface.r;
     let m = patch.texels.len();
     let atlas = |t: u32| [(t as usize % r) as f64, (t as usize / r) as f64];
-    // per chart: (rotation φ, work origin, atlas origin)
-    let mut frames: std::collections::BTreeMap<u32, (f64, [f64; 2], [f64; 2])> = Default::default();
+    // per chart: (rotation φ, work origin, atlas origin, sin φ, cos φ)
+    let mut frames: std::collections::BTreeMap<u32, (f64, [f64; 2], [f64; 2], f64, f64)> = Default::default();
     let v = patch.texels[0];
     let charts: Vec<u32> = patch.texels.iter().map(|&t| surface.chart(t)).collect();
-    frames.insert(charts[0], (0.0, [0.0, 0.0], atlas(v)));
+    let framed = |phi: f64, wo: [f64; 2], ao: [f64; 2]| {
+        let (s, co) = phi.sin_cos();
+        (phi, wo, ao, s, co)
+    };
+    frames.insert(charts[0], framed(0.0, [0.0, 0.0], atlas(v)));
     let mut coords = vec![[0f64; 2]; m];
     for i in 0..m {
         let t = patch.texels[i];
@@ -502,10 +504,9 @@ fn unfold(surface: &Surface, patch: &WorkPatch, bfs: &Bfs) -> (Vec<[f64; 2]>, f6
                 }
                 None => (0.0, [0.0, 0.0]),
             };
-            frames.insert(c, (phi, origin, atlas(t)));
+            frames.insert(c, framed(phi, origin, atlas(t)));
         }
-        let (phi, wo, ao) = frames[&c];
-        let (s, co) = phi.sin_cos();
+        let (_, wo, ao, s, co) = frames[&c];
         let a = atlas(t);
         let d = [a[0] - ao[0], a[1] - ao[1]];
         coords[i] = [wo[0] + co * d[0] - s * d[1], wo[1] + s * d[0] + co * d[1]];
