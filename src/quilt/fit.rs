@@ -5,7 +5,7 @@
 use super::flatten::WorkImage;
 use super::maxflow::{Graph, Segment};
 use super::occurrence::Occurrence;
-use super::placement::PlacementChoice;
+use super::placement::{PlacementChoice, Turn};
 use super::sample::{dist, Sample};
 use super::state::{State, Surface, WorkPatch, NO_FOREIGN};
 use crate::progress::Progress;
@@ -59,20 +59,12 @@ pub(super) fn fit_patch(
     let n = state.n;
     let r = state.r;
     let m = patch.texels.len();
-    let rotations = sample.rotations;
-    let theta = placement.rotation as f64 * std::f64::consts::TAU / rotations as f64;
-    let (s, c) = theta.sin_cos();
-    let cen = [
-        (sample.width as f64 - 1.0) / 2.0,
-        (sample.height as f64 - 1.0) / 2.0,
-    ];
+    let turn = Turn::new(sample, placement.rotation);
+    let (s, c) = (turn.s, turn.c);
     // B at every patch vertex: unrotated sample coordinate and value
     let mut coord: Vec<[f64; 2]> = work.coords[..m]
         .iter()
-        .map(|w| {
-            let q = [w[0] - placement.dx - cen[0], w[1] - placement.dy - cen[1]];
-            [c * q[0] + s * q[1] + cen[0], -s * q[0] + c * q[1] + cen[1]]
-        })
+        .map(|&w| turn.to_sample(placement.dx, placement.dy, w))
         .collect();
     let mut valid = vec![false; m];
     let mut new_features = vec![0f32; m * n];

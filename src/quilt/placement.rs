@@ -80,18 +80,14 @@ pub(super) struct PlacementChoice {
     pub(super) dy: f64,
 }
 
-/// Maps a work-image coordinate through a placement to unrotated sample
-/// coordinates (the inverse of the rotated copy's construction).
-pub(super) fn to_sample(sample: &Sample, rotation: usize, dx: f64, dy: f64, w: [f64; 2]) -> [f64; 2] {
-    Turn::new(sample, rotation).to_sample(dx, dy, w)
-}
-
-/// [`to_sample`] for one rotated copy, its rotation's sine and cosine
-/// taken once.
+/// One rotated copy's map between work-image coordinates and unrotated
+/// sample coordinates, its rotation's sine and cosine taken once.
 #[derive(Clone, Copy)]
 pub(super) struct Turn {
-    s: f64,
-    c: f64,
+    /// sin θ and cos θ of the copy's rotation θ.
+    pub(super) s: f64,
+    pub(super) c: f64,
+    /// The sample's centre, which the copies turn about.
     cen: [f64; 2],
 }
 
@@ -106,12 +102,24 @@ impl Turn {
         Turn { s, c, cen }
     }
 
-    /// Work coordinate `w` through placement (`dx`, `dy`) of this copy.
+    /// Work coordinate `w` through placement (`dx`, `dy`) of this copy, in
+    /// unrotated sample coordinates (the inverse of the rotated copy's
+    /// construction).
     #[inline]
     pub(super) fn to_sample(self, dx: f64, dy: f64, w: [f64; 2]) -> [f64; 2] {
         let (s, c, cen) = (self.s, self.c, self.cen);
         let q = [w[0] - dx - cen[0], w[1] - dy - cen[1]];
         [c * q[0] + s * q[1] + cen[0], -s * q[0] + c * q[1] + cen[1]]
+    }
+
+    /// The placement (dx, dy) that puts work coordinate `w` on unrotated
+    /// sample point `at` (the inverse of [`Turn::to_sample`]).
+    pub(super) fn placing(self, w: [f64; 2], at: [f64; 2]) -> [f64; 2] {
+        let (s, c, mid) = (self.s, self.c, self.cen);
+        let d = [at[0] - mid[0], at[1] - mid[1]];
+        // q = R(θ) d
+        let q = [c * d[0] - s * d[1], s * d[0] + c * d[1]];
+        [w[0] - mid[0] - q[0], w[1] - mid[1] - q[1]]
     }
 }
 
@@ -163,18 +171,15 @@ pub(super) fn choose_placement(
     // nothing known yet, or no match covers the patch: a seeded spot that
     // covers the seed's neighbourhood (the sample centre ± a margin)
     let (sw, sh) = (sample.width as f64, sample.height as f64);
-    let theta = rotation as f64 * std::f64::consts::TAU / sample.rotations as f64;
-    let (s, c) = theta.sin_cos();
+    let turn = Turn::new(sample, rotation);
     let mid = [(sw - 1.0) / 2.0, (sh - 1.0) / 2.0];
-    // the seed at unrotated sample point `cen`: solve for the translation
+    // the seed at unrotated sample point `cen`
     let place = |cen: [f64; 2]| {
-        let d = [cen[0] - mid[0], cen[1] - mid[1]];
-        // q = R(θ) d (inverse of the rotation in `to_sample`)
-        let q = [c * d[0] - s * d[1], s * d[0] + c * d[1]];
+        let [dx, dy] = turn.placing(work.coords[0], cen);
         PlacementChoice {
             rotation,
-            dx: (work.coords[0][0] - mid[0] - q[0]).round(),
-            dy: (work.coords[0][1] - mid[1] - q[1]).round(),
+            dx: dx.round(),
+            dy: dy.round(),
         }
     };
     let h = crate::rng::mix64(cfg.seed ^ crate::rng::mix64(counter + 1));
@@ -184,7 +189,6 @@ pub(super) fn choose_placement(
         // whose foreground best agrees with m0 over the patch (outside the
         // sample counts as a full mismatch), the first of equals
         let probe: Vec<usize> = (0..work.coords.len()).step_by(step).collect();
-        let turn = Turn::new(sample, rotation);
         let mut best = (f64::INFINITY, place([mid[0], mid[1]]));
         for k in 0..64u64 {
             let b = crate::rng::mix64(h ^ crate::rng::mix64(k + 1));

@@ -11,7 +11,7 @@ use super::flatten::rotation_index;
 use super::matching::Matcher;
 use super::occurrence::Occurrence;
 use super::pager::TileGrid;
-use super::placement::{to_sample, PlacementChoice};
+use super::placement::{PlacementChoice, Turn};
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
 use super::state::{Bfs, State, Surface, WorkPatch, NO_FOREIGN};
 use super::worker::{Outcome, StepStats, Worker};

@@ -43,22 +43,12 @@ impl Synthesis {
         trace("work image");
         let rotations = self.sample.rotations;
         let rotation = rotation_index(field + angle, rotations);
-        let theta = rotation as f64 * std::f64::consts::TAU / rotations as f64;
-        let (s, c) = theta.sin_cos();
-        let mid = [
-            (self.sample.width as f64 - 1.0) / 2.0,
-            (self.sample.height as f64 - 1.0) / 2.0,
-        ];
-        let d = [centre[0] - mid[0], centre[1] - mid[1]];
-        let q = [c * d[0] - s * d[1], s * d[0] + c * d[1]];
-        let placement = PlacementChoice {
-            rotation,
-            dx: coords[0][0] - mid[0] - q[0],
-            dy: coords[0][1] - mid[1] - q[1],
-        };
+        let turn = Turn::new(&self.sample, rotation);
+        let [dx, dy] = turn.placing(coords[0], centre);
+        let placement = PlacementChoice { rotation, dx, dy };
         let placed: Vec<[f64; 2]> = coords
             .iter()
-            .map(|&w| to_sample(&self.sample, rotation, placement.dx, placement.dy, w))
+            .map(|&w| turn.to_sample(placement.dx, placement.dy, w))
             .collect();
         let fg: Vec<f32> = placed.iter().map(|&c| self.sample.mask_at(c)).collect();
         trace("placed");
