@@ -240,53 +240,22 @@ mod tests {
     fn a_course_offset_at_a_seam_is_seen_from_either_side() {
         let c = Courses::detect(&row_sample(8, 100, &[0, 20, 40, 60, 80])).unwrap();
         let id = [1.0f32, 0.0, 0.0, 1.0];
+        // texel a and its neighbour b one atlas `step` away, both of a
+        // patch with Jacobian j
+        let offset =
+            |j: [f32; 4], a: [f32; 2], b: [f32; 2], step: (f64, f64)| course_offset(&c, (a, j), (b, j), step);
         // a step down (+y) from row 30 to row 31: the course runs on, also
         // a whole course (20 rows) further on
-        assert!(!course_offset(
-            &c,
-            ([5.0, 30.0], id),
-            ([9.0, 31.0], id),
-            (0.0, 1.0)
-        ));
-        assert!(!course_offset(
-            &c,
-            ([5.0, 30.0], id),
-            ([9.0, 51.0], id),
-            (0.0, 1.0)
-        ));
+        assert!(!offset(id, [5.0, 30.0], [9.0, 31.0], (0.0, 1.0)));
+        assert!(!offset(id, [5.0, 30.0], [9.0, 51.0], (0.0, 1.0)));
         // 5 rows (a quarter course) off: offset; 2 rows (a tenth): not
-        assert!(course_offset(
-            &c,
-            ([5.0, 30.0], id),
-            ([9.0, 36.0], id),
-            (0.0, 1.0)
-        ));
-        assert!(!course_offset(
-            &c,
-            ([5.0, 30.0], id),
-            ([9.0, 33.0], id),
-            (0.0, 1.0)
-        ));
+        assert!(offset(id, [5.0, 30.0], [9.0, 36.0], (0.0, 1.0)));
+        assert!(!offset(id, [5.0, 30.0], [9.0, 33.0], (0.0, 1.0)));
         // a step along the course (+x) keeps the row; a patch turned a
         // quarter (its rows run along atlas y) moves rows with x
-        assert!(!course_offset(
-            &c,
-            ([5.0, 30.0], id),
-            ([6.0, 30.0], id),
-            (1.0, 0.0)
-        ));
+        assert!(!offset(id, [5.0, 30.0], [6.0, 30.0], (1.0, 0.0)));
         let turned = [0.0f32, 1.0, -1.0, 0.0];
-        assert!(!course_offset(
-            &c,
-            ([5.0, 30.0], turned),
-            ([5.0, 31.0], turned),
-            (1.0, 0.0)
-        ));
-        assert!(course_offset(
-            &c,
-            ([5.0, 30.0], turned),
-            ([5.0, 35.0], turned),
-            (1.0, 0.0)
-        ));
+        assert!(!offset(turned, [5.0, 30.0], [5.0, 31.0], (1.0, 0.0)));
+        assert!(offset(turned, [5.0, 30.0], [5.0, 35.0], (1.0, 0.0)));
     }
 }

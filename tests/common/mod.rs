@@ -89,6 +89,13 @@ pub fn ok(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// Runs `btfquilt atlas MESH --resolution R -q -o GIM` with the defaults
+/// and asserts it succeeded.
+pub fn atlas(mesh: &Path, resolution: usize, gim: &Path) {
+    let r = resolution.to_string();
+    ok(&["atlas", s(mesh), "--resolution", &r, "-q", "-o", s(gim)]);
+}
+
 /// Runs `btfquilt tile --gim GIM --sample SAMPLE -q -o QUILT` with the
 /// defaults and asserts it succeeded.
 pub fn tile(gim: &Path, sample: &Path, quilt: &Path) {

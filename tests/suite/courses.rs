@@ -10,15 +10,7 @@ use crate::common::{btfquilt, fails_clearly, ok, s, square_obj};
 fn courses_run_on_across_the_seams_of_a_flat_wall() {
     let dir = tempfile::tempdir().unwrap();
     let gim = dir.path().join("square.gim");
-    ok(&[
-        "atlas",
-        s(&square_obj(dir.path())),
-        "--resolution",
-        "160",
-        "-q",
-        "-o",
-        s(&gim),
-    ]);
+    crate::common::atlas(&square_obj(dir.path()), 160, &gim);
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
     let tile = |sample: &str, out: &str| {
         let (sample, quilt) = (data.join(sample), dir.path().join(out));

@@ -355,15 +355,7 @@ fn gltf_of_a_decorated_mesh_is_a_valid_glb_with_the_baked_atlas() {
 fn gltf_of_a_geometry_image_embeds_the_chart_map() {
     let dir = tempfile::tempdir().unwrap();
     let gim_path = dir.path().join("spot.gim");
-    ok(&[
-        "atlas",
-        s(&spot()),
-        "--resolution",
-        "64",
-        "-q",
-        "-o",
-        s(&gim_path),
-    ]);
+    crate::common::atlas(&spot(), 64, &gim_path);
     let out = dir.path().join("out");
     ok(&["export", s(&gim_path), "--format", "gltf", "-o", s(&out)]);
     assert_eq!(listing(&out), ["mesh.glb"]);

@@ -8,9 +8,11 @@ use btfquilt::artifact::svd::SvdArtifact;
 use btfquilt::container::MemoryBudget;
 use btfquilt::factorize::{self, FactorizeConfig};
 use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
-use btfquilt::io::imageio::{self, RgbImage};
+use btfquilt::io::imageio;
 use btfquilt::progress::Silent;
 use faer::Mat;
+
+use crate::common::write_rgb_png;
 use half::f16;
 
 /// A small generated BTF: 24×20 texels (ragged tiles), 8 views × 12 lights.
@@ -138,14 +140,9 @@ fn a_colour_image_is_a_one_pair_btf_factorized_exactly() {
     let dir = tempfile::tempdir().unwrap();
     let png = dir.path().join("sample.png");
     let (w, h) = (37, 29);
-    let img = RgbImage {
-        width: w,
-        height: h,
-        data: (0..w * h * 3)
-            .map(|i| (((i * 7919) % 251) as f32 / 250.0).powf(2.2))
-            .collect(),
-    };
-    imageio::write_png(&png, &img, imageio::PngDepth::Eight).unwrap();
+    // value i of the image's interleaved data
+    let value = |i: usize| (((i * 7919) % 251) as f32 / 250.0).powf(2.2);
+    write_rgb_png(&png, w, h, |x, y| [0, 1, 2].map(|c| value((y * w + x) * 3 + c)));
     let out = dir.path().join("sample.svd");
     let report = run(&png, &out, &FactorizeConfig::default());
     assert_eq!((report.columns, report.terms), (3, 3));
@@ -172,14 +169,8 @@ fn preview_row_means_read_in_bands_equal_the_whole_preview() {
     let dir = tempfile::tempdir().unwrap();
     let png = dir.path().join("rows.png");
     let (w, h) = (23, 150);
-    let img = RgbImage {
-        width: w,
-        height: h,
-        data: (0..w * h * 3)
-            .map(|i| ((i * 31 + i / (3 * w)) % 97) as f32 / 96.0)
-            .collect(),
-    };
-    imageio::write_png(&png, &img, imageio::PngDepth::Eight).unwrap();
+    let value = |i: usize| ((i * 31 + i / (3 * w)) % 97) as f32 / 96.0;
+    write_rgb_png(&png, w, h, |x, y| [0, 1, 2].map(|c| value((y * w + x) * 3 + c)));
     let out = dir.path().join("rows.svd");
     run(&png, &out, &FactorizeConfig::default());
     let svd = SvdArtifact::open(&out, MemoryBudget::default()).unwrap();
