@@ -40,7 +40,8 @@ pub(super) struct Sample {
     /// The weighted structure channel (`[y][x]`), when it is on: the last of
     /// the `n` feature channels of `maps` and of every rotated copy.
     pub(super) structure: Option<Vec<f32>>,
-    /// The sample's courses, when its features run in rows.
+    /// The sample's courses, when its features run in rows and they were
+    /// looked for ([`Sample::find_courses`]).
     pub(super) courses: Option<super::courses::Courses>,
 }
 
@@ -54,13 +55,8 @@ impl Sample {
         } else {
             factorize::DEFAULT_ROTATIONS
         };
-        // a preview that cannot be read only means no courses are looked for
-        let courses = svd
-            .preview_row_means()
-            .ok()
-            .and_then(|rows| super::courses::Courses::from_profile(&rows));
         Ok(Sample {
-            courses,
+            courses: None,
             width: svd.width,
             height: svd.height,
             n: svd.terms,
@@ -73,6 +69,17 @@ impl Sample {
             structure: None,
             svd,
         })
+    }
+
+    /// Looks for the sample's courses in its preview's row profile, read
+    /// in bands ([`SvdArtifact::preview_row_means`]); a preview that
+    /// cannot be read only means none are found.
+    pub(super) fn find_courses(&mut self) {
+        self.courses = self
+            .svd
+            .preview_row_means()
+            .ok()
+            .and_then(|rows| super::courses::Courses::from_profile(&rows));
     }
 
     /// Appends the structure channel ([`super::structure`]) × `weight` to

@@ -107,7 +107,11 @@ impl Synthesis {
                 "has no rotated copies (factorize with --rotations 72)",
             ));
         }
-        let sample = Sample::from_svd(svd, quarter)?;
+        let mut sample = Sample::from_svd(svd, quarter)?;
+        // only seam refinement by structure reads the courses
+        if cfg.refine_broken > 0 {
+            sample.find_courses();
+        }
         let occurrence = Occurrence::new(sample.width, sample.height, sample.tileable, sample.rotations);
         let n = sample.n;
         let surface = Surface::open(gim, surface_budget)?;

@@ -34,7 +34,10 @@ fn halves(offset: f32, other: impl Fn(f32, f32) -> bool) -> (tempfile::TempDir, 
     crate::io::imageio::write_rgb(&png, &img).unwrap();
     let gim = Gim::open(&gim_path, MemoryBudget(1 << 20)).unwrap();
     let sized = super::super::sample::sample_at_density(&png, gim.texel_size, None, true, &Silent).unwrap();
-    let cfg = TileConfig::default();
+    let cfg = TileConfig {
+        refine_broken: 4,
+        ..TileConfig::default()
+    };
     let mut syn = Synthesis::open(&gim, &png, &sized.svd, &d.join("out.quilt"), &cfg, true).unwrap();
     let r = syn.surface.r;
     let mut seam_rows = 0;
