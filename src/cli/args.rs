@@ -18,7 +18,7 @@ use btfquilt::output::export::MeshFormat;
 use btfquilt::output::render::{Camera, Light, RenderConfig};
 use btfquilt::output::show::ShowWhat;
 use btfquilt::paint::PaintConfig;
-use btfquilt::quilt::TileConfig;
+use btfquilt::quilt::{CourseMode, TileConfig};
 use btfquilt::studio::ServeConfig;
 
 use super::bars::Bars;
@@ -128,6 +128,13 @@ pub(super) struct Tiling {
     /// field's mean direction where the field turns inside a work patch (0: never).
     #[arg(long, default_value_t = TileConfig::default().field_turn)]
     field_turn: usize,
+    /// For a sample whose features run in rows: `free` places each patch's
+    /// courses where it matches best; `locked` bends every patch so its
+    /// courses follow one stripe pattern along the field, unbroken across
+    /// seams (ends only where the field forces them; see `evaluate
+    /// --forced-ends`).
+    #[arg(long, value_enum, ignore_case = true, default_value_t = TileConfig::default().courses)]
+    courses: CourseMode,
     /// Match samples longer than this many pixels a side (after resampling)
     /// coarse to fine: on copies averaged down to at most this size, then
     /// exactly around the best coarse placements (0: always at full
@@ -151,6 +158,7 @@ impl Tiling {
             structure_weight: self.structure_weight,
             feature_align: self.feature_align,
             field_turn: self.field_turn,
+            courses: self.courses,
             coarse_above: self.coarse_above,
             ..base
         }

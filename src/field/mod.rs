@@ -12,7 +12,7 @@
 //! of wherever the axis meets the surface head-on.
 
 mod stripes;
-pub use stripes::{forced_ends, ForcedEnds};
+pub use stripes::{forced_ends, ForcedEnds, StripePattern};
 
 use std::path::Path;
 

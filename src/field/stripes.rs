@@ -1,12 +1,14 @@
-//! The course ends a field forces: a sample whose features run in rows
-//! (brick courses, lines of text) laid along the field with the rows
-//! `period` mesh units apart cannot keep every row unbroken wherever the
-//! field's lines converge or diverge, nor around its singularities. The
-//! smoothest stripe pattern along the field (F. Knöppel, K. Crane, U.
+//! The smoothest stripe pattern along a field (F. Knöppel, K. Crane, U.
 //! Pinkall, P. Schröder, "Stripe Patterns on Surfaces", ACM TOG 34(4),
-//! 2015) places the fewest such ends its energy allows, letting the row
-//! spacing vary where that costs less than an end; their number is a
-//! reference for what a tiling that follows the field shows.
+//! 2015), for a sample whose features run in rows (brick courses, lines of
+//! text) laid along the field with the rows `period` mesh units apart.
+//! Rows cannot stay unbroken wherever the field's lines converge or
+//! diverge, nor around its singularities; the smoothest pattern places the
+//! fewest such ends its energy allows, letting the row spacing vary where
+//! that costs less than an end. [`forced_ends`] counts them, a reference
+//! for what a tiling that follows the field shows; [`StripePattern`] gives
+//! its phase anywhere on the surface, which `tile --courses locked` lays
+//! every patch's rows along.
 //!
 //! The pattern is a complex value ψ per vertex whose argument is the row
 //! phase. Its energy Σ_ij w_ij |ψ_j − e^{iω_ij} ψ_i|² (cotangent weights
@@ -51,56 +53,187 @@ pub const BYTES_PER_VERTEX: u64 = 3 << 10;
 /// count is the same for any budget; a solve that would take more than
 /// `budget` bytes is refused. Deterministic.
 pub fn forced_ends(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64) -> Result<ForcedEnds> {
-    if !(period.is_finite() && period > 0.0) {
-        return Err(Error::Config(format!(
-            "row period {period}: must be a positive number of mesh units"
-        )));
-    }
-    if field.len() != mesh.triangles.len() {
-        return Err(Error::Config(format!(
-            "the field has {} directions for {} faces",
-            field.len(),
-            mesh.triangles.len()
-        )));
-    }
-    let mut positions: Vec<DVec3> = mesh
-        .positions
-        .iter()
-        .map(|p| DVec3::from(p.map(f64::from)))
-        .collect();
-    let mut triangles = mesh.triangles.clone();
-    let mut field: Vec<DVec3> = field.iter().map(|f| DVec3::from(f.map(f64::from))).collect();
-    let mut subdivisions = 0;
-    loop {
-        let edges = edge_list(&triangles);
-        let mean = edges
-            .iter()
-            .map(|&(a, b)| positions[a as usize].distance(positions[b as usize]))
-            .sum::<f64>()
-            / edges.len().max(1) as f64;
-        if mean <= period / 3.0 || positions.len() + edges.len() > MAX_VERTICES {
-            break;
-        }
-        (positions, triangles, field) = subdivide(&positions, &triangles, &field, &edges);
-        subdivisions += 1;
-    }
-    let vertices = positions.len();
-    let needed = vertices as u64 * BYTES_PER_VERTEX;
-    if needed > budget {
-        let mib = |b: u64| b.div_ceil(1 << 20);
-        return Err(Error::Config(format!(
-            "counting the course ends the field forces solves on {vertices} vertices, about {} MiB, \
-             more than the {} MiB this step may use: raise --memory",
-            mib(needed),
-            mib(budget)
-        )));
-    }
-    let ends = count_ends(&positions, &triangles, &field, period);
+    let fine = Subdivided::new(
+        mesh,
+        field,
+        period,
+        budget,
+        "counting the course ends the field forces",
+    )?;
+    let (subdivisions, vertices) = (fine.subdivisions, fine.positions.len());
+    let ends = match Solved::new(&fine, period) {
+        Some(solved) => solved.count_ends(&fine),
+        None => 0,
+    };
     Ok(ForcedEnds {
         ends,
         subdivisions,
         vertices,
     })
+}
+
+/// The smoothest stripe pattern along a field: the row phase anywhere on
+/// the surface. Tiling with `--courses locked` bends every work image so
+/// that its rows follow this phase (section III-B's work image, with its
+/// across-field coordinate taken from the pattern).
+pub struct StripePattern {
+    fine: Subdivided,
+    /// Per vertex of the subdivided mesh: ψ (re, im).
+    psi: Vec<[f64; 2]>,
+    /// Per face of the subdivided mesh: the unit direction across the field.
+    across: Vec<DVec3>,
+    /// 2π / period.
+    nu: f64,
+}
+
+impl StripePattern {
+    /// The smoothest pattern of rows `period` mesh units apart along
+    /// `field` (one unit tangent per face of `mesh`); the mesh subdivided
+    /// as for [`forced_ends`], a solve over `budget` bytes refused. `None`
+    /// when the form cannot be factorized (a degenerate mesh).
+    pub fn new(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64) -> Result<Option<StripePattern>> {
+        let fine = Subdivided::new(mesh, field, period, budget, "locking the courses to the field")?;
+        Ok(Solved::new(&fine, period).map(|solved| StripePattern {
+            psi: (0..fine.positions.len())
+                .map(|i| [solved.psi[2 * i], solved.psi[2 * i + 1]])
+                .collect(),
+            across: solved.face_across,
+            fine,
+            nu: std::f64::consts::TAU / period,
+        }))
+    }
+
+    /// Bytes the pattern holds (per vertex of the subdivided mesh its
+    /// position and ψ, per face its corners and across direction).
+    pub fn bytes(&self) -> u64 {
+        (self.psi.len() * (24 + 16) + self.across.len() * (12 + 24)) as u64
+    }
+
+    /// The row phase (radians, in (−π, π]) at point `p` of face `face` of
+    /// the original mesh: the face's child holding `p` found through the
+    /// midpoint subdivisions, then ψ of its corners carried to `p` along
+    /// the rows (ψ_k e^{iν n·(p − p_k)}, n across the field) and averaged
+    /// by barycentric weight.
+    pub fn phase(&self, face: usize, p: [f64; 3]) -> f64 {
+        let fine = &self.fine;
+        let p = DVec3::from(p);
+        // child k of a face keeps the face's corner k
+        let corner = |k: usize| {
+            let mut g = face;
+            for _ in 0..fine.subdivisions {
+                g = 4 * g + k;
+            }
+            fine.positions[fine.triangles[g][k] as usize]
+        };
+        let mut bc = barycentric(p, [corner(0), corner(1), corner(2)]);
+        let mut f = face;
+        for _ in 0..fine.subdivisions {
+            // the children [a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]
+            let (k, next) = if bc[0] >= 0.5 {
+                (0, [2.0 * bc[0] - 1.0, 2.0 * bc[1], 2.0 * bc[2]])
+            } else if bc[1] >= 0.5 {
+                (1, [2.0 * bc[0], 2.0 * bc[1] - 1.0, 2.0 * bc[2]])
+            } else if bc[2] >= 0.5 {
+                (2, [2.0 * bc[0], 2.0 * bc[1], 2.0 * bc[2] - 1.0])
+            } else {
+                (3, [1.0 - 2.0 * bc[2], 1.0 - 2.0 * bc[0], 1.0 - 2.0 * bc[1]])
+            };
+            f = 4 * f + k;
+            bc = next;
+        }
+        let n = self.across[f];
+        let (mut re, mut im) = (0.0, 0.0);
+        for (k, &v) in fine.triangles[f].iter().enumerate() {
+            let v = v as usize;
+            let (s, c) = (self.nu * n.dot(p - fine.positions[v])).sin_cos();
+            let [x, y] = self.psi[v];
+            re += bc[k] * (x * c - y * s);
+            im += bc[k] * (x * s + y * c);
+        }
+        im.atan2(re)
+    }
+}
+
+/// Barycentric coordinates of `p` (projected onto the triangle's plane)
+/// in triangle `c`, clamped into the triangle.
+fn barycentric(p: DVec3, c: [DVec3; 3]) -> [f64; 3] {
+    let (v0, v1, v2) = (c[1] - c[0], c[2] - c[0], p - c[0]);
+    let (d00, d01, d11) = (v0.dot(v0), v0.dot(v1), v1.dot(v1));
+    let (d20, d21) = (v2.dot(v0), v2.dot(v1));
+    let den = d00 * d11 - d01 * d01;
+    if !(den.abs() > 0.0) {
+        return [1.0 / 3.0; 3];
+    }
+    let l1 = ((d11 * d20 - d01 * d21) / den).clamp(0.0, 1.0);
+    let l2 = ((d00 * d21 - d01 * d20) / den).clamp(0.0, 1.0 - l1);
+    [1.0 - l1 - l2, l1, l2]
+}
+
+/// The mesh midpoint-subdivided until its edges are a third of the period
+/// long on average (never past [`MAX_VERTICES`]), the field carried to the
+/// children.
+struct Subdivided {
+    positions: Vec<DVec3>,
+    triangles: Vec<[u32; 3]>,
+    field: Vec<DVec3>,
+    subdivisions: usize,
+}
+
+impl Subdivided {
+    /// Refuses a non-positive period, a field of the wrong length, and a
+    /// solve over `budget` bytes (`what` names the step in the message).
+    fn new(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64, what: &str) -> Result<Subdivided> {
+        if !(period.is_finite() && period > 0.0) {
+            return Err(Error::Config(format!(
+                "row period {period}: must be a positive number of mesh units"
+            )));
+        }
+        if field.len() != mesh.triangles.len() {
+            return Err(Error::Config(format!(
+                "the field has {} directions for {} faces",
+                field.len(),
+                mesh.triangles.len()
+            )));
+        }
+        let mut positions: Vec<DVec3> = mesh
+            .positions
+            .iter()
+            .map(|p| DVec3::from(p.map(f64::from)))
+            .collect();
+        let mut triangles = mesh.triangles.clone();
+        let mut field: Vec<DVec3> = field.iter().map(|f| DVec3::from(f.map(f64::from))).collect();
+        let mut subdivisions = 0;
+        loop {
+            let edges = edge_list(&triangles);
+            let mean = edges
+                .iter()
+                .map(|&(a, b)| positions[a as usize].distance(positions[b as usize]))
+                .sum::<f64>()
+                / edges.len().max(1) as f64;
+            if mean <= period / 3.0 || positions.len() + edges.len() > MAX_VERTICES {
+                break;
+            }
+            (positions, triangles, field) = subdivide(&positions, &triangles, &field, &edges);
+            subdivisions += 1;
+        }
+        let vertices = positions.len();
+        let needed = vertices as u64 * BYTES_PER_VERTEX;
+        if needed > budget {
+            let mib = |b: u64| b.div_ceil(1 << 20);
+            return Err(Error::Config(format!(
+                "{what} solves on {vertices} vertices, about {} MiB, \
+                 more than the {} MiB this step may use: raise --memory",
+                mib(needed),
+                mib(budget)
+            )));
+        }
+        Ok(Subdivided {
+            positions,
+            triangles,
+            field,
+            subdivisions,
+        })
+    }
 }
 
 /// The mesh's edges as sorted (low, high) vertex pairs, each once.
@@ -148,85 +281,112 @@ fn subdivide(
     (p, t, f)
 }
 
-/// Σ |winding| over the faces of the smoothest stripe pattern.
-fn count_ends(positions: &[DVec3], triangles: &[[u32; 3]], field: &[DVec3], period: f64) -> usize {
-    use std::f64::consts::TAU;
-    let nv = positions.len();
-    let nu = TAU / period;
-    let edges = edge_list(triangles);
-    // per edge: cotangent weight and the sum of its faces' across-field directions
-    let mut weight = vec![0f64; edges.len()];
-    let mut across = vec![DVec3::ZERO; edges.len()];
-    let mut mass = vec![0f64; nv];
-    for (t, dir) in triangles.iter().zip(field) {
-        let c = t.map(|v| positions[v as usize]);
-        let normal = (c[1] - c[0]).cross(c[2] - c[0]);
-        let area = 0.5 * normal.length();
-        let n = normal.normalize_or_zero().cross(*dir).normalize_or_zero();
-        for k in 0..3 {
-            mass[t[k] as usize] += area / 3.0;
-            let o = (k + 2) % 3;
-            let (u, v) = (c[k] - c[o], c[(k + 1) % 3] - c[o]);
-            let e = edge_index(&edges, t[k], t[(k + 1) % 3]);
-            weight[e] += 0.5 * u.dot(v) / u.cross(v).length().max(1e-300);
-            across[e] += n;
+/// The smoothest stripe pattern's solve on a subdivided mesh.
+struct Solved {
+    edges: Vec<(u32, u32)>,
+    /// ω along each edge from its low to its high vertex.
+    omega: Vec<f64>,
+    /// ψ as (re, im) pairs per vertex, unit in the mass norm.
+    psi: Vec<f64>,
+    /// Per face: the unit direction across the field.
+    face_across: Vec<DVec3>,
+}
+
+impl Solved {
+    /// The smallest eigenvector of the pattern's Hermitian form against
+    /// the lumped masses, by inverse iteration; `None` if the form cannot
+    /// be factorized or the iteration collapses.
+    fn new(fine: &Subdivided, period: f64) -> Option<Solved> {
+        use std::f64::consts::TAU;
+        let (positions, triangles) = (&fine.positions, &fine.triangles);
+        let nv = positions.len();
+        let nu = TAU / period;
+        let edges = edge_list(triangles);
+        // per edge: cotangent weight and the sum of its faces' across-field directions
+        let mut weight = vec![0f64; edges.len()];
+        let mut across = vec![DVec3::ZERO; edges.len()];
+        let mut face_across = Vec::with_capacity(triangles.len());
+        let mut mass = vec![0f64; nv];
+        for (t, dir) in triangles.iter().zip(&fine.field) {
+            let c = t.map(|v| positions[v as usize]);
+            let normal = (c[1] - c[0]).cross(c[2] - c[0]);
+            let area = 0.5 * normal.length();
+            let n = normal.normalize_or_zero().cross(*dir).normalize_or_zero();
+            face_across.push(n);
+            for k in 0..3 {
+                mass[t[k] as usize] += area / 3.0;
+                let o = (k + 2) % 3;
+                let (u, v) = (c[k] - c[o], c[(k + 1) % 3] - c[o]);
+                let e = edge_index(&edges, t[k], t[(k + 1) % 3]);
+                weight[e] += 0.5 * u.dot(v) / u.cross(v).length().max(1e-300);
+                across[e] += n;
+            }
         }
-    }
-    // ω along each edge from its low to its high vertex
-    let omega: Vec<f64> = edges
-        .iter()
-        .zip(&across)
-        .map(|(&(a, b), n)| {
-            nu * n
-                .normalize_or_zero()
-                .dot(positions[b as usize] - positions[a as usize])
+        let omega: Vec<f64> = edges
+            .iter()
+            .zip(&across)
+            .map(|(&(a, b), n)| {
+                nu * n
+                    .normalize_or_zero()
+                    .dot(positions[b as usize] - positions[a as usize])
+            })
+            .collect();
+        let total_mass: f64 = mass.iter().sum();
+        let floor = 1e-9 * total_mass / nv.max(1) as f64;
+        // the real 2V × 2V form (upper triangle) of A + shift·M; a negative
+        // cotangent weight (an obtuse pair) is clamped to keep A positive
+        let mut diagonal: Vec<f64> = mass.iter().map(|m| 1e-4 * nu * nu * m.max(floor)).collect();
+        let mut upper = Vec::with_capacity(edges.len());
+        for ((&(i, j), &w), &om) in edges.iter().zip(&weight).zip(&omega) {
+            let w = w.max(1e-6);
+            let (i, j) = (i as usize, j as usize);
+            diagonal[i] += w;
+            diagonal[j] += w;
+            // entry (i, j) = −w e^{−iω}
+            upper.push((i, j, -w * om.cos(), w * om.sin()));
+        }
+        let factor = super::factorize_hermitian(&upper, &diagonal)?;
+        let mut psi: Vec<f64> = (0..2 * nv)
+            .map(|k| (k as f64 * 0.618_034).fract() - 0.5)
+            .collect();
+        for _ in 0..ITERATIONS {
+            let b: Vec<f64> = (0..2 * nv).map(|k| mass[k / 2] * psi[k]).collect();
+            psi = factor.solve(b);
+            let norm = (0..nv)
+                .map(|i| mass[i] * (psi[2 * i].powi(2) + psi[2 * i + 1].powi(2)))
+                .sum::<f64>()
+                .sqrt();
+            if !(norm.is_finite() && norm > 0.0) {
+                return None;
+            }
+            psi.iter_mut().for_each(|x| *x /= norm);
+        }
+        Some(Solved {
+            edges,
+            omega,
+            psi,
+            face_across,
         })
-        .collect();
-    let total_mass: f64 = mass.iter().sum();
-    let floor = 1e-9 * total_mass / nv.max(1) as f64;
-    // the real 2V × 2V form (upper triangle) of A + shift·M; a negative
-    // cotangent weight (an obtuse pair) is clamped to keep A positive
-    let mut diagonal: Vec<f64> = mass.iter().map(|m| 1e-4 * nu * nu * m.max(floor)).collect();
-    let mut upper = Vec::with_capacity(edges.len());
-    for ((&(i, j), &w), &om) in edges.iter().zip(&weight).zip(&omega) {
-        let w = w.max(1e-6);
-        let (i, j) = (i as usize, j as usize);
-        diagonal[i] += w;
-        diagonal[j] += w;
-        // entry (i, j) = −w e^{−iω}
-        upper.push((i, j, -w * om.cos(), w * om.sin()));
     }
-    let Some(factor) = super::factorize_hermitian(&upper, &diagonal) else {
-        return 0;
-    };
-    let mut psi: Vec<f64> = (0..2 * nv)
-        .map(|k| (k as f64 * 0.618_034).fract() - 0.5)
-        .collect();
-    for _ in 0..ITERATIONS {
-        let b: Vec<f64> = (0..2 * nv).map(|k| mass[k / 2] * psi[k]).collect();
-        psi = factor.solve(b);
-        let norm = (0..nv)
-            .map(|i| mass[i] * (psi[2 * i].powi(2) + psi[2 * i + 1].powi(2)))
-            .sum::<f64>()
-            .sqrt();
-        if !(norm.is_finite() && norm > 0.0) {
-            return 0;
+
+    /// Σ |winding| over the faces: the row ends.
+    fn count_ends(&self, fine: &Subdivided) -> usize {
+        use std::f64::consts::TAU;
+        let (edges, omega, psi) = (&self.edges, &self.omega, &self.psi);
+        let arg = |v: u32| psi[2 * v as usize + 1].atan2(psi[2 * v as usize]);
+        let mut ends = 0usize;
+        for t in &fine.triangles {
+            let mut turn = 0.0;
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                let e = edge_index(edges, a, b);
+                let om = if a < b { omega[e] } else { -omega[e] };
+                turn += om + super::wrap_angle(arg(b) - arg(a) - om);
+            }
+            ends += (turn / TAU).round().abs() as usize;
         }
-        psi.iter_mut().for_each(|x| *x /= norm);
+        ends
     }
-    let arg = |v: u32| psi[2 * v as usize + 1].atan2(psi[2 * v as usize]);
-    let mut ends = 0usize;
-    for t in triangles {
-        let mut turn = 0.0;
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            let e = edge_index(&edges, a, b);
-            let om = if a < b { omega[e] } else { -omega[e] };
-            turn += om + super::wrap_angle(arg(b) - arg(a) - om);
-        }
-        ends += (turn / TAU).round().abs() as usize;
-    }
-    ends
 }
 
 #[cfg(test)]
@@ -280,10 +440,10 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn rows_on_a_plane_never_end() {
+    /// The unit square in the z = 0 plane, `n` × `n` quads split in two,
+    /// wound counter-clockwise (normal +z).
+    fn unit_square(n: usize) -> Mesh {
         let mut m = Mesh::default();
-        let n = 12;
         for y in 0..=n {
             for x in 0..=n {
                 m.positions.push([x as f32 / n as f32, y as f32 / n as f32, 0.0]);
@@ -297,6 +457,12 @@ mod tests {
                 m.triangles.push([i, i + w + 1, i + w]);
             }
         }
+        m
+    }
+
+    #[test]
+    fn rows_on_a_plane_never_end() {
+        let m = unit_square(12);
         let field = vec![[0.6f32, 0.8, 0.0]; m.triangles.len()];
         let r = forced_ends(&m, &field, 0.07, u64::MAX).unwrap();
         assert_eq!(r.ends, 0);
@@ -325,6 +491,41 @@ mod tests {
         );
     }
 
+    /// On a plane with a constant field the smoothest pattern is the plane
+    /// wave e^{iν n·p} (its energy is zero): the phase anywhere, found
+    /// through the subdivisions, is ν n·p up to one constant.
+    #[test]
+    fn the_pattern_on_a_plane_is_a_plane_wave() {
+        let m = unit_square(10);
+        let field = vec![[0.6f32, 0.8, 0.0]; m.triangles.len()];
+        let period = 0.13;
+        let pattern = StripePattern::new(&m, &field, period, u64::MAX).unwrap().unwrap();
+        assert!(pattern.fine.subdivisions >= 1);
+        assert!(pattern.bytes() > 0);
+        // across the field: N × f with N = +z
+        let across = DVec3::new(-0.8, 0.6, 0.0);
+        let nu = std::f64::consts::TAU / period;
+        let mut offset = None;
+        let mut state = 7u64;
+        for _ in 0..400 {
+            state = crate::rng::mix64(state);
+            let f = (state % m.triangles.len() as u64) as usize;
+            let (a, b) = (
+                (state >> 20) as f64 / (1u64 << 44) as f64,
+                (state >> 40) as f64 / (1u64 << 24) as f64,
+            );
+            let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
+            let c = m.triangles[f].map(|v| DVec3::from(m.positions[v as usize].map(f64::from)));
+            let p = c[0] + a * (c[1] - c[0]) + b * (c[2] - c[0]);
+            let d = crate::field::wrap_angle(pattern.phase(f, p.to_array()) - nu * across.dot(p));
+            let o = *offset.get_or_insert(d);
+            assert!(
+                crate::field::wrap_angle(d - o).abs() < 1e-6,
+                "face {f} at {p}: {d} against {o}"
+            );
+        }
+    }
+
     #[test]
     fn bad_periods_are_refused() {
         let m = sphere(4, 8);
@@ -335,5 +536,16 @@ mod tests {
         assert!(forced_ends(&m, &f[1..], 0.5, u64::MAX).is_err());
         let e = forced_ends(&m, &f, 0.5, 1 << 10).unwrap_err().to_string();
         assert!(e.contains("raise --memory"), "{e}");
+        for p in [0.0, -1.0, f64::NAN] {
+            assert!(StripePattern::new(&m, &f, p, u64::MAX).is_err());
+        }
+        let e = StripePattern::new(&m, &f, 0.5, 1 << 10)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("locking the courses") && e.contains("raise --memory"),
+            "{e}"
+        );
     }
 }

@@ -144,6 +144,36 @@ impl Courses {
         let next = if k + 1 < m.len() { m[k + 1] } else { m[0] + h };
         TAU * (k as f64 + (v - m[k]) / (next - m[k]))
     }
+
+    /// The course phase and its rate (radians per sample row) at row `v`.
+    fn phase_and_rate(&self, v: f64) -> (f64, f64) {
+        let (m, h) = (&self.marks, self.height);
+        let mut u = v.rem_euclid(h);
+        if u < m[0] {
+            u += h;
+        }
+        let k = m.partition_point(|&x| x <= u) - 1;
+        let next = if k + 1 < m.len() { m[k + 1] } else { m[0] + h };
+        (self.phase(v), TAU / (next - m[k]))
+    }
+
+    /// Moves each sample coordinate's row (`coord[i][1]`) to the nearest
+    /// row whose course phase is `phase[i]` (modulo 2π): locked courses
+    /// ([`crate::quilt::flatten::locked_work_image`]) then meet at every
+    /// seam exactly, whatever the spacing of the sample's own courses. Two
+    /// Newton steps on the piecewise linear phase; a row that is not a
+    /// number stays.
+    pub(crate) fn lock_rows(&self, coord: &mut [[f64; 2]], phase: &[f64]) {
+        for (c, &target) in coord.iter_mut().zip(phase) {
+            if !c[1].is_finite() {
+                continue;
+            }
+            for _ in 0..2 {
+                let (p, rate) = self.phase_and_rate(c[1]);
+                c[1] -= wrap(p - target) / rate;
+            }
+        }
+    }
 }
 
 /// Whether the course is offset at the grid edge from texel a to texel b
@@ -207,6 +237,36 @@ mod tests {
         let mut dark = row_sample(32, 188, &marks);
         dark.data.iter_mut().for_each(|v| *v = 1.3 - *v);
         assert_eq!(Courses::detect(&dark).map(|c| c.len()), Some(marks.len()));
+    }
+
+    /// Every locked row shows its target phase, and moves by less than a
+    /// course to get there (the nearest such row).
+    #[test]
+    fn locked_rows_show_their_phase() {
+        // courses of uneven spacing: marks at 3, 21, 38, 57 of 72 rows
+        let c = Courses::detect(&row_sample(16, 72, &[3, 21, 38, 57])).unwrap();
+        assert_eq!(c.len(), 4);
+        let mut state = 3u64;
+        let mut next = || {
+            state = crate::rng::mix64(state);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (coord, phase): (Vec<[f64; 2]>, Vec<f64>) = (0..500)
+            .map(|_| ([next() * 16.0, next() * 72.0], (next() - 0.5) * 40.0))
+            .unzip();
+        let mut locked = coord.clone();
+        c.lock_rows(&mut locked, &phase);
+        for ((a, b), &p) in coord.iter().zip(&locked).zip(&phase) {
+            assert_eq!(a[0], b[0]);
+            assert!(
+                wrap(c.phase(b[1]) - p).abs() < 1e-9,
+                "row {} → {}: {} against {p}",
+                a[1],
+                b[1],
+                c.phase(b[1])
+            );
+            assert!((a[1] - b[1]).abs() < 19.0, "row {} moved to {}", a[1], b[1]);
+        }
     }
 
     #[test]

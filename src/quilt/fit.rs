@@ -66,6 +66,10 @@ pub(super) fn fit_patch(
         .iter()
         .map(|&w| turn.to_sample(placement.dx, placement.dy, w))
         .collect();
+    // locked courses: every row on its course phase
+    if let (false, Some(courses)) = (work.course_phase.is_empty(), &sample.courses) {
+        courses.lock_rows(&mut coord, &work.course_phase);
+    }
     let mut valid = vec![false; m];
     let mut new_features = vec![0f32; m * n];
     // the old values A at the patch's synthesized vertices

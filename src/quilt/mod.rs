@@ -56,7 +56,9 @@ mod worker;
 pub use crate::artifact::quilt::{
     Dependency, Quilt, KIND, MAX_SAMPLES, NO_PATCH, SEAM_X, SEAM_Y, SEAM_ZIPPER,
 };
-pub use config::{SampleSize, TileConfig, TileReport, BROKEN_CONTINUATION, ENDS_DEARER, REFINE_PLACEMENTS};
+pub use config::{
+    CourseMode, SampleSize, TileConfig, TileReport, BROKEN_CONTINUATION, ENDS_DEARER, REFINE_PLACEMENTS,
+};
 pub(crate) use sample::*;
 use synthesis::write_quilt;
 pub use synthesis::Projection;

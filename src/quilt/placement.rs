@@ -123,6 +123,32 @@ impl Turn {
     }
 }
 
+/// Locked courses: `placement` moved across the sample's rows (by less
+/// than half a course) so that the sample row at the seed shows the course
+/// phase the work image asks there ([`WorkImage::course_phase`]); the rows
+/// of the other vertices are then within the spacing of the sample's
+/// courses of theirs ([`super::courses::Courses::lock_rows`] puts them
+/// exactly). `None` when the work image is free or the sample has no
+/// courses.
+pub(super) fn lock_courses(
+    sample: &Sample,
+    work: &WorkImage,
+    placement: &PlacementChoice,
+) -> Option<PlacementChoice> {
+    let target = *work.course_phase.first()?;
+    let courses = sample.courses.as_ref()?;
+    let turn = Turn::new(sample, placement.rotation);
+    let row = turn.to_sample(placement.dx, placement.dy, work.coords[0])[1];
+    // moving the placement by δ (−sin θ, cos θ) moves every row by −δ
+    let delta =
+        crate::field::wrap_angle(courses.phase(row) - target) * courses.period() / std::f64::consts::TAU;
+    Some(PlacementChoice {
+        rotation: placement.rotation,
+        dx: placement.dx - turn.s * delta,
+        dy: placement.dy + turn.c * delta,
+    })
+}
+
 pub(super) fn inside_sample(sample: &Sample, c: [f64; 2]) -> bool {
     sample.tileable
         || (c[0] >= 0.0
@@ -239,7 +265,12 @@ pub(super) fn match_candidates(
     mut penalty: Option<(&mut Occurrence, f64)>,
     cfg: &TileConfig,
 ) -> Result<(usize, Vec<matching::Placement>)> {
-    let field_turn = cfg.field_turn;
+    // locked courses follow the field's copy
+    let field_turn = if work.course_phase.is_empty() {
+        cfg.field_turn
+    } else {
+        0
+    };
     let f = coarse::factor(sample.width.max(sample.height), cfg.coarse_above);
     let rotations = sample.rotations;
     let rot = rotation_index(work.angle, rotations);
@@ -566,6 +597,7 @@ mod tests {
             neighbour_angle: None,
             atlas_to_work: None,
             constraint: Vec::new(),
+            course_phase: Vec::new(),
         }
     }
 

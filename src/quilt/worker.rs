@@ -10,11 +10,14 @@ use std::time::Instant;
 use super::config::TileConfig;
 use super::ends::broken_around;
 use super::fit::{fit_patch, Fit};
-use super::flatten::{chart_work_image, flattened_work_image, unfolded_work_image, Flattening, WorkImage};
+use super::flatten::{
+    chart_work_image, flattened_work_image, locked_work_image, unfolded_work_image, Flattening, WorkImage,
+};
 use super::matching::Matcher;
 use super::occurrence::Occurrence;
 use super::placement::{
-    choose_placement, covering_candidates, distinct_best, place_covering, PlacementChoice, REFINE_SPACING,
+    choose_placement, covering_candidates, distinct_best, lock_courses, place_covering, PlacementChoice,
+    REFINE_SPACING,
 };
 use super::sample::Sample;
 use super::state::{Bfs, State, Surface, WorkPatch};
@@ -216,6 +219,8 @@ impl Worker<'_> {
         keep_outside_target: bool,
         core: u16,
     ) -> Fit {
+        let locked = lock_courses(self.sample, work, placement);
+        let placement = locked.as_ref().unwrap_or(placement);
         fit_patch(
             self.sample,
             self.state,
@@ -329,6 +334,13 @@ impl Worker<'_> {
             self.zipper_triangles,
             self.sample,
         );
+        if !self.painting {
+            if let Some(work) =
+                locked_work_image(surface, sample, state, patch, bfs, zt, self.cfg.max_distortion)
+            {
+                return (work, false);
+            }
+        }
         if !patch.crosses_charts {
             return (chart_work_image(surface, sample, state, patch), false);
         }

@@ -794,6 +794,16 @@ fn every_parameter_reaching_an_output_changes_the_key() {
     assert_eq!(k0, key("[atlas]\nresolutions = [1024]\n[tile]\nseeds = [1]\n"));
     assert_eq!(k0, key("[tile]\nfeature_align = 0.09\n"));
     assert_eq!(k0, key("[tile]\nrefine_broken = 0\nrefine_passes = 1\n"));
+    assert_eq!(k0, key("[tile]\ncourses = \"free\"\n"));
+    // a choice that is not one is refused, naming what it expected
+    let bad = btfquilt::batch::Plan::parse(
+        &d.path().join("plan.toml"),
+        &format!("{base}[tile]\ncourses = \"tight\"\n"),
+    )
+    .err()
+    .expect("courses = tight is refused")
+    .to_string();
+    assert!(bad.contains("plan.toml") && bad.contains("locked"), "{bad}");
     let variants = [
         "[atlas]\nresolutions = [512]\n",
         "[atlas]\ngutter = 3\n",
@@ -805,6 +815,7 @@ fn every_parameter_reaching_an_output_changes_the_key() {
         "[tile]\nfeature_align = 0\n",
         "[tile]\nrefine_broken = 4\n",
         "[tile]\nrefine_broken = 4\nrefine_passes = 3\n",
+        "[tile]\ncourses = \"locked\"\n",
         "[factorize]\nterms = 8\n",
         "[render]\nwidth = 320\n",
         "[render]\nlights = [\"0,1,0\"]\n",

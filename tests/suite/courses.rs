@@ -45,3 +45,134 @@ fn courses_run_on_across_the_seams_of_a_flat_wall() {
         serde_json::from_str(&ok(&["evaluate", s(&plaster), "--forced-ends"])).unwrap();
     assert!(doc.get("courses").is_none(), "{doc}");
 }
+
+/// `tile --courses locked` on a curved surface (Spot at 256², the wall 1.4
+/// mesh units wide, about 8 texels a course): courses run on across the
+/// seams and end only where the field forces them (`evaluate
+/// --forced-ends`), where free placement offsets a fifth of the seam edges
+/// and ends about twice as many; the patches are bent, never mirrored; the
+/// quilt is the same for any thread count or budget; a sample without rows
+/// and a budget too small for the pattern are refused before anything is
+/// written.
+#[test]
+fn locked_courses_end_only_where_the_field_forces_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+    let gim = dir.path().join("spot.gim");
+    crate::common::atlas(&root.join("spot_5.8k.obj"), 256, &gim);
+    let wall = root.join("brick_wall.png");
+    let tile = |mode: &str, name: &str, extra: &[&str]| {
+        let quilt = dir.path().join(name);
+        let mut args = vec![
+            "tile",
+            "--gim",
+            s(&gim),
+            "--sample",
+            s(&wall),
+            "--sample-width",
+            "1.4",
+            "--courses",
+            mode,
+            "-q",
+            "-o",
+            s(&quilt),
+        ];
+        args.extend_from_slice(extra);
+        ok(&args);
+        quilt
+    };
+    let courses = |quilt: &Path| {
+        let doc: serde_json::Value =
+            serde_json::from_str(&ok(&["evaluate", s(quilt), "--forced-ends", "-q"])).unwrap();
+        let c = &doc["courses"];
+        let f = |k: &str| c[k].as_f64().unwrap_or_else(|| panic!("{k} in {c}"));
+        (f("offset_share"), f("ends"), f("forced_ends"))
+    };
+    let locked = tile("locked", "locked.quilt", &[]);
+    let (offset, ends, forced) = courses(&locked);
+    assert!(forced > 20.0, "Spot's field must end some courses: {forced}");
+    assert!(
+        offset < 0.02,
+        "locked: {:.1} % of seam edges offset",
+        100.0 * offset
+    );
+    assert!(
+        ends <= 1.1 * forced,
+        "locked: {ends} ends against {forced} forced"
+    );
+    let free = tile("free", "free.quilt", &[]);
+    let (free_offset, free_ends, _) = courses(&free);
+    assert!(
+        free_offset > 10.0 * offset.max(0.001),
+        "free {free_offset} against locked {offset}"
+    );
+    assert!(
+        free_ends > 1.5 * ends,
+        "free {free_ends} ends against locked {ends}"
+    );
+    // bent, not mirrored: the sample's rows turn with the atlas (the
+    // Jacobian's determinant keeps its sign but where a patch's phase is
+    // cut around one of the pattern's ends)
+    let budget = btfquilt::container::MemoryBudget::default();
+    let jacobians = btfquilt::artifact::quilt::Quilt::open(&locked, budget)
+        .unwrap()
+        .jacobians()
+        .unwrap();
+    let dets: Vec<f32> = jacobians
+        .iter()
+        .map(|j| j[0] * j[3] - j[1] * j[2])
+        .filter(|d| *d != 0.0)
+        .collect();
+    let mirrored = dets.iter().filter(|&&d| d < 0.0).count();
+    assert!(dets.len() > 30_000, "{} texels", dets.len());
+    assert!(
+        mirrored * 50 < dets.len(),
+        "{mirrored} of {} texels mirrored",
+        dets.len()
+    );
+    // the recipe, not the machine: one thread or a small budget
+    let bytes = std::fs::read(&locked).unwrap();
+    let one = tile("locked", "one.quilt", &["--threads", "1"]);
+    assert!(
+        std::fs::read(one).unwrap() == bytes,
+        "--threads 1 changed the quilt"
+    );
+    let small = tile("locked", "small.quilt", &["--memory", "48MiB"]);
+    assert!(
+        std::fs::read(small).unwrap() == bytes,
+        "--memory 48MiB changed the quilt"
+    );
+    // refused: a sample without rows, a budget the pattern's solve exceeds
+    let refused = dir.path().join("refused.quilt");
+    let plaster = root.join("plaster_cracks.png");
+    let args = |sample: &Path, memory: &str| -> Vec<String> {
+        [
+            "tile",
+            "--gim",
+            s(&gim),
+            "--sample",
+            s(sample),
+            "--sample-width",
+            "1.4",
+            "--courses",
+            "locked",
+            "--memory",
+            memory,
+            "-q",
+            "-o",
+            s(&refused),
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let run = |a: Vec<String>| btfquilt(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    fails_clearly(
+        &run(args(&plaster, "1GiB")),
+        &["plaster_cracks.png", "has no courses", "--courses locked"],
+    );
+    fails_clearly(
+        &run(args(&wall, "8MiB")),
+        &["locking the courses", "raise --memory"],
+    );
+    assert!(!refused.exists());
+}

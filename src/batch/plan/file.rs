@@ -86,6 +86,8 @@ pub(super) struct TileSection {
     pub(super) refine: Option<f64>,
     pub(super) refine_broken: Option<usize>,
     pub(super) refine_passes: Option<usize>,
+    /// "free" or "locked", as `tile --courses`.
+    pub(super) courses: Option<CourseMode>,
 }
 
 fn default_seeds() -> Vec<u64> {
@@ -106,6 +108,7 @@ impl Default for TileSection {
             refine: None,
             refine_broken: None,
             refine_passes: None,
+            courses: None,
         }
     }
 }

@@ -36,7 +36,7 @@ use serde::{Deserialize, Serialize};
 use crate::atlas::AtlasConfig;
 use crate::factorize::FactorizeConfig;
 use crate::output::render::{Camera, Light, RenderConfig};
-use crate::quilt::TileConfig;
+use crate::quilt::{CourseMode, TileConfig};
 use crate::{Error, Result};
 
 mod file;
@@ -193,6 +193,13 @@ pub struct TileParams {
     pub refine_broken: usize,
     #[serde(skip_serializing_if = "is_one")]
     pub refine_passes: usize,
+    /// Left out of the key when free, as `feature_align` at 0.
+    #[serde(skip_serializing_if = "is_free")]
+    pub courses: CourseMode,
+}
+
+fn is_free(v: &CourseMode) -> bool {
+    *v == CourseMode::Free
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -429,6 +436,7 @@ impl Plan {
             },
             refine_broken: t.refine_broken.unwrap_or(defaults.refine_broken),
             refine_passes: t.refine_passes.unwrap_or(defaults.refine_passes),
+            courses: t.courses.unwrap_or(defaults.courses),
         };
         let sample_widths: Vec<Option<f64>> = if t.sample_widths.is_empty() {
             vec![None]
@@ -640,6 +648,7 @@ pub fn tile_config(p: &TileParams, seed: u64, sample_width: Option<f64>) -> Tile
         refine: p.refine,
         refine_broken: p.refine_broken,
         refine_passes: p.refine_passes,
+        courses: p.courses,
         seed,
         sample_width,
         ..TileConfig::default()

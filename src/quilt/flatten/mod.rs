@@ -10,8 +10,10 @@ use super::sample::Sample;
 use super::state::{Bfs, State, Surface, WorkPatch};
 
 mod aligned;
+mod locked;
 mod membrane;
 pub(super) use aligned::*;
+pub(super) use locked::*;
 pub(super) use membrane::*;
 
 /// The work image of a patch and where each patch vertex sits in it.
@@ -36,6 +38,10 @@ pub(super) struct WorkImage {
     pub(super) atlas_to_work: Option<[f64; 4]>,
     /// m0 per work pixel (empty when unconstrained).
     pub(super) constraint: Vec<f32>,
+    /// Locked courses ([`locked_work_image`]): the course phase each patch
+    /// vertex must show (radians, unwrapped over the patch from the
+    /// seed's); empty otherwise.
+    pub(super) course_phase: Vec<f64>,
 }
 
 impl WorkImage {
@@ -53,6 +59,7 @@ impl WorkImage {
             neighbour_angle: None,
             atlas_to_work: None,
             constraint: vec![0f32; if state.constrained { width * height } else { 0 }],
+            course_phase: Vec::new(),
         }
     }
 }
@@ -389,7 +396,18 @@ pub(super) fn work_coords(
         return chart_coords(surface, patch);
     }
     let (tris, _, grid_count) = patch_triangles(surface, patch, bfs, zipper_triangles);
-    if let Some((mut coords, angle)) = flatten(surface, patch, bfs, &tris[..grid_count], max_distortion) {
+    coords_over(surface, patch, bfs, &tris[..grid_count], max_distortion)
+}
+
+/// [`work_coords`] of a patch across charts, given its grid triangles.
+fn coords_over(
+    surface: &Surface,
+    patch: &WorkPatch,
+    bfs: &Bfs,
+    grid_tris: &[[u32; 3]],
+    max_distortion: f64,
+) -> (Vec<[f64; 2]>, f64) {
+    if let Some((mut coords, angle)) = flatten(surface, patch, bfs, grid_tris, max_distortion) {
         if shift_within_bound(&mut coords, surface.r).is_some() {
             return (coords, angle);
         }

@@ -10,7 +10,7 @@ fn spot_256_surface(dir: &Path) -> crate::quilt::state::Surface {
     use crate::artifact::gim::Gim;
     use crate::container::MemoryBudget;
     let gim = Gim::open(&spot_256(dir), MemoryBudget(1 << 24)).unwrap();
-    crate::quilt::state::Surface::open(&gim, MemoryBudget(1 << 24)).unwrap()
+    crate::quilt::state::Surface::open(&gim, MemoryBudget(1 << 24), None).unwrap()
 }
 
 /// Spot atlased at 256² as `dir/spot.gim`.

@@ -15,6 +15,7 @@ use super::sample::Sample;
 use crate::artifact::gim::{Gim, ZipperLinks, EMPTY, TILE};
 use crate::artifact::quilt::NO_PATCH;
 use crate::container::{MemoryBudget, Scratch};
+use crate::field::StripePattern;
 use crate::Result;
 
 mod patch;

@@ -11,16 +11,29 @@ pub(in crate::quilt) struct SurfaceTile {
     /// Positions multiplied by the surface's `unit`.
     pub(in crate::quilt) position: Vec<[f32; 3]>,
     pub(in crate::quilt) normal: Vec<[f32; 3]>,
+    /// The course phase of the stripe pattern per texel (radians), with
+    /// locked courses; empty otherwise.
+    pub(in crate::quilt) phase: Vec<f32>,
 }
 
-/// Bytes of a surface tile.
+/// Bytes of a surface tile, and what its course phase adds.
 const SURFACE_TILE_BYTES: usize = TILE_TEXELS * (4 + 4 + 12 + 12);
+const PHASE_TILE_BYTES: usize = TILE_TEXELS * 4;
+
+/// Locked courses (`--courses locked`): the stripe pattern whose phase the
+/// surface tiles carry, its period and orientation.
+pub(in crate::quilt) struct CourseLock {
+    pub(in crate::quilt) pattern: StripePattern,
+    /// The course period in texels (the resampled sample's).
+    pub(in crate::quilt) period: f64,
+}
 
 /// Surface tiles read from the geometry image (never written back).
 pub(in crate::quilt) struct GimTiles {
     gim: Gim,
     grid: TileGrid,
     pub(super) unit: f32,
+    lock: Option<Arc<CourseLock>>,
 }
 
 impl TileSource<SurfaceTile> for GimTiles {
@@ -37,6 +50,12 @@ impl TileSource<SurfaceTile> for GimTiles {
                 tile.position[i] = [p[0], p[1], p[2]].map(|c| c * self.unit);
                 let q = &region.normal[j * 3..j * 3 + 3];
                 tile.normal[i] = [q[0], q[1], q[2]];
+                if let Some(lock) = &self.lock {
+                    if region.chart[j] != EMPTY {
+                        let p = [p[0], p[1], p[2]].map(f64::from);
+                        tile.phase[i] = lock.pattern.phase(region.face[j] as usize, p) as f32;
+                    }
+                }
             }
         }
         Ok(tile)
@@ -52,6 +71,11 @@ impl TileSource<SurfaceTile> for GimTiles {
             face: vec![0; TILE_TEXELS],
             position: vec![[0.0; 3]; TILE_TEXELS],
             normal: vec![[0.0; 3]; TILE_TEXELS],
+            phase: if self.lock.is_some() {
+                vec![0.0; TILE_TEXELS]
+            } else {
+                Vec::new()
+            },
         }
     }
 }
@@ -70,12 +94,22 @@ pub(in crate::quilt) struct Surface {
     /// Per tile, its dense vertices and the lowest id among them.
     pub(super) covered: Arc<Vec<u32>>,
     pub(super) first_covered: Arc<Vec<u32>>,
+    /// Locked courses: the pattern (whose phase the tiles carry) and the
+    /// course period.
+    pub(in crate::quilt) lock: Option<Arc<CourseLock>>,
 }
 
 impl Surface {
     /// The surface of the geometry image at `path`, its tiles held within
     /// `budget`.
-    pub(in crate::quilt) fn open(gim: &Gim, budget: MemoryBudget) -> Result<Surface> {
+    /// With `lock`, each tile also carries the stripe pattern's course
+    /// phase.
+    pub(in crate::quilt) fn open(
+        gim: &Gim,
+        budget: MemoryBudget,
+        lock: Option<CourseLock>,
+    ) -> Result<Surface> {
+        let lock = lock.map(Arc::new);
         let r = gim.resolution;
         let points: Vec<[f32; 3]> = gim.mesh()?.positions;
         let unit = crate::mesh::extreme_scale(&points) as f32;
@@ -94,15 +128,22 @@ impl Surface {
                 }
             }
         }
-        let source = GimTiles { gim: own, grid, unit };
+        let source = GimTiles {
+            gim: own,
+            grid,
+            unit,
+            lock: lock.clone(),
+        };
+        let tile_bytes = SURFACE_TILE_BYTES + if lock.is_some() { PHASE_TILE_BYTES } else { 0 };
         Ok(Surface {
             covered: Arc::new(covered),
             first_covered: Arc::new(first_covered),
             r,
-            tiles: Pager::new(r, source, budget.bytes(), SURFACE_TILE_BYTES as u64, MIN_TILES),
+            tiles: Pager::new(r, source, budget.bytes(), tile_bytes as u64, MIN_TILES),
             zippers: Arc::new(ZipperLinks::new(&gim.zipper_links()?)),
             unit,
             face_angle: Arc::new(face_angles(gim)?),
+            lock,
         })
     }
 
@@ -117,6 +158,7 @@ impl Surface {
             face_angle: Arc::clone(&self.face_angle),
             covered: Arc::clone(&self.covered),
             first_covered: Arc::clone(&self.first_covered),
+            lock: self.lock.clone(),
         }
     }
 
@@ -183,6 +225,12 @@ impl Surface {
 
     pub(in crate::quilt) fn normal(&self, t: u32) -> [f32; 3] {
         self.tiles.read(t, |s, i| s.normal[i])
+    }
+
+    /// The stripe pattern's course phase at texel `t` (radians), with
+    /// locked courses.
+    pub(in crate::quilt) fn course_phase(&self, t: u32) -> f64 {
+        self.tiles.read(t, |s, i| s.phase.get(i).copied().unwrap_or(0.0)) as f64
     }
 
     pub(in crate::quilt) fn texel_angle(&self, t: u32) -> f64 {

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::config::{TileConfig, TileReport};
+use super::config::{CourseMode, TileConfig, TileReport};
 use super::fit::{apply, fit_patch, Fit, INFINITE};
 use super::flatten::rotation_index;
 use super::matching::Matcher;
@@ -13,12 +13,13 @@ use super::occurrence::Occurrence;
 use super::pager::TileGrid;
 use super::placement::{PlacementChoice, Turn};
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
-use super::state::{Bfs, State, Surface, WorkPatch, NO_FOREIGN};
+use super::state::{Bfs, CourseLock, State, Surface, WorkPatch, NO_FOREIGN};
 use super::worker::{Outcome, StepStats, Worker};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{Quilt, MAX_SAMPLES, NO_PATCH};
 use crate::artifact::svd::SvdArtifact;
 use crate::container::MemoryBudget;
+use crate::field::StripePattern;
 use crate::io::staging::same_file;
 use crate::progress::Progress;
 use crate::{Error, Result};
@@ -78,6 +79,28 @@ pub(crate) struct Synthesis {
     active_span: Option<f64>,
 }
 
+/// Locked courses: the smoothest stripe pattern along the atlas's field at
+/// the sample's course period (texels × the atlas's texel size), solved
+/// within `budget`. The sample must have courses.
+fn course_lock(gim: &Gim, sample: &Sample, sample_path: &Path, budget: u64) -> Result<CourseLock> {
+    let Some(courses) = &sample.courses else {
+        return Err(Error::input(
+            sample_path,
+            "has no courses (its row profile is not periodic): --courses locked needs a sample whose \
+             features run in rows",
+        ));
+    };
+    let period = courses.period();
+    let pattern = StripePattern::new(&gim.mesh()?, &gim.face_field()?, period * gim.texel_size, budget)?
+        .ok_or_else(|| {
+            Error::input(
+                gim.container().path(),
+                "its field admits no stripe pattern (a degenerate mesh)",
+            )
+        })?;
+    Ok(CourseLock { pattern, period })
+}
+
 impl Synthesis {
     /// Opens the geometry image and the sample's `.svd`, with an empty state
     /// whose evicted tiles go to a scratch store beside `output`. Without
@@ -109,12 +132,26 @@ impl Synthesis {
         }
         let mut sample = Sample::from_svd(svd, quarter)?;
         // only seam refinement by structure reads the courses
-        if cfg.refine_broken > 0 {
+        // only seam refinement by structure and locked courses read the courses
+        let locked = matching && cfg.courses == CourseMode::Locked;
+        if cfg.refine_broken > 0 || locked {
             sample.find_courses();
         }
+        // the pattern is solved before the atlas's stores fill: the solve
+        // may take what the rotated copies leave of the budget
+        let lock = if locked {
+            Some(course_lock(
+                gim,
+                &sample,
+                sample_path,
+                cfg.memory.bytes() - quarter.bytes(),
+            )?)
+        } else {
+            None
+        };
         let occurrence = Occurrence::new(sample.width, sample.height, sample.tileable, sample.rotations);
         let n = sample.n;
-        let surface = Surface::open(gim, surface_budget)?;
+        let surface = Surface::open(gim, surface_budget, lock)?;
         let reference = sample.neighbour_difference();
         let state = State::new(&surface, n, output, state_budget)?;
         let total = state.remaining;
