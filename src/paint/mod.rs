@@ -240,7 +240,7 @@ fn open_synthesis(
     )?;
     let trace = |what: &str| crate::progress::trace(progress, start, what);
     trace("factorized");
-    let mut syn = Synthesis::open(&gim, &stroke.sample, &sized.svd, beside, &cfg, matching)?;
+    let mut syn = Synthesis::open(&gim, &stroke.sample, &sized, beside, &cfg, matching)?;
     syn.set_scale(&sized);
     trace("opened");
     syn.set_mask(&stroke.sample_mask)?;

@@ -113,6 +113,16 @@ impl Courses {
         })
     }
 
+    /// These courses in a copy of the sample resampled to `1 / scale` of
+    /// its rows, in the coordinates a quilt stores (a copy's row v is the
+    /// original's row v × `scale`).
+    pub(crate) fn scaled(&self, scale: f64) -> Courses {
+        Courses {
+            marks: self.marks.iter().map(|m| m / scale).collect(),
+            height: self.height / scale,
+        }
+    }
+
     /// The mean course period (sample pixels).
     pub fn period(&self) -> f64 {
         self.height / self.marks.len() as f64

@@ -139,9 +139,26 @@ pub(super) fn lock_courses(
     let courses = sample.courses.as_ref()?;
     let turn = Turn::new(sample, placement.rotation);
     let row = turn.to_sample(placement.dx, placement.dy, work.coords[0])[1];
-    // moving the placement by δ (−sin θ, cos θ) moves every row by −δ
-    let delta =
-        crate::field::wrap_angle(courses.phase(row) - target) * courses.period() / std::f64::consts::TAU;
+    // moving the placement by δ (−sin θ, cos θ) moves every row by −δ;
+    // of the shifts by under half a course and a course either way, the
+    // one that keeps most of the patch on the sample, the smallest of equals
+    let period = courses.period();
+    let least = crate::field::wrap_angle(courses.phase(row) - target) * period / std::f64::consts::TAU;
+    let step = (work.coords.len() / 400).max(1);
+    let on_sample = |delta: f64| {
+        let (dx, dy) = (placement.dx - turn.s * delta, placement.dy + turn.c * delta);
+        (work.coords.iter().step_by(step))
+            .filter(|&&w| inside_sample(sample, turn.to_sample(dx, dy, w)))
+            .count()
+    };
+    let mut best = (on_sample(least), least);
+    for delta in [least - period, least + period] {
+        let n = on_sample(delta);
+        if n > best.0 || (n == best.0 && delta.abs() < best.1.abs()) {
+            best = (n, delta);
+        }
+    }
+    let delta = best.1;
     Some(PlacementChoice {
         rotation: placement.rotation,
         dx: placement.dx - turn.s * delta,

@@ -295,6 +295,9 @@ pub(crate) fn sample_svd(
 pub(crate) struct SizedSample {
     /// The `.svd` to quilt with.
     pub(crate) svd: PathBuf,
+    /// The original sample's `.svd` (`svd` itself when the sample is used
+    /// as it is).
+    pub(crate) original: PathBuf,
     /// Original sample pixels per resampled pixel, along x and y (`[1, 1]`
     /// when the sample is used as it is).
     pub(crate) scale: [f64; 2],
@@ -327,6 +330,7 @@ pub(crate) fn sample_at_density(
     let size = [svd.width, svd.height];
     let Some(on_surface) = on_surface else {
         return Ok(SizedSample {
+            original: svd_path.clone(),
             svd: svd_path,
             scale: [1.0, 1.0],
             size,
@@ -365,6 +369,7 @@ pub(crate) fn sample_at_density(
     let native_reference = neighbour_difference(&maps, svd.width, svd.height, svd.terms);
     Ok(SizedSample {
         svd: out,
+        original: svd_path,
         scale: [size[0] as f64 / to_w as f64, size[1] as f64 / to_h as f64],
         size,
         width_units: units,

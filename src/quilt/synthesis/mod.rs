@@ -12,6 +12,7 @@ use super::matching::Matcher;
 use super::occurrence::Occurrence;
 use super::pager::TileGrid;
 use super::placement::{PlacementChoice, Turn};
+use super::courses::Courses;
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
 use super::state::{Bfs, CourseLock, State, Surface, WorkPatch, NO_FOREIGN};
 use super::worker::{Outcome, StepStats, Worker};
@@ -109,7 +110,7 @@ impl Synthesis {
     pub(crate) fn open(
         gim: &Gim,
         sample_path: &Path,
-        svd_path: &Path,
+        sized: &SizedSample,
         output: &Path,
         cfg: &TileConfig,
         matching: bool,
@@ -123,7 +124,7 @@ impl Synthesis {
         let [tiles, _, _, atlas] = cfg.memory.split([1, 1, 1, 1]);
         let quarter = MemoryBudget(tiles.bytes().max(1 << 20));
         let [surface_budget, state_budget] = atlas.split([8, 11]);
-        let svd = SvdArtifact::open(svd_path, MemoryBudget(quarter.bytes().min(2 << 20)))?;
+        let svd = SvdArtifact::open(&sized.svd, MemoryBudget(quarter.bytes().min(2 << 20)))?;
         if matching && svd.rotations == 0 {
             return Err(Error::input(
                 sample_path,
@@ -134,8 +135,14 @@ impl Synthesis {
         // only seam refinement by structure reads the courses
         // only seam refinement by structure and locked courses read the courses
         let locked = matching && cfg.courses == CourseMode::Locked;
-        if cfg.refine_broken > 0 || locked {
+        if cfg.refine_broken > 0 {
             sample.find_courses();
+        }
+        if locked {
+            // the original's courses, where the quilt's stored rows are
+            // judged (`evaluate`), in the resampled copy's rows
+            let rows = SvdArtifact::open(&sized.original, MemoryBudget(1 << 20))?.preview_row_means()?;
+            sample.courses = Courses::from_profile(&rows).map(|c| c.scaled(sized.scale[1]));
         }
         // the pattern is solved before the atlas's stores fill: the solve
         // may take what the rotated copies leave of the budget
