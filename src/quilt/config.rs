@@ -81,10 +81,12 @@ pub struct TileConfig {
     /// across every seam and end only where the pattern ends them (its
     /// `evaluate --forced-ends`). Matching then keeps the field's rotation
     /// (`field_turn` is not used), and the courses' spacing varies with
-    /// the pattern's (on Spot ±25 % at the 5th and 95th percentiles,
-    /// coherence's 95th percentile +17–42 %). Locked needs a sample with
-    /// courses and memory for the pattern's solve (about 140 MiB on Spot,
-    /// within `memory` less the rotated copies' quarter).
+    /// the pattern's (on Spot ±25 % at the 5th and 95th percentiles;
+    /// coherence's 95th percentile +15–43 % with the brick wall). The
+    /// courses are found on the original sample, as `evaluate` finds
+    /// them. Locked needs a sample with courses and memory for the
+    /// pattern's solve (about 140 MiB on Spot, within `memory` less the
+    /// rotated copies' quarter).
     pub courses: CourseMode,
     /// Maximum area distortion of a flattened work patch (T_d).
     pub max_distortion: f64,

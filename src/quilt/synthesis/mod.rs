@@ -6,13 +6,13 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::config::{CourseMode, TileConfig, TileReport};
+use super::courses::Courses;
 use super::fit::{apply, fit_patch, Fit, INFINITE};
 use super::flatten::rotation_index;
 use super::matching::Matcher;
 use super::occurrence::Occurrence;
 use super::pager::TileGrid;
 use super::placement::{PlacementChoice, Turn};
-use super::courses::Courses;
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
 use super::state::{Bfs, CourseLock, State, Surface, WorkPatch, NO_FOREIGN};
 use super::worker::{Outcome, StepStats, Worker};
@@ -103,7 +103,9 @@ fn course_lock(gim: &Gim, sample: &Sample, sample_path: &Path, budget: u64) -> R
 }
 
 impl Synthesis {
-    /// Opens the geometry image and the sample's `.svd`, with an empty state
+    /// Opens the geometry image and the sample's `.svd` as `sized` brought
+    /// it to the atlas's density (call [`Synthesis::set_scale`] with it
+    /// next), with an empty state
     /// whose evicted tiles go to a scratch store beside `output`. Without
     /// `matching` (verbatim copy) the rotated copies are not needed:
     /// rotations are then quantized to the default 72 steps.
@@ -132,7 +134,6 @@ impl Synthesis {
             ));
         }
         let mut sample = Sample::from_svd(svd, quarter)?;
-        // only seam refinement by structure reads the courses
         // only seam refinement by structure and locked courses read the courses
         let locked = matching && cfg.courses == CourseMode::Locked;
         if cfg.refine_broken > 0 {
