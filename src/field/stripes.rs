@@ -84,6 +84,8 @@ pub struct StripePattern {
     across: Vec<DVec3>,
     /// 2π / period.
     nu: f64,
+    /// Row ends (as [`forced_ends`] counts them).
+    ends: usize,
 }
 
 impl StripePattern {
@@ -97,10 +99,17 @@ impl StripePattern {
             psi: (0..fine.positions.len())
                 .map(|i| [solved.psi[2 * i], solved.psi[2 * i + 1]])
                 .collect(),
+            ends: solved.count_ends(&fine),
             across: solved.face_across,
             fine,
             nu: std::f64::consts::TAU / period,
         }))
+    }
+
+    /// The row ends the pattern holds: those [`forced_ends`] counts at the
+    /// same period.
+    pub fn ends(&self) -> usize {
+        self.ends
     }
 
     /// Bytes the pattern holds (per vertex of the subdivided mesh its

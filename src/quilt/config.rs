@@ -387,6 +387,10 @@ pub struct TileReport {
     /// step ([`TileConfig::coarse_above`]); 1 where it matched at full
     /// resolution.
     pub coarse_factor: usize,
+    /// With locked courses ([`CourseMode::Locked`]): the course ends of
+    /// the stripe pattern the courses follow, the only places a course
+    /// ends.
+    pub locked_course_ends: Option<usize>,
 }
 
 impl std::fmt::Display for TileReport {
@@ -418,7 +422,11 @@ impl std::fmt::Display for TileReport {
             self.atlas_tiles,
             self.tiles_read,
             crate::container::human_bytes(self.scratch_bytes)
-        )
+        )?;
+        if let Some(ends) = self.locked_course_ends {
+            write!(f, "; courses locked to a stripe pattern that ends {ends} of them")?;
+        }
+        Ok(())
     }
 }
 

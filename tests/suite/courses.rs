@@ -78,8 +78,8 @@ fn locked_courses_end_only_where_the_field_forces_them() {
             s(&quilt),
         ];
         args.extend_from_slice(extra);
-        ok(&args);
-        quilt
+        let report = ok(&args);
+        (quilt, report)
     };
     let courses = |quilt: &Path| {
         let doc: serde_json::Value =
@@ -88,8 +88,20 @@ fn locked_courses_end_only_where_the_field_forces_them() {
         let f = |k: &str| c[k].as_f64().unwrap_or_else(|| panic!("{k} in {c}"));
         (f("offset_share"), f("ends"), f("forced_ends"))
     };
-    let locked = tile("locked", "locked.quilt", &[]);
+    let (locked, report) = tile("locked", "locked.quilt", &[]);
     let (offset, ends, forced) = courses(&locked);
+    // the report names the pattern's ends: those of `--forced-ends` at the
+    // period tile measured (evaluate measures it on the quilt)
+    let said: f64 = report
+        .split("stripe pattern that ends ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no pattern ends in: {report}"));
+    assert!(
+        (said - forced).abs() <= 0.1 * forced,
+        "the report says {said}, evaluate {forced}"
+    );
     assert!(forced > 20.0, "Spot's field must end some courses: {forced}");
     assert!(
         offset < 0.02,
@@ -100,7 +112,8 @@ fn locked_courses_end_only_where_the_field_forces_them() {
         ends <= 1.1 * forced,
         "locked: {ends} ends against {forced} forced"
     );
-    let free = tile("free", "free.quilt", &[]);
+    let (free, report) = tile("free", "free.quilt", &[]);
+    assert!(!report.contains("stripe pattern"), "{report}");
     let (free_offset, free_ends, _) = courses(&free);
     assert!(
         free_offset > 10.0 * offset.max(0.001),
@@ -132,12 +145,12 @@ fn locked_courses_end_only_where_the_field_forces_them() {
     );
     // the recipe, not the machine: one thread or a small budget
     let bytes = std::fs::read(&locked).unwrap();
-    let one = tile("locked", "one.quilt", &["--threads", "1"]);
+    let (one, _) = tile("locked", "one.quilt", &["--threads", "1"]);
     assert!(
         std::fs::read(one).unwrap() == bytes,
         "--threads 1 changed the quilt"
     );
-    let small = tile("locked", "small.quilt", &["--memory", "48MiB"]);
+    let (small, _) = tile("locked", "small.quilt", &["--memory", "48MiB"]);
     assert!(
         std::fs::read(small).unwrap() == bytes,
         "--memory 48MiB changed the quilt"

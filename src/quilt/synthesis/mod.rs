@@ -159,6 +159,7 @@ impl Synthesis {
         };
         let occurrence = Occurrence::new(sample.width, sample.height, sample.tileable, sample.rotations);
         let n = sample.n;
+        let locked_course_ends = lock.as_ref().map(|l| l.pattern.ends());
         let surface = Surface::open(gim, surface_budget, lock)?;
         let reference = sample.neighbour_difference();
         let state = State::new(&surface, n, output, state_budget)?;
@@ -180,6 +181,7 @@ impl Synthesis {
             reference,
             report: TileReport {
                 texels: total,
+                locked_course_ends,
                 ..TileReport::default()
             },
             original_size,
