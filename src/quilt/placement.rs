@@ -123,9 +123,10 @@ impl Turn {
     }
 }
 
-/// Locked courses: `placement` moved across the sample's rows (by less
-/// than half a course) so that the sample row at the seed shows the course
-/// phase the work image asks there ([`WorkImage::course_phase`]); the rows
+/// Locked courses: `placement` moved across the sample's rows so that the
+/// sample row at the seed shows the course phase the work image asks there
+/// ([`WorkImage::course_phase`]): by under half a course, or a course more
+/// either way where that keeps more of the patch on the sample; the rows
 /// of the other vertices are then within the spacing of the sample's
 /// courses of theirs ([`super::courses::Courses::lock_rows`] puts them
 /// exactly). `None` when the work image is free or the sample has no
