@@ -78,8 +78,8 @@ pub fn forced_ends(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64) ->
 /// across-field coordinate taken from the pattern).
 pub struct StripePattern {
     fine: Subdivided,
-    /// Per vertex of the subdivided mesh: ψ (re, im).
-    psi: Vec<[f64; 2]>,
+    /// Per vertex of the subdivided mesh: ψ as (re, im) pairs.
+    psi: Vec<f64>,
     /// Per face of the subdivided mesh: the unit direction across the field.
     across: Vec<DVec3>,
     /// 2π / period.
@@ -96,10 +96,8 @@ impl StripePattern {
     pub fn new(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64) -> Result<Option<StripePattern>> {
         let fine = Subdivided::new(mesh, field, period, budget, "locking the courses to the field")?;
         Ok(Solved::new(&fine, period).map(|solved| StripePattern {
-            psi: (0..fine.positions.len())
-                .map(|i| [solved.psi[2 * i], solved.psi[2 * i + 1]])
-                .collect(),
             ends: solved.count_ends(&fine),
+            psi: solved.psi,
             across: solved.face_across,
             fine,
             nu: std::f64::consts::TAU / period,
@@ -110,12 +108,6 @@ impl StripePattern {
     /// same period.
     pub fn ends(&self) -> usize {
         self.ends
-    }
-
-    /// Bytes the pattern holds (per vertex of the subdivided mesh its
-    /// position and ψ, per face its corners and across direction).
-    pub fn bytes(&self) -> u64 {
-        (self.psi.len() * (24 + 16) + self.across.len() * (12 + 24)) as u64
     }
 
     /// The row phase (radians, in (−π, π]) at point `p` of face `face` of
@@ -155,7 +147,7 @@ impl StripePattern {
         for (k, &v) in fine.triangles[f].iter().enumerate() {
             let v = v as usize;
             let (s, c) = (self.nu * n.dot(p - fine.positions[v])).sin_cos();
-            let [x, y] = self.psi[v];
+            let (x, y) = (self.psi[2 * v], self.psi[2 * v + 1]);
             re += bc[k] * (x * c - y * s);
             im += bc[k] * (x * s + y * c);
         }
@@ -510,7 +502,6 @@ mod tests {
         let period = 0.13;
         let pattern = StripePattern::new(&m, &field, period, u64::MAX).unwrap().unwrap();
         assert!(pattern.fine.subdivisions >= 1);
-        assert!(pattern.bytes() > 0);
         // across the field: N × f with N = +z
         let across = DVec3::new(-0.8, 0.6, 0.0);
         let nu = std::f64::consts::TAU / period;

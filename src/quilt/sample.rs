@@ -82,6 +82,16 @@ impl Sample {
             .and_then(|rows| super::courses::Courses::from_profile(&rows));
     }
 
+    /// Looks for the courses of the original sample `sized` was resampled
+    /// from (where a quilt's stored rows are judged, `evaluate`), in this
+    /// resampled copy's rows; the same as [`Sample::find_courses`] when
+    /// the sample was not resampled.
+    pub(super) fn find_original_courses(&mut self, sized: &SizedSample) -> Result<()> {
+        let rows = SvdArtifact::open(&sized.original, MemoryBudget(1 << 20))?.preview_row_means()?;
+        self.courses = super::courses::Courses::from_profile(&rows).map(|c| c.scaled(sized.scale[1]));
+        Ok(())
+    }
+
     /// Appends the structure channel ([`super::structure`]) × `weight` to
     /// the feature channels: matching, the cut cost and seam refinement see
     /// it from then on. Call it before anything is matched.

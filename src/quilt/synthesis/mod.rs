@@ -6,7 +6,6 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::config::{CourseMode, TileConfig, TileReport};
-use super::courses::Courses;
 use super::fit::{apply, fit_patch, Fit, INFINITE};
 use super::flatten::rotation_index;
 use super::matching::Matcher;
@@ -140,10 +139,7 @@ impl Synthesis {
             sample.find_courses();
         }
         if locked {
-            // the original's courses, where the quilt's stored rows are
-            // judged (`evaluate`), in the resampled copy's rows
-            let rows = SvdArtifact::open(&sized.original, MemoryBudget(1 << 20))?.preview_row_means()?;
-            sample.courses = Courses::from_profile(&rows).map(|c| c.scaled(sized.scale[1]));
+            sample.find_original_courses(sized)?;
         }
         // the pattern is solved before the atlas's stores fill: the solve
         // may take what the rotated copies leave of the budget
@@ -152,7 +148,7 @@ impl Synthesis {
                 gim,
                 &sample,
                 sample_path,
-                cfg.memory.bytes() - quarter.bytes(),
+                cfg.memory.bytes().saturating_sub(quarter.bytes()),
             )?)
         } else {
             None
