@@ -42,10 +42,11 @@ pub(in crate::quilt) fn locked_work_image(
     } else {
         chart_coords(surface, patch)
     };
-    let theta = rotation_index(angle, sample.rotations) as f64 * TAU / sample.rotations as f64;
-    let (s, c) = theta.sin_cos();
     let phase = unwrapped_phase(surface, patch, bfs);
     let per_radian = ACROSS * lock.period / TAU;
+    let angle = rows_angle(&coords, &phase, per_radian, angle);
+    let theta = rotation_index(angle, sample.rotations) as f64 * TAU / sample.rotations as f64;
+    let (s, c) = theta.sin_cos();
     for (w, &ph) in coords.iter_mut().zip(&phase) {
         let along = c * w[0] + s * w[1];
         let across = ph * per_radian;
@@ -54,6 +55,43 @@ pub(in crate::quilt) fn locked_work_image(
     let mut work = raster_work_image(sample, state, patch, &tris, coords, angle, surface.r)?;
     work.course_phase = phase.iter().map(|&p| ACROSS * p).collect();
     Some(work)
+}
+
+/// How far the copy may turn from the field to follow the pattern's rows
+/// ([`rows_angle`]), in radians: a patch whose rows seem to turn further
+/// holds one of the pattern's ends, where its mean direction means little.
+const MAX_ROWS_TURN: f64 = 0.6;
+
+/// The direction of the pattern's rows over a patch: the work-image angle
+/// θ whose across axis (−sin θ, cos θ) runs along the least-squares
+/// gradient of the across coordinate (`phase` × `per_radian`) over the
+/// work coordinates `coords`. The rows turn from the field where its
+/// lines converge or bend; a copy matched at the rows' direction is
+/// sheared less by the phase coordinate. The field's `angle` for a
+/// degenerate patch, or one whose rows seem to turn more than
+/// [`MAX_ROWS_TURN`] from it.
+fn rows_angle(coords: &[[f64; 2]], phase: &[f64], per_radian: f64, angle: f64) -> f64 {
+    let m = coords.len() as f64;
+    let mean = coords.iter().zip(phase).fold([0.0; 3], |a, (w, &p)| {
+        [a[0] + w[0] / m, a[1] + w[1] / m, a[2] + p * per_radian / m]
+    });
+    // normal equations of across ≈ g · (w − mean)
+    let (mut xx, mut xy, mut yy, mut xa, mut ya) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for (w, &p) in coords.iter().zip(phase) {
+        let (x, y, a) = (w[0] - mean[0], w[1] - mean[1], p * per_radian - mean[2]);
+        (xx, xy, yy, xa, ya) = (xx + x * x, xy + x * y, yy + y * y, xa + x * a, ya + y * a);
+    }
+    let det = xx * yy - xy * xy;
+    if !(det > 0.0) {
+        return angle;
+    }
+    let g = [(yy * xa - xy * ya) / det, (xx * ya - xy * xa) / det];
+    let rows = (-g[0]).atan2(g[1]);
+    if crate::field::wrap_angle(rows - angle).abs() < MAX_ROWS_TURN {
+        rows
+    } else {
+        angle
+    }
 }
 
 /// The pattern's phase per patch vertex, unwrapped along the patch's BFS
@@ -78,4 +116,42 @@ fn unwrapped_phase(surface: &Surface, patch: &WorkPatch, bfs: &Bfs) -> Vec<f64> 
         };
     }
     phase
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Work coordinates on a grid and the phase of rows whose across axis
+    /// is at angle `rows` (phase in radians, `per_radian` pixels each).
+    fn plane_rows(rows: f64, per_radian: f64) -> (Vec<[f64; 2]>, Vec<f64>) {
+        let coords: Vec<[f64; 2]> = (0..15 * 11)
+            .map(|i| [(i % 15) as f64 * 1.5, (i / 15) as f64])
+            .collect();
+        let across = [-rows.sin(), rows.cos()];
+        let phase = coords
+            .iter()
+            .map(|w| (across[0] * w[0] + across[1] * w[1]) / per_radian + 0.7)
+            .collect();
+        (coords, phase)
+    }
+
+    #[test]
+    fn the_copy_turns_to_the_rows_within_its_limit() {
+        for per_radian in [3.0, -3.0] {
+            for (field, rows) in [(0.2, 0.45), (-1.0, -1.3), (3.0, 3.3 - TAU)] {
+                let (coords, phase) = plane_rows(rows, per_radian);
+                let got = rows_angle(&coords, &phase, per_radian, field);
+                assert!(
+                    crate::field::wrap_angle(got - rows).abs() < 1e-9,
+                    "{field} {rows}: {got}"
+                );
+            }
+            // rows turned further than the limit, or no rows to fit: the field's
+            let (coords, phase) = plane_rows(0.2 + MAX_ROWS_TURN + 0.1, per_radian);
+            assert_eq!(rows_angle(&coords, &phase, per_radian, 0.2), 0.2);
+            let line: Vec<[f64; 2]> = (0..9).map(|i| [i as f64, 2.0 * i as f64]).collect();
+            assert_eq!(rows_angle(&line, &[0.0; 9], per_radian, 0.2), 0.2);
+        }
+    }
 }
