@@ -12,6 +12,7 @@ use super::ends::broken_around;
 use super::fit::{fit_patch, Fit};
 use super::flatten::{
     chart_work_image, flattened_work_image, locked_work_image, unfolded_work_image, Flattening, WorkImage,
+    WorkInputs,
 };
 use super::matching::Matcher;
 use super::occurrence::Occurrence;
@@ -327,32 +328,27 @@ impl Worker<'_> {
     }
 
     fn work_image_of(&self, patch: &WorkPatch, flattening: &mut Option<Flattening>) -> (WorkImage, bool) {
-        let (surface, state, bfs, zt, sample) = (
-            self.surface,
-            self.state,
-            &*self.bfs,
-            self.zipper_triangles,
-            self.sample,
-        );
+        let inputs = WorkInputs {
+            surface: self.surface,
+            sample: self.sample,
+            state: self.state,
+            bfs: &self.bfs,
+            zipper_triangles: self.zipper_triangles,
+            max_distortion: self.cfg.max_distortion,
+        };
+        let (surface, state, sample) = (self.surface, self.state, self.sample);
         if !self.painting {
-            if let Some(work) =
-                locked_work_image(surface, sample, state, patch, bfs, zt, self.cfg.max_distortion)
-            {
+            if let Some(work) = locked_work_image(&inputs, patch) {
                 return (work, false);
             }
         }
         if !patch.crosses_charts {
             return (chart_work_image(surface, sample, state, patch), false);
         }
-        if let Some(work) = flattening
-            .as_ref()
-            .and_then(|f| f.work_image(surface, sample, state, patch, bfs, zt))
-        {
+        if let Some(work) = flattening.as_ref().and_then(|f| f.work_image(&inputs, patch)) {
             return (work, false);
         }
-        if let Some((work, coords)) =
-            flattened_work_image(surface, sample, state, patch, bfs, zt, self.cfg.max_distortion)
-        {
+        if let Some((work, coords)) = flattened_work_image(&inputs, patch) {
             let mut c: Vec<(u32, [f64; 2])> = patch.texels.iter().copied().zip(coords).collect();
             c.sort_unstable_by_key(|e| e.0);
             *flattening = Some(Flattening {
@@ -361,7 +357,10 @@ impl Worker<'_> {
             });
             return (work, false);
         }
-        (unfolded_work_image(surface, sample, state, patch, bfs), true)
+        (
+            unfolded_work_image(surface, sample, state, patch, &self.bfs),
+            true,
+        )
     }
 }
 

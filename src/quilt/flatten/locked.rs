@@ -23,18 +23,18 @@ const ACROSS: f64 = -1.0;
 
 /// The work image of `patch` with its courses locked to the surface's
 /// stripe pattern: the coordinates of [`work_coords`], their component
-/// across the field (at the field's rotation step, the copy matching
+/// across the field (at the rows' rotation step, the copy matching
 /// uses) replaced by the pattern's phase × period / 2π. `None` without a
 /// lock, or if the patch flattened implausibly large.
-pub(in crate::quilt) fn locked_work_image(
-    surface: &Surface,
-    sample: &Sample,
-    state: &State,
-    patch: &WorkPatch,
-    bfs: &Bfs,
-    zipper_triangles: &[[u32; 3]],
-    max_distortion: f64,
-) -> Option<WorkImage> {
+pub(in crate::quilt) fn locked_work_image(inputs: &WorkInputs, patch: &WorkPatch) -> Option<WorkImage> {
+    let WorkInputs {
+        surface,
+        sample,
+        state,
+        bfs,
+        zipper_triangles,
+        max_distortion,
+    } = *inputs;
     let lock = surface.lock.as_ref()?;
     let (tris, _, grid_count) = patch_triangles(surface, patch, bfs, zipper_triangles);
     let (mut coords, angle) = if patch.crosses_charts {

@@ -363,18 +363,32 @@ fn raster_work_image(
     Some(work)
 }
 
+/// What a work image is made from besides its patch (section III-B):
+/// the surface, the sample, the synthesis so far, the patch's BFS ball,
+/// the zipper triangles and the flattening's distortion bound T_d.
+pub(in crate::quilt) struct WorkInputs<'a> {
+    pub(in crate::quilt) surface: &'a Surface,
+    pub(in crate::quilt) sample: &'a Sample,
+    pub(in crate::quilt) state: &'a State,
+    pub(in crate::quilt) bfs: &'a Bfs,
+    pub(in crate::quilt) zipper_triangles: &'a [[u32; 3]],
+    pub(in crate::quilt) max_distortion: f64,
+}
+
 /// Cross-chart work image: the patch flattened by [`flatten()`] and resampled.
 /// `None` if it cannot be flattened within the distortion bound.
-#[allow(clippy::too_many_arguments)]
 pub(super) fn flattened_work_image(
-    surface: &Surface,
-    sample: &Sample,
-    state: &State,
+    inputs: &WorkInputs,
     patch: &WorkPatch,
-    bfs: &Bfs,
-    zipper_triangles: &[[u32; 3]],
-    max_distortion: f64,
 ) -> Option<(WorkImage, Vec<[f64; 2]>)> {
+    let WorkInputs {
+        surface,
+        sample,
+        state,
+        bfs,
+        zipper_triangles,
+        max_distortion,
+    } = *inputs;
     let (tris, _, grid_count) = patch_triangles(surface, patch, bfs, zipper_triangles);
     let (coords, angle) = flatten(surface, patch, bfs, &tris[..grid_count], max_distortion)?;
     let work = raster_work_image(sample, state, patch, &tris, coords.clone(), angle, surface.r)?;
@@ -427,15 +441,8 @@ pub(super) struct Flattening {
 
 impl Flattening {
     /// The work image of a smaller patch from the cached coordinates.
-    pub(super) fn work_image(
-        &self,
-        surface: &Surface,
-        sample: &Sample,
-        state: &State,
-        patch: &WorkPatch,
-        bfs: &Bfs,
-        zipper_triangles: &[[u32; 3]],
-    ) -> Option<WorkImage> {
+    pub(super) fn work_image(&self, inputs: &WorkInputs, patch: &WorkPatch) -> Option<WorkImage> {
+        let (surface, bfs) = (inputs.surface, inputs.bfs);
         let coords: Vec<[f64; 2]> = patch
             .texels
             .iter()
@@ -446,8 +453,16 @@ impl Flattening {
                     .map(|k| self.coords[k].1)
             })
             .collect::<Option<_>>()?;
-        let (tris, _, _) = patch_triangles(surface, patch, bfs, zipper_triangles);
-        raster_work_image(sample, state, patch, &tris, coords, self.angle, surface.r)
+        let (tris, _, _) = patch_triangles(surface, patch, bfs, inputs.zipper_triangles);
+        raster_work_image(
+            inputs.sample,
+            inputs.state,
+            patch,
+            &tris,
+            coords,
+            self.angle,
+            surface.r,
+        )
     }
 }
 
