@@ -381,17 +381,18 @@ pub(super) fn flattened_work_image(
     inputs: &WorkInputs,
     patch: &WorkPatch,
 ) -> Option<(WorkImage, Vec<[f64; 2]>)> {
-    let WorkInputs {
-        surface,
-        sample,
-        state,
-        bfs,
-        zipper_triangles,
-        max_distortion,
-    } = *inputs;
-    let (tris, _, grid_count) = patch_triangles(surface, patch, bfs, zipper_triangles);
-    let (coords, angle) = flatten(surface, patch, bfs, &tris[..grid_count], max_distortion)?;
-    let work = raster_work_image(sample, state, patch, &tris, coords.clone(), angle, surface.r)?;
+    let (surface, bfs) = (inputs.surface, inputs.bfs);
+    let (tris, _, grid_count) = patch_triangles(surface, patch, bfs, inputs.zipper_triangles);
+    let (coords, angle) = flatten(surface, patch, bfs, &tris[..grid_count], inputs.max_distortion)?;
+    let work = raster_work_image(
+        inputs.sample,
+        inputs.state,
+        patch,
+        &tris,
+        coords.clone(),
+        angle,
+        surface.r,
+    )?;
     Some((work, coords))
 }
 
