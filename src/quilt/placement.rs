@@ -283,7 +283,7 @@ pub(super) fn match_candidates(
     mut penalty: Option<(&mut Occurrence, f64)>,
     cfg: &TileConfig,
 ) -> Result<(usize, Vec<matching::Placement>)> {
-    // locked courses follow the field's copy
+    // locked courses keep the copy at the rows' direction (the work image's angle)
     let field_turn = if work.course_phase.is_empty() {
         cfg.field_turn
     } else {
