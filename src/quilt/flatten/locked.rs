@@ -1,9 +1,10 @@
 //! Locked courses (`--courses locked`): the work image of a patch bent so
 //! that its rows follow one stripe pattern over the whole surface
-//! ([`crate::field::StripePattern`]). The work coordinates along the field
-//! stay those of the chart layout, flattening or unfolding; the coordinate
-//! across it becomes the pattern's phase, unwrapped over the patch, in
-//! course periods. Every patch whose sample rows are then locked to that
+//! ([`crate::field::StripePattern`]). The work coordinate along the rows
+//! (their mean direction over the patch, [`rows_angle`]) stays that of the
+//! chart layout, flattening or unfolding; the coordinate across them
+//! becomes the pattern's phase, unwrapped over the patch, in course
+//! periods. Every patch whose sample rows are then locked to that
 //! phase ([`crate::quilt::placement::lock_courses`], [`Courses::lock_rows`])
 //! shows the same course at the same place: courses run on across every
 //! seam and end only where the pattern ends them.
