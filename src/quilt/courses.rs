@@ -141,21 +141,15 @@ impl Courses {
     /// The course phase (radians, modulo 2π) of sample row `v`: 2π per
     /// course, linear between the marks, wrapped with the sample.
     pub fn phase(&self, v: f64) -> f64 {
-        let (m, h) = (&self.marks, self.height);
         // a stored row that is not a number (a damaged file) has phase 0
         if !v.is_finite() {
             return 0.0;
         }
-        let mut v = v.rem_euclid(h);
-        if v < m[0] {
-            v += h;
-        }
-        let k = m.partition_point(|&x| x <= v) - 1;
-        let next = if k + 1 < m.len() { m[k + 1] } else { m[0] + h };
-        TAU * (k as f64 + (v - m[k]) / (next - m[k]))
+        self.phase_and_rate(v).0
     }
 
-    /// The course phase and its rate (radians per sample row) at row `v`.
+    /// The course phase and its rate (radians per sample row) at a finite
+    /// row `v`, from one lookup of the course holding it.
     fn phase_and_rate(&self, v: f64) -> (f64, f64) {
         let (m, h) = (&self.marks, self.height);
         let mut u = v.rem_euclid(h);
@@ -164,7 +158,8 @@ impl Courses {
         }
         let k = m.partition_point(|&x| x <= u) - 1;
         let next = if k + 1 < m.len() { m[k + 1] } else { m[0] + h };
-        (self.phase(v), TAU / (next - m[k]))
+        let span = next - m[k];
+        (TAU * (k as f64 + (u - m[k]) / span), TAU / span)
     }
 
     /// Moves each sample coordinate's row (`coord[i][1]`) to the nearest
