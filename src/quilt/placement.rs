@@ -28,8 +28,6 @@ pub(super) fn covering_candidates(
     let weight = (cfg.constraint_weight * reference).powi(2);
     let penalty = occurrence.map(|o| (o, cfg.occurrence_weight * reference * reference));
     let (rotation, candidates) = match_candidates(sample, matcher, work, weight, penalty, cfg)?;
-    let step = (work.coords.len() / 400).max(1);
-    let probe: Vec<[f64; 2]> = work.coords.iter().step_by(step).copied().collect();
     let turn = Turn::new(sample, rotation);
     let covering = candidates
         .into_iter()
@@ -38,11 +36,8 @@ pub(super) fn covering_candidates(
             if !inside_sample(sample, turn.to_sample(dx, dy, work.coords[0])) {
                 return false;
             }
-            let ok = probe
-                .iter()
-                .filter(|w| inside_sample(sample, turn.to_sample(dx, dy, **w)))
-                .count();
-            ok as f64 >= 0.95 * probe.len() as f64
+            let (on, probed) = probes_on_sample(sample, turn, dx, dy, &work.coords);
+            on as f64 >= 0.95 * probed as f64
         })
         .collect();
     Ok((rotation, covering))
@@ -145,12 +140,10 @@ pub(super) fn lock_courses(
     // one that keeps most of the patch on the sample, the smallest of equals
     let period = courses.period();
     let least = crate::field::wrap_angle(courses.phase(row) - target) * period / std::f64::consts::TAU;
-    let step = (work.coords.len() / 400).max(1);
+    let shifted = |delta: f64| (placement.dx - turn.s * delta, placement.dy + turn.c * delta);
     let on_sample = |delta: f64| {
-        let (dx, dy) = (placement.dx - turn.s * delta, placement.dy + turn.c * delta);
-        (work.coords.iter().step_by(step))
-            .filter(|&&w| inside_sample(sample, turn.to_sample(dx, dy, w)))
-            .count()
+        let (dx, dy) = shifted(delta);
+        probes_on_sample(sample, turn, dx, dy, &work.coords).0
     };
     let mut best = (on_sample(least), least);
     for delta in [least - period, least + period] {
@@ -159,12 +152,30 @@ pub(super) fn lock_courses(
             best = (n, delta);
         }
     }
-    let delta = best.1;
+    let (dx, dy) = shifted(best.1);
     Some(PlacementChoice {
         rotation: placement.rotation,
-        dx: placement.dx - turn.s * delta,
-        dy: placement.dy + turn.c * delta,
+        dx,
+        dy,
     })
+}
+
+/// The stride of the work-image vertices probed when judging how much of
+/// a patch a placement puts on the sample: every 1/400th.
+fn probe_step(coords: &[[f64; 2]]) -> usize {
+    (coords.len() / 400).max(1)
+}
+
+/// How many of the probed vertices of `coords` (every [`probe_step`]th)
+/// placement (`dx`, `dy`) of `turn`'s copy puts on the sample, and how
+/// many were probed.
+fn probes_on_sample(sample: &Sample, turn: Turn, dx: f64, dy: f64, coords: &[[f64; 2]]) -> (usize, usize) {
+    let probed = coords.iter().step_by(probe_step(coords));
+    let count = probed.len();
+    let on = probed
+        .filter(|&&w| inside_sample(sample, turn.to_sample(dx, dy, w)))
+        .count();
+    (on, count)
 }
 
 pub(super) fn inside_sample(sample: &Sample, c: [f64; 2]) -> bool {
@@ -204,7 +215,7 @@ pub(super) fn choose_placement(
     rotation: usize,
     covering: &[matching::Placement],
 ) -> PlacementChoice {
-    let step = (work.coords.len() / 400).max(1);
+    let step = probe_step(&work.coords);
     if let Some(p) = matching::choose(covering, cfg.tolerance, cfg.seed, counter) {
         return PlacementChoice {
             rotation,
