@@ -133,13 +133,13 @@ impl Synthesis {
             ));
         }
         let mut sample = Sample::from_svd(svd, quarter)?;
-        // only seam refinement by structure and locked courses read the courses
+        // only seam refinement by structure and locked courses read the
+        // courses; locked, both read the original sample's
         let locked = matching && cfg.courses == CourseMode::Locked;
-        if cfg.refine_broken > 0 {
-            sample.find_courses();
-        }
         if locked {
             sample.find_original_courses(sized)?;
+        } else if cfg.refine_broken > 0 {
+            sample.find_courses();
         }
         // the pattern is solved before the atlas's stores fill: the solve
         // may take what the rotated copies leave of the budget
