@@ -293,6 +293,15 @@ fn subdivide(
     (p, t, f)
 }
 
+/// Half the cotangent of triangle `c`'s angle opposite its edge from
+/// corner `k` to corner k + 1: that edge's share of the cotangent weight
+/// from this triangle.
+fn half_cotangent(c: [DVec3; 3], k: usize) -> f64 {
+    let o = (k + 2) % 3;
+    let (u, v) = (c[k] - c[o], c[(k + 1) % 3] - c[o]);
+    0.5 * u.dot(v) / u.cross(v).length().max(1e-300)
+}
+
 /// The smoothest stripe pattern's solve on a subdivided mesh.
 struct Solved {
     edges: Vec<(u32, u32)>,
@@ -336,10 +345,8 @@ impl Solved {
             face_across.push(n);
             for k in 0..3 {
                 mass[t[k] as usize] += area / 3.0;
-                let o = (k + 2) % 3;
-                let (u, v) = (c[k] - c[o], c[(k + 1) % 3] - c[o]);
                 let e = edge_index(&edges, t[k], t[(k + 1) % 3]);
-                weight[e] += 0.5 * u.dot(v) / u.cross(v).length().max(1e-300);
+                weight[e] += half_cotangent(c, k);
                 across[e] += n;
             }
         }
@@ -597,10 +604,7 @@ mod tests {
             let c = t.map(|v| fine.positions[v as usize]);
             mass += 0.5 * (c[1] - c[0]).cross(c[2] - c[0]).length();
             for k in 0..3 {
-                let o = (k + 2) % 3;
-                let (u, v) = (c[k] - c[o], c[(k + 1) % 3] - c[o]);
-                weight[edge_index(&solved.edges, t[k], t[(k + 1) % 3])] +=
-                    0.5 * u.dot(v) / u.cross(v).length();
+                weight[edge_index(&solved.edges, t[k], t[(k + 1) % 3])] += half_cotangent(c, k);
             }
         }
         let mut e = 0.0;
