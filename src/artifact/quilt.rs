@@ -391,6 +391,14 @@ impl Quilt {
         Ok(sample)
     }
 
+    /// Whether the surface was tiled with locked courses (`tile --courses
+    /// locked`): its courses follow the stripe pattern of its atlas's field
+    /// at the tiling sample's course period, and painting with that sample
+    /// locks its strokes to the same pattern.
+    pub fn locked_courses(&self) -> bool {
+        matches!(self.container.metadata().param("courses"), Some(Param::Text(s)) if s == "locked")
+    }
+
     /// Which sample the recorded `sample_mask` belongs to (the last painted
     /// stroke's sample; 0 for a tiling).
     pub fn mask_sample(&self) -> usize {

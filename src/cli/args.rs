@@ -452,6 +452,11 @@ pub(super) enum Command {
         /// Verbatim: write the direct projection (no graphcut) to this image.
         #[arg(long)]
         preview: Option<PathBuf>,
+        /// A region's courses (a sample in rows): default as the surface was
+        /// tiled — locked to its stripe pattern when tiled with `--courses
+        /// locked` and painted with the tiling's sample at its width.
+        #[arg(long, value_enum, ignore_case = true)]
+        courses: Option<CourseMode>,
         #[command(flatten)]
         quilting: Quilting,
         #[arg(short, long)]

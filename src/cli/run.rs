@@ -360,6 +360,7 @@ pub(crate) fn run(cli: Cli) -> Result<()> {
             at,
             angle,
             preview,
+            courses,
             quilting,
             output,
             res,
@@ -384,6 +385,7 @@ pub(crate) fn run(cli: Cli) -> Result<()> {
                 transition,
                 verbatim,
                 preview: preview.clone(),
+                courses,
                 tile: quilting.tile_config(memory),
             };
             if let Some(p) = &preview {

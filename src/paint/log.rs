@@ -26,6 +26,10 @@ pub(super) struct StrokeRecord {
     /// Mesh units one sample pixel spans (instead of `sample_width`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub(super) sample_pixel: Option<f64>,
+    /// The stroke's courses were locked to the surface's stripe pattern;
+    /// absent: free.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub(super) locked_courses: bool,
 }
 
 /// A verbatim copy in the paint log's JSON.
@@ -204,6 +208,7 @@ mod tests {
                 0.1,
                 None,
                 None,
+                CourseMode::Free,
                 crate::container::MemoryBudget::default(),
             ),
         };
@@ -236,6 +241,18 @@ mod tests {
         assert_eq!(back.to_json().unwrap(), text);
         assert_eq!(back.base_hash, log.base_hash);
         assert_eq!(back.strokes[1].verbatim, log.strokes[1].verbatim);
+        // free courses are not written (the text above); locked are, and
+        // read back
+        let mut locked = log.clone();
+        locked.strokes[0].tile.courses = CourseMode::Locked;
+        let text = locked.to_json().unwrap();
+        assert!(
+            text.contains("\"constraint_weight\": 0.1, \"locked_courses\": true}, {"),
+            "{text}"
+        );
+        let back = PaintLog::parse(&text, Path::new("p.quilt"), Path::new("base.png")).unwrap();
+        let modes: Vec<CourseMode> = back.strokes.iter().map(|s| s.tile.courses).collect();
+        assert_eq!(modes, [CourseMode::Locked, CourseMode::Free]);
         // a log without a stroke's sample (older logs) reads the base's
         let old = text.replacen("\"sample\": \"dir/s.png\", ", "", 1);
         let back = PaintLog::parse(&old, Path::new("p.quilt"), Path::new("base.png")).unwrap();

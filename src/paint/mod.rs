@@ -30,7 +30,9 @@ use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::Param;
 use crate::progress::Progress;
 pub use crate::quilt::Projection;
-use crate::quilt::{same_file, sample_at_density, sample_role, Quilt, SizedSample, Synthesis, TileConfig};
+use crate::quilt::{
+    same_file, sample_at_density, sample_role, CourseMode, Quilt, SizedSample, Synthesis, TileConfig,
+};
 use crate::{Error, Result};
 
 mod log;
@@ -67,6 +69,13 @@ pub struct PaintConfig {
     pub verbatim: Option<Verbatim>,
     /// Verbatim only: write the direct projection to this image.
     pub preview: Option<PathBuf>,
+    /// How a region stroke lays the courses of a sample whose features run
+    /// in rows. `None` (the default): as the surface was tiled — locked to
+    /// its stripe pattern when it was tiled with [`CourseMode::Locked`] and
+    /// the stroke paints with the tiling's sample at its width, free
+    /// otherwise. [`CourseMode::Locked`] is refused where that does not
+    /// hold; a verbatim copy is always free.
+    pub courses: Option<CourseMode>,
     /// Quilting options (seed, radius, T_c, constraint weight, memory).
     pub tile: TileConfig,
 }
@@ -80,6 +89,7 @@ impl Default for PaintConfig {
             transition: 8,
             verbatim: None,
             preview: None,
+            courses: None,
             tile: TileConfig::default(),
         }
     }
@@ -112,6 +122,8 @@ pub struct PaintReport {
     /// Verbatim preview: the direct projection alone (after opening the
     /// artifacts), in seconds.
     pub projection_seconds: f64,
+    /// The stroke's courses were locked to the surface's stripe pattern.
+    pub locked_courses: bool,
 }
 
 impl std::fmt::Display for PaintReport {
@@ -120,7 +132,11 @@ impl std::fmt::Display for PaintReport {
             f,
             "region {} texels ({} with the transition zone), {} patches, {} texels repainted, {:.2} s",
             self.region_texels, self.zone_texels, self.patches, self.repainted, self.seconds
-        )
+        )?;
+        if self.locked_courses {
+            write!(f, "; courses locked to the surface's stripe pattern")?;
+        }
+        Ok(())
     }
 }
 
@@ -246,6 +262,8 @@ fn open_synthesis(
     syn.set_mask(&stroke.sample_mask)?;
     syn.load(base, progress)?;
     syn.painting = true;
+    // a painted surface keeps the base's courses, whatever the stroke's
+    syn.locked_courses |= base.locked_courses();
     trace("loaded");
     Ok((syn, gim, sized))
 }
@@ -388,6 +406,7 @@ impl Stroke {
             (None, None) => (recorded_span(base, &sample), None),
             given => given,
         };
+        let courses = stroke_courses(cfg, base, quilt_path, &sample, (sample_width, sample_pixel))?;
         Ok(Stroke {
             tile: Stroke::tiling(
                 t.seed,
@@ -396,6 +415,7 @@ impl Stroke {
                 t.constraint_weight,
                 sample_width,
                 sample_pixel,
+                courses,
                 t.memory,
             ),
             sample,
@@ -409,6 +429,7 @@ impl Stroke {
     /// The quilting options of a stroke: the recorded ones over
     /// [`TileConfig::default`] (the memory budget does not change the
     /// result; the foreground mask is the stroke's `sample_mask`).
+    #[allow(clippy::too_many_arguments)]
     fn tiling(
         seed: u64,
         patch_radius: Option<usize>,
@@ -416,6 +437,7 @@ impl Stroke {
         constraint_weight: f64,
         sample_width: Option<f64>,
         sample_pixel: Option<f64>,
+        courses: CourseMode,
         memory: crate::container::MemoryBudget,
     ) -> TileConfig {
         TileConfig {
@@ -425,6 +447,7 @@ impl Stroke {
             constraint_weight,
             sample_width,
             sample_pixel,
+            courses,
             memory,
             ..TileConfig::default()
         }
@@ -448,6 +471,7 @@ impl Stroke {
             constraint_weight: self.tile.constraint_weight,
             sample_width: self.tile.sample_width,
             sample_pixel: self.tile.sample_pixel,
+            locked_courses: self.tile.courses == CourseMode::Locked,
         }
     }
 
@@ -462,6 +486,11 @@ impl Stroke {
                 r.constraint_weight,
                 r.sample_width,
                 r.sample_pixel,
+                if r.locked_courses {
+                    CourseMode::Locked
+                } else {
+                    CourseMode::Free
+                },
                 crate::container::MemoryBudget::default(),
             ),
             sample: r.sample.map_or_else(|| base_sample.to_path_buf(), PathBuf::from),
@@ -473,6 +502,42 @@ impl Stroke {
             }),
             transition: r.transition,
         }
+    }
+}
+
+/// How a stroke of `cfg` with `sample` at `size` (its width or pixel in
+/// mesh units) lays its courses on `base` ([`PaintConfig::courses`]): locked
+/// only where the surface was tiled locked and the stroke paints with the
+/// tiling's sample at the tiling's width, whose stripe pattern the
+/// surface's courses follow; a verbatim copy is free.
+fn stroke_courses(
+    cfg: &PaintConfig,
+    base: &Quilt,
+    quilt_path: &Path,
+    sample: &Path,
+    size: (Option<f64>, Option<f64>),
+) -> Result<CourseMode> {
+    let tiling = &base.samples[0];
+    let lockable = base.locked_courses()
+        && cfg.verbatim.is_none()
+        && same_file(tiling, sample)
+        && size == (recorded_span(base, tiling), None);
+    match cfg.courses {
+        None if lockable => Ok(CourseMode::Locked),
+        None | Some(CourseMode::Free) => Ok(CourseMode::Free),
+        Some(CourseMode::Locked) if lockable => Ok(CourseMode::Locked),
+        Some(CourseMode::Locked) if !base.locked_courses() => Err(Error::input(
+            quilt_path,
+            "was not tiled with --courses locked: it has no stripe pattern to lock a stroke's courses to",
+        )),
+        Some(CourseMode::Locked) if cfg.verbatim.is_some() => Err(Error::Config(
+            "a verbatim copy places the sample as given: --courses locked is for a region".into(),
+        )),
+        Some(CourseMode::Locked) => Err(Error::Config(format!(
+            "--courses locked paints with the tiling's sample {} at its width on the surface \
+             (leave out --sample-width and --sample-pixel), or use --courses free",
+            tiling.display()
+        ))),
     }
 }
 
@@ -502,7 +567,10 @@ fn apply_stroke(
     let start = Instant::now();
     let trace = |what: &str| crate::progress::trace(progress, start, what);
     let (mut syn, gim, _tmp) = open_synthesis(base, stroke, out, progress)?;
-    let mut report = PaintReport::default();
+    let mut report = PaintReport {
+        locked_courses: stroke.tile.courses == CourseMode::Locked,
+        ..PaintReport::default()
+    };
     if let Some(v) = stroke.verbatim {
         let (centre, extent) = foreground_extent(&syn);
         let vertex = verbatim_vertex(&syn, &v)?;

@@ -337,10 +337,8 @@ impl Worker<'_> {
             max_distortion: self.cfg.max_distortion,
         };
         let (surface, state, sample) = (self.surface, self.state, self.sample);
-        if !self.painting {
-            if let Some(work) = locked_work_image(&inputs, patch) {
-                return (work, false);
-            }
+        if let Some(work) = locked_work_image(&inputs, patch) {
+            return (work, false);
         }
         if !patch.crosses_charts {
             return (chart_work_image(surface, sample, state, patch), false);

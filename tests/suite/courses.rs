@@ -189,3 +189,90 @@ fn locked_courses_end_only_where_the_field_forces_them() {
     );
     assert!(!refused.exists());
 }
+
+/// Painting a surface tiled with locked courses (Spot at 256², the wall
+/// 1.4 mesh units wide) with the tiling's sample locks the stroke to the
+/// same stripe pattern: the painted region's seams offset no more courses
+/// than the tiling's, where a free stroke offsets many; the painted quilt
+/// keeps the lock for later strokes, replays byte for byte and is the same
+/// for any thread count or budget; `--courses locked` is refused where
+/// there is no pattern to lock to.
+#[test]
+fn painting_a_locked_surface_keeps_its_courses() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+    let gim = d.join("spot.gim");
+    crate::common::atlas(&root.join("spot_5.8k.obj"), 256, &gim);
+    let wall = root.join("brick_wall.png");
+    let tile = |mode: &str, name: &str| {
+        let quilt = d.join(name);
+        #[rustfmt::skip]
+        ok(&["tile", "--gim", s(&gim), "--sample", s(&wall), "--sample-width", "1.4",
+             "--courses", mode, "-q", "-o", s(&quilt)]);
+        quilt
+    };
+    let base = tile("locked", "base.quilt");
+    // the foreground: the sample's left half; the region: a disk on the flank
+    let mask = d.join("mask.png");
+    crate::common::write_mask_png(&mask, 192, 192, |x, _| x < 96);
+    let region = d.join("flank.json");
+    std::fs::write(&region, r#"[{"point": [0.35, 0.0, 0.45], "radius": 0.4}]"#).unwrap();
+    let paint = |name: &str, extra: &[&str]| {
+        let out = d.join(name);
+        #[rustfmt::skip]
+        let mut args = vec!["paint", s(&base), "--region", s(&region), "--sample-mask", s(&mask),
+                            "-q", "-o", s(&out)];
+        args.extend_from_slice(extra);
+        (out.clone(), btfquilt(&args))
+    };
+    let offsets = |quilt: &Path| {
+        let doc: serde_json::Value = serde_json::from_str(&ok(&["evaluate", s(quilt), "-q"])).unwrap();
+        let c = &doc["courses"];
+        let f = |k: &str| c[k].as_f64().unwrap_or_else(|| panic!("{k} in {c}"));
+        f("offset_share") * f("seam_edges")
+    };
+    let (locked, run) = paint("locked.quilt", &[]);
+    let report = String::from_utf8_lossy(&run.stdout).to_string();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(report.contains("courses locked"), "{report}");
+    let (free, run) = paint("free.quilt", &["--courses", "free"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(!String::from_utf8_lossy(&run.stdout).contains("courses locked"));
+    let (before, after_locked, after_free) = (offsets(&base), offsets(&locked), offsets(&free));
+    eprintln!("offset seam edges: base {before}, painted locked {after_locked}, free {after_free}");
+    assert!(
+        after_free > before + 20.0,
+        "a free stroke must offset courses here: {before} → {after_free}"
+    );
+    assert!(
+        after_locked - before <= 0.2 * (after_free - before),
+        "locked stroke: {before} → {after_locked} offset seam edges (free: {after_free})"
+    );
+    // the painted surface keeps the lock, whatever the stroke's courses
+    let budget = btfquilt::container::MemoryBudget::default();
+    for q in [&base, &locked, &free] {
+        let quilt = btfquilt::artifact::quilt::Quilt::open(q, budget).unwrap();
+        assert!(quilt.locked_courses(), "{}", q.display());
+    }
+    // the recipe, not the machine; and the paint log replays it
+    let bytes = std::fs::read(&locked).unwrap();
+    let (one, run) = paint("one.quilt", &["--threads", "1", "--memory", "64MiB"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        std::fs::read(one).unwrap() == bytes,
+        "--threads 1 --memory 64MiB changed the stroke"
+    );
+    let replayed = d.join("replayed.quilt");
+    ok(&["replay", s(&locked), "-q", "-o", s(&replayed)]);
+    assert!(std::fs::read(&replayed).unwrap() == bytes, "the replay differs");
+    // refused: another width (another pattern), a surface tiled free
+    let (refused, run) = paint("refused.quilt", &["--courses", "locked", "--sample-width", "1.3"]);
+    fails_clearly(&run, &["--courses locked", "brick_wall.png", "--courses free"]);
+    let free_base = tile("free", "free_base.quilt");
+    #[rustfmt::skip]
+    let run = btfquilt(&["paint", s(&free_base), "--region", s(&region), "--sample-mask", s(&mask),
+                         "--courses", "locked", "-q", "-o", s(&refused)]);
+    fails_clearly(&run, &["free_base.quilt", "was not tiled with --courses locked"]);
+    assert!(!refused.exists());
+}

@@ -66,6 +66,10 @@ pub(crate) struct Synthesis {
     /// Painting (§IV): one min-cut per fitting, no T_c shrinking, and a
     /// fitting may keep every old value.
     pub(crate) painting: bool,
+    /// The surface's courses follow the stripe pattern (tiled with
+    /// [`CourseMode::Locked`]; a painted surface keeps its base's), as the
+    /// quilt records it.
+    pub(crate) locked_courses: bool,
     pub(super) seam_sum: f64,
     pub(super) seam_cnt: usize,
     /// Original sample pixels per pixel of the (resampled) sample the loop
@@ -183,6 +187,7 @@ impl Synthesis {
             original_size,
             surface,
             painting: false,
+            locked_courses: locked,
             seam_sum: 0.0,
             seam_cnt: 0,
             scale: [1.0, 1.0],

@@ -46,6 +46,9 @@ pub(in crate::quilt) fn write_quilt(
             w.set_param("mask_sample", Param::Int(state.active as i64));
         }
     }
+    if syn.locked_courses {
+        w.set_param("courses", Param::Text("locked".into()));
+    }
     if let Some(log) = paint_log {
         w.set_param("paint_log", Param::Text(log.to_string()));
     }
