@@ -399,6 +399,20 @@ impl Quilt {
         matches!(self.container.metadata().param("courses"), Some(Param::Text(s)) if s == "locked")
     }
 
+    /// The stripe pattern a surface tiled or painted with locked courses
+    /// stores: its row spacing (mesh units) and ψ per vertex of its
+    /// subdivided mesh ([`crate::field::StripePattern::from_psi`]); `None`
+    /// when the quilt holds none.
+    pub fn stripe_pattern(&self) -> Result<Option<(f64, Vec<f32>)>> {
+        let c = &self.container;
+        let (Some(Param::Float(period)), Ok(id)) =
+            (c.metadata().param("stripe_period"), c.array("stripe_psi"))
+        else {
+            return Ok(None);
+        };
+        Ok(Some((*period, c.read_array(id)?)))
+    }
+
     /// Which sample the recorded `sample_mask` belongs to (the last painted
     /// stroke's sample; 0 for a tiling).
     pub fn mask_sample(&self) -> usize {

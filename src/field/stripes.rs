@@ -86,6 +86,8 @@ pub fn forced_ends(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64) ->
 /// across-field coordinate taken from the pattern).
 pub struct StripePattern {
     fine: Subdivided,
+    /// Rows are this many mesh units apart.
+    period: f64,
     /// Per vertex of the subdivided mesh: ψ as (re, im) pairs.
     psi: Vec<f64>,
     /// Per face of the subdivided mesh: the unit direction across the field.
@@ -104,15 +106,55 @@ impl StripePattern {
     /// when the form cannot be factorized (a degenerate mesh).
     pub fn new(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64) -> Result<Option<StripePattern>> {
         let fine = Subdivided::new(mesh, field, period, budget, "locking the courses to the field")?;
-        Ok(
-            Solved::new(&fine, period, EVEN_ITERATIONS).map(|solved| StripePattern {
-                ends: solved.count_ends(&fine),
-                psi: solved.psi,
-                across: solved.face_across,
-                fine,
-                nu: std::f64::consts::TAU / period,
-            }),
-        )
+        Ok(Solved::new(&fine, period, EVEN_ITERATIONS).map(|solved| StripePattern::of(fine, period, solved)))
+    }
+
+    /// The pattern of [`StripePattern::new`] for the same mesh, field and
+    /// period from its stored ψ ([`StripePattern::psi`], in single
+    /// precision), without solving: the subdivision and the field across
+    /// each face are derived again. `None` when `psi` does not hold a pair
+    /// per vertex of the subdivided mesh (another mesh's or period's).
+    pub fn from_psi(
+        mesh: &Mesh,
+        field: &[[f32; 3]],
+        period: f64,
+        psi: &[f32],
+    ) -> Result<Option<StripePattern>> {
+        let fine = Subdivided::new(mesh, field, period, u64::MAX, "a stored stripe pattern")?;
+        if psi.len() != 2 * fine.positions.len() {
+            return Ok(None);
+        }
+        let form = Form::new(&fine, period);
+        let solved = Solved {
+            edges: form.edges,
+            omega: form.omega,
+            psi: psi.iter().map(|&x| f64::from(x)).collect(),
+            face_across: form.face_across,
+        };
+        Ok(Some(StripePattern::of(fine, period, solved)))
+    }
+
+    fn of(fine: Subdivided, period: f64, solved: Solved) -> StripePattern {
+        StripePattern {
+            ends: solved.count_ends(&fine),
+            psi: solved.psi,
+            across: solved.face_across,
+            fine,
+            period,
+            nu: std::f64::consts::TAU / period,
+        }
+    }
+
+    /// ψ as (re, im) pairs per vertex of the subdivided mesh: what a quilt
+    /// stores so that strokes painted on it need not solve again
+    /// ([`StripePattern::from_psi`]).
+    pub fn psi(&self) -> &[f64] {
+        &self.psi
+    }
+
+    /// The rows' spacing, in mesh units.
+    pub fn period(&self) -> f64 {
+        self.period
     }
 
     /// The row ends the pattern holds: those [`forced_ends`] counts at the
@@ -302,31 +344,20 @@ fn half_cotangent(c: [DVec3; 3], k: usize) -> f64 {
     0.5 * u.dot(v) / u.cross(v).length().max(1e-300)
 }
 
-/// The smoothest stripe pattern's solve on a subdivided mesh.
-struct Solved {
+/// The pattern's form on a subdivided mesh: its edges with the phase ω
+/// the rows gain along each and its cotangent weight, the direction across
+/// the field per face and the lumped vertex masses.
+struct Form {
     edges: Vec<(u32, u32)>,
     /// ω along each edge from its low to its high vertex.
     omega: Vec<f64>,
-    /// ψ as (re, im) pairs per vertex, unit in the mass norm.
-    psi: Vec<f64>,
-    /// Per face: the unit direction across the field.
+    weight: Vec<f64>,
     face_across: Vec<DVec3>,
+    mass: Vec<f64>,
 }
 
-impl Solved {
-    /// The smallest eigenvector of the pattern's Hermitian form against
-    /// the lumped masses, by inverse iteration, then `even` inverse
-    /// iterations each started from ψ scaled to unit modulus at every
-    /// vertex; `None` if the form cannot be factorized or the iteration
-    /// collapses.
-    ///
-    /// The eigenvector's modulus is uneven: where it is small the energy
-    /// barely holds the phase, and rows bunch or spread there. The rows
-    /// follow the phase alone, so the later iterations weigh every vertex
-    /// alike (a projected power iteration for the energy over unit-modulus
-    /// ψ): the row spacing evens out and the ends stay where they were or
-    /// a few pair off.
-    fn new(fine: &Subdivided, period: f64, even: usize) -> Option<Solved> {
+impl Form {
+    fn new(fine: &Subdivided, period: f64) -> Form {
         use std::f64::consts::TAU;
         let (positions, triangles) = (&fine.positions, &fine.triangles);
         let nv = positions.len();
@@ -359,6 +390,51 @@ impl Solved {
                     .dot(positions[b as usize] - positions[a as usize])
             })
             .collect();
+        Form {
+            edges,
+            omega,
+            weight,
+            face_across,
+            mass,
+        }
+    }
+}
+
+/// The smoothest stripe pattern's solve on a subdivided mesh.
+struct Solved {
+    edges: Vec<(u32, u32)>,
+    /// ω along each edge from its low to its high vertex.
+    omega: Vec<f64>,
+    /// ψ as (re, im) pairs per vertex, unit in the mass norm.
+    psi: Vec<f64>,
+    /// Per face: the unit direction across the field.
+    face_across: Vec<DVec3>,
+}
+
+impl Solved {
+    /// The smallest eigenvector of the pattern's Hermitian form against
+    /// the lumped masses, by inverse iteration, then `even` inverse
+    /// iterations each started from ψ scaled to unit modulus at every
+    /// vertex; `None` if the form cannot be factorized or the iteration
+    /// collapses.
+    ///
+    /// The eigenvector's modulus is uneven: where it is small the energy
+    /// barely holds the phase, and rows bunch or spread there. The rows
+    /// follow the phase alone, so the later iterations weigh every vertex
+    /// alike (a projected power iteration for the energy over unit-modulus
+    /// ψ): the row spacing evens out and the ends stay where they were or
+    /// a few pair off.
+    fn new(fine: &Subdivided, period: f64, even: usize) -> Option<Solved> {
+        use std::f64::consts::TAU;
+        let nv = fine.positions.len();
+        let nu = TAU / period;
+        let Form {
+            edges,
+            omega,
+            weight,
+            face_across,
+            mass,
+        } = Form::new(fine, period);
         let total_mass: f64 = mass.iter().sum();
         let floor = 1e-9 * total_mass / nv.max(1) as f64;
         // the real 2V × 2V form (upper triangle) of A + shift·M; a negative
@@ -559,6 +635,48 @@ mod tests {
                 "face {f} at {p}: {d} against {o}"
             );
         }
+    }
+
+    /// A pattern rebuilt from its ψ stored in single precision (as a quilt
+    /// stores it) is the solved one: the same ends, the phase within
+    /// 1e-5 rad anywhere; ψ of another subdivision is refused.
+    #[test]
+    fn a_stored_pattern_is_the_solved_one() {
+        let m = sphere(16, 32);
+        let field = sphere_field(&m, false);
+        let period = 0.4;
+        let solved = StripePattern::new(&m, &field, period, u64::MAX).unwrap().unwrap();
+        let psi: Vec<f32> = solved.psi().iter().map(|&x| x as f32).collect();
+        let stored = StripePattern::from_psi(&m, &field, period, &psi)
+            .unwrap()
+            .unwrap();
+        assert!(solved.ends() > 10, "rows along the meridians end at the poles");
+        assert_eq!(stored.ends(), solved.ends());
+        assert_eq!(stored.period(), period);
+        let mut state = 11u64;
+        let mut worst = 0f64;
+        for _ in 0..2000 {
+            state = crate::rng::mix64(state);
+            let f = (state % m.triangles.len() as u64) as usize;
+            let (a, b) = (
+                (state >> 20) as f64 / (1u64 << 44) as f64,
+                (state >> 40) as f64 / (1u64 << 24) as f64,
+            );
+            let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
+            let c = m.triangles[f].map(|v| DVec3::from(m.positions[v as usize].map(f64::from)));
+            let p = (c[0] + a * (c[1] - c[0]) + b * (c[2] - c[0])).to_array();
+            worst = worst.max(crate::field::wrap_angle(stored.phase(f, p) - solved.phase(f, p)).abs());
+        }
+        assert!(worst < 1e-5, "phase off by {worst} rad");
+        // another period subdivides differently: its ψ does not fit
+        let other = StripePattern::new(&m, &field, period / 3.0, u64::MAX)
+            .unwrap()
+            .unwrap();
+        let psi: Vec<f32> = other.psi().iter().map(|&x| x as f32).collect();
+        assert_ne!(psi.len(), stored.psi().len());
+        assert!(StripePattern::from_psi(&m, &field, period, &psi)
+            .unwrap()
+            .is_none());
     }
 
     /// The area share of `fine`'s faces (those holding no end) whose rows

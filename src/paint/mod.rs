@@ -31,7 +31,8 @@ use crate::container::Param;
 use crate::progress::Progress;
 pub use crate::quilt::Projection;
 use crate::quilt::{
-    same_file, sample_at_density, sample_role, CourseMode, Quilt, SizedSample, Synthesis, TileConfig,
+    same_file, sample_at_density, sample_role, CourseMode, Quilt, SizedSample, StoredPattern, Synthesis,
+    TileConfig,
 };
 use crate::{Error, Result};
 
@@ -256,7 +257,24 @@ fn open_synthesis(
     )?;
     let trace = |what: &str| crate::progress::trace(progress, start, what);
     trace("factorized");
-    let mut syn = Synthesis::open(&gim, &stroke.sample, &sized, beside, &cfg, matching)?;
+    // a locked stroke locks to the pattern the surface stores, if it does
+    let stored = match (cfg.courses, base.stripe_pattern()?) {
+        (CourseMode::Locked, Some((period, psi))) => Some(StoredPattern {
+            file: base.container().path().to_path_buf(),
+            period,
+            psi,
+        }),
+        _ => None,
+    };
+    let mut syn = Synthesis::open(
+        &gim,
+        &stroke.sample,
+        &sized,
+        beside,
+        &cfg,
+        matching,
+        stored.as_ref(),
+    )?;
     syn.set_scale(&sized);
     trace("opened");
     syn.set_mask(&stroke.sample_mask)?;

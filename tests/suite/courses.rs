@@ -249,11 +249,18 @@ fn painting_a_locked_surface_keeps_its_courses() {
         after_locked - before <= 0.2 * (after_free - before),
         "locked stroke: {before} → {after_locked} offset seam edges (free: {after_free})"
     );
-    // the painted surface keeps the lock, whatever the stroke's courses
+    // the painted surface keeps the lock, whatever the stroke's courses;
+    // the tiling and a locked stroke store the pattern (a free one has none)
     let budget = btfquilt::container::MemoryBudget::default();
-    for q in [&base, &locked, &free] {
+    for (q, stored) in [(&base, true), (&locked, true), (&free, false)] {
         let quilt = btfquilt::artifact::quilt::Quilt::open(q, budget).unwrap();
         assert!(quilt.locked_courses(), "{}", q.display());
+        assert_eq!(
+            quilt.stripe_pattern().unwrap().is_some(),
+            stored,
+            "{}",
+            q.display()
+        );
     }
     // the recipe, not the machine; and the paint log replays it
     let bytes = std::fs::read(&locked).unwrap();
@@ -274,5 +281,53 @@ fn painting_a_locked_surface_keeps_its_courses() {
     let run = btfquilt(&["paint", s(&free_base), "--region", s(&region), "--sample-mask", s(&mask),
                          "--courses", "locked", "-q", "-o", s(&refused)]);
     fails_clearly(&run, &["free_base.quilt", "was not tiled with --courses locked"]);
+    // a stored pattern that does not fit the atlas (a damaged quilt)
+    let damaged = d.join("damaged.quilt");
+    shorten_stripe_pattern(&base, &damaged);
+    #[rustfmt::skip]
+    let run = btfquilt(&["paint", s(&damaged), "--region", s(&region), "--sample-mask", s(&mask),
+                         "-q", "-o", s(&refused)]);
+    fails_clearly(
+        &run,
+        &["damaged.quilt", "stripe pattern", "does not fit its atlas"],
+    );
     assert!(!refused.exists());
+}
+
+/// A copy of the quilt `src` at `out` whose stored stripe pattern lacks
+/// its last vertex; everything else as it is.
+fn shorten_stripe_pattern(src: &Path, out: &Path) {
+    use btfquilt::container::{Container, ContainerWriter, DType, MemoryBudget};
+    let c = Container::open(src, MemoryBudget::default()).unwrap();
+    let m = c.metadata();
+    let mut w = ContainerWriter::create(out, &m.kind).unwrap();
+    if let Some(seed) = m.seed {
+        w.set_seed(seed);
+    }
+    for i in &m.inputs {
+        w.add_input(&i.name, i.hash);
+    }
+    for (k, v) in &m.params {
+        w.set_param(k, v.clone());
+    }
+    for spec in &m.arrays {
+        let id = c.array(&spec.name).unwrap();
+        let mut spec = spec.clone();
+        if spec.name == "stripe_psi" {
+            spec.shape[0] -= 2;
+            spec.chunk_shape[0] = spec.chunk_shape[0].min(spec.shape[0]);
+        }
+        let to = w.add_array(spec.clone()).unwrap();
+        match spec.dtype {
+            DType::F32 => {
+                let mut v = c.read_array::<f32>(id).unwrap();
+                v.truncate(spec.shape[0] as usize * spec.shape[1..].iter().product::<u64>() as usize);
+                w.write_array(to, &v).unwrap()
+            }
+            DType::U32 => w.write_array(to, &c.read_array::<u32>(id).unwrap()).unwrap(),
+            DType::U8 => w.write_array(to, &c.read_array::<u8>(id).unwrap()).unwrap(),
+            DType::F16 => panic!("a quilt holds no f16 array ('{}')", spec.name),
+        }
+    }
+    w.finish().unwrap();
 }

@@ -135,7 +135,7 @@ fn work_coordinates_alone_equal_the_work_image_s() {
     let cfg = TileConfig::default();
     let sized = sample_at_density(&sample, gim.texel_size, None, true, &Silent).unwrap();
     let out = dir.path().join("never.quilt");
-    let mut syn = Synthesis::open(&gim, &sample, &sized, &out, &cfg, true).unwrap();
+    let mut syn = Synthesis::open(&gim, &sample, &sized, &out, &cfg, true, None).unwrap();
     let (mut inside, mut across) = (0, 0);
     let seeds: Vec<u32> = (0..256 * 256u32)
         .step_by(307)

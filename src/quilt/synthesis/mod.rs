@@ -83,10 +83,28 @@ pub(crate) struct Synthesis {
     active_span: Option<f64>,
 }
 
+/// The stripe pattern a quilt stores ([`crate::artifact::quilt::Quilt::stripe_pattern`]):
+/// a stroke painted on a locked surface takes it instead of solving again.
+pub(crate) struct StoredPattern {
+    /// The quilt it was read from, for messages.
+    pub(crate) file: PathBuf,
+    /// Row spacing in mesh units.
+    pub(crate) period: f64,
+    /// ψ per vertex of the subdivided mesh, as (re, im) pairs.
+    pub(crate) psi: Vec<f32>,
+}
+
 /// Locked courses: the smoothest stripe pattern along the atlas's field at
 /// the sample's course period (texels × the atlas's texel size), solved
-/// within `budget`. The sample must have courses.
-fn course_lock(gim: &Gim, sample: &Sample, sample_path: &Path, budget: u64) -> Result<CourseLock> {
+/// within `budget`, or taken from `stored` when that is the pattern of the
+/// same period. The sample must have courses.
+fn course_lock(
+    gim: &Gim,
+    sample: &Sample,
+    sample_path: &Path,
+    budget: u64,
+    stored: Option<&StoredPattern>,
+) -> Result<CourseLock> {
     let Some(courses) = &sample.courses else {
         return Err(Error::input(
             sample_path,
@@ -95,13 +113,26 @@ fn course_lock(gim: &Gim, sample: &Sample, sample_path: &Path, budget: u64) -> R
         ));
     };
     let period = courses.period();
-    let pattern = StripePattern::new(&gim.mesh()?, &gim.face_field()?, period * gim.texel_size, budget)?
-        .ok_or_else(|| {
-            Error::input(
-                gim.container().path(),
-                "its field admits no stripe pattern (a degenerate mesh)",
-            )
-        })?;
+    let units = period * gim.texel_size;
+    if let Some(s) = stored.filter(|s| s.period == units) {
+        let pattern =
+            StripePattern::from_psi(&gim.mesh()?, &gim.face_field()?, units, &s.psi)?.ok_or_else(|| {
+                Error::input(
+                    &s.file,
+                    format!(
+                        "stores a stripe pattern (stripe_psi, {} values) that does not fit its atlas",
+                        s.psi.len()
+                    ),
+                )
+            })?;
+        return Ok(CourseLock { pattern, period });
+    }
+    let pattern = StripePattern::new(&gim.mesh()?, &gim.face_field()?, units, budget)?.ok_or_else(|| {
+        Error::input(
+            gim.container().path(),
+            "its field admits no stripe pattern (a degenerate mesh)",
+        )
+    })?;
     Ok(CourseLock { pattern, period })
 }
 
@@ -111,7 +142,8 @@ impl Synthesis {
     /// next), with an empty state
     /// whose evicted tiles go to a scratch store beside `output`. Without
     /// `matching` (verbatim copy) the rotated copies are not needed:
-    /// rotations are then quantized to the default 72 steps.
+    /// rotations are then quantized to the default 72 steps. Locked
+    /// courses take the `stored` pattern where it is the one they need.
     pub(crate) fn open(
         gim: &Gim,
         sample_path: &Path,
@@ -119,6 +151,7 @@ impl Synthesis {
         output: &Path,
         cfg: &TileConfig,
         matching: bool,
+        stored: Option<&StoredPattern>,
     ) -> Result<Self> {
         // --memory is shared by the stores of the loop: the rotated copies
         // as f32, the sample spectra of the matcher and the paged atlas
@@ -153,6 +186,7 @@ impl Synthesis {
                 &sample,
                 sample_path,
                 cfg.memory.bytes().saturating_sub(quarter.bytes()),
+                stored,
             )?)
         } else {
             None

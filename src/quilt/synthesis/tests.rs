@@ -38,7 +38,7 @@ fn halves(offset: f32, other: impl Fn(f32, f32) -> bool) -> (tempfile::TempDir, 
         refine_broken: 4,
         ..TileConfig::default()
     };
-    let mut syn = Synthesis::open(&gim, &png, &sized, &d.join("out.quilt"), &cfg, true).unwrap();
+    let mut syn = Synthesis::open(&gim, &png, &sized, &d.join("out.quilt"), &cfg, true, None).unwrap();
     let r = syn.surface.r;
     let mut seam_rows = 0;
     for t in 0..(r * r) as u32 {
