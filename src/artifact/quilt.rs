@@ -2,8 +2,8 @@
 //! of its geometry image: the sample coordinate, the rotation, the patch id,
 //! the seam flags, the Jacobian of the texture mapping and, for a painted
 //! surface, which sample the texel draws from; plus the files it depends on
-//! (relative paths, lengths and content hashes) and, once painted, the
-//! paint log. The writer is the quilting stage ([`crate::quilt::tile`]).
+//! (relative paths, lengths and content hashes), once painted, the paint
+//! log and, with locked courses, the stripe pattern they follow. The writer is the quilting stage ([`crate::quilt::tile`]).
 
 use std::path::{Path, PathBuf};
 
