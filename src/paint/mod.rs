@@ -258,14 +258,11 @@ fn open_synthesis(
     let trace = |what: &str| crate::progress::trace(progress, start, what);
     trace("factorized");
     // a locked stroke locks to the pattern the surface stores, if it does
-    let stored = match (cfg.courses, base.stripe_pattern()?) {
-        (CourseMode::Locked, Some((period, psi))) => Some(StoredPattern {
-            file: base.container().path().to_path_buf(),
-            period,
-            psi,
-        }),
-        _ => None,
-    };
+    let stored = base.stripe_pattern()?.map(|(period, psi)| StoredPattern {
+        file: base.container().path().to_path_buf(),
+        period,
+        psi,
+    });
     let mut syn = Synthesis::open(
         &gim,
         &stroke.sample,
@@ -273,15 +270,17 @@ fn open_synthesis(
         beside,
         &cfg,
         matching,
-        stored.as_ref(),
+        stored.as_ref().filter(|_| cfg.courses == CourseMode::Locked),
     )?;
     syn.set_scale(&sized);
     trace("opened");
     syn.set_mask(&stroke.sample_mask)?;
     syn.load(base, progress)?;
     syn.painting = true;
-    // a painted surface keeps the base's courses, whatever the stroke's
+    // a painted surface keeps the base's courses and their pattern,
+    // whatever the stroke's
     syn.locked_courses |= base.locked_courses();
+    syn.kept_pattern = stored;
     trace("loaded");
     Ok((syn, gim, sized))
 }

@@ -194,9 +194,10 @@ fn locked_courses_end_only_where_the_field_forces_them() {
 /// 1.4 mesh units wide) with the tiling's sample locks the stroke to the
 /// same stripe pattern: the painted region's seams offset no more courses
 /// than the tiling's, where a free stroke offsets many; the painted quilt
-/// keeps the lock for later strokes, replays byte for byte and is the same
-/// for any thread count or budget; `--courses locked` is refused where
-/// there is no pattern to lock to.
+/// keeps the lock and the pattern for later strokes, replays byte for
+/// byte and is the same for any thread count or budget; `--courses
+/// locked` is refused where there is no pattern to lock to, and a stored
+/// pattern that does not fit the atlas is refused naming the quilt.
 #[test]
 fn painting_a_locked_surface_keeps_its_courses() {
     let dir = tempfile::tempdir().unwrap();
@@ -249,15 +250,18 @@ fn painting_a_locked_surface_keeps_its_courses() {
         after_locked - before <= 0.2 * (after_free - before),
         "locked stroke: {before} → {after_locked} offset seam edges (free: {after_free})"
     );
-    // the painted surface keeps the lock, whatever the stroke's courses;
-    // the tiling and a locked stroke store the pattern (a free one has none)
+    // the painted surface keeps the lock and its stored pattern, whatever
+    // the stroke's courses
     let budget = btfquilt::container::MemoryBudget::default();
-    for (q, stored) in [(&base, true), (&locked, true), (&free, false)] {
-        let quilt = btfquilt::artifact::quilt::Quilt::open(q, budget).unwrap();
-        assert!(quilt.locked_courses(), "{}", q.display());
-        assert_eq!(
-            quilt.stripe_pattern().unwrap().is_some(),
-            stored,
+    let open = |q: &Path| btfquilt::artifact::quilt::Quilt::open(q, budget).unwrap();
+    let pattern = open(&base)
+        .stripe_pattern()
+        .unwrap()
+        .expect("a locked tiling stores its pattern");
+    for q in [&locked, &free] {
+        assert!(open(q).locked_courses(), "{}", q.display());
+        assert!(
+            open(q).stripe_pattern().unwrap() == Some(pattern.clone()),
             "{}",
             q.display()
         );

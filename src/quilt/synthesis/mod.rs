@@ -70,6 +70,9 @@ pub(crate) struct Synthesis {
     /// [`CourseMode::Locked`]; a painted surface keeps its base's), as the
     /// quilt records it.
     pub(crate) locked_courses: bool,
+    /// A painted surface's stored stripe pattern, written again when the
+    /// stroke did not lock to it (a lock writes its own).
+    pub(crate) kept_pattern: Option<StoredPattern>,
     pub(super) seam_sum: f64,
     pub(super) seam_cnt: usize,
     /// Original sample pixels per pixel of the (resampled) sample the loop
@@ -222,6 +225,7 @@ impl Synthesis {
             surface,
             painting: false,
             locked_courses: locked,
+            kept_pattern: None,
             seam_sum: 0.0,
             seam_cnt: 0,
             scale: [1.0, 1.0],

@@ -50,12 +50,19 @@ pub(in crate::quilt) fn write_quilt(
         w.set_param("courses", Param::Text("locked".into()));
     }
     // the pattern the courses are locked to, for strokes painted later
-    if let Some(lock) = syn.surface.lock.as_deref() {
-        let psi: Vec<f32> = lock.pattern.psi().iter().map(|&x| x as f32).collect();
+    let pattern = match (syn.surface.lock.as_deref(), &syn.kept_pattern) {
+        (Some(lock), _) => Some((
+            lock.pattern.period(),
+            lock.pattern.psi().iter().map(|&x| x as f32).collect(),
+        )),
+        (None, Some(kept)) => Some((kept.period, kept.psi.clone())),
+        (None, None) => None,
+    };
+    if let Some((period, psi)) = pattern {
         let n = psi.len() as u64;
-        w.set_param("stripe_period", Param::Float(lock.pattern.period()));
+        w.set_param("stripe_period", Param::Float(period));
         let id = w.add_array(ArraySpec::new("stripe_psi", DType::F32, &[n], &[n.min(1 << 16)])?)?;
-        w.write_array(id, &psi)?;
+        w.write_array::<f32>(id, &psi)?;
     }
     if let Some(log) = paint_log {
         w.set_param("paint_log", Param::Text(log.to_string()));
