@@ -201,16 +201,13 @@ mod tests {
             region: region.map(PathBuf::from),
             verbatim,
             transition: 8,
-            tile: Stroke::tiling(
-                u64::MAX,
-                Some(5),
-                3.0,
-                0.1,
-                None,
-                None,
-                CourseMode::Free,
-                crate::container::MemoryBudget::default(),
-            ),
+            tile: Stroke::tiling(&TileConfig {
+                seed: u64::MAX,
+                patch_radius: Some(5),
+                seam_threshold: 3.0,
+                constraint_weight: 0.1,
+                ..TileConfig::default()
+            }),
         };
         let log = PaintLog {
             base: PathBuf::from("q.quilt"),

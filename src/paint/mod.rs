@@ -425,16 +425,12 @@ impl Stroke {
         };
         let courses = stroke_courses(cfg, base, quilt_path, &sample, (sample_width, sample_pixel))?;
         Ok(Stroke {
-            tile: Stroke::tiling(
-                t.seed,
-                t.patch_radius,
-                t.seam_threshold,
-                t.constraint_weight,
+            tile: Stroke::tiling(&TileConfig {
                 sample_width,
                 sample_pixel,
                 courses,
-                t.memory,
-            ),
+                ..t.clone()
+            }),
             sample,
             sample_mask,
             region: cfg.region.clone(),
@@ -443,29 +439,20 @@ impl Stroke {
         })
     }
 
-    /// The quilting options of a stroke: the recorded ones over
-    /// [`TileConfig::default`] (the memory budget does not change the
-    /// result; the foreground mask is the stroke's `sample_mask`).
-    #[allow(clippy::too_many_arguments)]
-    fn tiling(
-        seed: u64,
-        patch_radius: Option<usize>,
-        seam_threshold: f64,
-        constraint_weight: f64,
-        sample_width: Option<f64>,
-        sample_pixel: Option<f64>,
-        courses: CourseMode,
-        memory: crate::container::MemoryBudget,
-    ) -> TileConfig {
+    /// The quilting options of a stroke: those of `given` the paint log
+    /// records, and its memory budget (which does not change the result),
+    /// over [`TileConfig::default`] (the foreground mask is the stroke's
+    /// `sample_mask`).
+    fn tiling(given: &TileConfig) -> TileConfig {
         TileConfig {
-            seed,
-            patch_radius,
-            seam_threshold,
-            constraint_weight,
-            sample_width,
-            sample_pixel,
-            courses,
-            memory,
+            seed: given.seed,
+            patch_radius: given.patch_radius,
+            seam_threshold: given.seam_threshold,
+            constraint_weight: given.constraint_weight,
+            sample_width: given.sample_width,
+            sample_pixel: given.sample_pixel,
+            courses: given.courses,
+            memory: given.memory,
             ..TileConfig::default()
         }
     }
@@ -496,20 +483,20 @@ impl Stroke {
     /// theirs (the tiling's, the only one they could use).
     fn from_record(r: StrokeRecord, base_sample: &Path) -> Stroke {
         Stroke {
-            tile: Stroke::tiling(
-                r.seed,
-                r.patch_radius,
-                r.seam_threshold,
-                r.constraint_weight,
-                r.sample_width,
-                r.sample_pixel,
-                if r.locked_courses {
+            tile: Stroke::tiling(&TileConfig {
+                seed: r.seed,
+                patch_radius: r.patch_radius,
+                seam_threshold: r.seam_threshold,
+                constraint_weight: r.constraint_weight,
+                sample_width: r.sample_width,
+                sample_pixel: r.sample_pixel,
+                courses: if r.locked_courses {
                     CourseMode::Locked
                 } else {
                     CourseMode::Free
                 },
-                crate::container::MemoryBudget::default(),
-            ),
+                ..TileConfig::default()
+            }),
             sample: r.sample.map_or_else(|| base_sample.to_path_buf(), PathBuf::from),
             sample_mask: PathBuf::from(r.sample_mask),
             region: r.region.map(PathBuf::from),
