@@ -73,9 +73,9 @@ pub struct PaintConfig {
     /// How a region stroke lays the courses of a sample whose features run
     /// in rows. `None` (the default): as the surface was tiled — locked to
     /// its stripe pattern when it was tiled with [`CourseMode::Locked`] and
-    /// the stroke paints with the tiling's sample at its width, free
-    /// otherwise. [`CourseMode::Locked`] is refused where that does not
-    /// hold; a verbatim copy is always free.
+    /// the stroke paints with the tiling's sample at its width (a verbatim
+    /// copy also only along the field, at angle 0), free otherwise.
+    /// [`CourseMode::Locked`] is refused where that does not hold.
     pub courses: Option<CourseMode>,
     /// Quilting options (seed, radius, T_c, constraint weight, memory).
     pub tile: TileConfig,
@@ -190,16 +190,17 @@ impl PreviewSession {
     /// `cfg.preview` are not used).
     pub fn open(quilt_path: &Path, cfg: &PaintConfig, progress: &dyn Progress) -> Result<PreviewSession> {
         let base = Quilt::open(quilt_path, cfg.tile.memory)?;
-        // a stroke resolves the sample and mask defaults; its place is
-        // given per preview
+        // a stroke resolves the sample and mask defaults; its place and
+        // turn are given per preview (courses resolved as for a copy along
+        // the field, which a locked surface locks)
         let stroke = Stroke::from_config(
             &PaintConfig {
                 region: None,
                 preview: None,
-                verbatim: Some(cfg.verbatim.unwrap_or(Verbatim {
-                    at: [0.0; 3],
+                verbatim: Some(Verbatim {
+                    at: cfg.verbatim.map_or([0.0; 3], |v| v.at),
                     angle: 0.0,
-                })),
+                }),
                 ..cfg.clone()
             },
             &base,
@@ -513,7 +514,8 @@ impl Stroke {
 /// mesh units) lays its courses on `base` ([`PaintConfig::courses`]): locked
 /// only where the surface was tiled locked and the stroke paints with the
 /// tiling's sample at the tiling's width, whose stripe pattern the
-/// surface's courses follow; a verbatim copy is free.
+/// surface's courses follow; a verbatim copy only when it is not turned
+/// from the field (`--angle 0`).
 fn stroke_courses(
     cfg: &PaintConfig,
     base: &Quilt,
@@ -522,8 +524,9 @@ fn stroke_courses(
     size: (Option<f64>, Option<f64>),
 ) -> Result<CourseMode> {
     let tiling = &base.samples[0];
+    let turned = cfg.verbatim.is_some_and(|v| v.angle != 0.0);
     let lockable = base.locked_courses()
-        && cfg.verbatim.is_none()
+        && !turned
         && same_file(tiling, sample)
         && size == (recorded_span(base, tiling), None);
     match cfg.courses {
@@ -534,8 +537,10 @@ fn stroke_courses(
             quilt_path,
             "was not tiled with --courses locked: it has no stripe pattern to lock a stroke's courses to",
         )),
-        Some(CourseMode::Locked) if cfg.verbatim.is_some() => Err(Error::Config(
-            "a verbatim copy places the sample as given: --courses locked is for a region".into(),
+        Some(CourseMode::Locked) if turned => Err(Error::Config(
+            "a verbatim copy turned from the field (--angle) keeps its own rows: give --angle 0 to lock its \
+             courses, or --courses free"
+                .into(),
         )),
         Some(CourseMode::Locked) => Err(Error::Config(format!(
             "--courses locked paints with the tiling's sample {} at its width on the surface \

@@ -222,8 +222,7 @@ fn painting_a_locked_surface_keeps_its_courses() {
     let paint = |name: &str, extra: &[&str]| {
         let out = d.join(name);
         #[rustfmt::skip]
-        let mut args = vec!["paint", s(&base), "--region", s(&region), "--sample-mask", s(&mask),
-                            "-q", "-o", s(&out)];
+        let mut args = vec!["paint", s(&base), "--sample-mask", s(&mask), "-q", "-o", s(&out)];
         args.extend_from_slice(extra);
         (out.clone(), btfquilt(&args))
     };
@@ -233,11 +232,12 @@ fn painting_a_locked_surface_keeps_its_courses() {
         let f = |k: &str| c[k].as_f64().unwrap_or_else(|| panic!("{k} in {c}"));
         f("offset_share") * f("seam_edges")
     };
-    let (locked, run) = paint("locked.quilt", &[]);
+    let at_region = ["--region", s(&region)];
+    let (locked, run) = paint("locked.quilt", &at_region);
     let report = String::from_utf8_lossy(&run.stdout).to_string();
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     assert!(report.contains("courses locked"), "{report}");
-    let (free, run) = paint("free.quilt", &["--courses", "free"]);
+    let (free, run) = paint("free.quilt", &[&at_region[..], &["--courses", "free"]].concat());
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     assert!(!String::from_utf8_lossy(&run.stdout).contains("courses locked"));
     let (before, after_locked, after_free) = (offsets(&base), offsets(&locked), offsets(&free));
@@ -250,6 +250,28 @@ fn painting_a_locked_surface_keeps_its_courses() {
         after_locked - before <= 0.2 * (after_free - before),
         "locked stroke: {before} → {after_locked} offset seam edges (free: {after_free})"
     );
+    // a verbatim copy along the field is locked too; a free one offsets
+    let copy = ["--verbatim", "--at", "0.35,0,0.45"];
+    let (copied, run) = paint("copy.quilt", &copy);
+    assert!(
+        String::from_utf8_lossy(&run.stdout).contains("courses locked"),
+        "{run:?}"
+    );
+    let (copied_free, run) = paint("copy_free.quilt", &[&copy[..], &["--courses", "free"]].concat());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let (copy_locked, copy_free) = (offsets(&copied), offsets(&copied_free));
+    eprintln!("verbatim: base {before}, locked {copy_locked}, free {copy_free}");
+    assert!(
+        copy_free > before + 20.0 && copy_locked - before <= 0.2 * (copy_free - before),
+        "verbatim copy: {before} → {copy_locked} locked, {copy_free} free"
+    );
+    // a copy turned from the field keeps its own rows: refused locked
+    let (turned, run) = paint(
+        "turned.quilt",
+        &[&copy[..], &["--angle", "30", "--courses", "locked"]].concat(),
+    );
+    fails_clearly(&run, &["--angle", "--courses free"]);
+    assert!(!turned.exists());
     // the painted surface keeps the lock and its stored pattern, whatever
     // the stroke's courses
     let budget = btfquilt::container::MemoryBudget::default();
@@ -268,7 +290,10 @@ fn painting_a_locked_surface_keeps_its_courses() {
     }
     // the recipe, not the machine; and the paint log replays it
     let bytes = std::fs::read(&locked).unwrap();
-    let (one, run) = paint("one.quilt", &["--threads", "1", "--memory", "64MiB"]);
+    let (one, run) = paint(
+        "one.quilt",
+        &[&at_region[..], &["--threads", "1", "--memory", "64MiB"]].concat(),
+    );
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     assert!(
         std::fs::read(one).unwrap() == bytes,
@@ -278,7 +303,10 @@ fn painting_a_locked_surface_keeps_its_courses() {
     ok(&["replay", s(&locked), "-q", "-o", s(&replayed)]);
     assert!(std::fs::read(&replayed).unwrap() == bytes, "the replay differs");
     // refused: another width (another pattern), a surface tiled free
-    let (refused, run) = paint("refused.quilt", &["--courses", "locked", "--sample-width", "1.3"]);
+    let (refused, run) = paint(
+        "refused.quilt",
+        &[&at_region[..], &["--courses", "locked", "--sample-width", "1.3"]].concat(),
+    );
     fails_clearly(&run, &["--courses locked", "brick_wall.png", "--courses free"]);
     let free_base = tile("free", "free_base.quilt");
     #[rustfmt::skip]

@@ -11,7 +11,7 @@ use super::flatten::rotation_index;
 use super::matching::Matcher;
 use super::occurrence::Occurrence;
 use super::pager::TileGrid;
-use super::placement::{PlacementChoice, Turn};
+use super::placement::{lock_courses, PlacementChoice, Turn};
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
 use super::state::{Bfs, CourseLock, State, Surface, WorkPatch, NO_FOREIGN};
 use super::worker::{Outcome, StepStats, Worker};
@@ -175,7 +175,7 @@ impl Synthesis {
         let mut sample = Sample::from_svd(svd, quarter)?;
         // only seam refinement by structure and locked courses read the
         // courses; locked, both read the original sample's
-        let locked = matching && cfg.courses == CourseMode::Locked;
+        let locked = cfg.courses == CourseMode::Locked;
         if locked {
             sample.find_original_courses(sized)?;
         } else if cfg.refine_broken > 0 {

@@ -7,7 +7,11 @@ impl Synthesis {
     /// Verbatim copy (§IV): the sample's foreground, its point `centre`
     /// (unrotated sample pixels) put on dense vertex `v`, turned by `angle`
     /// (radians) from the field direction, over a work patch of `radius`.
-    /// With `preview`, only computes the direct projection (no graphcut: the
+    /// On a surface with locked courses a copy along the field (`angle`
+    /// 0) is locked like a tiling patch: moved across the rows by under
+    /// half a course (or a course more, [`lock_courses`]) and its rows put
+    /// on their phase; a turned copy is placed as given. With `preview`,
+    /// only computes the direct projection (no graphcut: the
     /// foreground pasted over the old colours in the patch's atlas box) and
     /// returns it; otherwise merges it with a graphcut seam: foreground
     /// texels are forced to the copy, the rest chooses by the smoothness
@@ -25,8 +29,9 @@ impl Synthesis {
         let trace = |what: &str| crate::progress::trace(progress, t0, &format!("verbatim {what}"));
         let patch = self.bfs.patch(&self.surface, v, radius);
         trace("work patch");
-        // (a preview reads only the work coordinates)
-        let (work, coords, field) = if preview {
+        let locked = angle == 0.0 && self.surface.lock.is_some();
+        // (a free preview reads only the work coordinates)
+        let (work, coords, field) = if preview && !locked {
             let (coords, field) = crate::quilt::flatten::work_coords(
                 &self.surface,
                 &patch,
@@ -36,7 +41,11 @@ impl Synthesis {
             );
             (None, coords, field)
         } else {
-            let (work, _) = self.worker().work_image(&patch, &mut None);
+            let (mut work, _) = self.worker().work_image(&patch, &mut None);
+            if !locked {
+                // a turned copy keeps its own rows
+                work.course_phase.clear();
+            }
             let (coords, field) = (work.coords.clone(), work.angle);
             (Some(work), coords, field)
         };
@@ -45,11 +54,17 @@ impl Synthesis {
         let rotation = rotation_index(field + angle, rotations);
         let turn = Turn::new(&self.sample, rotation);
         let [dx, dy] = turn.placing(coords[0], centre);
-        let placement = PlacementChoice { rotation, dx, dy };
-        let placed: Vec<[f64; 2]> = coords
+        let mut placement = PlacementChoice { rotation, dx, dy };
+        if let Some(work) = work.as_ref().filter(|_| locked) {
+            placement = lock_courses(&self.sample, work, &placement).unwrap_or(placement);
+        }
+        let mut placed: Vec<[f64; 2]> = coords
             .iter()
             .map(|&w| turn.to_sample(placement.dx, placement.dy, w))
             .collect();
+        if let (Some(work), Some(courses)) = (work.as_ref().filter(|_| locked), &self.sample.courses) {
+            courses.lock_rows(&mut placed, &work.course_phase);
+        }
         let fg: Vec<f32> = placed.iter().map(|&c| self.sample.mask_at(c)).collect();
         trace("placed");
         if preview {
