@@ -452,9 +452,10 @@ pub(super) enum Command {
         /// Verbatim: write the direct projection (no graphcut) to this image.
         #[arg(long)]
         preview: Option<PathBuf>,
-        /// A region's courses (a sample in rows): default as the surface was
+        /// The stroke's courses (a sample in rows): default as the surface was
         /// tiled — locked to its stripe pattern when tiled with `--courses
-        /// locked` and painted with the tiling's sample at its width.
+        /// locked` and painted with the tiling's sample at its width (a
+        /// verbatim copy only at --angle 0).
         #[arg(long, value_enum, ignore_case = true)]
         courses: Option<CourseMode>,
         #[command(flatten)]
