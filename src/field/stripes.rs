@@ -603,6 +603,24 @@ mod tests {
         );
     }
 
+    /// `n` seeded points on `m`: a face and a point inside it.
+    fn points_on(m: &Mesh, seed: u64, n: usize) -> Vec<(usize, DVec3)> {
+        let mut state = seed;
+        (0..n)
+            .map(|_| {
+                state = crate::rng::mix64(state);
+                let f = (state % m.triangles.len() as u64) as usize;
+                let (a, b) = (
+                    (state >> 20) as f64 / (1u64 << 44) as f64,
+                    (state >> 40) as f64 / (1u64 << 24) as f64,
+                );
+                let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
+                let c = m.triangles[f].map(|v| DVec3::from(m.positions[v as usize].map(f64::from)));
+                (f, c[0] + a * (c[1] - c[0]) + b * (c[2] - c[0]))
+            })
+            .collect()
+    }
+
     /// On a plane with a constant field the smoothest pattern is the plane
     /// wave e^{iν n·p} (its energy is zero): the phase anywhere, found
     /// through the subdivisions, is ν n·p up to one constant.
@@ -617,17 +635,7 @@ mod tests {
         let across = DVec3::new(-0.8, 0.6, 0.0);
         let nu = std::f64::consts::TAU / period;
         let mut offset = None;
-        let mut state = 7u64;
-        for _ in 0..400 {
-            state = crate::rng::mix64(state);
-            let f = (state % m.triangles.len() as u64) as usize;
-            let (a, b) = (
-                (state >> 20) as f64 / (1u64 << 44) as f64,
-                (state >> 40) as f64 / (1u64 << 24) as f64,
-            );
-            let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
-            let c = m.triangles[f].map(|v| DVec3::from(m.positions[v as usize].map(f64::from)));
-            let p = c[0] + a * (c[1] - c[0]) + b * (c[2] - c[0]);
+        for (f, p) in points_on(&m, 7, 400) {
             let d = crate::field::wrap_angle(pattern.phase(f, p.to_array()) - nu * across.dot(p));
             let o = *offset.get_or_insert(d);
             assert!(
@@ -653,18 +661,9 @@ mod tests {
         assert!(solved.ends() > 10, "rows along the meridians end at the poles");
         assert_eq!(stored.ends(), solved.ends());
         assert_eq!(stored.period(), period);
-        let mut state = 11u64;
         let mut worst = 0f64;
-        for _ in 0..2000 {
-            state = crate::rng::mix64(state);
-            let f = (state % m.triangles.len() as u64) as usize;
-            let (a, b) = (
-                (state >> 20) as f64 / (1u64 << 44) as f64,
-                (state >> 40) as f64 / (1u64 << 24) as f64,
-            );
-            let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
-            let c = m.triangles[f].map(|v| DVec3::from(m.positions[v as usize].map(f64::from)));
-            let p = (c[0] + a * (c[1] - c[0]) + b * (c[2] - c[0])).to_array();
+        for (f, p) in points_on(&m, 11, 2000) {
+            let p = p.to_array();
             worst = worst.max(crate::field::wrap_angle(stored.phase(f, p) - solved.phase(f, p)).abs());
         }
         assert!(worst < 1e-5, "phase off by {worst} rad");
