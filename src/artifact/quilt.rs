@@ -3,7 +3,8 @@
 //! the seam flags, the Jacobian of the texture mapping and, for a painted
 //! surface, which sample the texel draws from; plus the files it depends on
 //! (relative paths, lengths and content hashes), once painted, the paint
-//! log and, with locked courses, the stripe pattern they follow. The writer is the quilting stage ([`crate::quilt::tile`]).
+//! log and, with locked courses, the stripe pattern they follow. The
+//! writer is the quilting stage ([`crate::quilt::tile`]).
 
 use std::path::{Path, PathBuf};
 
