@@ -454,8 +454,8 @@ pub(super) enum Command {
         preview: Option<PathBuf>,
         /// The stroke's courses (a sample in rows): default as the surface was
         /// tiled — locked to its stripe pattern when tiled with `--courses
-        /// locked` and painted with the tiling's sample at its width (a
-        /// verbatim copy only at --angle 0).
+        /// locked` and painted with a sample whose courses fit it within 5 %
+        /// (the tiling's at its width does; a verbatim copy only at --angle 0).
         #[arg(long, value_enum, ignore_case = true)]
         courses: Option<CourseMode>,
         #[command(flatten)]

@@ -201,6 +201,7 @@ mod tests {
             region: region.map(PathBuf::from),
             verbatim,
             transition: 8,
+            free_unless_fit: false,
             tile: Stroke::tiling(&TileConfig {
                 seed: u64::MAX,
                 patch_radius: Some(5),

@@ -70,12 +70,14 @@ pub struct PaintConfig {
     pub verbatim: Option<Verbatim>,
     /// Verbatim only: write the direct projection to this image.
     pub preview: Option<PathBuf>,
-    /// How a region stroke lays the courses of a sample whose features run
-    /// in rows. `None` (the default): as the surface was tiled — locked to
-    /// its stripe pattern when it was tiled with [`CourseMode::Locked`] and
-    /// the stroke paints with the tiling's sample at its width (a verbatim
-    /// copy also only along the field, at angle 0), free otherwise.
-    /// [`CourseMode::Locked`] is refused where that does not hold.
+    /// How a stroke lays the courses of a sample whose features run in
+    /// rows. `None` (the default): as the surface was tiled — locked to its
+    /// stripe pattern when it was tiled with [`CourseMode::Locked`] and the
+    /// stroke paints with the tiling's sample at its width, or with a
+    /// sample whose courses lie within 5 % of the pattern's spacing on the
+    /// surface (a verbatim copy also only along the field, at angle 0);
+    /// free otherwise. [`CourseMode::Locked`] is refused where that does
+    /// not hold.
     pub courses: Option<CourseMode>,
     /// Quilting options (seed, radius, T_c, constraint weight, memory).
     pub tile: TileConfig,
@@ -263,6 +265,7 @@ fn open_synthesis(
         file: base.container().path().to_path_buf(),
         period,
         psi,
+        free_unless_fit: stroke.free_unless_fit,
     });
     let mut syn = Synthesis::open(
         &gim,
@@ -375,6 +378,10 @@ struct Stroke {
     /// radius, T_c and the constraint weight; the rest are
     /// [`TileConfig::default`]'s, so a replay quilts exactly the same.
     tile: TileConfig,
+    /// Locked courses ([`PaintConfig::courses`] left to the surface) with
+    /// another sample than the tiling's: laid free if its courses do not
+    /// fit the surface's pattern. The log records what the stroke did.
+    free_unless_fit: bool,
 }
 
 impl Stroke {
@@ -424,7 +431,8 @@ impl Stroke {
             (None, None) => (recorded_span(base, &sample), None),
             given => given,
         };
-        let courses = stroke_courses(cfg, base, quilt_path, &sample, (sample_width, sample_pixel))?;
+        let (courses, free_unless_fit) =
+            stroke_courses(cfg, base, quilt_path, &sample, (sample_width, sample_pixel))?;
         Ok(Stroke {
             tile: Stroke::tiling(&TileConfig {
                 sample_width,
@@ -434,6 +442,7 @@ impl Stroke {
             }),
             sample,
             sample_mask,
+            free_unless_fit,
             region: cfg.region.clone(),
             verbatim: cfg.verbatim,
             transition: cfg.transition,
@@ -506,33 +515,35 @@ impl Stroke {
                 angle: v.angle,
             }),
             transition: r.transition,
+            free_unless_fit: false,
         }
     }
 }
 
 /// How a stroke of `cfg` with `sample` at `size` (its width or pixel in
-/// mesh units) lays its courses on `base` ([`PaintConfig::courses`]): locked
-/// only where the surface was tiled locked and the stroke paints with the
-/// tiling's sample at the tiling's width, whose stripe pattern the
-/// surface's courses follow; a verbatim copy only when it is not turned
-/// from the field (`--angle 0`).
+/// mesh units) lays its courses on `base` ([`PaintConfig::courses`]), and
+/// whether a lock that does not fit may fall back to free. Locked only on
+/// a surface tiled locked, and a verbatim copy only when it is not turned
+/// from the field (`--angle 0`): with the tiling's sample at the tiling's
+/// width (the surface's own pattern), or with any sample whose courses fit
+/// the pattern the surface stores (judged when the sample is open,
+/// [`crate::quilt::PATTERN_FIT`]).
 fn stroke_courses(
     cfg: &PaintConfig,
     base: &Quilt,
     quilt_path: &Path,
     sample: &Path,
     size: (Option<f64>, Option<f64>),
-) -> Result<CourseMode> {
+) -> Result<(CourseMode, bool)> {
     let tiling = &base.samples[0];
     let turned = cfg.verbatim.is_some_and(|v| v.angle != 0.0);
-    let lockable = base.locked_courses()
-        && !turned
-        && same_file(tiling, sample)
-        && size == (recorded_span(base, tiling), None);
+    let own = same_file(tiling, sample) && size == (recorded_span(base, tiling), None);
+    let stored = base.container().array("stripe_psi").is_ok();
+    let lockable = base.locked_courses() && !turned && (own || stored);
     match cfg.courses {
-        None if lockable => Ok(CourseMode::Locked),
-        None | Some(CourseMode::Free) => Ok(CourseMode::Free),
-        Some(CourseMode::Locked) if lockable => Ok(CourseMode::Locked),
+        None if lockable => Ok((CourseMode::Locked, !own)),
+        None | Some(CourseMode::Free) => Ok((CourseMode::Free, false)),
+        Some(CourseMode::Locked) if lockable => Ok((CourseMode::Locked, false)),
         Some(CourseMode::Locked) if !base.locked_courses() => Err(Error::input(
             quilt_path,
             "was not tiled with --courses locked: it has no stripe pattern to lock a stroke's courses to",
@@ -542,11 +553,14 @@ fn stroke_courses(
              courses, or --courses free"
                 .into(),
         )),
-        Some(CourseMode::Locked) => Err(Error::Config(format!(
-            "--courses locked paints with the tiling's sample {} at its width on the surface \
-             (leave out --sample-width and --sample-pixel), or use --courses free",
-            tiling.display()
-        ))),
+        Some(CourseMode::Locked) => Err(Error::input(
+            quilt_path,
+            format!(
+                "stores no stripe pattern: --courses locked paints on it only with the tiling's sample {} \
+                 at its width (leave out --sample-width and --sample-pixel), or use --courses free",
+                tiling.display()
+            ),
+        )),
     }
 }
 
@@ -576,8 +590,13 @@ fn apply_stroke(
     let start = Instant::now();
     let trace = |what: &str| crate::progress::trace(progress, start, what);
     let (mut syn, gim, _tmp) = open_synthesis(base, stroke, out, progress)?;
+    // what the stroke did: a sample whose courses do not fit is laid free
+    let mut stroke = stroke.clone();
+    if !syn.locks_courses() {
+        stroke.tile.courses = CourseMode::Free;
+    }
     let mut report = PaintReport {
-        locked_courses: stroke.tile.courses == CourseMode::Locked,
+        locked_courses: syn.locks_courses(),
         ..PaintReport::default()
     };
     if let Some(v) = stroke.verbatim {

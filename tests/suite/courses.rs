@@ -265,6 +265,45 @@ fn painting_a_locked_surface_keeps_its_courses() {
         copy_free > before + 20.0 && copy_locked - before <= 0.2 * (copy_free - before),
         "verbatim copy: {before} → {copy_locked} locked, {copy_free} free"
     );
+    // another sample whose courses fit the stored pattern (the wall with
+    // a box of bricks darkened) locks to it too; offsets are counted with
+    // every texel read as the wall's (the same rows)
+    let twin = d.join("twin.png");
+    let mut image = btfquilt::io::imageio::read_rgb(&wall).unwrap();
+    for y in 50..140 {
+        for x in 40..150 {
+            let i = (y * image.width + x) * 3;
+            image.data[i..i + 3].iter_mut().for_each(|v| *v *= 0.7);
+        }
+    }
+    btfquilt::io::imageio::write_png(&twin, &image, btfquilt::io::imageio::PngDepth::Eight).unwrap();
+    let with_twin = |name: &str, extra: &[&str]| {
+        let (painted, run) = paint(name, &[&at_region[..], &["--sample", s(&twin), "--sample-width", "1.4"], extra].concat());
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let as_wall = d.join(format!("wall-{name}"));
+        crate::multisample::rewrite_quilt(&painted, &as_wall, &[&wall], None);
+        (
+            offsets(&as_wall),
+            String::from_utf8_lossy(&run.stdout).contains("courses locked"),
+        )
+    };
+    let ((twin_locked, said_locked), (twin_free, said_free)) = (
+        with_twin("twin.quilt", &[]),
+        with_twin("twin_free.quilt", &["--courses", "free"]),
+    );
+    eprintln!("another sample: base {before}, locked {twin_locked}, free {twin_free}");
+    assert!(said_locked && !said_free);
+    assert!(
+        twin_free > before + 20.0 && twin_locked - before <= 0.2 * (twin_free - before),
+        "another sample: {before} → {twin_locked} locked, {twin_free} free"
+    );
+    // at a width whose courses do not fit the pattern: free by default,
+    // refused locked
+    let (_, run) = paint(
+        "twin_wide.quilt",
+        &[&at_region[..], &["--sample", s(&twin), "--sample-width", "1.6"]].concat(),
+    );
+    assert!(run.status.success() && !String::from_utf8_lossy(&run.stdout).contains("courses locked"));
     // a copy turned from the field keeps its own rows: refused locked
     let (turned, run) = paint(
         "turned.quilt",
@@ -307,7 +346,10 @@ fn painting_a_locked_surface_keeps_its_courses() {
         "refused.quilt",
         &[&at_region[..], &["--courses", "locked", "--sample-width", "1.3"]].concat(),
     );
-    fails_clearly(&run, &["--courses locked", "brick_wall.png", "--courses free"]);
+    fails_clearly(
+        &run,
+        &["brick_wall.png", "off the stripe pattern", "--courses free"],
+    );
     let free_base = tile("free", "free_base.quilt");
     #[rustfmt::skip]
     let run = btfquilt(&["paint", s(&free_base), "--region", s(&region), "--sample-mask", s(&mask),

@@ -87,7 +87,8 @@ pub(crate) struct Synthesis {
 }
 
 /// The stripe pattern a quilt stores ([`crate::artifact::quilt::Quilt::stripe_pattern`]):
-/// a stroke painted on a locked surface takes it instead of solving again.
+/// a stroke painted on a locked surface locks to it instead of solving
+/// one of its own, so its courses meet the surface's.
 pub(crate) struct StoredPattern {
     /// The quilt it was read from, for messages.
     pub(crate) file: PathBuf,
@@ -95,20 +96,33 @@ pub(crate) struct StoredPattern {
     pub(crate) period: f64,
     /// ψ per vertex of the subdivided mesh, as (re, im) pairs.
     pub(crate) psi: Vec<f32>,
+    /// A sample whose courses do not fit the pattern ([`PATTERN_FIT`]) is
+    /// laid free; otherwise it is refused.
+    pub(crate) free_unless_fit: bool,
 }
+
+/// A stroke's sample locks to a surface's stored pattern when its course
+/// period on the surface is within this share of the pattern's: its rows
+/// are then stretched or squeezed by at most as much.
+pub(crate) const PATTERN_FIT: f64 = 0.05;
 
 /// Locked courses: the smoothest stripe pattern along the atlas's field at
 /// the sample's course period (texels × the atlas's texel size), solved
-/// within `budget`, or taken from `stored` when that is the pattern of the
-/// same period. The sample must have courses.
+/// within `budget`; or, for a stroke on a locked surface, the `stored`
+/// pattern, where the sample's courses fit it ([`PATTERN_FIT`]). `None`
+/// where they do not and the stroke may be laid free.
 fn course_lock(
     gim: &Gim,
     sample: &Sample,
     sample_path: &Path,
     budget: u64,
     stored: Option<&StoredPattern>,
-) -> Result<CourseLock> {
+) -> Result<Option<CourseLock>> {
+    let free_unless_fit = stored.is_some_and(|s| s.free_unless_fit);
     let Some(courses) = &sample.courses else {
+        if free_unless_fit {
+            return Ok(None);
+        }
         return Err(Error::input(
             sample_path,
             "has no courses (its row profile is not periodic): --courses locked needs a sample whose \
@@ -117,26 +131,46 @@ fn course_lock(
     };
     let period = courses.period();
     let units = period * gim.texel_size;
-    if let Some(s) = stored.filter(|s| s.period == units) {
+    let Some(s) = stored else {
         let pattern =
-            StripePattern::from_psi(&gim.mesh()?, &gim.face_field()?, units, &s.psi)?.ok_or_else(|| {
+            StripePattern::new(&gim.mesh()?, &gim.face_field()?, units, budget)?.ok_or_else(|| {
                 Error::input(
-                    &s.file,
-                    format!(
-                        "stores a stripe pattern (stripe_psi, {} values) that does not fit its atlas",
-                        s.psi.len()
-                    ),
+                    gim.container().path(),
+                    "its field admits no stripe pattern (a degenerate mesh)",
                 )
             })?;
-        return Ok(CourseLock { pattern, period });
+        return Ok(Some(CourseLock { pattern, period }));
+    };
+    let off = units / s.period - 1.0;
+    if off.abs() > PATTERN_FIT {
+        if free_unless_fit {
+            return Ok(None);
+        }
+        return Err(Error::input(
+            sample_path,
+            format!(
+                "has courses {units:.4} mesh units apart on the surface, {:+.1} % off the stripe pattern \
+                 of {} ({:.4}): --courses locked needs them within {:.0} % (set --sample-width to fit, or \
+                 paint with --courses free)",
+                100.0 * off,
+                s.file.display(),
+                s.period,
+                100.0 * PATTERN_FIT
+            ),
+        ));
     }
-    let pattern = StripePattern::new(&gim.mesh()?, &gim.face_field()?, units, budget)?.ok_or_else(|| {
-        Error::input(
-            gim.container().path(),
-            "its field admits no stripe pattern (a degenerate mesh)",
-        )
-    })?;
-    Ok(CourseLock { pattern, period })
+    // the stored pattern's own period: it fixes the subdivision ψ lives on
+    let pattern =
+        StripePattern::from_psi(&gim.mesh()?, &gim.face_field()?, s.period, &s.psi)?.ok_or_else(|| {
+            Error::input(
+                &s.file,
+                format!(
+                    "stores a stripe pattern (stripe_psi, {} values) that does not fit its atlas",
+                    s.psi.len()
+                ),
+            )
+        })?;
+    Ok(Some(CourseLock { pattern, period }))
 }
 
 impl Synthesis {
@@ -184,16 +218,17 @@ impl Synthesis {
         // the pattern is solved before the atlas's stores fill: the solve
         // may take what the rotated copies leave of the budget
         let lock = if locked {
-            Some(course_lock(
+            course_lock(
                 gim,
                 &sample,
                 sample_path,
                 cfg.memory.bytes().saturating_sub(quarter.bytes()),
                 stored,
-            )?)
+            )?
         } else {
             None
         };
+        let locked = lock.is_some();
         let occurrence = Occurrence::new(sample.width, sample.height, sample.tileable, sample.rotations);
         let n = sample.n;
         let locked_course_ends = lock.as_ref().map(|l| l.pattern.ends());
@@ -232,6 +267,11 @@ impl Synthesis {
             sample_spans: vec![None],
             active_span: None,
         })
+    }
+
+    /// Whether the synthesis locks its courses to a stripe pattern.
+    pub(crate) fn locks_courses(&self) -> bool {
+        self.surface.lock.is_some()
     }
 
     /// Loads the sample's foreground mask m_P (a PNG the sample's size; any
