@@ -278,7 +278,15 @@ fn painting_a_locked_surface_keeps_its_courses() {
     }
     btfquilt::io::imageio::write_png(&twin, &image, btfquilt::io::imageio::PngDepth::Eight).unwrap();
     let with_twin = |name: &str, extra: &[&str]| {
-        let (painted, run) = paint(name, &[&at_region[..], &["--sample", s(&twin), "--sample-width", "1.4"], extra].concat());
+        let (painted, run) = paint(
+            name,
+            &[
+                &at_region[..],
+                &["--sample", s(&twin), "--sample-width", "1.4"],
+                extra,
+            ]
+            .concat(),
+        );
         assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
         let as_wall = d.join(format!("wall-{name}"));
         crate::multisample::rewrite_quilt(&painted, &as_wall, &[&wall], None);
