@@ -124,12 +124,9 @@ impl StripePattern {
         if psi.len() != 2 * fine.positions.len() {
             return Ok(None);
         }
-        let form = Form::new(&fine, period);
         let solved = Solved {
-            edges: form.edges,
-            omega: form.omega,
+            form: Form::new(&fine, period),
             psi: psi.iter().map(|&x| f64::from(x)).collect(),
-            face_across: form.face_across,
         };
         Ok(Some(StripePattern::of(fine, period, solved)))
     }
@@ -138,7 +135,7 @@ impl StripePattern {
         StripePattern {
             ends: solved.count_ends(&fine),
             psi: solved.psi,
-            across: solved.face_across,
+            across: solved.form.face_across,
             fine,
             period,
             nu: std::f64::consts::TAU / period,
@@ -400,15 +397,12 @@ impl Form {
     }
 }
 
-/// The smoothest stripe pattern's solve on a subdivided mesh.
+/// The smoothest stripe pattern's solve on a subdivided mesh: its form
+/// and ψ.
 struct Solved {
-    edges: Vec<(u32, u32)>,
-    /// ω along each edge from its low to its high vertex.
-    omega: Vec<f64>,
+    form: Form,
     /// ψ as (re, im) pairs per vertex, unit in the mass norm.
     psi: Vec<f64>,
-    /// Per face: the unit direction across the field.
-    face_across: Vec<DVec3>,
 }
 
 impl Solved {
@@ -428,20 +422,15 @@ impl Solved {
         use std::f64::consts::TAU;
         let nv = fine.positions.len();
         let nu = TAU / period;
-        let Form {
-            edges,
-            omega,
-            weight,
-            face_across,
-            mass,
-        } = Form::new(fine, period);
+        let form = Form::new(fine, period);
+        let (edges, omega, weight, mass) = (&form.edges, &form.omega, &form.weight, &form.mass);
         let total_mass: f64 = mass.iter().sum();
         let floor = 1e-9 * total_mass / nv.max(1) as f64;
         // the real 2V × 2V form (upper triangle) of A + shift·M; a negative
         // cotangent weight (an obtuse pair) is clamped to keep A positive
         let mut diagonal: Vec<f64> = mass.iter().map(|m| 1e-4 * nu * nu * m.max(floor)).collect();
         let mut upper = Vec::with_capacity(edges.len());
-        for ((&(i, j), &w), &om) in edges.iter().zip(&weight).zip(&omega) {
+        for ((&(i, j), &w), &om) in edges.iter().zip(weight).zip(omega) {
             let w = w.max(1e-6);
             let (i, j) = (i as usize, j as usize);
             diagonal[i] += w;
@@ -473,18 +462,13 @@ impl Solved {
             }
             psi.iter_mut().for_each(|x| *x /= norm);
         }
-        Some(Solved {
-            edges,
-            omega,
-            psi,
-            face_across,
-        })
+        Some(Solved { form, psi })
     }
 
     /// Σ |winding| over the faces: the row ends.
     fn count_ends(&self, fine: &Subdivided) -> usize {
         use std::f64::consts::TAU;
-        let (edges, omega, psi) = (&self.edges, &self.omega, &self.psi);
+        let (edges, omega, psi) = (&self.form.edges, &self.form.omega, &self.psi);
         let arg = |v: u32| psi[2 * v as usize + 1].atan2(psi[2 * v as usize]);
         let mut ends = 0usize;
         for t in &fine.triangles {
@@ -709,23 +693,16 @@ mod tests {
     /// The pattern's energy over its phase alone, Σ_ij w_ij |u_j −
     /// e^{iω_ij} u_i|² with u = ψ / |ψ| (the cotangent weights clamped as
     /// the solve clamps them), over the total mass: what the rows see.
-    fn phase_energy(fine: &Subdivided, solved: &Solved) -> f64 {
+    fn phase_energy(solved: &Solved) -> f64 {
         let unit = |v: usize| {
             let (x, y) = (solved.psi[2 * v], solved.psi[2 * v + 1]);
             let m = x.hypot(y);
             (x / m, y / m)
         };
-        let mut weight = vec![0f64; solved.edges.len()];
-        let mut mass = 0.0;
-        for t in &fine.triangles {
-            let c = t.map(|v| fine.positions[v as usize]);
-            mass += 0.5 * (c[1] - c[0]).cross(c[2] - c[0]).length();
-            for k in 0..3 {
-                weight[edge_index(&solved.edges, t[k], t[(k + 1) % 3])] += half_cotangent(c, k);
-            }
-        }
+        let form = &solved.form;
+        let mass: f64 = form.mass.iter().sum();
         let mut e = 0.0;
-        for ((&(a, b), &w), &om) in solved.edges.iter().zip(&weight).zip(&solved.omega) {
+        for ((&(a, b), &w), &om) in form.edges.iter().zip(&form.weight).zip(&form.omega) {
             let ((xa, ya), (xb, yb)) = (unit(a as usize), unit(b as usize));
             let (c, s) = (om.cos(), om.sin());
             e += w.max(1e-6) * ((xb - (c * xa - s * ya)).powi(2) + (yb - (s * xa + c * ya)).powi(2));
@@ -749,7 +726,7 @@ mod tests {
         let even = Solved::new(&fine, period, EVEN_ITERATIONS).unwrap();
         let (before, after) = (spacing_off(&fine, &eigen, nu), spacing_off(&fine, &even, nu));
         let ends = (eigen.count_ends(&fine), even.count_ends(&fine));
-        let energy = (phase_energy(&fine, &eigen), phase_energy(&fine, &even));
+        let energy = (phase_energy(&eigen), phase_energy(&even));
         eprintln!("spacing off: {before:.3} → {after:.3}; ends {ends:?}; phase energy {energy:?}");
         assert!(after < before, "{before} → {after}");
         assert!(energy.1 < 0.5 * energy.0, "{energy:?}");
