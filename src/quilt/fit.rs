@@ -5,7 +5,7 @@
 use super::flatten::WorkImage;
 use super::maxflow::{Graph, Segment};
 use super::occurrence::Occurrence;
-use super::placement::{PlacementChoice, Turn};
+use super::placement::{placed_on_sample, PlacementChoice, Turn};
 use super::sample::{dist, Sample};
 use super::state::{State, Surface, WorkPatch, NO_FOREIGN};
 use crate::progress::Progress;
@@ -61,15 +61,9 @@ pub(super) fn fit_patch(
     let m = patch.texels.len();
     let turn = Turn::new(sample, placement.rotation);
     let (s, c) = (turn.s, turn.c);
-    // B at every patch vertex: unrotated sample coordinate and value
-    let mut coord: Vec<[f64; 2]> = work.coords[..m]
-        .iter()
-        .map(|&w| turn.to_sample(placement.dx, placement.dy, w))
-        .collect();
-    // locked courses: every row on its course phase
-    if let (false, Some(courses)) = (work.course_phase.is_empty(), &sample.courses) {
-        courses.lock_rows(&mut coord, &work.course_phase);
-    }
+    // B at every patch vertex: unrotated sample coordinate (locked
+    // courses: every row on its course phase) and value
+    let mut coord = placed_on_sample(sample, placement, &work.coords[..m], &work.course_phase);
     let mut valid = vec![false; m];
     let mut new_features = vec![0f32; m * n];
     // the old values A at the patch's synthesized vertices

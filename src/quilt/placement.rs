@@ -160,6 +160,27 @@ pub(super) fn lock_courses(
     })
 }
 
+/// Where `placement` puts the work-image vertices `coords` on the sample
+/// (unrotated sample coordinates), each row then moved to its course phase
+/// where the work image has one (`course_phase`: locked courses,
+/// [`super::courses::Courses::lock_rows`]).
+pub(super) fn placed_on_sample(
+    sample: &Sample,
+    placement: &PlacementChoice,
+    coords: &[[f64; 2]],
+    course_phase: &[f64],
+) -> Vec<[f64; 2]> {
+    let turn = Turn::new(sample, placement.rotation);
+    let mut placed: Vec<[f64; 2]> = coords
+        .iter()
+        .map(|&w| turn.to_sample(placement.dx, placement.dy, w))
+        .collect();
+    if let (false, Some(courses)) = (course_phase.is_empty(), &sample.courses) {
+        courses.lock_rows(&mut placed, course_phase);
+    }
+    placed
+}
+
 /// The stride of the work-image vertices probed when judging how much of
 /// a patch a placement puts on the sample: every 1/400th.
 fn probe_step(coords: &[[f64; 2]]) -> usize {

@@ -11,7 +11,7 @@ use super::flatten::rotation_index;
 use super::matching::Matcher;
 use super::occurrence::Occurrence;
 use super::pager::TileGrid;
-use super::placement::{lock_courses, PlacementChoice, Turn};
+use super::placement::{lock_courses, placed_on_sample, PlacementChoice, Turn};
 use super::sample::{basis_projection, dist, dot_f32, sample_svd, Sample, SizedSample};
 use super::state::{Bfs, CourseLock, State, Surface, WorkPatch, NO_FOREIGN};
 use super::worker::{Outcome, StepStats, Worker};

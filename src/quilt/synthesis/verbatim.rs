@@ -55,16 +55,12 @@ impl Synthesis {
         let turn = Turn::new(&self.sample, rotation);
         let [dx, dy] = turn.placing(coords[0], centre);
         let mut placement = PlacementChoice { rotation, dx, dy };
-        if let Some(work) = work.as_ref().filter(|_| locked) {
+        // (a work image keeps its course phase only when locked)
+        let course_phase: &[f64] = work.as_ref().map_or(&[], |w| &w.course_phase);
+        if let Some(work) = &work {
             placement = lock_courses(&self.sample, work, &placement).unwrap_or(placement);
         }
-        let mut placed: Vec<[f64; 2]> = coords
-            .iter()
-            .map(|&w| turn.to_sample(placement.dx, placement.dy, w))
-            .collect();
-        if let (Some(work), Some(courses)) = (work.as_ref().filter(|_| locked), &self.sample.courses) {
-            courses.lock_rows(&mut placed, &work.course_phase);
-        }
+        let placed = placed_on_sample(&self.sample, &placement, &coords, course_phase);
         let fg: Vec<f32> = placed.iter().map(|&c| self.sample.mask_at(c)).collect();
         trace("placed");
         if preview {
