@@ -405,13 +405,24 @@ impl Quilt {
     /// subdivided mesh ([`crate::field::StripePattern::from_psi`]); `None`
     /// when the quilt holds none.
     pub fn stripe_pattern(&self) -> Result<Option<(f64, Vec<f32>)>> {
-        let c = &self.container;
-        let (Some(Param::Float(period)), Ok(id)) =
-            (c.metadata().param("stripe_period"), c.array("stripe_psi"))
-        else {
+        let Some((period, id)) = self.stored_stripe_pattern() else {
             return Ok(None);
         };
-        Ok(Some((*period, c.read_array(id)?)))
+        Ok(Some((period, self.container.read_array(id)?)))
+    }
+
+    /// Whether the quilt stores a stripe pattern ([`Quilt::stripe_pattern`]),
+    /// without reading it.
+    pub fn stores_stripe_pattern(&self) -> bool {
+        self.stored_stripe_pattern().is_some()
+    }
+
+    fn stored_stripe_pattern(&self) -> Option<(f64, crate::container::ArrayId)> {
+        let c = &self.container;
+        match (c.metadata().param("stripe_period"), c.array("stripe_psi")) {
+            (Some(Param::Float(period)), Ok(id)) => Some((*period, id)),
+            _ => None,
+        }
     }
 
     /// Which sample the recorded `sample_mask` belongs to (the last painted

@@ -283,7 +283,7 @@ fn open_synthesis(
     syn.painting = true;
     // a painted surface keeps the base's courses and their pattern,
     // whatever the stroke's
-    syn.locked_courses |= base.locked_courses();
+    syn.base_locked_courses = base.locked_courses();
     syn.kept_pattern = stored;
     trace("loaded");
     Ok((syn, gim, sized))
@@ -538,8 +538,7 @@ fn stroke_courses(
     let tiling = &base.samples[0];
     let turned = cfg.verbatim.is_some_and(|v| v.angle != 0.0);
     let own = same_file(tiling, sample) && size == (recorded_span(base, tiling), None);
-    let stored = base.container().array("stripe_psi").is_ok();
-    let lockable = base.locked_courses() && !turned && (own || stored);
+    let lockable = base.locked_courses() && !turned && (own || base.stores_stripe_pattern());
     match cfg.courses {
         None if lockable => Ok((CourseMode::Locked, !own)),
         None | Some(CourseMode::Free) => Ok((CourseMode::Free, false)),

@@ -66,10 +66,9 @@ pub(crate) struct Synthesis {
     /// Painting (§IV): one min-cut per fitting, no T_c shrinking, and a
     /// fitting may keep every old value.
     pub(crate) painting: bool,
-    /// The surface's courses follow the stripe pattern (tiled with
-    /// [`CourseMode::Locked`]; a painted surface keeps its base's), as the
-    /// quilt records it.
-    pub(crate) locked_courses: bool,
+    /// Painting on a surface tiled with [`CourseMode::Locked`]: the painted
+    /// quilt records the lock whatever the stroke's courses.
+    pub(crate) base_locked_courses: bool,
     /// A painted surface's stored stripe pattern, written again when the
     /// stroke did not lock to it (a lock writes its own).
     pub(crate) kept_pattern: Option<StoredPattern>,
@@ -228,7 +227,6 @@ impl Synthesis {
         } else {
             None
         };
-        let locked = lock.is_some();
         let occurrence = Occurrence::new(sample.width, sample.height, sample.tileable, sample.rotations);
         let n = sample.n;
         let locked_course_ends = lock.as_ref().map(|l| l.pattern.ends());
@@ -259,7 +257,7 @@ impl Synthesis {
             original_size,
             surface,
             painting: false,
-            locked_courses: locked,
+            base_locked_courses: false,
             kept_pattern: None,
             seam_sum: 0.0,
             seam_cnt: 0,

@@ -46,7 +46,7 @@ pub(in crate::quilt) fn write_quilt(
             w.set_param("mask_sample", Param::Int(state.active as i64));
         }
     }
-    if syn.locked_courses {
+    if syn.locks_courses() || syn.base_locked_courses {
         w.set_param("courses", Param::Text("locked".into()));
     }
     // the pattern the courses are locked to, for strokes painted later
