@@ -50,7 +50,8 @@ pub(super) struct Quilting {
     pub(super) seed: u64,
     /// The sample's size on the surface: mesh units its width spans (it is
     /// resampled to the atlas's texel density). Default: one sample pixel per
-    /// texel; painting with the tiling's sample keeps the tiling's width.
+    /// texel; painting keeps the tiling's size (its sample at the tiling's
+    /// width, another at the tiling sample's pixel size).
     #[arg(long)]
     pub(super) sample_width: Option<f64>,
     /// The sample's size on the surface per pixel: mesh units one sample

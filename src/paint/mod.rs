@@ -31,8 +31,8 @@ use crate::container::Param;
 use crate::progress::Progress;
 pub use crate::quilt::Projection;
 use crate::quilt::{
-    same_file, sample_at_density, sample_role, CourseMode, Quilt, SizedSample, StoredPattern, Synthesis,
-    TileConfig,
+    same_file, sample_at_density, sample_pixel_size, sample_role, CourseMode, Quilt, SizedSample,
+    StoredPattern, Synthesis, TileConfig,
 };
 use crate::{Error, Result};
 
@@ -426,9 +426,8 @@ impl Stroke {
         }
         cfg.tile.validate()?;
         let t = &cfg.tile;
-        // painting with the tiling's sample keeps its recorded width
         let (sample_width, sample_pixel) = match (t.sample_width, t.sample_pixel) {
-            (None, None) => (recorded_span(base, &sample), None),
+            (None, None) => (default_width(base, &sample)?, None),
             given => given,
         };
         let (courses, free_unless_fit) =
@@ -576,6 +575,28 @@ fn recorded_span(base: &Quilt, sample: &Path) -> Option<f64> {
         Some(Param::Float(v)) => Some(*v),
         _ => None,
     }
+}
+
+/// The width a stroke's sample takes when none is given: a sample the
+/// surface already draws from keeps its recorded width; another sample
+/// takes the tiling sample's pixel size (a twin of the same size its
+/// width), so both show at one scale. `None` (one pixel per texel) where
+/// the tiling was given no width.
+fn default_width(base: &Quilt, sample: &Path) -> Result<Option<f64>> {
+    if base.samples.iter().any(|p| same_file(p, sample)) {
+        return Ok(recorded_span(base, sample));
+    }
+    let tiling = &base.samples[0];
+    let Some(span) = recorded_span(base, tiling) else {
+        return Ok(None);
+    };
+    let [tiling_width, _] = sample_pixel_size(tiling)?;
+    let [width, _] = sample_pixel_size(sample)?;
+    Ok(Some(if width == tiling_width {
+        span
+    } else {
+        span / tiling_width as f64 * width as f64
+    }))
 }
 
 /// Applies one stroke to `base`, writing `out` with `log` + the stroke.

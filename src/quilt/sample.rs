@@ -298,6 +298,18 @@ pub(crate) fn sample_svd(
     }
 }
 
+/// A sample's size in pixels, from an image's header or an `.svd`'s
+/// metadata (nothing is decoded).
+pub(crate) fn sample_pixel_size(sample_path: &Path) -> Result<[usize; 2]> {
+    if factorize::is_image_path(sample_path) {
+        let (w, h) = crate::io::imageio::image_size(sample_path)?;
+        Ok([w, h])
+    } else {
+        let svd = SvdArtifact::open(sample_path, MemoryBudget(0))?;
+        Ok([svd.width, svd.height])
+    }
+}
+
 /// A sample brought to the atlas's texel density (section III-A samples the
 /// texture at the dense mesh's resolution): its `.svd`, kept alive by the
 /// temporary directories, and the scale from the resampled pixels to the

@@ -266,7 +266,8 @@ fn painting_a_locked_surface_keeps_its_courses() {
         "verbatim copy: {before} → {copy_locked} locked, {copy_free} free"
     );
     // another sample whose courses fit the stored pattern (the wall with
-    // a box of bricks darkened) locks to it too; offsets are counted with
+    // a box of bricks darkened, at the tiling's width by default: it has
+    // the wall's pixel size) locks to it too; offsets are counted with
     // every texel read as the wall's (the same rows)
     let twin = d.join("twin.png");
     let mut image = btfquilt::io::imageio::read_rgb(&wall).unwrap();
@@ -278,15 +279,7 @@ fn painting_a_locked_surface_keeps_its_courses() {
     }
     btfquilt::io::imageio::write_png(&twin, &image, btfquilt::io::imageio::PngDepth::Eight).unwrap();
     let with_twin = |name: &str, extra: &[&str]| {
-        let (painted, run) = paint(
-            name,
-            &[
-                &at_region[..],
-                &["--sample", s(&twin), "--sample-width", "1.4"],
-                extra,
-            ]
-            .concat(),
-        );
+        let (painted, run) = paint(name, &[&at_region[..], &["--sample", s(&twin)], extra].concat());
         assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
         let as_wall = d.join(format!("wall-{name}"));
         crate::multisample::rewrite_quilt(&painted, &as_wall, &[&wall], None);
@@ -301,6 +294,15 @@ fn painting_a_locked_surface_keeps_its_courses() {
     );
     eprintln!("another sample: base {before}, locked {twin_locked}, free {twin_free}");
     assert!(said_locked && !said_free);
+    let (given, run) = paint(
+        "twin_given.quilt",
+        &[&at_region[..], &["--sample", s(&twin), "--sample-width", "1.4"]].concat(),
+    );
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        std::fs::read(&given).unwrap() == std::fs::read(d.join("twin.quilt")).unwrap(),
+        "a twin without --sample-width takes the tiling's width"
+    );
     assert!(
         twin_free > before + 20.0 && twin_locked - before <= 0.2 * (twin_free - before),
         "another sample: {before} → {twin_locked} locked, {twin_free} free"
