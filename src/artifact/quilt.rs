@@ -162,7 +162,7 @@ impl Quilt {
         };
         let mut samples = vec![sample];
         for k in 1..count {
-            samples.push(dependency(&format!("sample_{k}"))?);
+            samples.push(dependency(&sample_role(k))?);
         }
         let sample_mask = match m.param("sample_mask") {
             Some(_) => Some(dependency("sample_mask")?),
@@ -425,6 +425,20 @@ impl Quilt {
         }
     }
 
+    /// The width (mesh units) sample `k` ([`Quilt::samples`] order) was
+    /// given on the surface (`--sample-width` or `--sample-pixel`); `None`
+    /// when it was given none (one sample pixel per texel).
+    pub fn sample_span(&self, k: usize) -> Option<f64> {
+        match self
+            .container
+            .metadata()
+            .param(&format!("{}_span", sample_role(k)))
+        {
+            Some(Param::Float(v)) => Some(*v),
+            _ => None,
+        }
+    }
+
     /// Which sample the recorded `sample_mask` belongs to (the last painted
     /// stroke's sample; 0 for a tiling).
     pub fn mask_sample(&self) -> usize {
@@ -432,6 +446,16 @@ impl Quilt {
             Some(Param::Int(v)) if *v >= 0 => *v as usize,
             _ => 0,
         }
+    }
+}
+
+/// The role under which a quilt records sample `k`: `sample` for the
+/// tiling's, `sample_K` for one painted in.
+pub(crate) fn sample_role(k: usize) -> String {
+    if k == 0 {
+        "sample".to_string()
+    } else {
+        format!("sample_{k}")
     }
 }
 

@@ -2,7 +2,10 @@
 //! features run in rows (brick courses, lines of text, found from its row
 //! profile), each texel's stored sample row gives its course phase, and
 //! the phase tells a course that runs on across a seam from one that is
-//! offset there or ends.
+//! offset there or ends. Texels of another sample painted in count too
+//! when its courses lie on the surface within [`PATTERN_FIT`] of the
+//! first's (a damaged twin): their phase is read in their own sample's
+//! courses.
 //!
 //! - offset: a seam edge whose phase step differs from the step the patch
 //!   makes just before the seam by more than a sixth of a course;
@@ -20,9 +23,10 @@ use serde::Serialize;
 
 use crate::artifact::gim::EMPTY;
 use crate::field::wrap_angle as wrap;
+use crate::io::imageio::RgbImage;
 use crate::output::band::ColourBand;
 use crate::quilt::courses::{Courses, OFFSET};
-use crate::quilt::NO_PATCH;
+use crate::quilt::{NO_PATCH, PATTERN_FIT};
 
 /// How courses continue across seams.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -31,7 +35,8 @@ pub struct CourseFigures {
     pub period_px: f64,
     /// Courses found in the sample.
     pub courses_in_sample: usize,
-    /// Seam edges inside charts between texels of the first sample.
+    /// Seam edges inside charts between texels of the first sample (or of
+    /// another sample with its courses).
     pub seam_edges: usize,
     /// Share of those where the course is offset by more than a sixth of
     /// a course.
@@ -55,14 +60,34 @@ pub(super) struct CourseCount {
     ends: usize,
 }
 
+/// The courses each sample's texels are read in: the first sample's when
+/// it has courses, and another's whose courses span on the surface within
+/// [`PATTERN_FIT`] of the first's (`None` for the others, whose texels
+/// are not counted). `span`: mesh units one pixel of sample `k` spans.
+/// `None` when the first sample has no courses.
+pub(super) fn sample_courses(
+    previews: &[RgbImage],
+    span: impl Fn(usize) -> f64,
+) -> Option<Vec<Option<Courses>>> {
+    let first = Courses::detect(previews.first()?)?;
+    let units = first.period() * span(0);
+    let mut all = vec![Some(first)];
+    for (k, p) in previews.iter().enumerate().skip(1) {
+        all.push(Courses::detect(p).filter(|c| (c.period() * span(k) / units - 1.0).abs() <= PATTERN_FIT));
+    }
+    Some(all)
+}
+
 impl CourseCount {
     /// The band's own texels: each grid edge to the right and lower
-    /// neighbour, each grid square to their lower right.
-    pub(super) fn gather(&mut self, b: &ColourBand, courses: &Courses, r: usize) {
+    /// neighbour, each grid square to their lower right. `courses`: per
+    /// sample, as [`sample_courses`] gives them.
+    pub(super) fn gather(&mut self, b: &ColourBand, courses: &[Option<Courses>], r: usize) {
         let rows = b.covered.len() / r;
+        let of = |t: usize| courses.get(b.index[t] as usize).and_then(Option::as_ref);
         let first =
-            |t: usize| b.covered[t] && b.patch[t] != NO_PATCH && b.index[t] == 0 && b.chart[t] != EMPTY;
-        let phase = |t: usize| courses.phase(b.coords[t][1] as f64);
+            |t: usize| b.covered[t] && b.patch[t] != NO_PATCH && b.chart[t] != EMPTY && of(t).is_some();
+        let phase = |t: usize| of(t).map_or(0.0, |c| c.phase(b.coords[t][1] as f64));
         let inside = |x: usize, y: usize| x < r && y < rows;
         for t in b.own_texels() {
             let (x, y) = (t % r, t / r);
@@ -131,12 +156,21 @@ mod tests {
     /// A band of `w`×`h` texels in one chart, every texel of the first
     /// sample: patch and sample row per texel from `f(x, y)`.
     fn band(w: usize, h: usize, f: impl Fn(usize, usize) -> (u32, f32)) -> ColourBand {
+        two_samples(w, h, |x, y| {
+            let (p, v) = f(x, y);
+            (p, 0, v)
+        })
+    }
+
+    /// The same with each texel's sample index from `f` too.
+    fn two_samples(w: usize, h: usize, f: impl Fn(usize, usize) -> (u32, u8, f32)) -> ColourBand {
         let n = w * h;
-        let (mut patch, mut coords) = (Vec::new(), Vec::new());
+        let (mut patch, mut index, mut coords) = (Vec::new(), Vec::new(), Vec::new());
         for y in 0..h {
             for x in 0..w {
-                let (p, v) = f(x, y);
+                let (p, k, v) = f(x, y);
                 patch.push(p);
+                index.push(k);
                 coords.push([x as f32, v]);
             }
         }
@@ -147,7 +181,7 @@ mod tests {
             vec![0.5; 3 * n],
             vec![true; n],
             patch,
-            vec![0; n],
+            index,
             vec![0; n],
             coords,
         )
@@ -155,8 +189,43 @@ mod tests {
 
     fn count(b: &ColourBand, c: &Courses, r: usize) -> CourseCount {
         let mut k = CourseCount::default();
-        k.gather(b, c, r);
+        k.gather(b, &[Some(c.clone())], r);
         k
+    }
+
+    #[test]
+    fn another_sample_counts_in_its_own_courses_when_they_fit() {
+        let wall = row_sample(8, 100, &[0, 20, 40, 60, 80]);
+        // a twin whose mortar lines lie 8 rows lower; one with wider rows
+        let twin = row_sample(8, 100, &[8, 28, 48, 68, 88]);
+        let wide = row_sample(8, 120, &[0, 24, 48, 72, 96]);
+        let samples = [wall, twin, wide];
+        let courses = sample_courses(&samples, |_| 0.01).unwrap();
+        assert!(courses[1].is_some() && courses[2].is_none());
+        // at a pixel 20 % smaller on the surface the wide rows fit
+        let fitted = sample_courses(&samples, |k| if k == 2 { 0.01 / 1.2 } else { 0.01 }).unwrap();
+        assert!(fitted[2].is_some());
+        // the right patch from the twin, its rows 8 lower: courses run on
+        let (w, h) = (30, 60);
+        let right = |k: u8, shift: f32| {
+            two_samples(w, h, move |x, y| {
+                if x >= 15 {
+                    (1, k, y as f32 + shift)
+                } else {
+                    (0, 0, y as f32)
+                }
+            })
+        };
+        let gather = |b: &ColourBand, c: &[Option<Courses>]| {
+            let mut k = CourseCount::default();
+            k.gather(b, c, w);
+            (k.seam_edges, k.offsets, k.ends)
+        };
+        assert_eq!(gather(&right(1, 8.0), &courses), (h, 0, 0));
+        // read in the first sample's courses they would be offset
+        assert_eq!(gather(&right(0, 8.0), &courses), (h, h, 0));
+        // texels of a sample whose courses do not fit are left out
+        assert_eq!(gather(&right(2, 0.0), &courses), (0, 0, 0));
     }
 
     #[test]

@@ -31,8 +31,8 @@ use crate::container::Param;
 use crate::progress::Progress;
 pub use crate::quilt::Projection;
 use crate::quilt::{
-    same_file, sample_at_density, sample_pixel_size, sample_role, CourseMode, Quilt, SizedSample,
-    StoredPattern, Synthesis, TileConfig,
+    same_file, sample_at_density, sample_pixel_size, CourseMode, Quilt, SizedSample, StoredPattern,
+    Synthesis, TileConfig,
 };
 use crate::{Error, Result};
 
@@ -567,14 +567,7 @@ fn stroke_courses(
 /// sample keeps its size on the surface.
 fn recorded_span(base: &Quilt, sample: &Path) -> Option<f64> {
     let k = base.samples.iter().position(|p| same_file(p, sample))?;
-    match base
-        .container()
-        .metadata()
-        .param(&format!("{}_span", sample_role(k)))
-    {
-        Some(Param::Float(v)) => Some(*v),
-        _ => None,
-    }
+    base.sample_span(k)
 }
 
 /// The width a stroke's sample takes when none is given: a sample the

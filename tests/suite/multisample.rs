@@ -34,7 +34,7 @@ const EDGE: usize = 96;
 /// Copies the `.quilt` at `src` to `out`, drawing from `samples` (the first
 /// replaces the recorded tiling sample) with the per-texel `index` (`None`:
 /// no `sample` array). Every other array and param is copied as it is.
-pub(crate) fn rewrite_quilt(src: &Path, out: &Path, samples: &[&Path], index: Option<&[u8]>) {
+fn rewrite_quilt(src: &Path, out: &Path, samples: &[&Path], index: Option<&[u8]>) {
     let c = Container::open(src, MemoryBudget::default()).unwrap();
     let m = c.metadata();
     let mut w = ContainerWriter::create(out, &m.kind).unwrap();

@@ -33,7 +33,6 @@ use crate::output::band::{diff, ColourBand};
 use crate::output::continuation::{Continuation, ContinuationFigures};
 use crate::output::courses::{CourseCount, CourseFigures};
 use crate::output::{open_samples, OpenSample, BAND_ROWS};
-use crate::quilt::courses::Courses;
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
 
@@ -232,7 +231,12 @@ pub fn evaluate_with(
     let mut seam = Vec::new();
     let (mut inner_sum, mut inner_count) = (0f64, 0usize);
     let mut continuation = Continuation::default();
-    let courses = previews.first().and_then(Courses::detect);
+    // mesh units one pixel of each sample spans
+    let span = |k: usize| match quilt.sample_span(k) {
+        Some(units) => units / previews[k].width as f64,
+        None => gim.texel_size,
+    };
+    let courses = crate::output::courses::sample_courses(&previews, span);
     let mut course_count = CourseCount::default();
     let mesh = gim.mesh()?;
     let exposure = crate::mesh::exposure::face_exposure(&mesh);
@@ -308,7 +312,7 @@ pub fn evaluate_with(
     let width = previews.first().map_or(0, |p| p.width);
     let scale = scale(&quilt, &gim, width)?;
     let continuation = continuation.figures(&previews, texels);
-    let courses = match courses {
+    let courses = match courses.as_ref().and_then(|c| c[0].as_ref()) {
         Some(c) if cfg.forced_ends && scale.sample_pixels_per_unit > 0.0 => {
             let field = gim.face_field()?;
             let period = c.period() / scale.sample_pixels_per_unit;

@@ -132,18 +132,7 @@ impl Synthesis {
         }
         let st = &mut self.state;
         st.next_patch = next;
-        self.sample_spans = (0..paths.len())
-            .map(|k| {
-                match quilt
-                    .container()
-                    .metadata()
-                    .param(&format!("{}_span", sample_role(k)))
-                {
-                    Some(crate::container::Param::Float(v)) => Some(*v),
-                    _ => None,
-                }
-            })
-            .collect();
+        self.sample_spans = (0..paths.len()).map(|k| quilt.sample_span(k)).collect();
         self.sample_paths = paths;
         self.other_previews = previews;
         Ok(())

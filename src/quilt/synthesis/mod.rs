@@ -570,15 +570,7 @@ pub struct Projection {
     pub covered: Vec<bool>,
 }
 
-/// The role under which a quilt records sample `k`: `sample` for the
-/// tiling's, `sample_K` for one painted in.
-pub(crate) fn sample_role(k: usize) -> String {
-    if k == 0 {
-        "sample".to_string()
-    } else {
-        format!("sample_{k}")
-    }
-}
+pub(crate) use crate::artifact::quilt::sample_role;
 
 /// Runs of [`visit_order`]: enough for a refinement round
 /// ([`REFINE_ROUND`]) to hold about half as many patches.
