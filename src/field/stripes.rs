@@ -59,13 +59,21 @@ pub const BYTES_PER_VERTEX: u64 = 3 << 10;
 /// (one unit tangent per face of `mesh`), must show. The mesh is
 /// subdivided by its geometry alone, never past [`MAX_VERTICES`], so the
 /// count is the same for any budget; a solve that would take more than
-/// `budget` bytes is refused. Deterministic.
-pub fn forced_ends(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64) -> Result<ForcedEnds> {
+/// `budget` bytes (its share of a `--memory` of `memory` bytes, which the
+/// message scales to the `--memory` that would do) is refused.
+/// Deterministic.
+pub fn forced_ends(
+    mesh: &Mesh,
+    field: &[[f32; 3]],
+    period: f64,
+    budget: u64,
+    memory: u64,
+) -> Result<ForcedEnds> {
     let fine = Subdivided::new(
         mesh,
         field,
         period,
-        budget,
+        (budget, memory),
         "counting the course ends the field forces",
     )?;
     let (subdivisions, vertices) = (fine.subdivisions, fine.positions.len());
@@ -102,10 +110,23 @@ impl StripePattern {
     /// The smoothest pattern of rows `period` mesh units apart along
     /// `field` (one unit tangent per face of `mesh`), its spacing evened by
     /// unit-modulus iterations; the mesh subdivided
-    /// as for [`forced_ends`], a solve over `budget` bytes refused. `None`
-    /// when the form cannot be factorized (a degenerate mesh).
-    pub fn new(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64) -> Result<Option<StripePattern>> {
-        let fine = Subdivided::new(mesh, field, period, budget, "locking the courses to the field")?;
+    /// as for [`forced_ends`], a solve over `budget` bytes (of `memory`)
+    /// refused. `None` when the form cannot be factorized (a degenerate
+    /// mesh).
+    pub fn new(
+        mesh: &Mesh,
+        field: &[[f32; 3]],
+        period: f64,
+        budget: u64,
+        memory: u64,
+    ) -> Result<Option<StripePattern>> {
+        let fine = Subdivided::new(
+            mesh,
+            field,
+            period,
+            (budget, memory),
+            "locking the courses to the field",
+        )?;
         Ok(Solved::new(&fine, period, EVEN_ITERATIONS).map(|solved| StripePattern::of(fine, period, solved)))
     }
 
@@ -120,7 +141,13 @@ impl StripePattern {
         period: f64,
         psi: &[f32],
     ) -> Result<Option<StripePattern>> {
-        let fine = Subdivided::new(mesh, field, period, u64::MAX, "a stored stripe pattern")?;
+        let fine = Subdivided::new(
+            mesh,
+            field,
+            period,
+            (u64::MAX, u64::MAX),
+            "a stored stripe pattern",
+        )?;
         if psi.len() != 2 * fine.positions.len() {
             return Ok(None);
         }
@@ -232,8 +259,15 @@ struct Subdivided {
 
 impl Subdivided {
     /// Refuses a non-positive period, a field of the wrong length, and a
-    /// solve over `budget` bytes (`what` names the step in the message).
-    fn new(mesh: &Mesh, field: &[[f32; 3]], period: f64, budget: u64, what: &str) -> Result<Subdivided> {
+    /// solve over `budget` bytes, the step's share of a `--memory` of
+    /// `memory` bytes (`what` names the step in the message).
+    fn new(
+        mesh: &Mesh,
+        field: &[[f32; 3]],
+        period: f64,
+        (budget, memory): (u64, u64),
+        what: &str,
+    ) -> Result<Subdivided> {
         if !(period.is_finite() && period > 0.0) {
             return Err(Error::Config(format!(
                 "row period {period}: must be a positive number of mesh units"
@@ -271,11 +305,15 @@ impl Subdivided {
         let needed = vertices as u64 * BYTES_PER_VERTEX;
         if needed > budget {
             let mib = |b: u64| b.div_ceil(1 << 20);
+            // the step's share grows with --memory in proportion
+            let enough = (needed as u128 * memory as u128).div_ceil(budget.max(1) as u128);
             return Err(Error::Config(format!(
                 "{what} solves on {vertices} vertices, about {} MiB, \
-                 more than the {} MiB this step may use: raise --memory",
+                 more than the {} MiB this step may use of --memory {}MiB: give --memory {}MiB or more",
                 mib(needed),
-                mib(budget)
+                mib(budget),
+                mib(memory),
+                mib(enough.min(u64::MAX as u128) as u64)
             )));
         }
         Ok(Subdivided {
@@ -560,7 +598,7 @@ mod tests {
     fn rows_on_a_plane_never_end() {
         let m = unit_square(12);
         let field = vec![[0.6f32, 0.8, 0.0]; m.triangles.len()];
-        let r = forced_ends(&m, &field, 0.07, u64::MAX).unwrap();
+        let r = forced_ends(&m, &field, 0.07, u64::MAX, u64::MAX).unwrap();
         assert_eq!(r.ends, 0);
         assert!(r.subdivisions >= 1, "edges of 1/12 are longer than 0.07 / 4");
     }
@@ -573,9 +611,9 @@ mod tests {
         // equator, so at least that many ends in each hemisphere
         let m = sphere(24, 48);
         let period = 0.35;
-        let along_latitudes = forced_ends(&m, &sphere_field(&m, true), period, u64::MAX).unwrap();
+        let along_latitudes = forced_ends(&m, &sphere_field(&m, true), period, u64::MAX, u64::MAX).unwrap();
         assert!(along_latitudes.ends <= 2, "{along_latitudes:?}");
-        let along_meridians = forced_ends(&m, &sphere_field(&m, false), period, u64::MAX).unwrap();
+        let along_meridians = forced_ends(&m, &sphere_field(&m, false), period, u64::MAX, u64::MAX).unwrap();
         let crossing = std::f64::consts::TAU / period;
         assert!(
             along_meridians.ends as f64 >= 2.0 * crossing - 2.0,
@@ -613,7 +651,9 @@ mod tests {
         let m = unit_square(10);
         let field = vec![[0.6f32, 0.8, 0.0]; m.triangles.len()];
         let period = 0.13;
-        let pattern = StripePattern::new(&m, &field, period, u64::MAX).unwrap().unwrap();
+        let pattern = StripePattern::new(&m, &field, period, u64::MAX, u64::MAX)
+            .unwrap()
+            .unwrap();
         assert!(pattern.fine.subdivisions >= 1);
         // across the field: N × f with N = +z
         let across = DVec3::new(-0.8, 0.6, 0.0);
@@ -637,7 +677,9 @@ mod tests {
         let m = sphere(16, 32);
         let field = sphere_field(&m, false);
         let period = 0.4;
-        let solved = StripePattern::new(&m, &field, period, u64::MAX).unwrap().unwrap();
+        let solved = StripePattern::new(&m, &field, period, u64::MAX, u64::MAX)
+            .unwrap()
+            .unwrap();
         let psi: Vec<f32> = solved.psi().iter().map(|&x| x as f32).collect();
         let stored = StripePattern::from_psi(&m, &field, period, &psi)
             .unwrap()
@@ -652,7 +694,7 @@ mod tests {
         }
         assert!(worst < 1e-5, "phase off by {worst} rad");
         // another period subdivides differently: its ψ does not fit
-        let other = StripePattern::new(&m, &field, period / 3.0, u64::MAX)
+        let other = StripePattern::new(&m, &field, period / 3.0, u64::MAX, u64::MAX)
             .unwrap()
             .unwrap();
         let psi: Vec<f32> = other.psi().iter().map(|&x| x as f32).collect();
@@ -720,7 +762,7 @@ mod tests {
         let m = sphere(24, 48);
         let field = sphere_field(&m, false);
         let period = 0.35;
-        let fine = Subdivided::new(&m, &field, period, u64::MAX, "test").unwrap();
+        let fine = Subdivided::new(&m, &field, period, (u64::MAX, u64::MAX), "test").unwrap();
         let nu = std::f64::consts::TAU / period;
         let eigen = Solved::new(&fine, period, 0).unwrap();
         let even = Solved::new(&fine, period, EVEN_ITERATIONS).unwrap();
@@ -738,20 +780,28 @@ mod tests {
         let m = sphere(4, 8);
         let f = sphere_field(&m, true);
         for p in [0.0, -1.0, f64::NAN, f64::INFINITY] {
-            assert!(forced_ends(&m, &f, p, u64::MAX).is_err());
+            assert!(forced_ends(&m, &f, p, u64::MAX, u64::MAX).is_err());
         }
-        assert!(forced_ends(&m, &f[1..], 0.5, u64::MAX).is_err());
-        let e = forced_ends(&m, &f, 0.5, 1 << 10).unwrap_err().to_string();
-        assert!(e.contains("raise --memory"), "{e}");
+        assert!(forced_ends(&m, &f[1..], 0.5, u64::MAX, u64::MAX).is_err());
+        // a step given 1 KiB of a 4 KiB --memory: four times what it needs
+        let needed = match forced_ends(&m, &f, 0.5, u64::MAX, u64::MAX) {
+            Ok(r) => r.vertices as u64 * BYTES_PER_VERTEX,
+            Err(e) => panic!("{e}"),
+        };
+        let e = forced_ends(&m, &f, 0.5, 1 << 10, 4 << 10)
+            .unwrap_err()
+            .to_string();
+        let enough = format!("give --memory {}MiB or more", (needed * 4).div_ceil(1 << 20));
+        assert!(e.contains(&enough), "{e} (expected '{enough}')");
         for p in [0.0, -1.0, f64::NAN] {
-            assert!(StripePattern::new(&m, &f, p, u64::MAX).is_err());
+            assert!(StripePattern::new(&m, &f, p, u64::MAX, u64::MAX).is_err());
         }
-        let e = StripePattern::new(&m, &f, 0.5, 1 << 10)
+        let e = StripePattern::new(&m, &f, 0.5, 1 << 10, 1 << 20)
             .err()
             .unwrap()
             .to_string();
         assert!(
-            e.contains("locking the courses") && e.contains("raise --memory"),
+            e.contains("locking the courses") && e.contains("--memory 1MiB: give --memory"),
             "{e}"
         );
     }

@@ -35,9 +35,16 @@ fn courses_run_on_across_the_seams_of_a_flat_wall() {
     assert_eq!(plain["courses"]["ends"], c["ends"]);
     assert_eq!(plain["courses"]["offset_share"], c["offset_share"]);
     // the solve refuses a budget it does not fit in, and says what to do
-    fails_clearly(
+    let said = fails_clearly(
         &btfquilt(&["evaluate", s(&wall), "--forced-ends", "--memory", "4MiB"]),
-        &["raise --memory"],
+        &["of --memory 4MiB: give --memory"],
+    );
+    let enough = enough_memory(&said);
+    let again: serde_json::Value =
+        serde_json::from_str(&ok(&["evaluate", s(&wall), "--forced-ends", "--memory", &enough])).unwrap();
+    assert_eq!(
+        again["courses"]["forced_ends"], c["forced_ends"],
+        "--memory {enough}"
     );
     // plaster has no rows
     let plaster = tile("plaster_cracks.png", "plaster.quilt");
@@ -183,11 +190,18 @@ fn locked_courses_end_only_where_the_field_forces_them() {
         &run(args(&plaster, "1GiB")),
         &["plaster_cracks.png", "has no courses", "--courses locked"],
     );
-    fails_clearly(
+    let said = fails_clearly(
         &run(args(&wall, "8MiB")),
-        &["locking the courses", "raise --memory"],
+        &["locking the courses", "of --memory 8MiB: give --memory"],
     );
     assert!(!refused.exists());
+    // the --memory it names is enough, and gives the same quilt
+    let enough = enough_memory(&said);
+    assert!(run(args(&wall, &enough)).status.success(), "--memory {enough}");
+    assert!(
+        std::fs::read(&refused).unwrap() == bytes,
+        "--memory {enough} changed the quilt"
+    );
 }
 
 /// Painting a surface tiled with locked courses (Spot at 256², the wall
@@ -412,4 +426,13 @@ fn shorten_stripe_pattern(src: &Path, out: &Path) {
         }
     }
     w.finish().unwrap();
+}
+
+/// The budget a refusal names ("give --memory 184MiB or more").
+fn enough_memory(said: &str) -> String {
+    let after = said
+        .split("give --memory ")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no budget named: {said}"));
+    after.split_whitespace().next().unwrap().to_string()
 }

@@ -316,7 +316,7 @@ pub fn evaluate_with(
         Some(c) if cfg.forced_ends && scale.sample_pixels_per_unit > 0.0 => {
             let field = gim.face_field()?;
             let period = c.period() / scale.sample_pixels_per_unit;
-            let forced = crate::field::forced_ends(&mesh, &field, period, work.0)?;
+            let forced = crate::field::forced_ends(&mesh, &field, period, work.0, budget.0)?;
             Some(course_count.figures(&c, Some(forced.ends)))
         }
         Some(c) => Some(course_count.figures(&c, None)),

@@ -107,14 +107,14 @@ pub(crate) const PATTERN_FIT: f64 = 0.05;
 
 /// Locked courses: the smoothest stripe pattern along the atlas's field at
 /// the sample's course period (texels × the atlas's texel size), solved
-/// within `budget`; or, for a stroke on a locked surface, the `stored`
+/// within `budget` bytes of a `--memory` of `memory`; or, for a stroke on a locked surface, the `stored`
 /// pattern, where the sample's courses fit it ([`PATTERN_FIT`]). `None`
 /// where they do not and the stroke may be laid free.
 fn course_lock(
     gim: &Gim,
     sample: &Sample,
     sample_path: &Path,
-    budget: u64,
+    (budget, memory): (u64, u64),
     stored: Option<&StoredPattern>,
 ) -> Result<Option<CourseLock>> {
     let free_unless_fit = stored.is_some_and(|s| s.free_unless_fit);
@@ -131,8 +131,8 @@ fn course_lock(
     let period = courses.period();
     let units = period * gim.texel_size;
     let Some(s) = stored else {
-        let pattern =
-            StripePattern::new(&gim.mesh()?, &gim.face_field()?, units, budget)?.ok_or_else(|| {
+        let pattern = StripePattern::new(&gim.mesh()?, &gim.face_field()?, units, budget, memory)?
+            .ok_or_else(|| {
                 Error::input(
                     gim.container().path(),
                     "its field admits no stripe pattern (a degenerate mesh)",
@@ -221,7 +221,10 @@ impl Synthesis {
                 gim,
                 &sample,
                 sample_path,
-                cfg.memory.bytes().saturating_sub(quarter.bytes()),
+                (
+                    cfg.memory.bytes().saturating_sub(quarter.bytes()),
+                    cfg.memory.bytes(),
+                ),
                 stored,
             )?
         } else {
