@@ -27,7 +27,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::artifact::gim::{Gim, EMPTY};
-use crate::container::Param;
+use crate::container::{MemoryBudget, Param};
 use crate::progress::Progress;
 pub use crate::quilt::Projection;
 use crate::quilt::{
@@ -164,7 +164,7 @@ pub fn preview(quilt_path: &Path, cfg: &PaintConfig, progress: &dyn Progress) ->
             "a preview needs --verbatim and --preview IMAGE".into(),
         ));
     };
-    check_paint_output(&Quilt::open(quilt_path, cfg.tile.memory)?, cfg, out)?;
+    check_paint_output(&Quilt::open(quilt_path, reading(cfg.tile.memory))?, cfg, out)?;
     let mut session = PreviewSession::open(quilt_path, cfg, progress)?;
     let t = Instant::now();
     let taken = session.preview(v, out, progress)?;
@@ -191,7 +191,7 @@ impl PreviewSession {
     /// defaults as for [`paint`]; `cfg.region`, `cfg.verbatim` and
     /// `cfg.preview` are not used).
     pub fn open(quilt_path: &Path, cfg: &PaintConfig, progress: &dyn Progress) -> Result<PreviewSession> {
-        let base = Quilt::open(quilt_path, cfg.tile.memory)?;
+        let base = Quilt::open(quilt_path, reading(cfg.tile.memory))?;
         // a stroke resolves the sample and mask defaults; its place and
         // turn are given per preview (courses resolved as for a copy along
         // the field, which a locked surface locks)
@@ -247,9 +247,13 @@ fn open_synthesis(
     let start = Instant::now();
     let cfg = TileConfig {
         sample_mask: Some(stroke.sample_mask.clone()),
+        // what reading the base surface leaves
+        memory: MemoryBudget(stroke.tile.memory.bytes() - reading(stroke.tile.memory).bytes()),
         ..stroke.tile.clone()
     };
-    let gim = base.open_gim(None, cfg.memory)?;
+    // (the synthesis reads the surface by tiles through a reader of its
+    // own; this one reads the region's planes in bands)
+    let gim = base.open_gim(None, MemoryBudget(1 << 20))?;
     let matching = stroke.verbatim.is_none();
     let sized = sample_at_density(
         &stroke.sample,
@@ -296,7 +300,7 @@ fn run(quilt_path: &Path, out: &Path, cfg: &PaintConfig, progress: &dyn Progress
             "--preview writes only the preview: give no output quilt".into(),
         ));
     }
-    let base = Quilt::open(quilt_path, cfg.tile.memory)?;
+    let base = Quilt::open(quilt_path, reading(cfg.tile.memory))?;
     check_paint_output(&base, cfg, out)?;
     let log = match base.container().metadata().param("paint_log") {
         Some(Param::Text(s)) => PaintLog::parse(s, quilt_path, &base.samples[0])?.resolved_in(quilt_path),
@@ -308,6 +312,13 @@ fn run(quilt_path: &Path, out: &Path, cfg: &PaintConfig, progress: &dyn Progress
     };
     let stroke = Stroke::from_config(cfg, &base, quilt_path)?;
     apply_stroke(&base, &stroke, out, &log, progress)
+}
+
+/// The share of `--memory` that caches the base surface's decoded chunks
+/// while a stroke loads it tile by tile (an eighth; the synthesis takes the
+/// rest).
+fn reading(memory: MemoryBudget) -> MemoryBudget {
+    memory.split([1, 7])[0]
 }
 
 /// Refuses `out` when it is the surface, a file it depends on, or a file
@@ -358,7 +369,7 @@ pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<Pai
         } else {
             dir.path().join(format!("step{k}.quilt"))
         };
-        let q = Quilt::open(&current, stroke.tile.memory)?;
+        let q = Quilt::open(&current, reading(stroke.tile.memory))?;
         report = apply_stroke(&q, stroke, &target, &done, progress)?;
         done.strokes.push(stroke.clone());
         current = target;

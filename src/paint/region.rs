@@ -136,9 +136,6 @@ pub(super) fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
     let r = syn.resolution();
-    let texels = |marked: Vec<bool>| -> Vec<u32> {
-        (0..marked.len() as u32).filter(|&t| marked[t as usize]).collect()
-    };
     match ext.as_str() {
         _ if crate::io::imageio::is_image_path(path) => {
             let mask =
@@ -147,11 +144,7 @@ pub(super) fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec
                 .filter(|&t| mask[t as usize] >= 0.5 && syn.chart(t) != EMPTY)
                 .collect())
         }
-        "ply" | "obj" => Ok(texels(vertex_paint_region(
-            gim,
-            &gim.read::<u32>("chart")?,
-            path,
-        )?)),
+        "ply" | "obj" => vertex_paint_region(gim, path),
         "json" => strokes_region(syn, path),
         _ => Err(Error::input(
             path,
@@ -164,8 +157,9 @@ pub(super) fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec
 /// weight (PLY `quality`/`weight`/`value`) is ≥ ½, or, for vertex colours,
 /// when its colour differs from the mesh's dominant (unpainted) colour by
 /// ≥ ½ in some channel. Per texel the corner weights are interpolated with
-/// the texel's barycentrics on its face.
-fn vertex_paint_region(gim: &Gim, chart: &[u32], path: &Path) -> Result<Vec<bool>> {
+/// the texel's barycentrics on its face. The atlas is read in bands of
+/// rows.
+fn vertex_paint_region(gim: &Gim, path: &Path) -> Result<Vec<u32>> {
     let (painted, _) = crate::mesh::io::load(path, &crate::mesh::io::LoadOptions::default())?;
     let weights: Vec<f32> = if let Some(w) = &painted.vertex_weights {
         w.clone()
@@ -213,21 +207,28 @@ fn vertex_paint_region(gim: &Gim, chart: &[u32], path: &Path) -> Result<Vec<bool
     if !vertex_weight.iter().any(|&w| w >= 0.5) {
         return Err(Error::input(path, "paints no vertex (no weight ≥ ½)"));
     }
-    let face: Vec<u32> = gim.read("face")?;
-    let bary: Vec<f32> = gim.read("bary")?;
-    Ok((0..chart.len())
-        .map(|t| {
-            if chart[t] == EMPTY {
-                return false;
+    let r = gim.resolution;
+    let c = gim.container();
+    let mut region = Vec::new();
+    for y0 in (0..r).step_by(crate::artifact::gim::TILE) {
+        let h = crate::artifact::gim::TILE.min(r - y0);
+        let (chart, face) = gim.chart_face_region(0, y0, r, h)?;
+        let bary: Vec<f32> = c.read_region(c.array("bary")?, &[y0 as u64, 0, 0], &[h as u64, r as u64, 2])?;
+        for i in 0..chart.len() {
+            if chart[i] == EMPTY {
+                continue;
             }
-            let tri = mesh.triangles[face[t] as usize];
-            let (b1, b2) = (bary[t * 2], bary[t * 2 + 1]);
+            let tri = mesh.triangles[face[i] as usize];
+            let (b1, b2) = (bary[i * 2], bary[i * 2 + 1]);
             let w = (1.0 - b1 - b2) * vertex_weight[tri[0] as usize]
                 + b1 * vertex_weight[tri[1] as usize]
                 + b2 * vertex_weight[tri[2] as usize];
-            w >= 0.5
-        })
-        .collect())
+            if w >= 0.5 {
+                region.push((y0 * r + i) as u32);
+            }
+        }
+    }
+    Ok(region)
 }
 
 /// One stroke of a strokes file.
