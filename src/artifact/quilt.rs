@@ -425,6 +425,13 @@ impl Quilt {
         }
     }
 
+    /// Sample `k`'s file ([`Quilt::samples`] order), after checking it is
+    /// the one the quilt was made from ([`Quilt::verify`]).
+    pub fn sample_file(&self, k: usize) -> Result<&Path> {
+        self.verify(&sample_role(k), &self.samples[k])?;
+        Ok(&self.samples[k])
+    }
+
     /// The width (mesh units) sample `k` ([`Quilt::samples`] order) was
     /// given on the surface (`--sample-width` or `--sample-pixel`); `None`
     /// when it was given none (one sample pixel per texel).

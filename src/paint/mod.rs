@@ -590,11 +590,10 @@ fn default_width(base: &Quilt, sample: &Path) -> Result<Option<f64>> {
     if base.samples.iter().any(|p| same_file(p, sample)) {
         return Ok(recorded_span(base, sample));
     }
-    let tiling = &base.samples[0];
-    let Some(span) = recorded_span(base, tiling) else {
+    let Some(span) = base.sample_span(0) else {
         return Ok(None);
     };
-    let [tiling_width, _] = sample_pixel_size(tiling)?;
+    let [tiling_width, _] = sample_pixel_size(base.sample_file(0)?)?;
     let [width, _] = sample_pixel_size(sample)?;
     Ok(Some(if width == tiling_width {
         span

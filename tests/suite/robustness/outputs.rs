@@ -454,3 +454,36 @@ fn a_painted_surface_moves_with_its_inputs_and_replays_from_anywhere() {
     assert_eq!(a.coords().unwrap(), b.coords().unwrap());
     ok(&["evaluate", s(&again)]);
 }
+
+#[test]
+fn painting_a_surface_whose_samples_are_gone_or_changed_names_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, _, sample, quilt) = decorated(d);
+    // another sample to paint with (a copy), then the tiling's is removed
+    let other = d.join("other.png");
+    std::fs::copy(&sample, &other).unwrap();
+    std::fs::remove_file(&sample).unwrap();
+    let mask = d.join("mask.png");
+    crate::common::write_mask_png(&mask, 32, 32, |x, _| x < 8);
+    let strokes = d.join("strokes.json");
+    std::fs::write(&strokes, r#"[{"point": [0.5, 0.5, 0.0], "radius": 0.2}]"#).unwrap();
+    let out = d.join("painted.quilt");
+    #[rustfmt::skip]
+    let run = crate::common::btfquilt(&["paint", s(&quilt), "--sample", s(&other), "--sample-mask", s(&mask),
+                         "--region", s(&strokes), "-q", "-o", s(&out)]);
+    let name = |p: &Path| p.file_name().unwrap().to_str().unwrap().to_string();
+    crate::common::fails_clearly(&run, &[&name(&quilt), &name(&sample), "is gone"]);
+    assert!(!out.exists());
+    // put back changed: refused as not the one the surface was made from
+    std::fs::copy(&other, &sample).unwrap();
+    let mut bytes = std::fs::read(&sample).unwrap();
+    let last = bytes.len() - 1;
+    bytes.truncate(last);
+    std::fs::write(&sample, &bytes).unwrap();
+    #[rustfmt::skip]
+    let run = crate::common::btfquilt(&["paint", s(&quilt), "--sample", s(&other), "--sample-mask", s(&mask),
+                                        "--region", s(&strokes), "-q", "-o", s(&out)]);
+    crate::common::fails_clearly(&run, &[&name(&quilt), &name(&sample), "is not the sample"]);
+    assert!(!out.exists());
+}
