@@ -12,8 +12,10 @@ pub(in crate::quilt) struct SurfaceTile {
     pub(in crate::quilt) position: Vec<[f32; 3]>,
     pub(in crate::quilt) normal: Vec<[f32; 3]>,
     /// The course phase of the stripe pattern per texel (radians), with
-    /// locked courses; empty otherwise.
-    pub(in crate::quilt) phase: Vec<f32>,
+    /// locked courses: computed the first time a texel of the tile asks
+    /// for it ([`Surface::course_phase`]), so a stroke that loads the whole
+    /// surface computes it only around its region.
+    pub(in crate::quilt) phase: std::sync::OnceLock<Vec<f32>>,
 }
 
 /// Bytes of a surface tile, and what its course phase adds.
@@ -33,7 +35,6 @@ pub(in crate::quilt) struct GimTiles {
     gim: Gim,
     grid: TileGrid,
     pub(super) unit: f32,
-    lock: Option<Arc<CourseLock>>,
 }
 
 impl TileSource<SurfaceTile> for GimTiles {
@@ -50,12 +51,6 @@ impl TileSource<SurfaceTile> for GimTiles {
                 tile.position[i] = [p[0], p[1], p[2]].map(|c| c * self.unit);
                 let q = &region.normal[j * 3..j * 3 + 3];
                 tile.normal[i] = [q[0], q[1], q[2]];
-                if let Some(lock) = &self.lock {
-                    if region.chart[j] != EMPTY {
-                        let p = [p[0], p[1], p[2]].map(f64::from);
-                        tile.phase[i] = lock.pattern.phase(region.face[j] as usize, p) as f32;
-                    }
-                }
             }
         }
         Ok(tile)
@@ -71,11 +66,7 @@ impl TileSource<SurfaceTile> for GimTiles {
             face: vec![0; TILE_TEXELS],
             position: vec![[0.0; 3]; TILE_TEXELS],
             normal: vec![[0.0; 3]; TILE_TEXELS],
-            phase: if self.lock.is_some() {
-                vec![0.0; TILE_TEXELS]
-            } else {
-                Vec::new()
-            },
+            phase: std::sync::OnceLock::new(),
         }
     }
 }
@@ -128,12 +119,7 @@ impl Surface {
                 }
             }
         }
-        let source = GimTiles {
-            gim: own,
-            grid,
-            unit,
-            lock: lock.clone(),
-        };
+        let source = GimTiles { gim: own, grid, unit };
         let tile_bytes = SURFACE_TILE_BYTES + if lock.is_some() { PHASE_TILE_BYTES } else { 0 };
         Ok(Surface {
             covered: Arc::new(covered),
@@ -230,7 +216,25 @@ impl Surface {
     /// The stripe pattern's course phase at texel `t` (radians), with
     /// locked courses.
     pub(in crate::quilt) fn course_phase(&self, t: u32) -> f64 {
-        self.tiles.read(t, |s, i| s.phase.get(i).copied().unwrap_or(0.0)) as f64
+        let Some(lock) = &self.lock else {
+            return 0.0;
+        };
+        let unit = self.unit;
+        self.tiles.read(t, |s, i| {
+            s.phase.get_or_init(|| {
+                // the pattern's phase at each covered texel's own position
+                // (the tile holds it times `unit`, a power of two: exact)
+                (0..TILE_TEXELS)
+                    .map(|j| match s.chart[j] {
+                        EMPTY => 0.0,
+                        _ => lock
+                            .pattern
+                            .phase(s.face[j] as usize, s.position[j].map(|c| f64::from(c / unit)))
+                            as f32,
+                    })
+                    .collect()
+            })[i]
+        }) as f64
     }
 
     pub(in crate::quilt) fn texel_angle(&self, t: u32) -> f64 {
