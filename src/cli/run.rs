@@ -406,8 +406,8 @@ pub(crate) fn run(cli: Cli) -> Result<()> {
             }
         }
         Command::Replay { file, output, res } => {
-            let (_, bars) = res.apply()?;
-            let report = btfquilt::paint::replay(&file, &output, &bars)?;
+            let (memory, bars) = res.apply()?;
+            let report = btfquilt::paint::replay(&file, &output, memory, &bars)?;
             say!("wrote {}: {report}", output.display());
         }
         Command::Bake {

@@ -339,15 +339,21 @@ fn check_paint_output(base: &Quilt, cfg: &PaintConfig, out: &Path) -> Result<()>
 }
 
 /// Replays the paint log of `painted` onto its recorded base quilt, writing
-/// the result to `out` (byte-identical to `painted` when nothing changed).
-pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<PaintReport> {
-    let q = Quilt::open(painted, crate::container::MemoryBudget::default())?;
+/// the result to `out` (byte-identical to `painted` when nothing changed),
+/// each stroke within `memory` (which does not change the result).
+pub fn replay(
+    painted: &Path,
+    out: &Path,
+    memory: MemoryBudget,
+    progress: &dyn Progress,
+) -> Result<PaintReport> {
+    let q = Quilt::open(painted, MemoryBudget(1 << 20))?;
     let Some(Param::Text(text)) = q.container().metadata().param("paint_log") else {
         return Err(Error::input(painted, "has no paint log (it was not painted)"));
     };
     let log = PaintLog::parse(text, painted, &q.samples[0])?.resolved_in(painted);
     q.check_output(out)?;
-    let base = Quilt::open(&log.base, crate::container::MemoryBudget::default())?;
+    let base = Quilt::open(&log.base, MemoryBudget(1 << 20))?;
     base.check_output(out)?;
     if base.container().content_hash() != log.base_hash {
         return Err(Error::input(
@@ -369,8 +375,15 @@ pub fn replay(painted: &Path, out: &Path, progress: &dyn Progress) -> Result<Pai
         } else {
             dir.path().join(format!("step{k}.quilt"))
         };
-        let q = Quilt::open(&current, reading(stroke.tile.memory))?;
-        report = apply_stroke(&q, stroke, &target, &done, progress)?;
+        let q = Quilt::open(&current, reading(memory))?;
+        let within = Stroke {
+            tile: TileConfig {
+                memory,
+                ..stroke.tile.clone()
+            },
+            ..stroke.clone()
+        };
+        report = apply_stroke(&q, &within, &target, &done, progress)?;
         done.strokes.push(stroke.clone());
         current = target;
     }

@@ -182,13 +182,14 @@ fn painting_a_region_fills_it_merges_it_and_replays() {
         "foreground outside F and the transition zone: {spill}"
     );
 
-    // the log replays to the same bytes, on one thread and on two
+    // the log replays to the same bytes, on one thread within 24 MiB and
+    // on two
     let again = s.dir.join("replayed.quilt");
     rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
         .unwrap()
-        .install(|| paint::replay(&out, &again, &Silent))
+        .install(|| paint::replay(&out, &again, MemoryBudget(24 << 20), &Silent))
         .unwrap();
     assert_eq!(std::fs::read(&again).unwrap(), std::fs::read(&out).unwrap());
     let two = s.dir.join("two.quilt");
@@ -209,7 +210,7 @@ fn painting_a_region_fills_it_merges_it_and_replays() {
     };
     paint::paint(&out, &twice, &cfg2, &Silent).unwrap();
     let again2 = s.dir.join("replayed2.quilt");
-    paint::replay(&twice, &again2, &Silent).unwrap();
+    paint::replay(&twice, &again2, Default::default(), &Silent).unwrap();
     assert_eq!(std::fs::read(&again2).unwrap(), std::fs::read(&twice).unwrap());
 }
 
@@ -560,7 +561,7 @@ fn painting_with_another_sample_adds_it_to_the_surface() {
 
     // the log records the stain: replay gives the same bytes
     let again = s.dir.join("again.quilt");
-    paint::replay(&out, &again, &Silent).unwrap();
+    paint::replay(&out, &again, Default::default(), &Silent).unwrap();
     assert_eq!(std::fs::read(&again).unwrap(), std::fs::read(&out).unwrap());
 
     // painting the tiling's sample again keeps both samples, and leaves the
@@ -585,7 +586,7 @@ fn painting_with_another_sample_adds_it_to_the_surface() {
         }
     }
     let again2 = s.dir.join("again2.quilt");
-    paint::replay(&twice, &again2, &Silent).unwrap();
+    paint::replay(&twice, &again2, Default::default(), &Silent).unwrap();
     assert_eq!(std::fs::read(&again2).unwrap(), std::fs::read(&twice).unwrap());
 }
 
@@ -650,7 +651,7 @@ fn painting_keeps_the_sample_size_on_the_surface() {
         let w = painted_width(&base, &out, &g, 64);
         assert!((w / want - 1.0).abs() < 0.05, "{name}: {w} vs {want}");
         let again = d.join(format!("{name}-replayed.quilt"));
-        paint::replay(&out, &again, &Silent).unwrap();
+        paint::replay(&out, &again, Default::default(), &Silent).unwrap();
         assert_eq!(
             std::fs::read(&again).unwrap(),
             std::fs::read(&out).unwrap(),

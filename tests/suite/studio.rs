@@ -310,7 +310,7 @@ fn the_studio_paints_undoes_redoes_saves_and_exports() {
     assert!(s.dir.join("mine_gltf/mesh.glb").is_file(), "{reply}");
     // the saved quilt stands alone: it replays from the base to the same bytes
     let again = s.dir.join("again.quilt");
-    btfquilt::paint::replay(&saved, &again, &Silent).unwrap();
+    btfquilt::paint::replay(&saved, &again, Default::default(), &Silent).unwrap();
     assert_eq!(std::fs::read(&again).unwrap(), std::fs::read(&saved).unwrap());
 
     // undo twice, paint again: the redo branch is dropped
