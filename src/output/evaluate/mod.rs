@@ -523,54 +523,98 @@ impl Windows {
 
     /// The distance from each window (inside one chart, drawn from one
     /// sample) to the nearest 5×5 window of that sample's preview turned by
-    /// the window's rotation (`steps` rotations a turn), in window order.
+    /// the window's rotation (`steps` rotations a turn), in window order:
+    /// the first `windows` such windows whose turned preview holds a whole
+    /// 5×5 window. The windows are measured grouped by sample and rotation,
+    /// one turned preview held per thread at a time (not every rotation at
+    /// once: a large sample's 72 turned previews would not fit `--memory`).
     fn coherence(&self, previews: &[RgbImage], steps: usize) -> Vec<f64> {
-        let mut cache: std::collections::BTreeMap<(u8, u8), (Vec<f32>, Vec<u8>)> = Default::default();
-        let mut out = Vec::new();
-        for c in 0..self.centres.len() {
-            if out.len() >= self.windows {
-                break;
-            }
-            let w = c * 25;
-            let (chart, index) = (self.chart[w + 12], self.index[w + 12]);
-            if !(w..w + 25).all(|i| self.covered[i] && self.chart[i] == chart && self.index[i] == index) {
-                continue;
-            }
-            let rot = self.rotation[c];
-            let preview = &previews[index as usize];
-            let (sw, sh) = (preview.width, preview.height);
-            let (maps, valid) = cache.entry((index, rot)).or_insert_with(|| {
-                rotate_maps(&preview.data, sw, sh, 3, rot as f64 * 360.0 / steps as f64, false)
-            });
-            let window = &self.colour[w * 3..w * 3 + 75];
-            let mut best = f64::INFINITY;
-            for sy in 2..sh.saturating_sub(2) {
-                for sx in 2..sw.saturating_sub(2) {
-                    let mut ssd = 0f64;
-                    let mut ok = true;
-                    for i in 0..25 {
-                        let s = (sy + i / 5 - 2) * sw + sx + i % 5 - 2;
-                        if valid[s] == 0 {
-                            ok = false;
-                            break;
-                        }
-                        for k in 0..3 {
-                            ssd += ((maps[s * 3 + k] - window[i * 3 + k]) as f64).powi(2);
-                        }
-                        if ssd >= best {
-                            break;
-                        }
-                    }
-                    if ok && ssd < best {
-                        best = ssd;
-                    }
-                }
-            }
-            if best.is_finite() {
-                out.push((best / 25.0).sqrt());
-            }
+        use rayon::prelude::*;
+        let turned = |index: u8, rot: u8| {
+            let p = &previews[index as usize];
+            rotate_maps(
+                &p.data,
+                p.width,
+                p.height,
+                3,
+                rot as f64 * 360.0 / steps as f64,
+                false,
+            )
+        };
+        // each window inside one chart and one sample, with its (sample, rotation)
+        let candidates: Vec<(usize, (u8, u8))> = (0..self.centres.len())
+            .filter_map(|c| {
+                let w = c * 25;
+                let (chart, index) = (self.chart[w + 12], self.index[w + 12]);
+                (w..w + 25)
+                    .all(|i| self.covered[i] && self.chart[i] == chart && self.index[i] == index)
+                    .then_some((c, (index, self.rotation[c])))
+            })
+            .collect();
+        let mut keys: Vec<(u8, u8)> = candidates.iter().map(|&(_, k)| k).collect();
+        keys.sort_unstable();
+        keys.dedup();
+        // a turned preview without a whole window measures none of its windows
+        let whole: std::collections::BTreeSet<(u8, u8)> = keys
+            .par_iter()
+            .filter(|&&(index, rot)| {
+                let p = &previews[index as usize];
+                let (_, valid) = turned(index, rot);
+                (2..p.height.saturating_sub(2)).any(|sy| {
+                    (2..p.width.saturating_sub(2))
+                        .any(|sx| (0..25).all(|i| valid[(sy + i / 5 - 2) * p.width + sx + i % 5 - 2] != 0))
+                })
+            })
+            .copied()
+            .collect();
+        let mut groups: std::collections::BTreeMap<(u8, u8), Vec<usize>> = Default::default();
+        for &(c, key) in candidates
+            .iter()
+            .filter(|(_, k)| whole.contains(k))
+            .take(self.windows)
+        {
+            groups.entry(key).or_default().push(c);
         }
-        out
+        let mut measured: Vec<(usize, f64)> = groups
+            .into_par_iter()
+            .flat_map_iter(|((index, rot), windows)| {
+                let p = &previews[index as usize];
+                let (sw, sh) = (p.width, p.height);
+                let (maps, valid) = turned(index, rot);
+                windows
+                    .into_iter()
+                    .map(|c| {
+                        let window = &self.colour[c * 75..c * 75 + 75];
+                        let mut best = f64::INFINITY;
+                        for sy in 2..sh.saturating_sub(2) {
+                            for sx in 2..sw.saturating_sub(2) {
+                                let mut ssd = 0f64;
+                                let mut ok = true;
+                                for i in 0..25 {
+                                    let s = (sy + i / 5 - 2) * sw + sx + i % 5 - 2;
+                                    if valid[s] == 0 {
+                                        ok = false;
+                                        break;
+                                    }
+                                    for k in 0..3 {
+                                        ssd += ((maps[s * 3 + k] - window[i * 3 + k]) as f64).powi(2);
+                                    }
+                                    if ssd >= best {
+                                        break;
+                                    }
+                                }
+                                if ok && ssd < best {
+                                    best = ssd;
+                                }
+                            }
+                        }
+                        (c, (best / 25.0).sqrt())
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        measured.sort_unstable_by_key(|&(c, _)| c);
+        measured.into_iter().map(|(_, d)| d).collect()
     }
 }
 
