@@ -138,11 +138,10 @@ pub(super) fn read_region(syn: &Synthesis, gim: &Gim, path: &Path) -> Result<Vec
     let r = syn.resolution();
     match ext.as_str() {
         _ if crate::io::imageio::is_image_path(path) => {
-            let mask =
-                crate::io::imageio::read_sized_mask(path, r, r, "a region mask must be the atlas size")?;
-            Ok((0..mask.len() as u32)
-                .filter(|&t| mask[t as usize] >= 0.5 && syn.chart(t) != EMPTY)
-                .collect())
+            let mut marked =
+                crate::io::imageio::read_mask_marked(path, r, r, "a region mask must be the atlas size")?;
+            marked.retain(|&t| syn.chart(t) != EMPTY);
+            Ok(marked)
         }
         "ply" | "obj" => vertex_paint_region(gim, path),
         "json" => strokes_region(syn, path),

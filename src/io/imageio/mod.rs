@@ -285,6 +285,33 @@ fn is_8bit(img: &DynamicImage) -> bool {
 /// The size is checked from the file's header before anything is decoded,
 /// and the decoded image is held to [`DEFAULT_DECODE_BYTES`].
 pub fn read_sized_mask(path: &Path, width: usize, height: usize, must_be: &str) -> Result<Vec<f32>> {
+    let mut mask = Vec::with_capacity(width * height);
+    each_mask_value(path, width, height, must_be, |v| mask.push(v))?;
+    Ok(mask)
+}
+
+/// The pixels (row-major indices, ascending) where the mask of
+/// [`read_sized_mask`] is at least one half, without holding its values: a
+/// region mask at a large atlas's size keeps only its decoded image.
+pub fn read_mask_marked(path: &Path, width: usize, height: usize, must_be: &str) -> Result<Vec<u32>> {
+    let (mut marked, mut k) = (Vec::new(), 0u32);
+    each_mask_value(path, width, height, must_be, |v| {
+        if v >= 0.5 {
+            marked.push(k);
+        }
+        k += 1;
+    })?;
+    Ok(marked)
+}
+
+/// Calls `f` with the value of [`read_sized_mask`] at each pixel in turn.
+fn each_mask_value(
+    path: &Path,
+    width: usize,
+    height: usize,
+    must_be: &str,
+    mut f: impl FnMut(f32),
+) -> Result<()> {
     let kind = kind_of(path)?;
     let (w, h) = declared_size(path, kind)?;
     if (w, h) != (width, height) {
@@ -301,23 +328,79 @@ pub fn read_sized_mask(path: &Path, width: usize, height: usize, must_be: &str) 
         }
         Kind::Raster(format) => {
             let img = decode_raster(path, format, DEFAULT_DECODE_BYTES)?;
-            (
-                img.width() as usize,
-                img.height() as usize,
-                img.to_rgb32f().into_raw(),
-            )
+            let (w, h) = (img.width() as usize, img.height() as usize);
+            if (w, h) != (width, height) {
+                return Err(decoded_size_differs(path, (w, h), (width, height)));
+            }
+            // 8-bit masks (the usual ones) straight from their bytes: the
+            // largest colour channel, alpha dropped, without a float RGB
+            // copy of the whole image
+            let mut eight = |px: &[u8], channels: usize, colours: usize| {
+                let float = eight_bit_floats(channels);
+                for p in px.chunks_exact(channels) {
+                    f(float[p[..colours].iter().copied().max().unwrap_or(0) as usize]);
+                }
+            };
+            match &img {
+                DynamicImage::ImageLuma8(b) => eight(b.as_raw(), 1, 1),
+                DynamicImage::ImageLumaA8(b) => eight(b.as_raw(), 2, 1),
+                DynamicImage::ImageRgb8(b) => eight(b.as_raw(), 3, 3),
+                DynamicImage::ImageRgba8(b) => eight(b.as_raw(), 4, 3),
+                other => largest_channel(&other.to_rgb32f().into_raw())
+                    .into_iter()
+                    .for_each(f),
+            }
+            return Ok(());
         }
     };
     if (w, h) != (width, height) {
-        return Err(Error::input(
-            path,
-            format!("decoded size {w}×{h} differs from its header {width}×{height}"),
-        ));
+        return Err(decoded_size_differs(path, (w, h), (width, height)));
     }
-    Ok(rgb
-        .chunks_exact(3)
+    largest_channel(&rgb).into_iter().for_each(f);
+    Ok(())
+}
+
+/// The image crate's float value of each 8-bit code in an image of
+/// `channels` 8-bit channels (its `to_rgb32f`, which converts grey and
+/// colour layouts differently in the last bit), so masks read from their
+/// bytes equal those read through it.
+fn eight_bit_floats(channels: usize) -> &'static [f32; 256] {
+    static T: OnceLock<[[f32; 256]; 4]> = OnceLock::new();
+    let tables = T.get_or_init(|| {
+        let code = |x: u32| x as u8;
+        let layouts = [
+            DynamicImage::ImageLuma8(image::ImageBuffer::from_fn(256, 1, |x, _| image::Luma([code(x)]))),
+            DynamicImage::ImageLumaA8(image::ImageBuffer::from_fn(256, 1, |x, _| {
+                image::LumaA([code(x), 255])
+            })),
+            DynamicImage::ImageRgb8(image::ImageBuffer::from_fn(256, 1, |x, _| {
+                image::Rgb([code(x); 3])
+            })),
+            DynamicImage::ImageRgba8(image::ImageBuffer::from_fn(256, 1, |x, _| {
+                let c = code(x);
+                image::Rgba([c, c, c, 255])
+            })),
+        ];
+        layouts.map(|img| {
+            let rgb = img.to_rgb32f().into_raw();
+            std::array::from_fn(|k| rgb[3 * k])
+        })
+    });
+    &tables[channels - 1]
+}
+
+/// Per pixel of linear RGB, its largest channel within [0, 1].
+fn largest_channel(rgb: &[f32]) -> Vec<f32> {
+    rgb.chunks_exact(3)
         .map(|p| p.iter().fold(0f32, |a, &b| a.max(b)).clamp(0.0, 1.0))
-        .collect())
+        .collect()
+}
+
+fn decoded_size_differs(path: &Path, (w, h): (usize, usize), (width, height): (usize, usize)) -> Error {
+    Error::input(
+        path,
+        format!("decoded size {w}×{h} differs from its header {width}×{height}"),
+    )
 }
 
 /// dropped; a grey image or a single-channel EXR is replicated into R, G, B.

@@ -470,3 +470,51 @@ fn read_errors() {
         assert!(image_size(&p).is_err());
     }
 }
+
+#[test]
+fn eight_bit_masks_read_as_their_float_conversion() {
+    // every code value in every 8-bit layout reads exactly as the largest
+    // channel of the image crate's float RGB (which drops alpha)
+    let dir = tempfile::tempdir().unwrap();
+    let v = |x: u32, y: u32| ((x * 7 + y * 16) % 256) as u8;
+    let images: Vec<(&str, image::DynamicImage)> = vec![
+        (
+            "l8",
+            image::DynamicImage::ImageLuma8(image::ImageBuffer::from_fn(16, 16, |x, y| {
+                image::Luma([v(x, y)])
+            })),
+        ),
+        (
+            "la8",
+            image::DynamicImage::ImageLumaA8(image::ImageBuffer::from_fn(16, 16, |x, y| {
+                image::LumaA([v(x, y), 255 - v(y, x)])
+            })),
+        ),
+        (
+            "rgb8",
+            image::DynamicImage::ImageRgb8(image::ImageBuffer::from_fn(16, 16, |x, y| {
+                image::Rgb([v(x, y), v(y, x), v(x + 3, y)])
+            })),
+        ),
+        (
+            "rgba8",
+            image::DynamicImage::ImageRgba8(image::ImageBuffer::from_fn(16, 16, |x, y| {
+                image::Rgba([v(y, x), v(x, y), 9, v(x + 1, y)])
+            })),
+        ),
+    ];
+    for (name, img) in images {
+        let path = dir.path().join(format!("{name}.png"));
+        img.save(&path).unwrap();
+        let expected = super::largest_channel(&img.to_rgb32f().into_raw());
+        assert_eq!(read_sized_mask(&path, 16, 16, "").unwrap(), expected, "{name}");
+        // the marked pixels alone: those at one half or more
+        let marked: Vec<u32> = (0..256).filter(|&k| expected[k as usize] >= 0.5).collect();
+        assert!(!marked.is_empty() && marked.len() < 256, "{name}");
+        assert_eq!(
+            super::read_mask_marked(&path, 16, 16, "").unwrap(),
+            marked,
+            "{name}"
+        );
+    }
+}
