@@ -248,7 +248,7 @@ fn open_synthesis(
     let cfg = TileConfig {
         sample_mask: Some(stroke.sample_mask.clone()),
         // what reading the base surface leaves
-        memory: MemoryBudget(stroke.tile.memory.bytes() - reading(stroke.tile.memory).bytes()),
+        memory: stroke_budgets(stroke.tile.memory)[1],
         ..stroke.tile.clone()
     };
     // (the synthesis reads the surface by tiles through a reader of its
@@ -314,11 +314,16 @@ fn run(quilt_path: &Path, out: &Path, cfg: &PaintConfig, progress: &dyn Progress
     apply_stroke(&base, &stroke, out, &log, progress)
 }
 
-/// The share of `--memory` that caches the base surface's decoded chunks
-/// while a stroke loads it tile by tile (an eighth; the synthesis takes the
-/// rest).
+/// `--memory` split between caching the base surface's decoded chunks
+/// while a stroke loads it tile by tile (an eighth) and the stroke's
+/// synthesis (the rest).
+fn stroke_budgets(memory: MemoryBudget) -> [MemoryBudget; 2] {
+    memory.split([1, 7])
+}
+
+/// The first share of [`stroke_budgets`]: the base surface's reads.
 fn reading(memory: MemoryBudget) -> MemoryBudget {
-    memory.split([1, 7])[0]
+    stroke_budgets(memory)[0]
 }
 
 /// Refuses `out` when it is the surface, a file it depends on, or a file

@@ -554,12 +554,15 @@ impl Windows {
         let mut keys: Vec<(u8, u8)> = candidates.iter().map(|&(_, k)| k).collect();
         keys.sort_unstable();
         keys.dedup();
-        // a turned preview without a whole window measures none of its windows
+        // a turned preview without a whole window measures none of its
+        // windows (which pixels are valid depends on the turn alone: no
+        // colour is turned here)
         let whole: std::collections::BTreeSet<(u8, u8)> = keys
             .par_iter()
             .filter(|&&(index, rot)| {
                 let p = &previews[index as usize];
-                let (_, valid) = turned(index, rot);
+                let degrees = rot as f64 * 360.0 / steps as f64;
+                let (_, valid) = rotate_maps(&[], p.width, p.height, 0, degrees, false);
                 (2..p.height.saturating_sub(2)).any(|sy| {
                     (2..p.width.saturating_sub(2))
                         .any(|sx| (0..25).all(|i| valid[(sy + i / 5 - 2) * p.width + sx + i % 5 - 2] != 0))
