@@ -41,10 +41,10 @@ pub(super) struct Quilting {
     #[arg(long)]
     pub(super) patch_radius: Option<usize>,
     /// T_c: accept a patch if its mean seam cost ≤ this × the sample's neighbour difference.
-    #[arg(long, default_value_t = TileConfig::default().seam_threshold)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = TileConfig::default().seam_threshold)]
     pub(super) seam_threshold: f64,
     /// Weight of the constraint (data term per texel, in sample neighbour differences).
-    #[arg(long, default_value_t = TileConfig::default().constraint_weight)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = TileConfig::default().constraint_weight)]
     pub(super) constraint_weight: f64,
     #[arg(long, default_value_t = TileConfig::default().seed)]
     pub(super) seed: u64,
@@ -52,11 +52,11 @@ pub(super) struct Quilting {
     /// resampled to the atlas's texel density). Default: one sample pixel per
     /// texel; painting keeps the tiling's size (its sample at the tiling's
     /// width, another at the tiling sample's pixel size).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub(super) sample_width: Option<f64>,
     /// The sample's size on the surface per pixel: mesh units one sample
     /// pixel spans (instead of --sample-width).
-    #[arg(long, conflicts_with = "sample_width")]
+    #[arg(long, allow_negative_numbers = true, conflicts_with = "sample_width")]
     pub(super) sample_pixel: Option<f64>,
 }
 
@@ -85,7 +85,7 @@ pub(super) struct Tiling {
     sample_mask: Option<PathBuf>,
     /// Seam refinement once covered: seams stepping more than this × the
     /// sample's neighbour difference get another work patch; 0 turns it off.
-    #[arg(long, default_value_t = TileConfig::default().refine.unwrap_or(0.0))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = TileConfig::default().refine.unwrap_or(0.0))]
     refine: f64,
     /// Seam refinement fits this many distinct good placements per seam and
     /// keeps the cheapest cut (1: only the best match; more: lower seams,
@@ -111,19 +111,19 @@ pub(super) struct Tiling {
     /// Penalise sample regions in proportion to how often the surface
     /// already shows them (0 turns it off; higher: more of the sample's
     /// variety, at some cost in seam quality).
-    #[arg(long, default_value_t = TileConfig::default().occurrence_weight)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = TileConfig::default().occurrence_weight)]
     occurrence_weight: f64,
     /// Choose among placements costing at most (1 + this) × the best one,
     /// by the seed (0: the best; higher: more variety, weaker seams).
-    #[arg(long, default_value_t = TileConfig::default().tolerance)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = TileConfig::default().tolerance)]
     tolerance: f64,
     /// Weight of the structure channel (distance to the sample's edges) in
     /// matching and seams, in sample neighbour differences (0: colour only).
-    #[arg(long, default_value_t = TileConfig::default().structure_weight)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = TileConfig::default().structure_weight)]
     structure_weight: f64,
     /// Bend each new patch by up to this share of its radius so that its features
     /// meet the old texels of the overlap before the cut (0: rigid patches)
-    #[arg(long, default_value_t = TileConfig::default().feature_align)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = TileConfig::default().feature_align)]
     feature_align: f64,
     /// Let matching turn the sample up to this many rotation steps (5°) off the
     /// field's mean direction where the field turns inside a work patch (0: never).
@@ -351,22 +351,22 @@ pub(super) enum Command {
         /// The default field turns where the surface is seen least: each
         /// face's turning weighs its exposure to this power (0..=8; 0: all
         /// faces alike). Moves singularities into creases and hidden places.
-        #[arg(long, default_value_t = AtlasConfig::default().field_exposure)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = AtlasConfig::default().field_exposure)]
         field_exposure: f64,
         /// Weld vertices closer than this fraction of the median edge length (0..=0.5; 0: exact duplicates only).
-        #[arg(long, default_value_t = AtlasConfig::default().load.weld_tolerance)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = AtlasConfig::default().load.weld_tolerance)]
         weld: f32,
         /// Split a chart whose L2 texture stretch exceeds this (≥ 1; lower: more
         /// charts, more even texel density).
-        #[arg(long, default_value_t = AtlasConfig::default().charts.max_stretch)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = AtlasConfig::default().charts.max_stretch)]
         max_stretch: f32,
         /// Split a chart when over 5 % of its area has a texel density off the
         /// chart's mean by more than this factor (≥ 1).
-        #[arg(long, default_value_t = AtlasConfig::default().charts.max_area_distortion)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = AtlasConfig::default().charts.max_area_distortion)]
         max_area_distortion: f32,
         /// Split a chart while one of its triangles stretches more than this
         /// in some direction (L∞ stretch, ≥ 1).
-        #[arg(long, default_value_t = AtlasConfig::default().charts.max_linf_stretch)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = AtlasConfig::default().charts.max_linf_stretch)]
         max_linf_stretch: f32,
         /// A more compact atlas: stretched charts relaxed (ARAP) instead of
         /// split, and merged with relaxed maps; eighth turns in packing.

@@ -323,6 +323,12 @@ impl TileConfig {
                 ));
             }
         }
+        if self.field_turn > 36 {
+            return Err(Error::Config(format!(
+                "--field-turn {}: must be 0 to 36 (rotation steps of 5° off the field, at most a half turn)",
+                self.field_turn
+            )));
+        }
         if self.refine_placements == 0 {
             return Err(Error::Config("--refine-placements must be at least 1".into()));
         }

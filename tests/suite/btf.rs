@@ -311,6 +311,15 @@ fn corrupt_image_is_refused_without_output() {
     std::fs::write(&victim, bytes).unwrap();
     let msg = ingest_error(&folder, &dir.path().join("o.btf"));
     assert!(msg.contains("m_tl015_pl000_tv030_pv090.png"), "{msg}");
+    // cut inside the image data: said to end early
+    let mut bytes = std::fs::read(&victim).unwrap();
+    bytes.truncate(n / 2);
+    std::fs::write(&victim, bytes).unwrap();
+    let msg = ingest_error(&folder, &dir.path().join("o.btf"));
+    assert!(
+        msg.contains("m_tl015_pl000_tv030_pv090.png") && msg.contains("ends early"),
+        "{msg}"
+    );
 }
 
 #[test]

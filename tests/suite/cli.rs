@@ -478,6 +478,31 @@ fn tile_bake_evaluate_render_export_a_square() {
         ]),
         &["square.obj"],
     );
+    // numbers out of range are refused by their flag, negative ones too
+    // (not taken for flags), with nothing written
+    for (flag, value, said) in [
+        ("--occurrence-weight", "-1", "≥ 0"),
+        ("--tolerance", "-0.5", "≥ 0"),
+        ("--feature-align", "0.6", "0 to 0.5"),
+        ("--field-turn", "37", "0 to 36"),
+    ] {
+        let out = dir.path().join("refused.quilt");
+        fails_clearly(
+            &btfquilt(&[
+                "tile",
+                "--gim",
+                s(&gim),
+                "--sample",
+                s(&brick),
+                flag,
+                value,
+                "-o",
+                s(&out),
+            ]),
+            &[flag, value, said],
+        );
+        assert!(!out.exists(), "nothing written for a refused {flag}");
+    }
 }
 
 /// `compare` of a baked flat square against its sample: the figures as

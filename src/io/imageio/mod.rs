@@ -96,9 +96,13 @@ fn open(path: &Path) -> Result<BufReader<File>> {
         .map_err(|e| Error::io(path, e))
 }
 
-/// Maps an `image` error: I/O stays I/O, everything else is bad input.
+/// Maps an `image` error: I/O stays I/O, everything else is bad input (a
+/// file ending early among it: the decoder reports that as I/O).
 fn image_err(path: &Path, e: image::ImageError) -> Error {
     match e {
+        image::ImageError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            Error::input(path, "cannot decode image: the file ends early (truncated)")
+        }
         image::ImageError::IoError(io) => Error::io(path, io),
         other => Error::input(path, format!("cannot decode image: {other}")),
     }
