@@ -145,6 +145,20 @@ impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
         self.bytes += bytes;
     }
 
+    /// Sets the budget, evicting the least recently used entries until the
+    /// rest fit (the newest kept whatever its size).
+    pub fn set_budget(&mut self, budget: MemoryBudget) {
+        self.budget = budget.0;
+        while self.bytes > self.budget && self.map.len() > 1 {
+            let Some((_, oldest)) = self.by_age.pop_first() else {
+                break;
+            };
+            if let Some((_, b, _)) = self.map.remove(&oldest) {
+                self.bytes -= b;
+            }
+        }
+    }
+
     /// Drops every entry.
     pub fn clear(&mut self) {
         self.map.clear();
@@ -251,6 +265,19 @@ mod tests {
         assert_eq!(c.peek(&5), Some(&"e"));
         c.insert(5, "f", 5); // replacing updates the bytes held
         assert_eq!((c.len(), c.bytes()), (1, 5));
+        c.insert(6, "g", 10);
+        c.insert(7, "h", 10);
+        assert_eq!(c.get(&5), Some(&"f")); // 6 is now the least recently used
+        c.set_budget(MemoryBudget(16)); // shrinking evicts down to the budget
+        assert!(!c.contains(&6) && c.contains(&7) && c.contains(&5));
+        assert_eq!((c.len(), c.bytes(), c.budget()), (2, 15, 16));
+        c.insert(8, "i", 10); // and the new budget holds from then on
+        assert!(!c.contains(&7) && c.contains(&5) && c.contains(&8) && c.bytes() == 15);
+        c.set_budget(MemoryBudget(1)); // the newest stays, whatever its size
+        assert_eq!((c.len(), c.bytes()), (1, 10));
+        assert!(c.contains(&8));
+        c.set_budget(MemoryBudget(100)); // growing evicts nothing
+        assert_eq!(c.len(), 1);
         c.clear();
         assert!(c.is_empty() && c.bytes() == 0);
     }

@@ -107,6 +107,23 @@ impl Sample {
         crate::lock(&self.rotated).clear();
     }
 
+    /// Empties the rotated copies' cache.
+    pub(super) fn drop_rotations(&self) {
+        crate::lock(&self.rotated).clear();
+    }
+
+    /// The rotated copies' cache: its budget and the bytes it holds.
+    #[cfg(test)]
+    pub(super) fn rotated_cache(&self) -> (u64, u64) {
+        let cache = crate::lock(&self.rotated);
+        (cache.budget(), cache.bytes())
+    }
+
+    /// Sets the budget of the rotated copies' cache, evicting down to it.
+    pub(super) fn set_rotated_budget(&self, budget: MemoryBudget) {
+        crate::lock(&self.rotated).set_budget(budget);
+    }
+
     /// Rotated copy `r` (maps, validity), loaded on first use (two threads
     /// may both load it; they get equal copies).
     pub(super) fn rotation(&self, r: usize) -> Result<Arc<RotatedCopy>> {

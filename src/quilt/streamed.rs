@@ -18,15 +18,16 @@ impl Synthesis {
     /// [`Synthesis::accept_steps`] do) with this thread, outside the pool,
     /// choosing, handing out and accepting while the pool computes: each
     /// work patch goes to the pool over views of its tiles as soon as it is
-    /// chosen and memory holds it ([`Synthesis::patch_bytes`] within half
-    /// of `--memory`, or none other in flight), and once
+    /// chosen and memory holds it ([`Synthesis::patch_bytes`] within the
+    /// patches' share of the loop's budget, [`Synthesis::settle_memory`],
+    /// or none other in flight), and once
     /// the round is chosen the patches are accepted in order as they are
     /// computed, up to the first that read outside its tiles (that one and
     /// the rest are accepted after, as [`Synthesis::accept_steps`] does).
     /// A patch reads and writes only its own tiles, so the quilt is that of
     /// a round chosen, then computed, then accepted.
     pub(super) fn streamed_round(&mut self, radius0: usize, progress: &dyn Progress) -> Result<()> {
-        let budget = self.cfg.memory.bytes() / 2;
+        let budget = self.patch_budget;
         let bytes = self.patch_bytes();
         let cost = |job: &Job| bytes(job.ball.texels.len());
         // whether a patch of `c` bytes may go with `in_flight` out

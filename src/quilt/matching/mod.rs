@@ -402,6 +402,12 @@ impl Matcher {
             + self.energy.capacity() * 8
     }
 
+    /// Sets the budget of the spectrum cache (shared with the matchers
+    /// [`Matcher::sharing`] it), evicting down to it.
+    pub fn set_cache_budget(&self, bytes: usize) {
+        crate::lock(&self.cache).set_budget(MemoryBudget(bytes as u64));
+    }
+
     /// This matcher's spectrum cache, to share with [`Matcher::sharing`].
     pub fn spectra_cache(&self) -> SpectraCache {
         SpectraCache(Arc::clone(&self.cache))
@@ -427,13 +433,19 @@ impl Matcher {
         self.reused
     }
 
+    /// The spectrum cache's budget in bytes.
+    pub fn cache_budget(&self) -> usize {
+        crate::lock(&self.cache).budget() as usize
+    }
+
     /// Bytes held by the spectrum cache.
     pub fn cache_bytes(&self) -> usize {
         crate::lock(&self.cache).bytes() as usize
     }
 
-    /// Drops every cached sample spectrum.
-    pub fn clear_cache(&mut self) {
+    /// Drops every cached sample spectrum (the cache is shared with the
+    /// matchers [`Matcher::sharing`] it).
+    pub fn clear_cache(&self) {
         crate::lock(&self.cache).clear();
     }
 

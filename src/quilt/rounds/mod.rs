@@ -215,11 +215,13 @@ impl Synthesis {
     /// least one synthesized neighbour) whose tiles are not the round's.
     pub(crate) fn synthesize(&mut self, first: u32, radius0: usize, progress: &dyn Progress) -> Result<()> {
         self.step(first, radius0, progress)?;
+        let traversal = self.bfs.patch(&self.surface, first, radius0 + 2).texels.len();
         self.check_paging()?;
         // (inside the pool the calling thread is one of the round's, so
         // it cannot wait for the others while they compute)
         let streamed = rayon::current_thread_index().is_none();
         while self.state.remaining > 0 {
+            self.settle_memory(traversal);
             if streamed {
                 self.streamed_round(radius0, progress)?;
             } else {
@@ -498,15 +500,44 @@ impl Synthesis {
         move |texels| buffers + per_texel * texels as u64
     }
 
+    /// Divides `--memory` once matching has sized the matchers' buffers
+    /// (before that the work patches in flight keep their whole share):
+    /// the patches in flight get what as many as may run at once need (one
+    /// per thread, at most a round; traversals taken half again as large
+    /// as `traversal`, the first one's), up to their share of
+    /// [`LOOP_SHARES`](super::synthesis); the rotated copies and the sample
+    /// spectra split what the atlas leaves. Budgets never change the quilt.
+    pub(super) fn settle_memory(&mut self, traversal: usize) {
+        let patch = self.patch_bytes();
+        if patch(0) == 0 {
+            return;
+        }
+        let [_, _, atlas, patches] = self.loop_budget.split(super::synthesis::LOOP_SHARES);
+        let at_once = rayon::current_num_threads().min(self.cfg.round).max(1) as u64;
+        let budget = (at_once * patch(traversal + traversal / 2)).min(patches.bytes());
+        if budget == self.patch_budget {
+            return;
+        }
+        self.patch_budget = budget;
+        let caches = (self.loop_budget.bytes())
+            .saturating_sub(atlas.bytes() + budget)
+            .max(2 << 20)
+            / 2;
+        self.sample
+            .set_rotated_budget(crate::container::MemoryBudget(caches));
+        self.matcher.set_cache_budget(caches as usize);
+    }
+
     /// How many of `jobs` to compute at once: one per thread, fewer when
-    /// the work patches in flight would need more than half of `--memory`
-    /// on top of it (each: the matcher's buffers and [`bytes_per_texel`]
-    /// per texel of the largest traversal), and how many memory would
-    /// hold. How many run at once never changes the quilt.
+    /// the work patches in flight would need more than their share of the
+    /// loop's budget ([`Synthesis::settle_memory`]; each: the matcher's
+    /// buffers and [`bytes_per_texel`] per texel of the largest
+    /// traversal), and how many memory would hold. How many run at once
+    /// never changes the quilt.
     fn at_once(&self, jobs: &[Job]) -> (usize, usize) {
         let texels = jobs.iter().map(|j| j.ball.texels.len()).max().unwrap_or(0);
         let patch = self.patch_bytes()(texels);
-        let by_memory = (self.cfg.memory.bytes() / 2 / patch.max(1)).max(1) as usize;
+        let by_memory = (self.patch_budget / patch.max(1)).max(1) as usize;
         (
             rayon::current_num_threads().min(jobs.len()).min(by_memory),
             by_memory,

@@ -258,3 +258,57 @@ fn refinement_in_rounds_gives_the_quilt_of_one_patch_at_a_time() {
         "refining where features end changed nothing"
     );
 }
+
+/// The loop's budget is `--memory` less the program and the sample's maps;
+/// once matching has sized the work patches, their share shrinks to what
+/// the patches running at once need and the two caches take the rest,
+/// the loop's stores within its budget and each cache within its own.
+#[test]
+fn the_loop_settles_its_memory_within_the_budget() {
+    use crate::artifact::gim::Gim;
+    use crate::container::MemoryBudget;
+    use crate::quilt::sample::sample_at_density;
+    use crate::quilt::synthesis::{Synthesis, LOOP_SHARES};
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let gim = Gim::open(&spot_256(dir.path()), MemoryBudget(1 << 24)).unwrap();
+    let sample = root.join("data/brick_wall.png");
+    let memory = 96u64 << 20;
+    let cfg = TileConfig {
+        memory: MemoryBudget(memory),
+        ..TileConfig::default()
+    };
+    let sized = sample_at_density(&sample, gim.texel_size, None, true, &Silent).unwrap();
+    let out = dir.path().join("settled.quilt");
+    let mut syn = Synthesis::open(&gim, &sample, &sized, &out, &cfg, true, None).unwrap();
+    let maps = 4 * syn.sample.maps.len() as u64;
+    assert_eq!(syn.loop_budget.bytes(), memory - (24 << 20) - maps);
+    let [rotated, spectra, atlas, patches] = syn.loop_budget.split(LOOP_SHARES);
+    assert_eq!(
+        syn.patch_budget,
+        patches.bytes(),
+        "the whole share before matching"
+    );
+    let first = syn.surface.nth_vertex(0);
+    let radius0 = syn.radius0();
+    syn.synthesize(first, radius0, &Silent).unwrap();
+    let one = syn.patch_bytes()(syn.bfs.patch(&syn.surface, first, radius0 + 2).texels.len());
+    assert!(
+        syn.patch_budget < patches.bytes() && syn.patch_budget >= one,
+        "settled {} of {} (one patch {one})",
+        syn.patch_budget,
+        patches.bytes()
+    );
+    let (rotated_budget, rotated_held) = syn.sample.rotated_cache();
+    let spectra_budget = syn.matcher.cache_budget() as u64;
+    assert!(rotated_budget > rotated.bytes() && spectra_budget > spectra.bytes());
+    assert!(rotated_budget + spectra_budget + atlas.bytes() + syn.patch_budget <= syn.loop_budget.bytes());
+    assert!(rotated_held <= rotated_budget && syn.matcher.cache_bytes() as u64 <= spectra_budget);
+    // a small --memory keeps at least half of it for the loop
+    let small = TileConfig {
+        memory: MemoryBudget(8 << 20),
+        ..TileConfig::default()
+    };
+    let syn = Synthesis::open(&gim, &sample, &sized, &out, &small, true, None).unwrap();
+    assert_eq!(syn.loop_budget.bytes(), 4 << 20);
+}

@@ -40,6 +40,12 @@ pub(crate) const REFINE_ROUND: usize = 16;
 /// painting (`crate::paint`) from a decorated one with a constraint.
 pub(crate) struct Synthesis {
     pub(super) cfg: TileConfig,
+    /// The share of `--memory` the work patches in flight may take
+    /// together ([`LOOP_SHARES`]; one always goes).
+    pub(super) patch_budget: u64,
+    /// `--memory` less what the program and the sample's maps hold: what
+    /// the loop's stores share ([`LOOP_SHARES`]).
+    pub(super) loop_budget: MemoryBudget,
     pub(super) sample_path: PathBuf,
     /// Every sample the surface draws from ([`Quilt::samples`]); the active
     /// one is `sample_paths[state.active]`.
@@ -189,23 +195,26 @@ impl Synthesis {
         matching: bool,
         stored: Option<&StoredPattern>,
     ) -> Result<Self> {
-        // --memory is shared by the stores of the loop: the rotated copies
-        // as f32, the sample spectra of the matcher and the paged atlas
-        // (surface and state tiles) a quarter each; the .svd's decoded
-        // tiles are only passed through (the loop reads the maps and each
-        // rotated copy into the sample whole), so its cache is 2 MiB; the
-        // work patch's own buffers come on top
-        let [tiles, _, _, atlas] = cfg.memory.split([1, 1, 1, 1]);
-        let quarter = MemoryBudget(tiles.bytes().max(1 << 20));
-        let [surface_budget, state_budget] = atlas.split([8, 11]);
-        let svd = SvdArtifact::open(&sized.svd, MemoryBudget(quarter.bytes().min(2 << 20)))?;
+        // --memory, less what the program and the sample's own maps hold,
+        // is shared by the loop ([`LOOP_SHARES`]): the rotated copies as
+        // f32, the sample spectra of the matcher, the paged atlas (surface
+        // and state tiles) and the work patches in flight; the .svd's
+        // decoded tiles are only passed through (the loop reads the maps
+        // and each rotated copy into the sample whole), so its cache is
+        // 2 MiB
+        let svd = SvdArtifact::open(&sized.svd, MemoryBudget(2 << 20))?;
         if matching && svd.rotations == 0 {
             return Err(Error::input(
                 sample_path,
                 "has no rotated copies (factorize with --rotations 72)",
             ));
         }
-        let mut sample = Sample::from_svd(svd, quarter)?;
+        let mut sample = Sample::from_svd(svd, MemoryBudget(1 << 20))?;
+        let loop_budget = loop_budget(cfg.memory, 4 * sample.maps.len() as u64);
+        let [tiles, spectra, atlas, patches] = loop_budget.split(LOOP_SHARES);
+        let rotated = MemoryBudget(tiles.bytes().max(1 << 20));
+        sample.set_rotated_budget(rotated);
+        let [surface_budget, state_budget] = atlas.split([8, 11]);
         // only seam refinement by structure and locked courses read the
         // courses; locked, both read the original sample's
         let locked = cfg.courses == CourseMode::Locked;
@@ -222,7 +231,7 @@ impl Synthesis {
                 &sample,
                 sample_path,
                 (
-                    cfg.memory.bytes().saturating_sub(quarter.bytes()),
+                    cfg.memory.bytes().saturating_sub(rotated.bytes()),
                     cfg.memory.bytes(),
                 ),
                 stored,
@@ -247,7 +256,9 @@ impl Synthesis {
             sample,
             state,
             bfs: Bfs::default(),
-            matcher: Matcher::with_cache_budget(quarter.bytes() as usize),
+            matcher: Matcher::with_cache_budget(spectra.bytes().max(1 << 20) as usize),
+            patch_budget: patches.bytes(),
+            loop_budget,
             spares: Vec::new(),
             refine_round: REFINE_ROUND,
             occurrence,
@@ -268,6 +279,13 @@ impl Synthesis {
             sample_spans: vec![None],
             active_span: None,
         })
+    }
+
+    /// Empties the rotated copies' and the sample spectra's caches (what
+    /// they held is computed again if asked for).
+    pub(super) fn release_caches(&self) {
+        self.sample.drop_rotations();
+        self.matcher.clear_cache();
     }
 
     /// Whether the synthesis locks its courses to a stripe pattern.
@@ -606,6 +624,28 @@ fn visit_order(grid: &TileGrid, mut seeds: Vec<(f64, u32)>, runs: usize) -> Vec<
         .flat_map(|i| (0..runs).map(move |s| s * per + i))
         .filter_map(|i| seeds.get(i).map(|s| s.1))
         .collect()
+}
+
+/// How the quilting loop divides its budget ([`loop_budget`]), in
+/// proportion: the sample's rotated copies, the matcher's sample spectra,
+/// the paged atlas (surface and state tiles) and the work patches in
+/// flight ([`Synthesis::patch_bytes`] each). Once matching has sized a work
+/// patch, the patches keep what as many as run at once need and the two
+/// caches split the rest ([`Synthesis::settle_memory`]).
+pub(super) const LOOP_SHARES: [u64; 4] = [2, 2, 4, 8];
+
+/// What the program itself holds besides its data: its code and libraries
+/// (about 12 MB resident on Linux x86-64), thread stacks and the
+/// allocator's slack (freed memory it keeps; 20–30 MB on the runs of
+/// docs/measurements.md, "Memory of the quilting loop").
+const PROGRAM_BYTES: u64 = 24 << 20;
+
+/// The quilting loop's budget: `--memory` less the program
+/// ([`PROGRAM_BYTES`]) and the sample's unrotated maps (`sample_bytes`),
+/// never less than half of `--memory`.
+fn loop_budget(memory: MemoryBudget, sample_bytes: u64) -> MemoryBudget {
+    let held = (PROGRAM_BYTES + sample_bytes).min(memory.bytes() / 2);
+    MemoryBudget(memory.bytes() - held)
 }
 
 #[cfg(test)]

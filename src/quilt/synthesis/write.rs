@@ -25,6 +25,8 @@ pub(in crate::quilt) fn write_quilt(
     paint_log: Option<&str>,
     report: &TileReport,
 ) -> Result<()> {
+    // the loop's caches are not read again: their memory goes to writing
+    syn.release_caches();
     let (sample, state) = (&syn.sample, &syn.state);
     let r = gim.resolution as u64;
     let t = TILE as u64;
