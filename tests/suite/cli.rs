@@ -466,42 +466,28 @@ fn tile_bake_evaluate_render_export_a_square() {
         &btfquilt(&["render", s(&quilt), "--camera", "1,2,3", "-o", s(&png)]),
         &["--camera"],
     );
-    fails_clearly(
-        &btfquilt(&[
-            "tile",
-            "--gim",
-            s(&gim),
-            "--sample",
-            s(&obj),
-            "-o",
-            s(&dir.path().join("x.quilt")),
-        ]),
-        &["square.obj"],
-    );
-    // numbers out of range are refused by their flag, negative ones too
-    // (not taken for flags), with nothing written
-    for (flag, value, said) in [
-        ("--occurrence-weight", "-1", "≥ 0"),
-        ("--tolerance", "-0.5", "≥ 0"),
-        ("--feature-align", "0.6", "0 to 0.5"),
-        ("--field-turn", "37", "0 to 36"),
+    // a sample that is no image, and numbers out of range (negative ones
+    // too: not taken for flags), refused by name with nothing written
+    for (sample, args, said) in [
+        (&obj, &[][..], &["square.obj"][..]),
+        (
+            &brick,
+            &["--occurrence-weight", "-1"],
+            &["--occurrence-weight -1", "≥ 0"],
+        ),
+        (&brick, &["--tolerance", "-0.5"], &["--tolerance -0.5", "≥ 0"]),
+        (
+            &brick,
+            &["--feature-align", "0.6"],
+            &["--feature-align 0.6", "0 to 0.5"],
+        ),
+        (&brick, &["--field-turn", "37"], &["--field-turn 37", "0 to 36"]),
     ] {
         let out = dir.path().join("refused.quilt");
-        fails_clearly(
-            &btfquilt(&[
-                "tile",
-                "--gim",
-                s(&gim),
-                "--sample",
-                s(&brick),
-                flag,
-                value,
-                "-o",
-                s(&out),
-            ]),
-            &[flag, value, said],
-        );
-        assert!(!out.exists(), "nothing written for a refused {flag}");
+        let mut command = vec!["tile", "--gim", s(&gim), "--sample", s(sample), "-o", s(&out)];
+        command.extend_from_slice(args);
+        fails_clearly(&btfquilt(&command), said);
+        assert!(!out.exists(), "nothing written for {args:?}");
     }
 }
 

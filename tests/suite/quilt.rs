@@ -688,28 +688,32 @@ fn the_field_turn_acts_only_where_the_field_turns() {
 /// A budget that holds only some of a round's work patches in flight: the
 /// views of the others are made when a thread takes them, from the pagers
 /// the round's traversals borrow too; the same bytes as with every view
-/// made at once, on 2 threads.
+/// made at once (a roomy budget and a thread per patch of a round, whose
+/// patches' share then holds them all).
 #[test]
 fn views_made_when_a_thread_takes_the_patch_change_no_byte() {
     let dir = tempfile::tempdir().unwrap();
     let g = square_atlas(dir.path(), 256);
     let sample = brick_crop(dir.path(), 64, None);
-    let run = |memory: u64| {
+    let run = |memory: u64, threads: usize| {
         let out = dir.path().join(format!("v{memory}.quilt"));
         let cfg = TileConfig {
             memory: MemoryBudget(memory),
             seed: 3,
             ..TileConfig::default()
         };
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         let report = pool
             .install(|| quilt::tile(&g, &sample, &out, &cfg, &Silent))
             .unwrap();
         eprintln!("{memory} B: {report:?}");
         (std::fs::read(&out).unwrap(), report)
     };
-    let (tight, late) = run(4 << 20);
-    let (roomy, early) = run(16 << 30);
+    let (tight, late) = run(8 << 20, 2);
+    let (roomy, early) = run(16 << 30, TileConfig::default().round);
     assert!(
         late.late_views > 0 && late.concurrent_patches > late.late_views,
         "{late:?}"
