@@ -131,14 +131,7 @@ impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
             self.by_age.remove(&age);
             self.bytes -= old;
         }
-        while self.bytes + bytes > self.budget {
-            let Some((_, oldest)) = self.by_age.pop_first() else {
-                break;
-            };
-            if let Some((_, b, _)) = self.map.remove(&oldest) {
-                self.bytes -= b;
-            }
-        }
+        while self.bytes + bytes > self.budget && self.evict_oldest() {}
         self.tick += 1;
         self.by_age.insert(self.tick, key.clone());
         self.map.insert(key, (value, bytes, self.tick));
@@ -149,14 +142,18 @@ impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
     /// rest fit (the newest kept whatever its size).
     pub fn set_budget(&mut self, budget: MemoryBudget) {
         self.budget = budget.0;
-        while self.bytes > self.budget && self.map.len() > 1 {
-            let Some((_, oldest)) = self.by_age.pop_first() else {
-                break;
-            };
-            if let Some((_, b, _)) = self.map.remove(&oldest) {
-                self.bytes -= b;
-            }
+        while self.bytes > self.budget && self.map.len() > 1 && self.evict_oldest() {}
+    }
+
+    /// Evicts the least recently used entry; `false` when there was none.
+    fn evict_oldest(&mut self) -> bool {
+        let Some((_, oldest)) = self.by_age.pop_first() else {
+            return false;
+        };
+        if let Some((_, b, _)) = self.map.remove(&oldest) {
+            self.bytes -= b;
         }
+        true
     }
 
     /// Drops every entry.
