@@ -209,11 +209,12 @@ impl Synthesis {
                 "has no rotated copies (factorize with --rotations 72)",
             ));
         }
-        let mut sample = Sample::from_svd(svd, MemoryBudget(1 << 20))?;
-        let loop_budget = loop_budget(cfg.memory, 4 * sample.maps.len() as u64);
+        // the unrotated maps, f32 per pixel and term
+        let maps = 4 * (svd.width * svd.height * svd.terms) as u64;
+        let loop_budget = loop_budget(cfg.memory, maps);
         let [tiles, spectra, atlas, patches] = loop_budget.split(LOOP_SHARES);
         let rotated = MemoryBudget(tiles.bytes().max(1 << 20));
-        sample.set_rotated_budget(rotated);
+        let mut sample = Sample::from_svd(svd, rotated)?;
         let [surface_budget, state_budget] = atlas.split([8, 11]);
         // only seam refinement by structure and locked courses read the
         // courses; locked, both read the original sample's
