@@ -11,7 +11,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use super::pager::{Pager, TileGrid, TileSource, TILE_TEXELS};
-use super::sample::Sample;
+use super::sample::{dot_f32, Sample};
 use crate::artifact::gim::{Gim, ZipperLinks, EMPTY, TILE};
 use crate::artifact::quilt::NO_PATCH;
 use crate::container::{MemoryBudget, Scratch};
@@ -48,9 +48,9 @@ pub(super) struct StateTile {
     /// Index of the sample each texel draws from ([`Quilt::samples`](crate::quilt::Quilt::samples)).
     pub(super) source: Vec<u8>,
     /// Texels of other samples than the active one (painting with a new
-    /// sample): index into `State::foreign_features` (`NO_FOREIGN` for texels
-    /// of the active sample, whose geometry-map vectors are looked up in it
-    /// at their coordinate when needed, not stored).
+    /// sample): the index of their sample in `State::foreign`, whose
+    /// geometry maps give their vectors in the active basis when needed
+    /// (`NO_FOREIGN` for texels of the active sample, looked up in it).
     pub(super) foreign: Vec<u32>,
     /// m_σ(p): the sample's foreground mask at each texel's coordinate
     /// (when the sample has a mask).
@@ -158,6 +158,36 @@ struct Frontier {
     total: [u64; BUCKETS],
 }
 
+/// A sample a loaded surface draws from besides the active one (painting
+/// with a new sample): its unrotated geometry maps and their projection into
+/// the active sample's basis. Its texels' vectors are computed when read,
+/// not held for the whole surface.
+pub(super) struct ForeignSample {
+    pub(super) sample: Sample,
+    /// C = P_aᵀ P_k, `n × sample.n` row-major ([`basis_projection`](super::sample::basis_projection)).
+    pub(super) projection: Vec<f32>,
+}
+
+impl ForeignSample {
+    /// The vector at sample position `c` in the active basis, g ↦ C g (the
+    /// closest vector of the active rank-n space; zero off a sample that
+    /// does not tile).
+    pub(super) fn features_into(&self, c: [f64; 2], out: &mut [f32]) {
+        thread_local! {
+            static SCRATCH: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+        }
+        let m = self.sample.n;
+        SCRATCH.with_borrow_mut(|g| {
+            g.clear();
+            g.resize(m, 0.0);
+            self.sample.lookup(c, g);
+            for (a, o) in out.iter_mut().enumerate() {
+                *o = dot_f32(&self.projection[a * m..(a + 1) * m], g);
+            }
+        });
+    }
+}
+
 /// Per-texel synthesis state (struct of arrays over paged atlas tiles).
 pub(super) struct State {
     pub(super) r: usize,
@@ -165,9 +195,10 @@ pub(super) struct State {
     tiles: Pager<StateTile, StateTiles>,
     /// The sample new patches come from.
     pub(super) active: u8,
-    /// Geometry-map vectors of foreign texels projected into the active
-    /// sample's basis (see [`Synthesis::load`](super::synthesis::Synthesis::load)), `n` per entry.
-    pub(super) foreign_features: Arc<Vec<f32>>,
+    /// The other samples a loaded surface draws from, by index (see
+    /// [`Synthesis::load`](super::synthesis::Synthesis::load)); `None` for
+    /// the active one and unused ones.
+    pub(super) foreign: Arc<Vec<Option<ForeignSample>>>,
     /// Whether m0 is set (constrained synthesis).
     pub(super) constrained: bool,
     /// The id the next accepted patch gets.
@@ -204,7 +235,7 @@ impl State {
             n,
             tiles: pager,
             active: 0,
-            foreign_features: Arc::default(),
+            foreign: Arc::default(),
             constrained: false,
             next_patch: 0,
             remaining,
@@ -220,7 +251,7 @@ impl State {
             n: self.n,
             tiles: self.tiles.view(tiles),
             active: self.active,
-            foreign_features: Arc::clone(&self.foreign_features),
+            foreign: Arc::clone(&self.foreign),
             constrained: self.constrained,
             next_patch: self.next_patch,
             remaining: self.remaining,
@@ -402,8 +433,9 @@ impl State {
     pub(super) fn feature_into(&self, sample: &Sample, t: u32, out: &mut [f32]) {
         let (f, c) = self.texel(t, |s, i| (s.foreign[i], s.coord[i]));
         if f != NO_FOREIGN {
-            let f = f as usize * self.n;
-            out.copy_from_slice(&self.foreign_features[f..f + self.n]);
+            if let Some(other) = &self.foreign[f as usize] {
+                other.features_into([c[0] as f64, c[1] as f64], out);
+            }
             return;
         }
         if !sample.lookup([c[0] as f64, c[1] as f64], out) {

@@ -36,7 +36,7 @@ impl Synthesis {
         };
         // the other samples in use, with their projections into the active basis
         let grid = self.surface.grid();
-        let mut others: Vec<Option<(Sample, Vec<f32>)>> = (0..paths.len()).map(|_| None).collect();
+        let mut others: Vec<Option<ForeignSample>> = (0..paths.len()).map(|_| None).collect();
         let mut previews = vec![None; paths.len()];
         let mut used = vec![false; paths.len()];
         for k in 0..grid.tiles() {
@@ -55,10 +55,11 @@ impl Synthesis {
                 basis_projection(&active_p, self.sample.svd.terms, &svd.appearance()?, svd.terms);
             previews[k] = Some(svd.preview()?);
             // only their unrotated maps are read: no rotated copy is cached
-            others[k] = Some((Sample::from_svd(svd, MemoryBudget(0))?, projection));
+            others[k] = Some(ForeignSample {
+                sample: Sample::from_svd(svd, MemoryBudget(0))?,
+                projection,
+            });
         }
-        let n = self.state.n;
-        let mut scratch = Vec::new();
         let [sx, sy] = self.scale;
         let scaled = self.scale != [1.0, 1.0];
         self.state.active = active as u8;
@@ -69,9 +70,6 @@ impl Synthesis {
             let q = quilt.texel_region(x0, y0, w, h)?;
             let chart = self.surface.chart_tile(k);
             let (sample, st) = (&self.sample, &mut self.state);
-            // (held alone while loading: taken out without a copy)
-            let held = std::mem::take(&mut st.foreign_features);
-            let mut foreign_features = std::sync::Arc::try_unwrap(held).unwrap_or_else(|a| a.to_vec());
             let loaded = st.tile_mut(k, |s| -> Result<()> {
                 for y in 0..h {
                     for x in 0..w {
@@ -104,33 +102,22 @@ impl Synthesis {
                         }
                         s.source[i] = q.sample[j];
                         next = next.max(q.patch[j] + 1);
-                        let c = [s.coord[i][0] as f64, s.coord[i][1] as f64];
-                        match &others[q.sample[j] as usize] {
-                            None => {
-                                s.foreign[i] = NO_FOREIGN;
-                                s.mask[i] = sample.mask_at(c);
-                            }
-                            Some((other, projection)) => {
-                                scratch.clear();
-                                scratch.resize(other.n, 0f32);
-                                other.lookup(c, &mut scratch);
-                                s.foreign[i] = (foreign_features.len() / n) as u32;
-                                for a in 0..n {
-                                    let v = dot_f32(&projection[a * other.n..(a + 1) * other.n], &scratch);
-                                    foreign_features.push(v);
-                                }
-                                s.mask[i] = 0.0;
-                            }
+                        if others[q.sample[j] as usize].is_some() {
+                            s.foreign[i] = q.sample[j] as u32;
+                            s.mask[i] = 0.0;
+                        } else {
+                            s.foreign[i] = NO_FOREIGN;
+                            s.mask[i] = sample.mask_at([s.coord[i][0] as f64, s.coord[i][1] as f64]);
                         }
                     }
                 }
                 Ok(())
             });
-            st.foreign_features = std::sync::Arc::new(foreign_features);
             loaded?;
             self.state.refresh_frontier(&self.surface, &[k]);
         }
         let st = &mut self.state;
+        st.foreign = std::sync::Arc::new(others);
         st.next_patch = next;
         self.sample_spans = (0..paths.len()).map(|k| quilt.sample_span(k)).collect();
         self.sample_paths = paths;
