@@ -331,6 +331,9 @@ fn each_mask_value(
             (img.width, img.height, img.data)
         }
         Kind::Raster(format) => {
+            if format == ImageFormat::Png && each_png_mask_row(path, (width, height), &mut f)? {
+                return Ok(());
+            }
             let img = decode_raster(path, format, DEFAULT_DECODE_BYTES)?;
             let (w, h) = (img.width() as usize, img.height() as usize);
             if (w, h) != (width, height) {
@@ -362,6 +365,51 @@ fn each_mask_value(
     }
     largest_channel(&rgb).into_iter().for_each(f);
     Ok(())
+}
+
+/// An 8-bit, non-interlaced PNG mask (the usual ones, palette and low-bit
+/// grey expanded to 8 bits as the image crate expands them) read a row at a
+/// time, calling `f` per pixel as [`each_mask_value`] does: a region mask at
+/// a large atlas's size is never held whole. `false`, having called `f` on
+/// nothing, for the layouts it leaves to the whole-image path (16-bit or
+/// interlaced).
+fn each_png_mask_row(path: &Path, (width, height): (usize, usize), f: &mut impl FnMut(f32)) -> Result<bool> {
+    let png_err = |e: png::DecodingError| match e {
+        png::DecodingError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            Error::input(path, "cannot decode image: the file ends early (truncated)")
+        }
+        png::DecodingError::IoError(io) => Error::io(path, io),
+        other => Error::input(path, format!("cannot decode image: {other}")),
+    };
+    let mut decoder = png::Decoder::new(open(path)?);
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let mut reader = decoder.read_info().map_err(png_err)?;
+    let (colour, depth) = reader.output_color_type();
+    if depth != png::BitDepth::Eight || reader.info().interlaced {
+        return Ok(false);
+    }
+    let (w, h) = (reader.info().width as usize, reader.info().height as usize);
+    if (w, h) != (width, height) {
+        return Err(decoded_size_differs(path, (w, h), (width, height)));
+    }
+    let (channels, colours) = match colour {
+        png::ColorType::Grayscale => (1, 1),
+        png::ColorType::GrayscaleAlpha => (2, 1),
+        png::ColorType::Rgb => (3, 3),
+        png::ColorType::Rgba => (4, 3),
+        png::ColorType::Indexed => return Ok(false),
+    };
+    let float = eight_bit_floats(channels);
+    for _ in 0..h {
+        let row = reader
+            .next_row()
+            .map_err(png_err)?
+            .ok_or_else(|| Error::input(path, "cannot decode image: the file ends early (truncated)"))?;
+        for p in row.data()[..w * channels].chunks_exact(channels) {
+            f(float[p[..colours].iter().copied().max().unwrap_or(0) as usize]);
+        }
+    }
+    Ok(true)
 }
 
 /// The image crate's float value of each 8-bit code in an image of

@@ -518,3 +518,116 @@ fn eight_bit_masks_read_as_their_float_conversion() {
         );
     }
 }
+
+#[test]
+fn masks_of_every_png_layout_read_as_the_image_crate_decodes_them() {
+    // palette and low-bit grey are expanded row by row as the image crate
+    // expands them; 16-bit masks take the whole-image path: all equal the
+    // largest channel of the crate's float RGB
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (13u32, 9u32);
+    let write =
+        |name: &str, colour: png::ColorType, depth: png::BitDepth, palette: Option<&[u8]>, data: &[u8]| {
+            let path = dir.path().join(format!("{name}.png"));
+            let mut enc = png::Encoder::new(std::fs::File::create(&path).unwrap(), w, h);
+            enc.set_color(colour);
+            enc.set_depth(depth);
+            if let Some(p) = palette {
+                enc.set_palette(p.to_vec());
+            }
+            enc.write_header().unwrap().write_image_data(data).unwrap();
+            path
+        };
+    let bits = |per_px: usize, f: &dyn Fn(u32, u32) -> u8| -> Vec<u8> {
+        // rows packed at `per_px` bits, each row padded to a byte
+        let mut out = Vec::new();
+        for y in 0..h {
+            let mut row = vec![0u8; (w as usize * per_px).div_ceil(8)];
+            for x in 0..w {
+                let bit = x as usize * per_px;
+                row[bit / 8] |= f(x, y) << (8 - per_px - bit % 8);
+            }
+            out.extend(row);
+        }
+        out
+    };
+    let palette = [0u8, 0, 0, 200, 10, 10, 40, 250, 90, 128, 128, 128];
+    let grey16: Vec<u8> = (0..w * h)
+        .flat_map(|k| ((k * 997) as u16).to_be_bytes())
+        .collect();
+    let cases = [
+        (
+            "grey1",
+            write(
+                "grey1",
+                png::ColorType::Grayscale,
+                png::BitDepth::One,
+                None,
+                &bits(1, &|x, y| ((x + y) % 2) as u8),
+            ),
+        ),
+        (
+            "grey4",
+            write(
+                "grey4",
+                png::ColorType::Grayscale,
+                png::BitDepth::Four,
+                None,
+                &bits(4, &|x, y| ((x * 3 + y) % 16) as u8),
+            ),
+        ),
+        (
+            "palette2",
+            write(
+                "palette2",
+                png::ColorType::Indexed,
+                png::BitDepth::Two,
+                Some(&palette),
+                &bits(2, &|x, y| ((x + 2 * y) % 4) as u8),
+            ),
+        ),
+        (
+            "grey16",
+            write(
+                "grey16",
+                png::ColorType::Grayscale,
+                png::BitDepth::Sixteen,
+                None,
+                &grey16,
+            ),
+        ),
+    ];
+    for (name, path) in cases {
+        let img = image::open(&path).unwrap();
+        let expected = super::largest_channel(&img.to_rgb32f().into_raw());
+        let n = (w * h) as usize;
+        assert_eq!(
+            read_sized_mask(&path, w as usize, h as usize, "").unwrap(),
+            expected,
+            "{name}"
+        );
+        let marked: Vec<u32> = (0..n as u32).filter(|&k| expected[k as usize] >= 0.5).collect();
+        assert!(!marked.is_empty() && marked.len() < n, "{name}");
+        assert_eq!(
+            super::read_mask_marked(&path, w as usize, h as usize, "").unwrap(),
+            marked,
+            "{name}"
+        );
+    }
+}
+
+#[test]
+fn a_mask_cut_short_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("region.png");
+    let img = image::DynamicImage::ImageLuma8(image::ImageBuffer::from_fn(64, 64, |x, y| {
+        image::Luma([((x * 31 + y * 17) % 256) as u8])
+    }));
+    img.save(&path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+    let e = super::read_mask_marked(&path, 64, 64, "")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("region.png") && e.contains("ends early"), "{e}");
+}
