@@ -268,12 +268,12 @@ fn the_loop_settles_its_memory_within_the_budget() {
     use crate::artifact::gim::Gim;
     use crate::container::MemoryBudget;
     use crate::quilt::sample::sample_at_density;
-    use crate::quilt::synthesis::{Synthesis, LOOP_SHARES};
+    use crate::quilt::synthesis::{Synthesis, LOOP_SHARES, PROGRAM_BYTES};
     let dir = tempfile::tempdir().unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let gim = Gim::open(&spot_256(dir.path()), MemoryBudget(1 << 24)).unwrap();
     let sample = root.join("data/brick_wall.png");
-    let memory = 96u64 << 20;
+    let memory = 128u64 << 20;
     let cfg = TileConfig {
         memory: MemoryBudget(memory),
         ..TileConfig::default()
@@ -282,7 +282,7 @@ fn the_loop_settles_its_memory_within_the_budget() {
     let out = dir.path().join("settled.quilt");
     let mut syn = Synthesis::open(&gim, &sample, &sized, &out, &cfg, true, None).unwrap();
     let maps = 4 * syn.sample.maps.len() as u64;
-    assert_eq!(syn.loop_budget.bytes(), memory - (24 << 20) - maps);
+    assert_eq!(syn.loop_budget.bytes(), memory - PROGRAM_BYTES - maps);
     let [rotated, spectra, atlas, patches] = syn.loop_budget.split(LOOP_SHARES);
     assert_eq!(
         syn.patch_budget,
