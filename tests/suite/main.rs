@@ -16,6 +16,7 @@ mod export;
 mod factorize;
 mod gim;
 mod lscm;
+mod machine;
 mod matching;
 mod maxflow;
 mod mesh;
