@@ -100,12 +100,15 @@ fn open(path: &Path) -> Result<BufReader<File>> {
 /// file ending early among it: the decoder reports that as I/O).
 fn image_err(path: &Path, e: image::ImageError) -> Error {
     match e {
-        image::ImageError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-            Error::input(path, "cannot decode image: the file ends early (truncated)")
-        }
+        image::ImageError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => ends_early(path),
         image::ImageError::IoError(io) => Error::io(path, io),
         other => Error::input(path, format!("cannot decode image: {other}")),
     }
+}
+
+/// An image whose file ends before its pixels do.
+fn ends_early(path: &Path) -> Error {
+    Error::input(path, "cannot decode image: the file ends early (truncated)")
 }
 
 /// Maps an `exr` error: I/O stays I/O, everything else is bad input.
@@ -342,17 +345,11 @@ fn each_mask_value(
             // 8-bit masks (the usual ones) straight from their bytes: the
             // largest colour channel, alpha dropped, without a float RGB
             // copy of the whole image
-            let mut eight = |px: &[u8], channels: usize, colours: usize| {
-                let float = eight_bit_floats(channels);
-                for p in px.chunks_exact(channels) {
-                    f(float[p[..colours].iter().copied().max().unwrap_or(0) as usize]);
-                }
-            };
             match &img {
-                DynamicImage::ImageLuma8(b) => eight(b.as_raw(), 1, 1),
-                DynamicImage::ImageLumaA8(b) => eight(b.as_raw(), 2, 1),
-                DynamicImage::ImageRgb8(b) => eight(b.as_raw(), 3, 3),
-                DynamicImage::ImageRgba8(b) => eight(b.as_raw(), 4, 3),
+                DynamicImage::ImageLuma8(b) => each_eight_bit_value(b.as_raw(), 1, 1, &mut f),
+                DynamicImage::ImageLumaA8(b) => each_eight_bit_value(b.as_raw(), 2, 1, &mut f),
+                DynamicImage::ImageRgb8(b) => each_eight_bit_value(b.as_raw(), 3, 3, &mut f),
+                DynamicImage::ImageRgba8(b) => each_eight_bit_value(b.as_raw(), 4, 3, &mut f),
                 other => largest_channel(&other.to_rgb32f().into_raw())
                     .into_iter()
                     .for_each(f),
@@ -375,9 +372,7 @@ fn each_mask_value(
 /// interlaced).
 fn each_png_mask_row(path: &Path, (width, height): (usize, usize), f: &mut impl FnMut(f32)) -> Result<bool> {
     let png_err = |e: png::DecodingError| match e {
-        png::DecodingError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
-            Error::input(path, "cannot decode image: the file ends early (truncated)")
-        }
+        png::DecodingError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => ends_early(path),
         png::DecodingError::IoError(io) => Error::io(path, io),
         other => Error::input(path, format!("cannot decode image: {other}")),
     };
@@ -399,17 +394,24 @@ fn each_png_mask_row(path: &Path, (width, height): (usize, usize), f: &mut impl 
         png::ColorType::Rgba => (4, 3),
         png::ColorType::Indexed => return Ok(false),
     };
-    let float = eight_bit_floats(channels);
     for _ in 0..h {
         let row = reader
             .next_row()
             .map_err(png_err)?
-            .ok_or_else(|| Error::input(path, "cannot decode image: the file ends early (truncated)"))?;
-        for p in row.data()[..w * channels].chunks_exact(channels) {
-            f(float[p[..colours].iter().copied().max().unwrap_or(0) as usize]);
-        }
+            .ok_or_else(|| ends_early(path))?;
+        each_eight_bit_value(&row.data()[..w * channels], channels, colours, f);
     }
     Ok(true)
+}
+
+/// Calls `f` with the mask value of each pixel of `px` (8-bit, `channels`
+/// interleaved): the image crate's float of its largest of the first
+/// `colours` channels (alpha dropped).
+fn each_eight_bit_value(px: &[u8], channels: usize, colours: usize, f: &mut impl FnMut(f32)) {
+    let float = eight_bit_floats(channels);
+    for p in px.chunks_exact(channels) {
+        f(float[p[..colours].iter().copied().max().unwrap_or(0) as usize]);
+    }
 }
 
 /// The image crate's float value of each 8-bit code in an image of
