@@ -7,7 +7,7 @@ use super::maxflow::{Graph, Segment};
 use super::occurrence::Occurrence;
 use super::placement::{placed_on_sample, PlacementChoice, Turn};
 use super::sample::{dist, Sample};
-use super::state::{State, Surface, WorkPatch, NO_FOREIGN};
+use super::state::{State, Surface, WorkPatch};
 use crate::progress::Progress;
 
 /// The outcome of a graphcut fitting.
@@ -287,7 +287,6 @@ pub(super) fn apply(
             s.rotation[k] = fit.rotation as u8;
             s.patch[k] = id;
             s.source[k] = active;
-            s.foreign[k] = NO_FOREIGN;
             if masked {
                 s.mask[k] = fit.new_mask[i];
             }

@@ -23,9 +23,6 @@ mod surface;
 pub(crate) use patch::*;
 pub(super) use surface::*;
 
-/// No foreign feature vector (a texel of the active sample).
-pub(super) const NO_FOREIGN: u32 = u32::MAX;
-
 /// Fewest tiles a pager holds whatever the budget (a work patch spans a
 /// few).
 const MIN_TILES: usize = 4;
@@ -45,13 +42,10 @@ pub(super) struct StateTile {
     pub(super) jacobian: Vec<[f32; 4]>,
     pub(super) rotation: Vec<u8>,
     pub(super) patch: Vec<u32>,
-    /// Index of the sample each texel draws from ([`Quilt::samples`](crate::quilt::Quilt::samples)).
+    /// Index of the sample each texel draws from ([`Quilt::samples`](crate::quilt::Quilt::samples)):
+    /// a texel of another sample than the active one (painting with a new
+    /// sample) takes its vector from that sample's `State::foreign` entry.
     pub(super) source: Vec<u8>,
-    /// Texels of other samples than the active one (painting with a new
-    /// sample): the index of their sample in `State::foreign`, whose
-    /// geometry maps give their vectors in the active basis when needed
-    /// (`NO_FOREIGN` for texels of the active sample, looked up in it).
-    pub(super) foreign: Vec<u32>,
     /// m_σ(p): the sample's foreground mask at each texel's coordinate
     /// (when the sample has a mask).
     pub(super) mask: Vec<f32>,
@@ -63,7 +57,7 @@ pub(super) struct StateTile {
 }
 
 /// Bytes of a state tile.
-const STATE_TILE_BYTES: usize = TILE_TEXELS * (1 + 8 + 16 + 1 + 4 + 1 + 4 + 4 + 4 + 1);
+const STATE_TILE_BYTES: usize = TILE_TEXELS * (1 + 8 + 16 + 1 + 4 + 1 + 4 + 4 + 1);
 
 impl StateTile {
     fn blank() -> StateTile {
@@ -74,7 +68,6 @@ impl StateTile {
             rotation: vec![0; TILE_TEXELS],
             patch: vec![NO_PATCH; TILE_TEXELS],
             source: vec![0; TILE_TEXELS],
-            foreign: vec![NO_FOREIGN; TILE_TEXELS],
             mask: vec![0.0; TILE_TEXELS],
             target: vec![0.0; TILE_TEXELS],
             count: vec![0; TILE_TEXELS],
@@ -89,7 +82,6 @@ impl StateTile {
         b.extend_from_slice(&self.rotation);
         b.extend_from_slice(bytemuck::cast_slice(&self.patch));
         b.extend_from_slice(&self.source);
-        b.extend_from_slice(bytemuck::cast_slice(&self.foreign));
         b.extend_from_slice(bytemuck::cast_slice(&self.mask));
         b.extend_from_slice(bytemuck::cast_slice(&self.target));
         b.extend_from_slice(&self.count);
@@ -110,7 +102,6 @@ impl StateTile {
             rotation: take(n).to_vec(),
             patch: bytemuck::pod_collect_to_vec(take(n * 4)),
             source: take(n).to_vec(),
-            foreign: bytemuck::pod_collect_to_vec(take(n * 4)),
             mask: bytemuck::pod_collect_to_vec(take(n * 4)),
             target: bytemuck::pod_collect_to_vec(take(n * 4)),
             count: take(n).to_vec(),
@@ -431,14 +422,13 @@ impl State {
     }
 
     pub(super) fn feature_into(&self, sample: &Sample, t: u32, out: &mut [f32]) {
-        let (f, c) = self.texel(t, |s, i| (s.foreign[i], s.coord[i]));
-        if f != NO_FOREIGN {
-            if let Some(other) = &self.foreign[f as usize] {
-                other.features_into([c[0] as f64, c[1] as f64], out);
-            }
+        let (source, c) = self.texel(t, |s, i| (s.source[i], s.coord[i]));
+        let c = [c[0] as f64, c[1] as f64];
+        if let Some(other) = self.foreign.get(source as usize).and_then(Option::as_ref) {
+            other.features_into(c, out);
             return;
         }
-        if !sample.lookup([c[0] as f64, c[1] as f64], out) {
+        if !sample.lookup(c, out) {
             out.fill(0.0);
         }
     }

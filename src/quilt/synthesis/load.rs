@@ -102,13 +102,11 @@ impl Synthesis {
                         }
                         s.source[i] = q.sample[j];
                         next = next.max(q.patch[j] + 1);
-                        if others[q.sample[j] as usize].is_some() {
-                            s.foreign[i] = q.sample[j] as u32;
-                            s.mask[i] = 0.0;
+                        s.mask[i] = if others[q.sample[j] as usize].is_some() {
+                            0.0
                         } else {
-                            s.foreign[i] = NO_FOREIGN;
-                            s.mask[i] = sample.mask_at([s.coord[i][0] as f64, s.coord[i][1] as f64]);
-                        }
+                            sample.mask_at([s.coord[i][0] as f64, s.coord[i][1] as f64])
+                        };
                     }
                 }
                 Ok(())

@@ -13,7 +13,7 @@ use super::occurrence::Occurrence;
 use super::pager::TileGrid;
 use super::placement::{lock_courses, placed_on_sample, PlacementChoice, Turn};
 use super::sample::{basis_projection, dist, sample_svd, Sample, SizedSample};
-use super::state::{Bfs, CourseLock, ForeignSample, State, Surface, WorkPatch, NO_FOREIGN};
+use super::state::{Bfs, CourseLock, ForeignSample, State, Surface, WorkPatch};
 use super::worker::{Outcome, StepStats, Worker};
 use crate::artifact::gim::{Gim, EMPTY, TILE};
 use crate::artifact::quilt::{Quilt, MAX_SAMPLES, NO_PATCH};

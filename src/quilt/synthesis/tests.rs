@@ -4,7 +4,6 @@ use crate::container::MemoryBudget;
 use crate::progress::Silent;
 use crate::quilt::ends::broken_around;
 use crate::quilt::pager::TileGrid;
-use crate::quilt::state::NO_FOREIGN;
 use crate::quilt::TileConfig;
 
 /// A flat square atlased at 64² that shows a sample of horizontal
@@ -54,7 +53,6 @@ fn halves(offset: f32, other: impl Fn(f32, f32) -> bool) -> (tempfile::TempDir, 
             s.jacobian[k] = [1.0, 0.0, 0.0, 1.0];
             s.patch[k] = right as u32;
             s.source[k] = 0;
-            s.foreign[k] = NO_FOREIGN;
         });
     }
     syn.state.next_patch = 2;
