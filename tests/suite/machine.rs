@@ -7,30 +7,24 @@
 use std::path::Path;
 use std::process::Command;
 
-/// Runs the binary with `args` in `dir`, natively or under the emulator;
-/// one allocator arena set here so the binary does not re-execute itself
-/// (natively) outside the emulator.
-fn btfquilt(dir: &Path, emulated: bool, args: &[&str]) -> Vec<u8> {
-    let bin = env!("CARGO_BIN_EXE_btfquilt");
-    let mut cmd = if emulated {
-        let mut c = Command::new("qemu-x86_64");
-        c.args(["-cpu", "qemu64", bin]);
-        c
-    } else {
-        Command::new(bin)
-    };
-    let out = cmd
+use crate::common::{atlas, ok, s};
+
+/// Runs the binary with `args` under the emulator and asserts it
+/// succeeded; its standard output. One allocator arena is set here, so the
+/// binary does not re-execute itself outside the emulator.
+fn emulated(args: &[&str]) -> String {
+    let out = Command::new("qemu-x86_64")
+        .args(["-cpu", "qemu64", env!("CARGO_BIN_EXE_btfquilt")])
         .args(args)
-        .current_dir(dir)
         .env("MALLOC_ARENA_MAX", "1")
         .output()
         .expect("runs");
     assert!(
         out.status.success(),
-        "{args:?} (emulated: {emulated}): {}",
+        "qemu64 btfquilt {args:?}: {}",
         String::from_utf8_lossy(&out.stderr)
     );
-    out.stdout
+    String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 #[test]
@@ -43,72 +37,61 @@ fn tiling_and_rendering_give_the_same_bytes_on_a_cpu_without_avx() {
         eprintln!("skipped: qemu-x86_64 is not installed (Debian: apt-get install qemu-user)");
         return;
     }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = tempfile::tempdir().unwrap();
-    let spot = root.join("data/spot_5.8k.obj");
-    let spot = spot.to_str().unwrap();
     let d = dir.path();
+    let (btf, svd, gim) = (d.join("b.btf"), d.join("b.svd"), d.join("s.gim"));
     // the inputs, made once natively
-    btfquilt(
-        d,
-        false,
-        &[
-            "generate-btf",
-            "--family",
-            "bricks",
-            "--size",
-            "48",
-            "--views",
-            "4x2",
-            "--lights",
-            "4x2",
-            "-o",
-            "b.btf",
-            "-q",
-        ],
-    );
-    btfquilt(
-        d,
-        false,
-        &["factorize", "b.btf", "--terms", "12", "-o", "b.svd", "-q"],
-    );
-    btfquilt(
-        d,
-        false,
-        &["atlas", spot, "--resolution", "192", "-o", "s.gim", "-q"],
+    ok(&[
+        "generate-btf",
+        "--family",
+        "bricks",
+        "--size",
+        "48",
+        "--views",
+        "4x2",
+        "--lights",
+        "4x2",
+        "-o",
+        s(&btf),
+        "-q",
+    ]);
+    ok(&["factorize", s(&btf), "--terms", "12", "-o", s(&svd), "-q"]);
+    atlas(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot_5.8k.obj"),
+        192,
+        &gim,
     );
     let mut files = Vec::new();
-    for (emulated, tag) in [(false, "native"), (true, "qemu64")] {
-        let quilt = format!("{tag}.quilt");
-        let png = format!("{tag}.png");
-        btfquilt(
-            d,
-            emulated,
-            &[
-                "tile",
-                "--gim",
-                "s.gim",
-                "--sample",
-                "b.svd",
-                "--threads",
-                "2",
-                "-o",
-                &quilt,
-                "-q",
-            ],
-        );
-        btfquilt(
-            d,
-            emulated,
-            &[
-                "render", &quilt, "--width", "160", "--height", "120", "-o", &png, "-q",
-            ],
-        );
-        let json = btfquilt(d, emulated, &["evaluate", &quilt, "--windows", "500"]);
+    for (tag, run) in [("native", ok as fn(&[&str]) -> String), ("qemu64", emulated)] {
+        let (quilt, png) = (d.join(format!("{tag}.quilt")), d.join(format!("{tag}.png")));
+        run(&[
+            "tile",
+            "--gim",
+            s(&gim),
+            "--sample",
+            s(&svd),
+            "--threads",
+            "2",
+            "-o",
+            s(&quilt),
+            "-q",
+        ]);
+        run(&[
+            "render",
+            s(&quilt),
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "-o",
+            s(&png),
+            "-q",
+        ]);
+        let json = run(&["evaluate", s(&quilt), "--windows", "500"]);
         files.push([
-            std::fs::read(d.join(&quilt)).unwrap(),
-            std::fs::read(d.join(&png)).unwrap(),
-            json,
+            std::fs::read(&quilt).unwrap(),
+            std::fs::read(&png).unwrap(),
+            json.into_bytes(),
         ]);
     }
     for (k, what) in ["quilt", "render", "evaluate"].iter().enumerate() {
