@@ -555,49 +555,38 @@ fn masks_of_every_png_layout_read_as_the_image_crate_decodes_them() {
     let grey16: Vec<u8> = (0..w * h)
         .flat_map(|k| ((k * 997) as u16).to_be_bytes())
         .collect();
-    let cases = [
+    let cases: [(&str, png::ColorType, png::BitDepth, Option<&[u8]>, Vec<u8>); 4] = [
         (
             "grey1",
-            write(
-                "grey1",
-                png::ColorType::Grayscale,
-                png::BitDepth::One,
-                None,
-                &bits(1, &|x, y| ((x + y) % 2) as u8),
-            ),
+            png::ColorType::Grayscale,
+            png::BitDepth::One,
+            None,
+            bits(1, &|x, y| ((x + y) % 2) as u8),
         ),
         (
             "grey4",
-            write(
-                "grey4",
-                png::ColorType::Grayscale,
-                png::BitDepth::Four,
-                None,
-                &bits(4, &|x, y| ((x * 3 + y) % 16) as u8),
-            ),
+            png::ColorType::Grayscale,
+            png::BitDepth::Four,
+            None,
+            bits(4, &|x, y| ((x * 3 + y) % 16) as u8),
         ),
         (
             "palette2",
-            write(
-                "palette2",
-                png::ColorType::Indexed,
-                png::BitDepth::Two,
-                Some(&palette),
-                &bits(2, &|x, y| ((x + 2 * y) % 4) as u8),
-            ),
+            png::ColorType::Indexed,
+            png::BitDepth::Two,
+            Some(&palette),
+            bits(2, &|x, y| ((x + 2 * y) % 4) as u8),
         ),
         (
             "grey16",
-            write(
-                "grey16",
-                png::ColorType::Grayscale,
-                png::BitDepth::Sixteen,
-                None,
-                &grey16,
-            ),
+            png::ColorType::Grayscale,
+            png::BitDepth::Sixteen,
+            None,
+            grey16,
         ),
     ];
-    for (name, path) in cases {
+    for (name, colour, depth, palette, data) in cases {
+        let path = write(name, colour, depth, palette, &data);
         let img = image::open(&path).unwrap();
         let expected = super::largest_channel(&img.to_rgb32f().into_raw());
         let n = (w * h) as usize;
