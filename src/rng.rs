@@ -24,12 +24,19 @@ fn unit_open(h: u64) -> f64 {
     ((h >> 11) as f64 + 1.0) * (1.0 / 9_007_199_254_740_992.0)
 }
 
-/// A standard normal value, the `index`-th of the stream `seed` (Box-Muller).
+/// A uniform value in (0, 1], the `index`-th of the stream `seed`.
+pub(crate) fn unit(seed: u64, index: u64) -> f64 {
+    unit_open(mix64(derive(seed, index)))
+}
+
+/// An approximately standard normal value, the `index`-th of the stream
+/// `seed`: the sum of twelve uniform values minus six (mean 0 and variance
+/// 1 exactly, tails cut at ±6). Only additions, so it is the same on every
+/// machine; a transcendental function from the system library could differ
+/// in the last bit between CPUs.
 pub(crate) fn gaussian(seed: u64, index: u64) -> f64 {
-    let h1 = mix64(derive(seed, index.wrapping_mul(2)));
-    let h2 = mix64(derive(seed, index.wrapping_mul(2) + 1));
-    let r = (-2.0 * unit_open(h1).ln()).sqrt();
-    r * (std::f64::consts::TAU * unit_open(h2)).cos()
+    let stream = derive(seed, index);
+    (0..12).map(|i| unit(stream, i)).sum::<f64>() - 6.0
 }
 
 #[cfg(test)]

@@ -26,8 +26,6 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use faer::linalg::matmul::matmul;
-use faer::{Accum, Mat, MatRef, Par};
 use half::f16;
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
@@ -39,10 +37,12 @@ use crate::io::imageio::{self, RgbImage};
 use crate::progress::Progress;
 use crate::{Error, Result};
 
+mod dense;
 mod rotate;
 mod stream;
+use dense::Matrix;
 pub use rotate::*;
-use stream::{orth, to_f64, MatrixStream};
+use stream::{column_major, orth, MatrixStream};
 
 pub use crate::artifact::svd::KIND;
 
@@ -184,27 +184,10 @@ pub fn image_to_btf(image: &Path, out: &Path, budget: MemoryBudget) -> Result<()
     w.finish()
 }
 
-/// Factorizes the BTF (or colour image) at `input` into the `.svd` artifact `out`.
-///
-/// The dense steps run on a thread of their own: faer's matrix products
-/// keep a workspace per thread that used them (twice the L3 cache, reserved
-/// and touched as far as the matrices need) for the thread's lifetime,
-/// which would otherwise stay with the caller (a whole `tile` run).
+/// Factorizes the BTF (or colour image) at `input` into the `.svd` artifact
+/// `out`. The result is the same bytes on every machine and thread count
+/// (see [`dense`]).
 pub fn factorize(
-    input: &Path,
-    out: &Path,
-    cfg: &FactorizeConfig,
-    progress: &dyn Progress,
-) -> Result<FactorizeReport> {
-    std::thread::scope(
-        |s| match s.spawn(|| factorize_here(input, out, cfg, progress)).join() {
-            Ok(result) => result,
-            Err(panic) => std::panic::resume_unwind(panic),
-        },
-    )
-}
-
-fn factorize_here(
     input: &Path,
     out: &Path,
     cfg: &FactorizeConfig,
@@ -213,9 +196,6 @@ fn factorize_here(
     let start = Instant::now();
     cfg.validate()?;
     crate::io::staging::check_output(out, &[("the input", input)])?;
-    // dense QR/SVD run sequentially: products with A are parallel over
-    // chunks already, and a fixed order keeps results thread-count independent
-    faer::set_global_parallelism(Par::Seq);
     let _tmp_dir;
     let (btf_path, source_kind): (PathBuf, &str) = if is_image_path(input) {
         let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
@@ -262,7 +242,7 @@ fn factorize_here(
             + (1 + cfg.power_iterations) as u64 * pass_jobs(false),
     );
     let t_pass = Instant::now();
-    let omega = Mat::<f32>::from_fn(n, k, |i, j| {
+    let omega = Matrix::from_fn(n, k, |i, j| {
         crate::rng::gaussian(cfg.seed, (i * k + j) as u64) as f32
     });
     let mut q = orth(&stream.times(&omega, progress)?);
@@ -271,38 +251,34 @@ fn factorize_here(
         let z = orth(&stream.transpose_times(&q, progress)?);
         q = orth(&stream.times(&z, progress)?);
     }
-    let bt = to_f64(&stream.transpose_times(&q, progress)?); // n × k
+    let bt = stream.transpose_times(&q, progress)?; // n × k
     let mut pass_seconds = t_pass.elapsed().as_secs_f64();
-    let svd = bt.thin_svd().map_err(|e| {
-        Error::Config(format!(
-            "{}: the small dense SVD did not converge ({e:?})",
+    // Bᵀ = U_b S V_bᵀ (column-major U_b: n × k, V_b: k × k)
+    let svd = dense::thin_svd(column_major(&bt), n, k);
+    drop(bt);
+    let sigma = svd.sigma;
+    if let Some(s) = sigma.iter().find(|s| !s.is_finite()) {
+        return Err(Error::Config(format!(
+            "{}: the small dense SVD gave a non-finite singular value ({s})",
             input.display()
-        ))
-    })?;
-    let (u_b, s, v_b) = (svd.U(), svd.S().column_vector(), svd.V()); // Bᵀ = U_b S V_bᵀ
-    let sigma: Vec<f64> = (0..k).map(|i| s[i]).collect();
+        )));
+    }
     // p_i = U_b[:, i]; g_i = σ_i Q V_b[:, i]; signs fixed so Σ_j p_i[j] ≥ 0
-    let mut p = Mat::<f32>::zeros(n, terms);
-    let mut w = Mat::<f32>::zeros(k, terms);
+    let mut p = Matrix::zeros(n, terms);
+    let mut w = Matrix::zeros(k, terms);
     for i in 0..terms {
-        let sum: f64 = (0..n).map(|r| u_b[(r, i)]).sum();
+        let u_i = &svd.u[i * n..(i + 1) * n];
+        let sum: f64 = u_i.iter().sum();
         let sign = if sum < 0.0 { -1.0 } else { 1.0 };
-        for r in 0..n {
-            p[(r, i)] = (sign * u_b[(r, i)]) as f32;
+        for (r, &u) in u_i.iter().enumerate() {
+            p.data[r * terms + i] = (sign * u) as f32;
         }
         for r in 0..k {
-            w[(r, i)] = (sign * sigma[i] * v_b[(r, i)]) as f32;
+            w.data[r * terms + i] = (sign * sigma[i] * svd.v[i * k + r]) as f32;
         }
     }
-    let mut g = Mat::<f32>::zeros(m, terms);
-    matmul(
-        g.as_mut(),
-        Accum::Replace,
-        q.as_ref(),
-        w.as_ref(),
-        1.0f32,
-        Par::Seq,
-    );
+    let mut g = Matrix::zeros(m, terms);
+    dense::mul_add(&mut g.data, terms, (&q.data, k), (&w.data, terms), (m, k, terms));
     drop(q);
     let t_err = Instant::now();
     let (err2, norm2) = stream.residual(&g, &p, progress)?;
@@ -361,8 +337,8 @@ fn write_svd(
     btf: &Btf,
     input: &Path,
     source_kind: &str,
-    g: &Mat<f32>,
-    p: &Mat<f32>,
+    g: &Matrix,
+    p: &Matrix,
     sigma: &[f64],
     relative_error: f64,
     preview: &[f32],
@@ -405,11 +381,7 @@ fn write_svd(
         &[h, w, terms],
         &[t, t, terms],
     )?)?;
-    let g_flat: Vec<f32> = (0..g.nrows())
-        .flat_map(|r| (0..g.ncols()).map(move |i| (r, i)))
-        .map(|(r, i)| g[(r, i)])
-        .collect();
-    c.write_array(id, &g_flat)?;
+    c.write_array(id, &g.data)?;
     let pairs = l.pairs() as u64;
     let id = c.add_array(ArraySpec::new(
         "appearance",
@@ -417,15 +389,11 @@ fn write_svd(
         &[pairs, 3, terms],
         &[l.band as u64, 3, terms],
     )?)?;
-    let p_flat: Vec<f32> = (0..p.nrows())
-        .flat_map(|r| (0..p.ncols()).map(move |i| (r, i)))
-        .map(|(r, i)| p[(r, i)])
-        .collect();
-    c.write_array(id, &p_flat)?;
+    c.write_array(id, &p.data)?;
     let id = c.add_array(ArraySpec::new("preview", DType::F32, &[h, w, 3], &[t, t, 3])?)?;
     c.write_array(id, preview)?;
     if cfg.rotations > 0 {
-        write_rotations(&mut c, cfg, l.width, l.height, sigma.len(), &g_flat, progress)?;
+        write_rotations(&mut c, cfg, l.width, l.height, sigma.len(), &g.data, progress)?;
     }
     c.finish()
 }

@@ -1,6 +1,7 @@
 //! The data matrix of a BTF streamed by tiles (rows: texels, columns:
 //! direction pairs) for the randomized SVD passes, and small dense helpers.
 
+use super::dense::{self, Matrix};
 use super::*;
 
 /// One texel tile's rows of the matrix: rows are ordered tile by tile
@@ -74,19 +75,24 @@ impl<'a> MatrixStream<'a> {
 
     /// The chunk (tile, band) as f32 values, row-major (texel × column), into
     /// `buf`; non-finite values are an error naming the texel and pair.
-    fn chunk<'b>(&self, t: &TileRows, band: usize, buf: &'b mut Vec<f32>) -> Result<MatRef<'b, f32>> {
+    fn chunk<'b>(&self, t: &TileRows, band: usize, buf: &'b mut Vec<f32>) -> Result<&'b [f32]> {
         let l = self.btf.layout();
         let chunk = self
             .btf
             .container()
             .read_chunk::<f16>(self.rgb, l.chunk(t.tx, t.ty, band))?;
-        buf.clear();
+        // every value is overwritten: no clearing first
         buf.resize(chunk.len(), 0.0);
         // the slice conversion: per-value f16 conversions are ~50× slower on
-        // threads that have just run faer's wide-vector kernels
+        // threads that have just run wide-vector kernels
         chunk.convert_to_f32_slice(buf);
         let (_, ncols) = self.bands[band];
-        if let Some(i) = buf.iter().position(|v| !v.is_finite()) {
+        // a branch-free test per block (vectorised), the position only on failure
+        let finite = |b: &[f32]| b.iter().fold(true, |ok, v| ok & v.is_finite());
+        if let Some(i) = (!buf.chunks(1024).all(finite))
+            .then(|| buf.iter().position(|v| !v.is_finite()))
+            .flatten()
+        {
             let (texel, col) = (i / ncols, i % ncols);
             let pair = self.bands[band].0 / 3 + col / 3;
             let (v, li) = (pair / l.lights.len(), pair % l.lights.len());
@@ -104,91 +110,85 @@ impl<'a> MatrixStream<'a> {
                 ),
             ));
         }
-        Ok(MatRef::from_row_major_slice(&buf[..], t.rows(), ncols))
+        Ok(&buf[..])
     }
 
-    /// `A M` (rows × k) for `M` (cols × k): one pass, parallel over tiles.
-    pub(super) fn times(&self, m: &Mat<f32>, progress: &dyn Progress) -> Result<Mat<f32>> {
-        let k = m.ncols();
-        let parts: Vec<Mat<f32>> = self
+    /// `A M` (rows × k) for `M` (cols × k): one pass, parallel over tiles;
+    /// each tile's rows sum the bands in order.
+    pub(super) fn times(&self, m: &Matrix, progress: &dyn Progress) -> Result<Matrix> {
+        let k = m.cols;
+        let parts: Vec<Vec<f32>> = self
             .tiles
             .par_iter()
             .map(|t| {
-                let mut y = Mat::<f32>::zeros(t.rows(), k);
+                let mut y = vec![0f32; t.rows() * k];
                 let mut buf = Vec::new();
                 for (b, &(c0, nc)) in self.bands.iter().enumerate() {
                     let a = self.chunk(t, b, &mut buf)?;
-                    matmul(
-                        y.as_mut(),
-                        Accum::Add,
-                        a,
-                        m.as_ref().subrows(c0, nc),
-                        1.0f32,
-                        Par::Seq,
-                    );
+                    dense::mul_add(&mut y, k, (a, nc), (m.rows_from(c0, nc), k), (t.rows(), nc, k));
                 }
                 progress.advance(1);
                 Ok(y)
             })
             .collect::<Result<_>>()?;
-        let mut out = Mat::<f32>::zeros(self.rows, k);
+        let mut out = Matrix::zeros(self.rows, k);
         for (t, y) in self.tiles.iter().zip(&parts) {
-            out.as_mut().subrows_mut(t.row0, t.rows()).copy_from(y);
+            out.data[t.row0 * k..(t.row0 + t.rows()) * k].copy_from_slice(y);
         }
         Ok(out)
     }
 
-    /// `Aᵀ Q` (cols × k) for `Q` (rows × k): one pass, parallel over bands.
-    pub(super) fn transpose_times(&self, q: &Mat<f32>, progress: &dyn Progress) -> Result<Mat<f32>> {
-        let k = q.ncols();
-        let parts: Vec<Mat<f32>> = (0..self.bands.len())
+    /// `Aᵀ Q` (cols × k) for `Q` (rows × k): one pass, parallel over bands;
+    /// each band's rows sum the tiles in order.
+    pub(super) fn transpose_times(&self, q: &Matrix, progress: &dyn Progress) -> Result<Matrix> {
+        let k = q.cols;
+        let parts: Vec<Vec<f32>> = (0..self.bands.len())
             .into_par_iter()
             .map(|b| {
-                let mut z = Mat::<f32>::zeros(self.bands[b].1, k);
-                let mut buf = Vec::new();
+                let nc = self.bands[b].1;
+                // (Aᵀ Q)ᵀ = Qᵀ A, so the products run along the chunk's rows;
+                // each output still sums the texels in order
+                let mut zt = vec![0f32; k * nc];
+                let (mut buf, mut qt) = (Vec::new(), Vec::new());
                 for t in &self.tiles {
                     let a = self.chunk(t, b, &mut buf)?;
-                    matmul(
-                        z.as_mut(),
-                        Accum::Add,
-                        a.transpose(),
-                        q.as_ref().subrows(t.row0, t.rows()),
-                        1.0f32,
-                        Par::Seq,
-                    );
+                    let rows = t.rows();
+                    dense::transpose_into(q.rows_from(t.row0, rows), rows, k, &mut qt);
+                    dense::mul_add(&mut zt, nc, (&qt, rows), (a, nc), (k, rows, nc));
                 }
                 progress.advance(1);
+                let mut z = Vec::new();
+                dense::transpose_into(&zt, k, nc, &mut z);
                 Ok(z)
             })
             .collect::<Result<_>>()?;
-        let mut out = Mat::<f32>::zeros(self.cols, k);
+        let mut out = Matrix::zeros(self.cols, k);
         for (&(c0, nc), z) in self.bands.iter().zip(&parts) {
-            out.as_mut().subrows_mut(c0, nc).copy_from(z);
+            out.data[c0 * k..(c0 + nc) * k].copy_from_slice(z);
         }
         Ok(out)
     }
 
     /// (‖A − G Pᵀ‖²_F, ‖A‖²_F): one pass, summed in chunk order.
-    pub(super) fn residual(&self, g: &Mat<f32>, p: &Mat<f32>, progress: &dyn Progress) -> Result<(f64, f64)> {
+    pub(super) fn residual(&self, g: &Matrix, p: &Matrix, progress: &dyn Progress) -> Result<(f64, f64)> {
+        let terms = g.cols;
+        // Pᵀ (terms × cols), so a band's columns are contiguous in each row
+        let pt = Matrix::from_fn(terms, self.cols, |i, c| p.data[c * terms + i]);
         let per_tile: Vec<(f64, f64)> = self
             .tiles
             .par_iter()
             .map(|t| {
-                let mut buf = Vec::new();
+                let (mut buf, mut r) = (Vec::new(), Vec::new());
+                let minus_g: Vec<f32> = g.rows_from(t.row0, t.rows()).iter().map(|v| -v).collect();
                 let (mut err, mut norm) = (0f64, 0f64);
                 for (b, &(c0, nc)) in self.bands.iter().enumerate() {
                     let a = self.chunk(t, b, &mut buf)?;
-                    let mut r = a.to_owned();
-                    matmul(
-                        r.as_mut(),
-                        Accum::Add,
-                        g.as_ref().subrows(t.row0, t.rows()),
-                        p.as_ref().subrows(c0, nc).transpose(),
-                        -1.0f32,
-                        Par::Seq,
-                    );
-                    err += sum_squares(r.as_ref());
-                    norm += sum_squares(a);
+                    r.clear();
+                    r.extend_from_slice(a);
+                    let mg = (&minus_g[..], terms);
+                    dense::mul_add(&mut r, nc, mg, (&pt.data[c0..], self.cols), (t.rows(), terms, nc));
+                    err += dense::sum_squares(&r, nc);
+                    norm += dense::sum_squares(a, nc);
                 }
                 progress.advance(1);
                 Ok((err, norm))
@@ -200,41 +200,34 @@ impl<'a> MatrixStream<'a> {
     }
 
     /// Reorders rows from tile order to image order (y · width + x).
-    pub(super) fn to_image_order(&self, m: &Mat<f32>) -> Mat<f32> {
+    pub(super) fn to_image_order(&self, m: &Matrix) -> Matrix {
         let width = self.btf.layout().width;
-        let mut out = Mat::<f32>::zeros(self.rows, m.ncols());
+        let k = m.cols;
+        let mut out = Matrix::zeros(self.rows, k);
         for t in &self.tiles {
             for r in 0..t.rows() {
                 let (x, y) = (t.x0 + r % t.w, t.y0 + r / t.w);
-                out.as_mut().row_mut(y * width + x).copy_from(m.row(t.row0 + r));
+                let to = (y * width + x) * k;
+                out.data[to..to + k].copy_from_slice(m.row(t.row0 + r));
             }
         }
         out
     }
 }
 
-fn sum_squares(m: MatRef<'_, f32>) -> f64 {
-    let mut s = 0f64;
-    for j in 0..m.ncols() {
-        let mut c = 0f32;
-        for i in 0..m.nrows() {
-            let v = m[(i, j)];
-            c += v * v;
+/// Column-major f64 copy of a row-major f32 matrix.
+pub(super) fn column_major(m: &Matrix) -> Vec<f64> {
+    let mut out = vec![0f64; m.rows * m.cols];
+    for (r, row) in m.data.chunks_exact(m.cols.max(1)).enumerate() {
+        for (c, &v) in row.iter().enumerate() {
+            out[c * m.rows + r] = v as f64;
         }
-        s += c as f64;
     }
-    s
+    out
 }
 
-pub(super) fn to_f64(m: &Mat<f32>) -> Mat<f64> {
-    Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f64)
-}
-
-fn to_f32(m: MatRef<'_, f64>) -> Mat<f32> {
-    Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32)
-}
-
-/// Orthonormal basis of the columns (thin Householder QR).
-pub(super) fn orth(m: &Mat<f32>) -> Mat<f32> {
-    to_f32(to_f64(m).qr().compute_thin_Q().as_ref())
+/// Orthonormal basis of the columns (thin Householder QR in f64).
+pub(super) fn orth(m: &Matrix) -> Matrix {
+    let q = dense::qr(column_major(m), m.rows, m.cols).q;
+    Matrix::from_fn(m.rows, m.cols, |r, c| q[c * m.rows + r] as f32)
 }
