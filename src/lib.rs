@@ -57,6 +57,7 @@ pub mod batch;
 
 pub mod container;
 pub mod demo;
+mod dense;
 pub mod error;
 pub mod factorize;
 pub mod field;
@@ -64,6 +65,7 @@ pub mod generate;
 
 pub mod ingest;
 pub mod io;
+mod math;
 pub mod mesh;
 pub mod output;
 pub mod paint;

@@ -3,7 +3,10 @@
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymmetricOrdering};
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymmetricOrdering,
+};
+use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::SparseColMat;
 use faer::{Conj, MatMut, Par, Side};
 
@@ -21,7 +24,13 @@ impl SpdFactor {
             h.symbolic(),
             Side::Upper,
             SymmetricOrdering::Amd,
-            Default::default(),
+            // the simplicial factorization: scalar loops in a fixed order, so
+            // the same bits on every CPU (the supernodal one runs dense
+            // kernels chosen by instruction set)
+            CholeskySymbolicParams {
+                supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SIMPLICIAL,
+                ..Default::default()
+            },
         )
         .map_err(|e| format!("symbolic factorisation failed: {e:?}"))?;
         let mut values = vec![0.0f64; symbolic.len_val()];

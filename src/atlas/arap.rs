@@ -8,6 +8,7 @@
 //! angle for area, which is what the chart checks (L2 stretch, the
 //! area-distortion tail) measure.
 
+use crate::math;
 use faer::sparse::{SparseColMat, Triplet};
 
 use super::lscm::{degenerate, local_frame};
@@ -99,8 +100,8 @@ pub(crate) fn relax(
                     j[k][1] += p[k] * g[i][1];
                 }
             }
-            let theta = (j[1][0] - j[0][1]).atan2(j[0][0] + j[1][1]);
-            let (s, c) = theta.sin_cos();
+            let theta = math::atan2(j[1][0] - j[0][1], j[0][0] + j[1][1]);
+            let (s, c) = math::sin_cos(theta);
             let r = [[c, -s], [s, c]];
             for i in 0..3 {
                 let v = t[i] as usize;
@@ -175,9 +176,11 @@ mod tests {
         let uv = relax(&positions, &triangles, &start, 30).unwrap();
         for a in 0..positions.len() {
             for b in [0, n, positions.len() - 1] {
-                let d3 = ((positions[a][0] - positions[b][0]) as f64)
-                    .hypot((positions[a][1] - positions[b][1]) as f64);
-                let duv = (uv[a][0] - uv[b][0]).hypot(uv[a][1] - uv[b][1]);
+                let d3 = math::hypot(
+                    ((positions[a][0] - positions[b][0]) as f64),
+                    (positions[a][1] - positions[b][1]) as f64,
+                );
+                let duv = math::hypot(uv[a][0] - uv[b][0], uv[a][1] - uv[b][1]);
                 assert!((d3 - duv).abs() < 1e-6, "distance {a}-{b}: 3D {d3}, uv {duv}");
             }
         }

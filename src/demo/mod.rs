@@ -20,6 +20,7 @@
 //! 6. `tile`: Spot with the shipped brick wall (`data/brick_wall.png`, made
 //!    from the CC0 brick photo; the colour path), baked and rendered.
 
+use crate::math;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -169,8 +170,8 @@ pub fn light_from_camera(camera: &Camera, angle: f32, azimuth: f32) -> [f32; 3] 
     let up = unit_or(camera.up.into(), Vec3::ZERO);
     let up = unit_or(up - v * up.dot(v), Vec3::ZERO);
     let right = up.cross(v);
-    let (sa, ca) = angle.to_radians().sin_cos();
-    let (sz, cz) = azimuth.to_radians().sin_cos();
+    let (sa, ca) = math::sin_cos(angle.to_radians());
+    let (sz, cz) = math::sin_cos(azimuth.to_radians());
     (ca * v + sa * (cz * right + sz * up)).to_array()
 }
 

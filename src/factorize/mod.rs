@@ -23,6 +23,7 @@
 //! chunk per worker; chunks are cached only when the whole BTF fits the budget.
 //! One extra pass measures ‖A − A_n‖_F / ‖A‖_F.
 
+use crate::math;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -37,10 +38,9 @@ use crate::io::imageio::{self, RgbImage};
 use crate::progress::Progress;
 use crate::{Error, Result};
 
-mod dense;
 mod rotate;
 mod stream;
-use dense::Matrix;
+use crate::dense::{self, Matrix};
 pub use rotate::*;
 use stream::{column_major, orth, MatrixStream};
 
@@ -186,7 +186,7 @@ pub fn image_to_btf(image: &Path, out: &Path, budget: MemoryBudget) -> Result<()
 
 /// Factorizes the BTF (or colour image) at `input` into the `.svd` artifact
 /// `out`. The result is the same bytes on every machine and thread count
-/// (see [`dense`]).
+/// (see [`crate::dense`]).
 pub fn factorize(
     input: &Path,
     out: &Path,
@@ -411,6 +411,6 @@ pub fn psnr(reference: &RgbImage, test: &RgbImage) -> f64 {
     if mse == 0.0 {
         f64::INFINITY
     } else {
-        10.0 * (peak * peak / mse).log10()
+        10.0 * math::log10(peak * peak / mse)
     }
 }

@@ -2,6 +2,7 @@
 //! turned for each of the field-aligned rotations, and resized to a scale.
 
 use super::*;
+use crate::math;
 
 /// Writes `src` (whose geometry maps `maps` the caller has read) resampled
 /// to `width`×`height` texels as the `.svd` `out`: the geometry maps and the
@@ -86,7 +87,7 @@ pub fn rotate_maps(
     degrees: f64,
     tileable: bool,
 ) -> (Vec<f32>, Vec<u8>) {
-    let (sin, cos) = degrees.to_radians().sin_cos();
+    let (sin, cos) = math::sin_cos(degrees.to_radians());
     let (cx, cy) = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
     let mut out = vec![0f32; width * height * channels];
     let mut valid = vec![0u8; width * height];

@@ -1,8 +1,8 @@
 //! The data matrix of a BTF streamed by tiles (rows: texels, columns:
 //! direction pairs) for the randomized SVD passes, and small dense helpers.
 
-use super::dense::{self, Matrix};
 use super::*;
+use crate::dense::{self, Matrix};
 
 /// One texel tile's rows of the matrix: rows are ordered tile by tile
 /// (row-major inside each tile), so a tile's rows are contiguous.

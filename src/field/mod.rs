@@ -14,6 +14,7 @@
 mod stripes;
 pub use stripes::{forced_ends, ForcedEnds, StripePattern};
 
+use crate::math;
 use std::path::Path;
 
 use glam::{DVec3, Vec3};
@@ -368,7 +369,7 @@ fn frame_coords(d: Vec3, (e1, e2): (DVec3, DVec3)) -> (f64, f64) {
 /// The angle of 3D vector `d` in frame `(e1, e2)`.
 fn frame_angle(d: Vec3, frame: (DVec3, DVec3)) -> f64 {
     let (x, y) = frame_coords(d, frame);
-    y.atan2(x)
+    math::atan2(y, x)
 }
 
 /// The discrete connection of a face pair: for each interior edge (f, g)
@@ -407,7 +408,7 @@ pub fn field_energy(mesh: &Mesh, topology: &Topology, field: &[[f32; 3]]) -> f64
             let (f, g) = (f as usize, g as usize);
             let a = frame_angle(field[f].into(), frames[f]);
             let b = frame_angle(field[g].into(), frames[g]) + rho;
-            w * ((a.cos() - b.cos()).powi(2) + (a.sin() - b.sin()).powi(2))
+            w * ((math::cos(a) - math::cos(b)).powi(2) + (math::sin(a) - math::sin(b)).powi(2))
         })
         .sum()
 }
@@ -454,7 +455,7 @@ fn smoothest_field(
             diagonal[f] += w;
             diagonal[g] += w;
             // the complex entry −w e^{iρ} at (f, g), f < g
-            upper.push((f, g, -w * rho.cos(), -w * rho.sin()));
+            upper.push((f, g, -w * math::cos(rho), -w * math::sin(rho)));
         }
         factorize_hermitian(&upper, &diagonal)
     };
@@ -544,8 +545,8 @@ fn smoothest_field(
     let mut align: Vec<(f64, f64)> = lines
         .iter()
         .map(|&(re, im)| {
-            let t = 0.5 * im.atan2(re);
-            (t.cos(), t.sin())
+            let t = 0.5 * math::atan2(im, re);
+            (math::cos(t), math::sin(t))
         })
         .collect();
     let mut along = vec![0f64; components];
@@ -612,7 +613,7 @@ fn rbf_field(
             / k as f64;
         sigma = mean_nn.clamp(0.05 * diag, diag);
     }
-    let phi = |r: f64| (-(r / sigma) * (r / sigma)).exp();
+    let phi = |r: f64| math::exp(-(r / sigma) * (r / sigma));
     // solve (Φ + εI) W = D by Gaussian elimination with partial pivoting
     let mut a: Vec<Vec<f64>> = (0..k)
         .map(|i| {

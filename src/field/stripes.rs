@@ -21,6 +21,7 @@
 //! row ends (the paper's singular faces). The mesh is subdivided until its
 //! edges are a third of `period` long on average.
 
+use crate::math;
 use glam::DVec3;
 
 use crate::mesh::Mesh;
@@ -223,12 +224,12 @@ impl StripePattern {
         let (mut re, mut im) = (0.0, 0.0);
         for (k, &v) in fine.triangles[f].iter().enumerate() {
             let v = v as usize;
-            let (s, c) = (self.nu * n.dot(p - fine.positions[v])).sin_cos();
+            let (s, c) = math::sin_cos(self.nu * n.dot(p - fine.positions[v]));
             let (x, y) = (self.psi[2 * v], self.psi[2 * v + 1]);
             re += bc[k] * (x * c - y * s);
             im += bc[k] * (x * s + y * c);
         }
-        im.atan2(re)
+        math::atan2(im, re)
     }
 }
 
@@ -474,7 +475,7 @@ impl Solved {
             diagonal[i] += w;
             diagonal[j] += w;
             // entry (i, j) = −w e^{−iω}
-            upper.push((i, j, -w * om.cos(), w * om.sin()));
+            upper.push((i, j, -w * math::cos(om), w * math::sin(om)));
         }
         let factor = super::factorize_hermitian(&upper, &diagonal)?;
         let mut psi: Vec<f64> = (0..2 * nv)
@@ -483,7 +484,7 @@ impl Solved {
         for k in 0..ITERATIONS + even {
             if k >= ITERATIONS {
                 for v in psi.chunks_exact_mut(2) {
-                    let m = v[0].hypot(v[1]);
+                    let m = math::hypot(v[0], v[1]);
                     if m > 0.0 {
                         v.iter_mut().for_each(|x| *x /= m);
                     }
@@ -507,7 +508,7 @@ impl Solved {
     fn count_ends(&self, fine: &Subdivided) -> usize {
         use std::f64::consts::TAU;
         let (edges, omega, psi) = (&self.form.edges, &self.form.omega, &self.psi);
-        let arg = |v: u32| psi[2 * v as usize + 1].atan2(psi[2 * v as usize]);
+        let arg = |v: u32| math::atan2(psi[2 * v as usize + 1], psi[2 * v as usize]);
         let mut ends = 0usize;
         for t in &fine.triangles {
             let mut turn = 0.0;
@@ -536,9 +537,9 @@ mod tests {
             for s in 0..segments {
                 let ph = std::f64::consts::TAU * s as f64 / segments as f64;
                 m.positions.push([
-                    (th.sin() * ph.cos()) as f32,
-                    (th.sin() * ph.sin()) as f32,
-                    th.cos() as f32,
+                    (math::sin(th) * math::cos(ph)) as f32,
+                    (math::sin(th) * math::sin(ph)) as f32,
+                    math::cos(th) as f32,
                 ]);
             }
         }
@@ -708,7 +709,7 @@ mod tests {
     /// lie more than 15 % closer or wider than the period: |∇ arg ψ| / ν
     /// outside [1/1.18, 1.18].
     fn spacing_off(fine: &Subdivided, solved: &Solved, nu: f64) -> f64 {
-        let arg = |v: u32| solved.psi[2 * v as usize + 1].atan2(solved.psi[2 * v as usize]);
+        let arg = |v: u32| math::atan2(solved.psi[2 * v as usize + 1], solved.psi[2 * v as usize]);
         let (mut off, mut total) = (0.0, 0.0);
         for t in &fine.triangles {
             let c = t.map(|v| fine.positions[v as usize]);
@@ -738,7 +739,7 @@ mod tests {
     fn phase_energy(solved: &Solved) -> f64 {
         let unit = |v: usize| {
             let (x, y) = (solved.psi[2 * v], solved.psi[2 * v + 1]);
-            let m = x.hypot(y);
+            let m = math::hypot(x, y);
             (x / m, y / m)
         };
         let form = &solved.form;
@@ -746,7 +747,7 @@ mod tests {
         let mut e = 0.0;
         for ((&(a, b), &w), &om) in form.edges.iter().zip(&form.weight).zip(&form.omega) {
             let ((xa, ya), (xb, yb)) = (unit(a as usize), unit(b as usize));
-            let (c, s) = (om.cos(), om.sin());
+            let (c, s) = (math::cos(om), math::sin(om));
             e += w.max(1e-6) * ((xb - (c * xa - s * ya)).powi(2) + (yb - (s * xa + c * ya)).powi(2));
         }
         e / mass

@@ -10,6 +10,7 @@
 //! Every quantity depends only on global (wrapped) texel coordinates, so a texel
 //! renders bit-identically in any block of any size.
 
+use crate::math;
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -19,8 +20,8 @@ use crate::mesh::unit_or;
 /// Unit vector from polar angle `theta` (from the surface normal +z) and azimuth
 /// `phi`, both in degrees: `(sinθcosφ, sinθsinφ, cosθ)`.
 pub fn direction(theta_deg: f32, phi_deg: f32) -> [f32; 3] {
-    let (st, ct) = theta_deg.to_radians().sin_cos();
-    let (sp, cp) = phi_deg.to_radians().sin_cos();
+    let (st, ct) = math::sin_cos(theta_deg.to_radians());
+    let (sp, cp) = math::sin_cos(phi_deg.to_radians());
     [st * cp, st * sp, ct]
 }
 
@@ -115,7 +116,7 @@ impl<'a> BlockRenderer<'a> {
                 }
             })
             .collect();
-        let margin = (range * MAX_THETA_DEG.to_radians().tan()).ceil() as usize + 2;
+        let margin = (range * math::tan(MAX_THETA_DEG.to_radians())).ceil() as usize + 2;
         let gw = w + 2 * margin;
         let gh = h + 2 * margin;
         // Mean height, summed sequentially in f64: deterministic.

@@ -11,6 +11,7 @@
 //! a face is seen from a direction when it faces it and its centre is no
 //! deeper than the nearest surface there.
 
+use crate::math;
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -61,7 +62,7 @@ pub fn face_exposure(mesh: &Mesh) -> Vec<f32> {
         let z = 1.0 - (2 * k + 1) as f64 / DIRECTIONS as f64;
         let r = (1.0 - z * z).max(0.0).sqrt();
         let phi = golden * k as f64;
-        let d = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+        let d = DVec3::new(r * math::cos(phi), r * math::sin(phi), z);
         let (u, v) = d.any_orthonormal_pair();
         // project: (u, v) on the image plane, height along d (towards the viewer)
         let projected: Vec<(f64, f64, f64)> =

@@ -9,6 +9,7 @@ pub mod exposure;
 pub mod io;
 pub mod repair;
 
+use crate::math;
 use glam::{DVec3, Vec3};
 
 /// Index of a face.
@@ -72,7 +73,7 @@ pub fn extreme_scale(positions: &[[f32; 3]]) -> f64 {
     if (2f64.powi(-20)..=2f64.powi(20)).contains(&diag) {
         return 1.0;
     }
-    2f64.powi(-diag.log2().round() as i32)
+    2f64.powi(-math::log2(diag).round() as i32)
 }
 
 /// `v / |v|`, each component divided by the length, or `fallback` when the

@@ -20,12 +20,11 @@
 
 use std::path::Path;
 
-use faer::linalg::matmul::matmul;
-use faer::{Accum, Mat, Par};
 use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::container::MemoryBudget;
+use crate::dense;
 use crate::io::imageio::{self, RgbImage};
 use crate::{Error, Result};
 
@@ -92,12 +91,13 @@ fn too_small(what: &str, img: &RgbImage) -> Option<String> {
     })
 }
 
-/// The windows of `img`, one per row of a `count × DIM` matrix (row-major
-/// window texels, R G B each), and their squared norms.
-fn windows(img: &RgbImage, rows: std::ops::Range<usize>) -> (Mat<f32>, Vec<f32>) {
+/// The windows of `img` as the rows of a row-major `count × DIM` matrix
+/// (window texels, R G B each), or as its columns (`DIM × count`, with
+/// `as_columns`), and their squared norms.
+fn windows(img: &RgbImage, rows: std::ops::Range<usize>, as_columns: bool) -> (Vec<f32>, Vec<f32>) {
     let cols = img.width + 1 - WINDOW;
     let n = rows.len() * cols;
-    let mut m = Mat::<f32>::zeros(n, DIM);
+    let mut m = vec![0f32; n * DIM];
     let mut norms = vec![0f32; n];
     for (i, y) in rows.enumerate() {
         for x in 0..cols {
@@ -106,7 +106,7 @@ fn windows(img: &RgbImage, rows: std::ops::Range<usize>) -> (Mat<f32>, Vec<f32>)
             for dy in 0..WINDOW {
                 let row = &img.data[((y + dy) * img.width + x) * 3..][..WINDOW * 3];
                 for &v in row {
-                    m[(r, k)] = v;
+                    m[if as_columns { k * n + r } else { r * DIM + k }] = v;
                     norms[r] += v * v;
                     k += 1;
                 }
@@ -157,7 +157,9 @@ pub fn compare_images(output: &RgbImage, sample: &RgbImage, budget: MemoryBudget
             budget.0 >> 20
         )));
     }
-    let (s_win, s_norm) = windows(sample, 0..s_rows);
+    // the sample's windows as columns (DIM × ns), so a block of them is
+    // the right-hand side of one product
+    let (s_win, s_norm) = windows(sample, 0..s_rows, true);
     // per band of output rows: each output window's best (score, sample
     // window), and each sample window's best (score, output window)
     let bands: Vec<(usize, usize)> = (0..o_rows)
@@ -168,27 +170,24 @@ pub fn compare_images(output: &RgbImage, sample: &RgbImage, budget: MemoryBudget
     let parts: Vec<(Vec<Best>, Vec<Best>)> = bands
         .par_iter()
         .map(|&(y0, y1)| {
-            let (o_win, o_norm) = windows(output, y0..y1);
+            let (o_win, o_norm) = windows(output, y0..y1, false);
             let no = o_norm.len();
             let mut out_best = vec![(f32::INFINITY, 0u32); no];
             let mut sam_best = vec![(f32::INFINITY, 0u32); ns];
+            let mut dot = Vec::with_capacity(no * SAMPLE_BLOCK);
             for s0 in (0..ns).step_by(SAMPLE_BLOCK) {
                 let s1 = (s0 + SAMPLE_BLOCK).min(ns);
-                let mut dot = Mat::<f32>::zeros(no, s1 - s0);
-                matmul(
-                    dot.as_mut(),
-                    Accum::Replace,
-                    o_win.as_ref(),
-                    s_win.as_ref().subrows(s0, s1 - s0).transpose(),
-                    1.0f32,
-                    Par::Seq,
-                );
-                for j in 0..s1 - s0 {
-                    let col = dot.col(j);
-                    let s = s0 + j;
-                    for i in 0..no {
-                        let score = o_norm[i] + s_norm[s] - 2.0 * col[i];
-                        let o = (y0 * o_cols + i) as u32;
+                let nb = s1 - s0;
+                // o·s for every pair of the block, each a fixed-order sum
+                dot.clear();
+                dot.resize(no * nb, 0.0);
+                let sample_block = (&s_win[s0..], ns);
+                dense::mul_add(&mut dot, nb, (&o_win, DIM), sample_block, (no, DIM, nb));
+                for (i, row) in dot.chunks_exact(nb).enumerate() {
+                    let o = (y0 * o_cols + i) as u32;
+                    for (j, &d) in row.iter().enumerate() {
+                        let s = s0 + j;
+                        let score = o_norm[i] + s_norm[s] - 2.0 * d;
                         if (score, s as u32) < out_best[i] {
                             out_best[i] = (score, s as u32);
                         }

@@ -8,6 +8,7 @@
 //! edges. Colour steps across the seam (`seam` in the report) cannot tell
 //! the two apart: a seam along a mortar line has a strong step too.
 
+use crate::math;
 use serde::Serialize;
 
 use crate::artifact::gim::EMPTY;
@@ -146,7 +147,7 @@ fn continued(band: &ColourBand, previews: &[RgbImage], from: usize, behind: usiz
     }
     let ([u, v], [ub, vb]) = (band.coords[from], band.coords[behind]);
     let (du, dv) = (u - ub, v - vb);
-    if !(du.is_finite() && dv.is_finite()) || du.hypot(dv) > MAX_STEP {
+    if !(du.is_finite() && dv.is_finite()) || math::hypot(du, dv) > MAX_STEP {
         return None;
     }
     let c = imageio::bilinear(&previews[band.index[from] as usize], u + du, v + dv);

@@ -2,6 +2,7 @@
 //! the normal map, and the vector field drawn as short strokes with its
 //! singularities ringed.
 
+use crate::math;
 use std::path::Path;
 use std::str::FromStr;
 
@@ -167,7 +168,10 @@ fn draw_singularities(gim: &Gim, display: &mut [f32]) -> Result<()> {
             for i in 0..steps {
                 let a = i as f32 / steps as f32 * std::f32::consts::TAU;
                 for dr in [-0.5f32, 0.0, 0.5] {
-                    let (x, y) = (cx + (radius + dr) * a.cos(), cy + (radius + dr) * a.sin());
+                    let (x, y) = (
+                        cx + (radius + dr) * math::cos(a),
+                        cy + (radius + dr) * math::sin(a),
+                    );
                     if x >= 0.0 && y >= 0.0 && (x as usize) < r && (y as usize) < r {
                         let p = (y as usize * r + x as usize) * 3;
                         display[p..p + 3].copy_from_slice(&colour);

@@ -5,6 +5,7 @@
 //! stays within `--memory`. Every tile is a pure function of the quilt: what
 //! the cache holds changes the time a frame takes, never its pixels.
 
+use crate::math;
 use std::sync::{Arc, Mutex};
 
 use crate::artifact::gim::TILE;
@@ -140,7 +141,7 @@ pub(crate) fn btf_tiles(quilt: Arc<Quilt>, steps: Vec<usize>, budget: MemoryBudg
                 _ => {
                     let steps = steps[sample[t] as usize].max(1) as f32;
                     let a = rotation[t] as f32 * std::f32::consts::TAU / steps;
-                    let (s, c) = a.sin_cos();
+                    let (s, c) = math::sin_cos(a);
                     [c, -s, s, c]
                 }
             })

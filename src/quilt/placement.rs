@@ -8,6 +8,7 @@ use super::matching;
 use super::matching::{Image, MatchConfig, Matcher};
 use super::occurrence::Occurrence;
 use super::sample::Sample;
+use crate::math;
 use crate::Result;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -89,7 +90,7 @@ pub(super) struct Turn {
 impl Turn {
     pub(super) fn new(sample: &Sample, rotation: usize) -> Turn {
         let theta = rotation as f64 * std::f64::consts::TAU / sample.rotations as f64;
-        let (s, c) = theta.sin_cos();
+        let (s, c) = math::sin_cos(theta);
         let cen = [
             (sample.width as f64 - 1.0) / 2.0,
             (sample.height as f64 - 1.0) / 2.0,

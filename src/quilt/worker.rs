@@ -4,6 +4,7 @@
 //! patches that share no atlas tile can be computed at once, each over views
 //! of its own tiles ([`super::rounds`]).
 
+use crate::math;
 use std::path::Path;
 use std::time::Instant;
 
@@ -379,12 +380,12 @@ fn field_spread(surface: &Surface, patch: &WorkPatch) -> f64 {
                 sums.len() - 1
             }
         };
-        sums[k].1 += a.cos();
-        sums[k].2 += a.sin();
+        sums[k].1 += math::cos(a);
+        sums[k].2 += math::sin(a);
     }
     let n = patch.texels.len().max(1) as f64;
-    let r: f64 = sums.iter().map(|e| e.1.hypot(e.2)).sum::<f64>() / n;
-    (-2.0 * r.clamp(1e-12, 1.0).ln()).sqrt()
+    let r: f64 = sums.iter().map(|e| math::hypot(e.1, e.2)).sum::<f64>() / n;
+    (-2.0 * math::ln(r.clamp(1e-12, 1.0))).sqrt()
 }
 
 /// The direction the sample already has around a work patch, in the work
@@ -442,10 +443,10 @@ fn neighbour_angle(
             continue;
         }
         // a placement turned by θ steps the sample by (cos θ, −sin θ)
-        let theta = (-v).atan2(u);
-        cs += theta.cos();
-        sn += theta.sin();
+        let theta = math::atan2(-v, u);
+        cs += math::cos(theta);
+        sn += math::sin(theta);
         n += 1;
     }
-    (n > 0 && cs.hypot(sn) > 0.0).then(|| sn.atan2(cs))
+    (n > 0 && math::hypot(cs, sn) > 0.0).then(|| math::atan2(sn, cs))
 }

@@ -2,6 +2,7 @@
 //! (disk, no flips or folds, stretch and area distortion within their limits).
 
 use super::*;
+use crate::math;
 
 /// LSCM of a set of faces (sorted), or for a compact atlas its ARAP
 /// relaxation when LSCM is over a stretch limit (the relaxed map within
@@ -138,7 +139,7 @@ fn normalize_uv(positions: &[[f32; 3]], triangles: &[[u32; 3]], uv: &[[f64; 2]])
     let mean = uv
         .iter()
         .fold([0.0; 2], |m, p| [m[0] + p[0] / n, m[1] + p[1] / n]);
-    let (sin, cos) = orientation(uv).sin_cos();
+    let (sin, cos) = math::sin_cos(orientation(uv));
     let rotated: Vec<[f64; 2]> = uv
         .iter()
         .map(|p| {
@@ -214,7 +215,7 @@ fn orientation(uv: &[[f64; 2]]) -> f64 {
             }
             let (w, h) = (hi[0] - lo[0], hi[1] - lo[1]);
             let area = w * h;
-            let mut angle = uy.atan2(ux);
+            let mut angle = math::atan2(uy, ux);
             if h > w {
                 angle += std::f64::consts::FRAC_PI_2;
             }
@@ -237,7 +238,7 @@ fn orientation(uv: &[[f64; 2]]) -> f64 {
         sxy += x * y;
         syy += y * y;
     }
-    0.5 * (2.0 * sxy).atan2(sxx - syy)
+    0.5 * math::atan2(2.0 * sxy, sxx - syy)
 }
 
 pub(super) enum Outcome {

@@ -26,6 +26,7 @@
 
 use super::arap::{relax, ARAP_ITERATIONS};
 use super::lscm::{local_frame, lscm, stretch};
+use crate::math;
 use crate::mesh::{dunit_or, to_dvec3, Mesh, Topology, NO_FACE};
 use crate::{Error, Result};
 use glam::DVec3;
@@ -181,7 +182,7 @@ impl<'a> Ctx<'a> {
             normal,
             area,
             weight,
-            cos_max: (cfg.max_normal_deviation as f64).to_radians().cos(),
+            cos_max: math::cos((cfg.max_normal_deviation as f64).to_radians()),
             max_stretch: cfg.max_stretch as f64,
             max_area_distortion: cfg.max_area_distortion as f64,
             max_linf_stretch: cfg.max_linf_stretch as f64,

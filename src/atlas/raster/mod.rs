@@ -1,6 +1,7 @@
 //! Rasterizing the packed charts into the geometry image, tile by tile, and
 //! zippering the chart boundaries (see the [module docs](super)).
 
+use crate::math;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -259,7 +260,7 @@ pub fn build_gim(
     let turning: Option<Vec<f64>> = (cfg.field_exposure > 0.0).then(|| {
         exposure
             .iter()
-            .map(|&e| (e as f64).powf(cfg.field_exposure).max(MIN_TURNING_WEIGHT))
+            .map(|&e| math::powf(e as f64, cfg.field_exposure).max(MIN_TURNING_WEIGHT))
             .collect()
     });
     let field = field::face_field(&mesh, &topology, &keys, turning.as_deref());

@@ -6,6 +6,7 @@
 //! All fields are periodic over `width × height`; feature sizes are given in
 //! texels, so a larger sample shows more elements of the same size.
 
+use crate::math;
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -265,7 +266,7 @@ impl Gen {
                 let ang = std::f32::consts::PI * unit(a);
                 Scratch {
                     p: [dom.w * unit_lo(a), dom.h * unit(b)],
-                    d: [ang.cos(), ang.sin()],
+                    d: [math::cos(ang), math::sin(ang)],
                     len: (40.0 + 80.0 * unit_lo(b)).min(0.9 * min_side),
                     half_width: 0.55 + 0.4 * unit(hash2(seed, k, 3)),
                     bright: hash2(seed, k, 4) & 1 == 0,
@@ -353,15 +354,15 @@ impl Gen {
         let af = (v - 0.5) / half;
         let pw = (1.0 - aw * aw).max(0.0).sqrt();
         let pf = (1.0 - af * af).max(0.0).sqrt();
-        let zw = amp * (PI * (gv - 0.5 + ii as f32)).cos();
-        let zf = -amp * (PI * (gu - 0.5 + jj as f32)).cos();
+        let zw = amp * math::cos(PI * (gv - 0.5 + ii as f32));
+        let zf = -amp * math::cos(PI * (gu - 0.5 + jj as f32));
         // Twisted-ply stripes along each yarn and fibre streaks.
-        let ply_w = (2.0 * PI * (1.5 * u + 2.0 * gv)).cos();
-        let ply_f = (2.0 * PI * (1.5 * v + 2.0 * gu)).cos();
+        let ply_w = math::cos(2.0 * PI * (1.5 * u + 2.0 * gv));
+        let ply_f = math::cos(2.0 * PI * (1.5 * v + 2.0 * gu));
         let streak_w = d.fbm2(x, y, 1.0, 10.0, 2, s ^ 1);
         let streak_f = d.fbm2(x, y, 10.0, 1.0, 2, s ^ 2);
-        let hw = 1.2 + zw + 0.9 * pw.powf(0.7) + 0.08 * ply_w * pw + 0.1 * (streak_w - 0.5);
-        let hf = 1.2 + zf + 0.9 * pf.powf(0.7) + 0.08 * ply_f * pf + 0.1 * (streak_f - 0.5);
+        let hw = 1.2 + zw + 0.9 * math::powf(pw, 0.7) + 0.08 * ply_w * pw + 0.1 * (streak_w - 0.5);
+        let hf = 1.2 + zf + 0.9 * math::powf(pf, 0.7) + 0.08 * ply_f * pf + 0.1 * (streak_f - 0.5);
         let pair = YARN_PAIRS[(self.tone / 7) % YARN_PAIRS.len()].map(Vec3::from);
         let fuzz = 0.9 + 0.2 * d.fbm(x, y, 3.0, 2, s ^ 3);
         let yarn = |col: Vec3, id: i64, ply: f32, streak: f32, p: f32, salt: u64| {
@@ -407,15 +408,15 @@ impl Gen {
         let crack = 0.35 + 0.6 * d.fbm(x, y, 10.0, 2, s ^ 3);
         let e = c.edge - crack;
         let t = smoothstep(0.0, 0.7, e);
-        let curl = 0.45 * (-(e.max(0.0)) / 1.3).exp() * (0.5 + unit(c.id));
+        let curl = 0.45 * math::exp(-(e.max(0.0)) / 1.3) * (0.5 + unit(c.id));
         let tilt_dir = 2.0 * std::f32::consts::PI * unit_lo(c.id);
-        let tilt = 0.03 * ((wx - c.site[0]) * tilt_dir.cos() + (wy - c.site[1]) * tilt_dir.sin());
+        let tilt = 0.03 * ((wx - c.site[0]) * math::cos(tilt_dir) + (wy - c.site[1]) * math::sin(tilt_dir));
         let paint_h = 2.1 + 0.15 * d.fbm(x, y, 6.0, 3, s ^ 4) + curl + tilt;
         let sub_h = 0.3 + 0.25 * d.fbm(x, y, 3.0, 3, s ^ 5);
         let paint = Vec3::from(PAINTS[(self.tone / 3) % PAINTS.len()]);
         let grime = d.fbm(x, y, 12.0, 4, s ^ 6);
         let flake_var = 0.9 + 0.2 * unit(c.id >> 5);
-        let edge_dirt = 1.0 - 0.3 * (-(e.max(0.0)) / 1.5).exp();
+        let edge_dirt = 1.0 - 0.3 * math::exp(-(e.max(0.0)) / 1.5);
         let paint_c = paint * (flake_var * (0.75 + 0.45 * grime) * edge_dirt);
         let sub_c = Vec3::new(0.12, 0.08, 0.05) * (0.8 + 0.4 * d.fbm(x, y, 2.0, 2, s ^ 7));
         Texel {
@@ -440,7 +441,7 @@ impl Gen {
         let r = c.d1 / (c.d1 + e.max(0.0) + 1e-3);
         let rim = 0.8 + 0.12 * unit_lo(c.id >> 11);
         let rr = (r / rim).min(1.0);
-        let dome = (1.0 - rr * rr).max(0.0).sqrt().powf(0.7);
+        let dome = math::powf((1.0 - rr * rr).max(0.0).sqrt(), 0.7);
         let t = smoothstep(1.0, 0.93, r / rim) * smoothstep(0.0, 0.6, e);
         let ph = 1.6 + 1.1 * unit(c.id);
         let floor_h = 0.1 + 0.2 * d.fbm(x, y, 3.0, 2, s ^ 4);
@@ -474,7 +475,7 @@ impl Gen {
             let ang = 2.0 * std::f32::consts::PI * unit(a);
             let parent = Crack {
                 p: [dom.w * unit_lo(a), dom.h * unit(b)],
-                d: [ang.cos(), ang.sin()],
+                d: [math::cos(ang), math::sin(ang)],
                 len: (50.0 + 60.0 * unit_lo(b)).min(0.9 * min_side),
                 half_width: 0.6 + 0.5 * unit(hash2(seed, k, 3)),
                 amp: 4.0 + 5.0 * unit_lo(hash2(seed, k, 3)),
@@ -488,7 +489,7 @@ impl Gen {
                 let bang = ang + side * (0.5 + 0.6 * unit(hash2(seed, k, 6)));
                 out.push(Crack {
                     p: parent.center(at),
-                    d: [bang.cos(), bang.sin()],
+                    d: [math::cos(bang), math::sin(bang)],
                     len: parent.len * (0.3 + 0.3 * unit_lo(hash2(seed, k, 6))),
                     half_width: 0.7 * parent.half_width,
                     amp: 0.6 * parent.amp,

@@ -4,6 +4,7 @@
 //! write goes to a temporary file in the destination directory that is
 //! renamed into place only once it is complete ([`write_atomic`]).
 
+use crate::math;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::Path;
@@ -634,7 +635,7 @@ pub fn srgb_to_linear(v: f32) -> f32 {
     let l = if v <= 0.04045 {
         v / 12.92
     } else {
-        ((v + 0.055) / 1.055).powf(2.4)
+        math::powf((v + 0.055) / 1.055, 2.4)
     };
     l as f32
 }
@@ -645,7 +646,7 @@ pub fn linear_to_srgb(v: f32) -> f32 {
     let s = if v <= 0.0031308 {
         v * 12.92
     } else {
-        1.055 * v.powf(1.0 / 2.4) - 0.055
+        1.055 * math::powf(v, 1.0 / 2.4) - 0.055
     };
     s as f32
 }

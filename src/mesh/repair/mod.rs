@@ -6,6 +6,7 @@
 //! defined. The result depends only on the input, never on hash order.
 
 use super::{dunit_or, to_dvec3, Mesh, NO_FACE};
+use crate::math;
 use glam::DVec3;
 use std::collections::HashMap;
 use std::fmt;
@@ -431,7 +432,7 @@ fn pair_faces(mesh: &Mesh, run: &[EdgeSide], boundary: &[u8]) -> Vec<Vec<usize>>
     let angle: Vec<f64> = radial
         .iter()
         .map(|r| {
-            let a = r.dot(v).atan2(r.dot(u));
+            let a = math::atan2(r.dot(v), r.dot(u));
             if a.is_finite() {
                 a
             } else {

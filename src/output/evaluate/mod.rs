@@ -21,6 +21,7 @@
 //!   ending at seams, against the ends the field forces
 //!   ([`courses`](crate::output::courses)).
 
+use crate::math;
 use std::path::Path;
 
 use serde::Serialize;
@@ -735,7 +736,7 @@ fn scale_ratios(quilt: &Quilt, gim: &Gim, f: &mut dyn FnMut(f64)) -> Result<()> 
                 }
                 let units = p(t).distance(p(n)) as f64;
                 let (a, b) = (coords[t], coords[n]);
-                let pixels = ((a[0] - b[0]) as f64).hypot((a[1] - b[1]) as f64);
+                let pixels = math::hypot((a[0] - b[0]) as f64, (a[1] - b[1]) as f64);
                 if units > 0.0 && pixels.is_finite() {
                     f(pixels / units);
                 }

@@ -2,6 +2,7 @@
 //! per-vertex normals: what OBJ and glTF need.
 
 use super::*;
+use crate::math;
 
 /// A mesh as glTF wants it: one uv per vertex, so mesh vertices whose corners
 /// carry different atlas uvs (chart seams) are split.
@@ -77,7 +78,7 @@ pub fn split_by_uv(mesh: &Mesh, corner_uv: &[[f32; 2]]) -> std::result::Result<S
 /// the smooth one vanishes; unit length in f32.
 fn unit_normal(mesh: &Mesh, normals: &[[f32; 3]], v: usize, f: usize) -> [f32; 3] {
     let unit = |n: [f32; 3]| {
-        let l = (n[0] as f64).hypot(n[1] as f64).hypot(n[2] as f64);
+        let l = math::hypot(math::hypot(n[0] as f64, n[1] as f64), n[2] as f64);
         (l > 1e-20 && l.is_finite()).then(|| n.map(|c| (c as f64 / l) as f32))
     };
     unit(normals[v])

@@ -2,6 +2,7 @@
 //! appearance functions of its samples, and FORMAT.md describing them.
 
 use super::*;
+use crate::math;
 
 /// Channel or column names `prefix00` … for `n` terms (at least two digits).
 pub fn term_names(prefix: &str, n: usize) -> Vec<String> {
@@ -107,8 +108,8 @@ pub(super) fn stage_surface_btf(
         writeln!(f, "set,index,theta,phi,x,y,z").map_err(io)?;
         for (set, list) in [("view", views), ("light", lights)] {
             for (i, a) in list.iter().enumerate() {
-                let (st, ct) = (a.theta as f64).to_radians().sin_cos();
-                let (sp, cp) = (a.phi as f64).to_radians().sin_cos();
+                let (st, ct) = math::sin_cos((a.theta as f64).to_radians());
+                let (sp, cp) = math::sin_cos((a.phi as f64).to_radians());
                 writeln!(
                     f,
                     "{set},{i},{},{},{},{},{}",
@@ -162,7 +163,7 @@ fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names: [&str; N])
             let values = [
                 x,
                 y,
-                j[1].atan2(j[0]).to_degrees(),
+                math::atan2(j[1], j[0]).to_degrees(),
                 j[0],
                 j[1],
                 j[2],

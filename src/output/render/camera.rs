@@ -2,6 +2,7 @@
 //! `--camera`, `--light` and `--point-light` values.
 
 use super::*;
+use crate::math;
 
 /// A pinhole camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -71,7 +72,7 @@ impl Camera {
     pub fn framing(positions: &[[f32; 3]]) -> Camera {
         let (c, radius) = bounds(positions);
         let d = unit_or(Vec3::new(0.8, 0.45, 1.0), Vec3::ZERO);
-        let dist = radius / (20f32.to_radians()).tan();
+        let dist = radius / math::tan(20f32.to_radians());
         Camera {
             eye: (Vec3::from(c) + d * dist).to_array(),
             target: c,
@@ -194,7 +195,7 @@ impl Light {
 
 /// Rodrigues' rotation of `v` by `angle` about the unit `axis`.
 fn rotate(v: Vec3, axis: Vec3, angle: f32) -> Vec3 {
-    let (s, c) = angle.sin_cos();
+    let (s, c) = math::sin_cos(angle);
     let kxv = axis.cross(v);
     let kdv = axis.dot(v);
     v * c + kxv * s + axis * kdv * (1.0 - c)

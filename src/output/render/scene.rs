@@ -2,6 +2,7 @@
 //! one frame into a G-buffer and an image.
 
 use super::*;
+use crate::math;
 
 /// A decorated mesh loaded for rendering: mesh, atlas uv, normals and the
 /// samples' shading data. Open once, render many frames.
@@ -234,7 +235,7 @@ impl Scene {
         let cam = self.in_scene_units(cfg.camera.unwrap_or_else(|| self.default_camera()));
         let (width, height) = (cfg.width, cfg.height);
         let g = self.rasterize(&cam, width, height);
-        let scale = cfg.exposure.exp2();
+        let scale = math::exp2(cfg.exposure);
         let mut data = vec![0f32; width * height * 3];
         data.par_chunks_mut(width * 3).enumerate().for_each(|(y, row)| {
             let mut scratch = Vec::new();
@@ -481,7 +482,7 @@ impl Scene {
         let f = unit_or(Vec3::from(cam.target) - eye, Vec3::ZERO);
         let s = unit_or(f.cross(cam.up.into()), Vec3::ZERO);
         let u = s.cross(f);
-        let focal = 0.5 * height as f32 / (0.5 * cam.fov.to_radians()).tan();
+        let focal = 0.5 * height as f32 / math::tan(0.5 * cam.fov.to_radians());
         // (pixel x, pixel y, depth)
         let proj: Vec<[f32; 3]> = self
             .mesh

@@ -2,6 +2,7 @@
 //! and the local frame and sample of each texel.
 
 use super::*;
+use crate::math;
 
 /// Measured directions of one kind (views or lights) as unit vectors in
 /// sample axes, for nearest-direction interpolation.
@@ -25,8 +26,8 @@ impl Directions {
             .to_radians();
         Directions {
             dirs,
-            cos_max: theta_max.cos(),
-            sin_max: theta_max.sin(),
+            cos_max: math::cos(theta_max),
+            sin_max: math::sin(theta_max),
         }
     }
 
@@ -67,7 +68,7 @@ impl Directions {
         }
         let angle = |k: usize| {
             let chord = d.distance(self.dirs[best[k].1 as usize]);
-            2.0 * (0.5 * chord).min(1.0).asin()
+            2.0 * math::asin((0.5 * chord).min(1.0))
         };
         let count = self.dirs.len().min(3);
         let cut = if self.dirs.len() > 3 {

@@ -11,6 +11,7 @@
 //!
 //! [`Courses::lock_rows`]: crate::quilt::courses::Courses::lock_rows
 
+use crate::math;
 use std::f64::consts::TAU;
 
 use super::*;
@@ -47,7 +48,7 @@ pub(in crate::quilt) fn locked_work_image(inputs: &WorkInputs, patch: &WorkPatch
     let per_radian = ACROSS * lock.period / TAU;
     let angle = rows_angle(&coords, &phase, per_radian, angle);
     let theta = rotation_index(angle, sample.rotations) as f64 * TAU / sample.rotations as f64;
-    let (s, c) = theta.sin_cos();
+    let (s, c) = math::sin_cos(theta);
     for (w, &ph) in coords.iter_mut().zip(&phase) {
         let along = c * w[0] + s * w[1];
         let across = ph * per_radian;
@@ -87,7 +88,7 @@ fn rows_angle(coords: &[[f64; 2]], phase: &[f64], per_radian: f64, angle: f64) -
         return angle;
     }
     let g = [(yy * xa - xy * ya) / det, (xx * ya - xy * xa) / det];
-    let rows = (-g[0]).atan2(g[1]);
+    let rows = math::atan2(-g[0], g[1]);
     if crate::field::wrap_angle(rows - angle).abs() < MAX_ROWS_TURN {
         rows
     } else {
@@ -129,7 +130,7 @@ mod tests {
         let coords: Vec<[f64; 2]> = (0..15 * 11)
             .map(|i| [(i % 15) as f64 * 1.5, (i / 15) as f64])
             .collect();
-        let across = [-rows.sin(), rows.cos()];
+        let across = [-math::sin(rows), math::cos(rows)];
         let phase = coords
             .iter()
             .map(|w| (across[0] * w[0] + across[1] * w[1]) / per_radian + 0.7)

@@ -3,6 +3,7 @@
 //! zipper links and their gaps closed, else the rigid field-based unfolding)
 //! and resampled at one texel per pixel.
 
+use crate::math;
 use faer::{c64, Mat};
 use glam::Vec3;
 
@@ -67,10 +68,10 @@ impl WorkImage {
 fn mean_angle(angles: impl Iterator<Item = f64>) -> f64 {
     let (mut c, mut s) = (0.0, 0.0);
     for a in angles {
-        c += a.cos();
-        s += a.sin();
+        c += math::cos(a);
+        s += math::sin(a);
     }
-    s.atan2(c)
+    math::atan2(s, c)
 }
 
 /// In-chart work coordinates: the patch's atlas positions from the corner
@@ -243,10 +244,10 @@ fn flatten(
                 cnt += 1;
                 // the atlas +x direction maps to angle atan2(d): field angle
                 // in the work frame = atlas angle + this rotation
-                let a = d[1].atan2(d[0]);
+                let a = math::atan2(d[1], d[0]);
                 let fa = surface.texel_angle(t) + a;
-                rc += fa.cos();
-                rs += fa.sin();
+                rc += math::cos(fa);
+                rs += math::sin(fa);
             }
         }
     }
@@ -263,7 +264,7 @@ fn flatten(
         .iter()
         .map(|p| [p[0] * scale - minu, p[1] * scale - minv])
         .collect();
-    Some((coords, rs.atan2(rc)))
+    Some((coords, math::atan2(rs, rc)))
 }
 
 /// Shifts work-image coordinates so they start at 0; the pixel size of the
@@ -511,7 +512,7 @@ fn unfold(surface: &Surface, patch: &WorkPatch, bfs: &Bfs) -> (Vec<[f64; 2]>, f6
     let v = patch.texels[0];
     let charts: Vec<u32> = patch.texels.iter().map(|&t| surface.chart(t)).collect();
     let framed = |phi: f64, wo: [f64; 2], ao: [f64; 2]| {
-        let (s, co) = phi.sin_cos();
+        let (s, co) = math::sin_cos(phi);
         (phi, wo, ao, s, co)
     };
     frames.insert(charts[0], framed(0.0, [0.0, 0.0], atlas(v)));

@@ -2,6 +2,7 @@
 //! position, normal) paged in tiles, and its dense graph with zipper links.
 
 use super::*;
+use crate::math;
 
 /// The per-texel surface of one tile, from the `.gim`.
 #[derive(Clone)]
@@ -308,7 +309,7 @@ pub(in crate::quilt) fn face_angles(gim: &Gim) -> Result<Vec<f64>> {
     Ok((0..mesh.triangles.len())
         .map(|f| {
             let v = field[f].map(f64::from);
-            crate::artifact::gim::atlas_direction(&mesh, &uv, f, v).map_or(0.0, |d| d[1].atan2(d[0]))
+            crate::artifact::gim::atlas_direction(&mesh, &uv, f, v).map_or(0.0, |d| math::atan2(d[1], d[0]))
         })
         .collect())
 }

@@ -1,4 +1,5 @@
-//! The dense arithmetic of the randomized SVD, in a fixed order.
+//! Dense matrix arithmetic in a fixed order: the products, QR and SVD of
+//! the randomized SVD (`factorize`) and the window products of `compare`.
 //!
 //! Every value here is a sequence of separate IEEE-754 multiplies, adds,
 //! divides and square roots in one order that depends only on the matrix
@@ -40,14 +41,14 @@ fn vectorized<K: Kernel>(kernel: K) -> K::Output {
 
 /// A dense row-major matrix of `f32`.
 #[derive(Clone, Debug, PartialEq)]
-pub(super) struct Matrix {
-    pub(super) rows: usize,
-    pub(super) cols: usize,
-    pub(super) data: Vec<f32>,
+pub(crate) struct Matrix {
+    pub(crate) rows: usize,
+    pub(crate) cols: usize,
+    pub(crate) data: Vec<f32>,
 }
 
 impl Matrix {
-    pub(super) fn zeros(rows: usize, cols: usize) -> Self {
+    pub(crate) fn zeros(rows: usize, cols: usize) -> Self {
         Matrix {
             rows,
             cols,
@@ -55,7 +56,7 @@ impl Matrix {
         }
     }
 
-    pub(super) fn from_fn(rows: usize, cols: usize, mut f: impl FnMut(usize, usize) -> f32) -> Self {
+    pub(crate) fn from_fn(rows: usize, cols: usize, mut f: impl FnMut(usize, usize) -> f32) -> Self {
         let mut data = Vec::with_capacity(rows * cols);
         for r in 0..rows {
             data.extend((0..cols).map(|c| f(r, c)));
@@ -64,11 +65,11 @@ impl Matrix {
     }
 
     /// Rows `r0..r0 + n`, row-major.
-    pub(super) fn rows_from(&self, r0: usize, n: usize) -> &[f32] {
+    pub(crate) fn rows_from(&self, r0: usize, n: usize) -> &[f32] {
         &self.data[r0 * self.cols..(r0 + n) * self.cols]
     }
 
-    pub(super) fn row(&self, r: usize) -> &[f32] {
+    pub(crate) fn row(&self, r: usize) -> &[f32] {
         self.rows_from(r, 1)
     }
 }
@@ -78,7 +79,7 @@ impl Matrix {
 /// row `r` at `out[r·ldo..]`).
 /// Each output is `((out + A(r,0)B(0,j)) + A(r,1)B(1,j)) + …` in the order
 /// of `i`, whatever the blocking.
-pub(super) fn mul_add(
+pub(crate) fn mul_add(
     out: &mut [f32],
     ldo: usize,
     (a, lda): (&[f32], usize),
@@ -207,7 +208,7 @@ impl Panel<'_, '_> {
 }
 
 /// `a` (`rows` × `cols`, row-major) transposed into `out`.
-pub(super) fn transpose_into(a: &[f32], rows: usize, cols: usize, out: &mut Vec<f32>) {
+pub(crate) fn transpose_into(a: &[f32], rows: usize, cols: usize, out: &mut Vec<f32>) {
     const B: usize = 16;
     out.clear();
     out.resize(rows * cols, 0.0);
@@ -224,7 +225,7 @@ pub(super) fn transpose_into(a: &[f32], rows: usize, cols: usize, out: &mut Vec<
 
 /// Σ over rows, per column, of squared values (an f32 sum down each column
 /// in row order), then the columns' sums added in f64 in column order.
-pub(super) fn sum_squares(m: &[f32], cols: usize) -> f64 {
+pub(crate) fn sum_squares(m: &[f32], cols: usize) -> f64 {
     vectorized(SumSquares(m, cols))
 }
 
@@ -275,15 +276,15 @@ fn sub_scaled(y: &mut [f64], f: f64, x: &[f64]) {
 
 /// A thin QR factorization: Q (`rows` × `k`, orthonormal columns) and R
 /// (`k` × `k`, upper triangular), both column-major.
-pub(super) struct Qr {
-    pub(super) q: Vec<f64>,
-    pub(super) r: Vec<f64>,
+pub(crate) struct Qr {
+    pub(crate) q: Vec<f64>,
+    pub(crate) r: Vec<f64>,
 }
 
 /// Householder QR of the column-major `a` (`rows` × `k`, `rows ≥ k`).
 /// A zero column gives a zero row of R and the unit vector of Q that
 /// completes the others.
-pub(super) fn qr(a: Vec<f64>, rows: usize, k: usize) -> Qr {
+pub(crate) fn qr(a: Vec<f64>, rows: usize, k: usize) -> Qr {
     assert!(rows >= k && a.len() == rows * k, "qr of a {rows} × {k} matrix");
     vectorized(Householder(a, rows, k))
 }
@@ -343,10 +344,10 @@ impl Kernel for Householder {
 
 /// A thin SVD M = U Σ Vᵀ: U (`rows` × `k`, column-major), σ non-increasing,
 /// V (`k` × `k`, column-major).
-pub(super) struct Svd {
-    pub(super) u: Vec<f64>,
-    pub(super) sigma: Vec<f64>,
-    pub(super) v: Vec<f64>,
+pub(crate) struct Svd {
+    pub(crate) u: Vec<f64>,
+    pub(crate) sigma: Vec<f64>,
+    pub(crate) v: Vec<f64>,
 }
 
 /// Most sweeps of the Jacobi iteration (it converges quadratically; a
@@ -356,7 +357,7 @@ const MAX_SWEEPS: usize = 64;
 /// Thin SVD of the column-major `m` (`rows` × `k`, `rows ≥ k`): M = QR,
 /// then one-sided Jacobi (Hestenes) on R: rotations V turn R's columns
 /// orthogonal, R V = Û Σ, so M = (Q Û) Σ Vᵀ (Demmel & Veselić 1992).
-pub(super) fn thin_svd(m: Vec<f64>, rows: usize, k: usize) -> Svd {
+pub(crate) fn thin_svd(m: Vec<f64>, rows: usize, k: usize) -> Svd {
     let qr = qr(m, rows, k);
     vectorized(Jacobi(qr, rows, k))
 }
