@@ -41,14 +41,18 @@
 //! W_S + W_I − 1 is needed. The forward transform skips the all-zero padding
 //! rows and the inverse computes only the rows holding placements. All
 //! parallel steps are element- or row-wise independent, so results do not
-//! depend on the thread count.
+//! depend on the thread count. The transforms are rustfft's scalar ones,
+//! the same arithmetic on every CPU.
 
 use std::sync::{Arc, Mutex};
 
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
-use rustfft::{Fft, FftPlanner};
+// the scalar planner: rustfft's AVX, SSE and NEON code round differently
+// from each other, so scores (and a near tie between placements) would
+// depend on the CPU; scalar code is the same arithmetic everywhere
+use rustfft::{Fft, FftPlannerScalar as FftPlanner};
 
 use crate::artifact::svd::SvdArtifact;
 use crate::container::{BoundedCache, MemoryBudget};
