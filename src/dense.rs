@@ -72,6 +72,17 @@ impl Matrix {
     pub(crate) fn row(&self, r: usize) -> &[f32] {
         self.rows_from(r, 1)
     }
+
+    /// A column-major f64 copy (the layout of [`qr`] and [`thin_svd`]).
+    pub(crate) fn column_major(&self) -> Vec<f64> {
+        let mut out = vec![0f64; self.rows * self.cols];
+        for (r, row) in self.data.chunks_exact(self.cols.max(1)).enumerate() {
+            for (c, &v) in row.iter().enumerate() {
+                out[c * self.rows + r] = v as f64;
+            }
+        }
+        out
+    }
 }
 
 /// `out += A·B` for A (`rows` × `inner`, row `r` at `a[r·lda..]`), B
@@ -89,26 +100,19 @@ pub(crate) fn mul_add(
     vectorized(MulAdd {
         out,
         ldo,
-        a,
-        lda,
-        b,
-        ldb,
-        rows,
-        inner,
-        cols,
+        a: (a, lda),
+        b: (b, ldb),
+        shape: (rows, inner, cols),
     })
 }
 
+/// The arguments of [`mul_add`].
 struct MulAdd<'o, 'a, 'b> {
     out: &'o mut [f32],
     ldo: usize,
-    a: &'a [f32],
-    lda: usize,
-    b: &'b [f32],
-    ldb: usize,
-    rows: usize,
-    inner: usize,
-    cols: usize,
+    a: (&'a [f32], usize),
+    b: (&'b [f32], usize),
+    shape: (usize, usize, usize),
 }
 
 impl Kernel for MulAdd<'_, '_, '_> {
@@ -119,13 +123,9 @@ impl Kernel for MulAdd<'_, '_, '_> {
         let MulAdd {
             out,
             ldo,
-            a,
-            lda,
-            b,
-            ldb,
-            rows,
-            inner,
-            cols,
+            a: (a, lda),
+            b: (b, ldb),
+            shape: (rows, inner, cols),
         } = self;
         let mut j0 = 0;
         while j0 < cols {

@@ -10,7 +10,7 @@ use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::SparseColMat;
 use faer::{Conj, MatMut, Par, Side};
 
-/// A sparse Cholesky factorization (LLT, AMD ordering, sequential) of a
+/// A sparse Cholesky factorization (simplicial LLT, AMD ordering, sequential) of a
 /// symmetric positive definite matrix given by its upper triangle, for
 /// several solves with one factorization.
 pub(crate) struct SpdFactor {

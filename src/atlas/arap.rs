@@ -177,7 +177,7 @@ mod tests {
         for a in 0..positions.len() {
             for b in [0, n, positions.len() - 1] {
                 let d3 = math::hypot(
-                    ((positions[a][0] - positions[b][0]) as f64),
+                    (positions[a][0] - positions[b][0]) as f64,
                     (positions[a][1] - positions[b][1]) as f64,
                 );
                 let duv = math::hypot(uv[a][0] - uv[b][0], uv[a][1] - uv[b][1]);

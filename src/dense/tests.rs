@@ -124,6 +124,22 @@ fn qr_reconstructs_with_orthonormal_q_and_triangular_r() {
     assert!(worst < 1e-13, "{worst}");
 }
 
+/// U diag(σ) Vᵀ for column-major U (n × k) and V (k × k).
+fn compose(u: &[f64], n: usize, sigma: &[f64], v: &[f64]) -> Vec<f64> {
+    let k = sigma.len();
+    let mut us = u.to_vec();
+    for (c, &s) in sigma.iter().enumerate() {
+        us[c * n..(c + 1) * n].iter_mut().for_each(|x| *x *= s);
+    }
+    let mut vt = vec![0f64; k * k];
+    for c in 0..k {
+        for r in 0..k {
+            vt[c * k + r] = v[r * k + c];
+        }
+    }
+    times(&us, n, &vt, k)
+}
+
 #[test]
 fn svd_recovers_known_singular_values_and_vectors() {
     let (n, k) = (200, 9);
@@ -132,18 +148,7 @@ fn svd_recovers_known_singular_values_and_vectors() {
     let u0 = qr(values(n * k, 6), n, k).q;
     let v0 = qr(values(k * k, 7), k, k).q;
     let s0 = [7.0, 5.0, 3.0, 3.0, 1.0, 0.5, 1e-3, 0.0, 0.0];
-    let mut us = u0.clone();
-    for c in 0..k {
-        us[c * n..(c + 1) * n].iter_mut().for_each(|v| *v *= s0[c]);
-    }
-    // M = (U₀ S₀) V₀ᵀ
-    let mut v0t = vec![0f64; k * k];
-    for c in 0..k {
-        for r in 0..k {
-            v0t[c * k + r] = v0[r * k + c];
-        }
-    }
-    let m = times(&us, n, &v0t, k);
+    let m = compose(&u0, n, &s0, &v0);
     let Svd { u, sigma, v } = thin_svd(m.clone(), n, k);
     for (s, e) in sigma.iter().zip(s0) {
         assert!((s - e).abs() < 1e-12, "σ {sigma:?} against {s0:?}");
@@ -151,17 +156,7 @@ fn svd_recovers_known_singular_values_and_vectors() {
     assert!(orthonormality_error(&u, n, k) < 1e-12);
     assert!(orthonormality_error(&v, k, k) < 1e-12);
     // U Σ Vᵀ = M
-    let mut us = u.clone();
-    for c in 0..k {
-        us[c * n..(c + 1) * n].iter_mut().for_each(|x| *x *= sigma[c]);
-    }
-    let mut vt = vec![0f64; k * k];
-    for c in 0..k {
-        for r in 0..k {
-            vt[c * k + r] = v[r * k + c];
-        }
-    }
-    let back = times(&us, n, &vt, k);
+    let back = compose(&u, n, &sigma, &v);
     let worst = back
         .iter()
         .zip(&m)

@@ -42,7 +42,7 @@ mod rotate;
 mod stream;
 use crate::dense::{self, Matrix};
 pub use rotate::*;
-use stream::{column_major, orth, MatrixStream};
+use stream::{orth, MatrixStream};
 
 pub use crate::artifact::svd::KIND;
 
@@ -254,7 +254,7 @@ pub fn factorize(
     let bt = stream.transpose_times(&q, progress)?; // n × k
     let mut pass_seconds = t_pass.elapsed().as_secs_f64();
     // Bᵀ = U_b S V_bᵀ (column-major U_b: n × k, V_b: k × k)
-    let svd = dense::thin_svd(column_major(&bt), n, k);
+    let svd = dense::thin_svd(bt.column_major(), n, k);
     drop(bt);
     let sigma = svd.sigma;
     if let Some(s) = sigma.iter().find(|s| !s.is_finite()) {

@@ -215,19 +215,8 @@ impl<'a> MatrixStream<'a> {
     }
 }
 
-/// Column-major f64 copy of a row-major f32 matrix.
-pub(super) fn column_major(m: &Matrix) -> Vec<f64> {
-    let mut out = vec![0f64; m.rows * m.cols];
-    for (r, row) in m.data.chunks_exact(m.cols.max(1)).enumerate() {
-        for (c, &v) in row.iter().enumerate() {
-            out[c * m.rows + r] = v as f64;
-        }
-    }
-    out
-}
-
 /// Orthonormal basis of the columns (thin Householder QR in f64).
 pub(super) fn orth(m: &Matrix) -> Matrix {
-    let q = dense::qr(column_major(m), m.rows, m.cols).q;
+    let q = dense::qr(m.column_major(), m.rows, m.cols).q;
     Matrix::from_fn(m.rows, m.cols, |r, c| q[c * m.rows + r] as f32)
 }
