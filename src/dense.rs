@@ -138,7 +138,11 @@ impl Kernel for MulAdd<'_, '_, '_> {
             };
             let mut r0 = 0;
             while r0 < rows {
-                let rb = if rows - r0 >= 4 { 4 } else { 1 };
+                let rb = match rows - r0 {
+                    6.. => 6,
+                    4.. => 4,
+                    _ => 1,
+                };
                 let p = Panel {
                     ldo,
                     a,
@@ -150,6 +154,11 @@ impl Kernel for MulAdd<'_, '_, '_> {
                     j0,
                 };
                 match (rb, jb) {
+                    (6, 16) => p.run::<6, 16>(out),
+                    (6, 8) => p.run::<6, 8>(out),
+                    (6, 4) => p.run::<6, 4>(out),
+                    (6, 2) => p.run::<6, 2>(out),
+                    (6, _) => p.run::<6, 1>(out),
                     (4, 16) => p.run::<4, 16>(out),
                     (4, 8) => p.run::<4, 8>(out),
                     (4, 4) => p.run::<4, 4>(out),
