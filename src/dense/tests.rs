@@ -88,6 +88,11 @@ fn times(a: &[f64], n: usize, b: &[f64], k: usize) -> Vec<f64> {
     out
 }
 
+/// Largest |a − b| over the entries.
+fn largest_difference(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0f64, f64::max)
+}
+
 /// Largest |QᵀQ − I| over the columns of the column-major `q` (n × k).
 fn orthonormality_error(q: &[f64], n: usize, k: usize) -> f64 {
     let mut worst = 0f64;
@@ -115,12 +120,7 @@ fn qr_reconstructs_with_orthonormal_q_and_triangular_r() {
             assert_eq!(r[c * k + row], 0.0, "R({row}, {c})");
         }
     }
-    let back = times(&q, n, &r, k);
-    let worst = back
-        .iter()
-        .zip(&a)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0f64, f64::max);
+    let worst = largest_difference(&times(&q, n, &r, k), &a);
     assert!(worst < 1e-13, "{worst}");
 }
 
@@ -156,12 +156,7 @@ fn svd_recovers_known_singular_values_and_vectors() {
     assert!(orthonormality_error(&u, n, k) < 1e-12);
     assert!(orthonormality_error(&v, k, k) < 1e-12);
     // U Σ Vᵀ = M
-    let back = compose(&u, n, &sigma, &v);
-    let worst = back
-        .iter()
-        .zip(&m)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0f64, f64::max);
+    let worst = largest_difference(&compose(&u, n, &sigma, &v), &m);
     assert!(worst < 1e-12, "{worst}");
     // distinct singular values: the vectors agree with U₀ up to sign
     for c in [0, 1, 4, 5, 6] {
