@@ -173,7 +173,8 @@ impl<'a> MatrixStream<'a> {
     pub(super) fn residual(&self, g: &Matrix, p: &Matrix, progress: &dyn Progress) -> Result<(f64, f64)> {
         let terms = g.cols;
         // Pᵀ (terms × cols), so a band's columns are contiguous in each row
-        let pt = Matrix::from_fn(terms, self.cols, |i, c| p.data[c * terms + i]);
+        let mut pt = Vec::new();
+        dense::transpose_into(&p.data, self.cols, terms, &mut pt);
         let per_tile: Vec<(f64, f64)> = self
             .tiles
             .par_iter()
@@ -186,7 +187,7 @@ impl<'a> MatrixStream<'a> {
                     r.clear();
                     r.extend_from_slice(a);
                     let mg = (&minus_g[..], terms);
-                    dense::mul_add(&mut r, nc, mg, (&pt.data[c0..], self.cols), (t.rows(), terms, nc));
+                    dense::mul_add(&mut r, nc, mg, (&pt[c0..], self.cols), (t.rows(), terms, nc));
                     err += dense::sum_squares(&r, nc);
                     norm += dense::sum_squares(a, nc);
                 }
