@@ -8,10 +8,10 @@
 //! angle for area, which is what the chart checks (L2 stretch, the
 //! area-distortion tail) measure.
 
-use crate::math;
 use faer::sparse::{SparseColMat, Triplet};
 
 use super::lscm::{degenerate, local_frame};
+use crate::math;
 use crate::mesh::to_dvec3;
 use crate::sparse::SpdFactor;
 

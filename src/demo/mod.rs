@@ -20,7 +20,6 @@
 //! 6. `tile`: Spot with the shipped brick wall (`data/brick_wall.png`, made
 //!    from the CC0 brick photo; the colour path), baked and rendered.
 
-use crate::math;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -36,6 +35,7 @@ use crate::factorize::{self, FactorizeConfig};
 use crate::generate::{self, Family, GenerateConfig, Imperfection};
 use crate::ingest;
 use crate::io::imageio::{self, PngDepth, RgbImage};
+use crate::math;
 use crate::mesh::unit_or;
 use crate::output::export::{self, ExportOptions, MeshFormat};
 use crate::output::render::{self, Camera, Light, RenderConfig};

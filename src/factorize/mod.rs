@@ -23,7 +23,6 @@
 //! chunk per worker; chunks are cached only when the whole BTF fits the budget.
 //! One extra pass measures ‖A − A_n‖_F / ‖A‖_F.
 
-use crate::math;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -34,13 +33,14 @@ use rayon::prelude::*;
 use crate::artifact::btf::{Angles, Btf, BtfLayout, BtfWriter};
 use crate::artifact::svd::SvdArtifact;
 use crate::container::{codec, ArrayId, ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
+use crate::dense::{self, Matrix};
 use crate::io::imageio::{self, RgbImage};
+use crate::math;
 use crate::progress::Progress;
 use crate::{Error, Result};
 
 mod rotate;
 mod stream;
-use crate::dense::{self, Matrix};
 pub use rotate::*;
 use stream::{orth, MatrixStream};
 

@@ -14,11 +14,11 @@
 mod stripes;
 pub use stripes::{forced_ends, ForcedEnds, StripePattern};
 
-use crate::math;
 use std::path::Path;
 
 use glam::{DVec3, Vec3};
 
+use crate::math;
 use crate::mesh::{unit_or, Mesh, Topology, NO_FACE};
 use crate::{Error, Result};
 

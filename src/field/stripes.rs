@@ -21,9 +21,9 @@
 //! row ends (the paper's singular faces). The mesh is subdivided until its
 //! edges are a third of `period` long on average.
 
-use crate::math;
 use glam::DVec3;
 
+use crate::math;
 use crate::mesh::Mesh;
 use crate::{Error, Result};
 

@@ -10,11 +10,11 @@
 //! Every quantity depends only on global (wrapped) texel coordinates, so a texel
 //! renders bit-identically in any block of any size.
 
-use crate::math;
 use glam::Vec3;
 use rayon::prelude::*;
 
 use super::material::{lerp, wrap_pair, Mesostructure};
+use crate::math;
 use crate::mesh::unit_or;
 
 /// Unit vector from polar angle `theta` (from the surface normal +z) and azimuth

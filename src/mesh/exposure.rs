@@ -11,11 +11,11 @@
 //! a face is seen from a direction when it faces it and its centre is no
 //! deeper than the nearest surface there.
 
-use crate::math;
 use glam::DVec3;
 use rayon::prelude::*;
 
 use super::Mesh;
+use crate::math;
 
 /// Directions the mesh is viewed from.
 pub const DIRECTIONS: usize = 96;

@@ -9,8 +9,9 @@ pub mod exposure;
 pub mod io;
 pub mod repair;
 
-use crate::math;
 use glam::{DVec3, Vec3};
+
+use crate::math;
 
 /// Index of a face.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]

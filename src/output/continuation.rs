@@ -8,11 +8,11 @@
 //! edges. Colour steps across the seam (`seam` in the report) cannot tell
 //! the two apart: a seam along a mortar line has a strong step too.
 
-use crate::math;
 use serde::Serialize;
 
 use crate::artifact::gim::EMPTY;
 use crate::io::imageio::{self, RgbImage};
+use crate::math;
 use crate::output::band::{diff, rgb_distance, ColourBand};
 use crate::quilt::NO_PATCH;
 

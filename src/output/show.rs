@@ -2,12 +2,12 @@
 //! the normal map, and the vector field drawn as short strokes with its
 //! singularities ringed.
 
-use crate::math;
 use std::path::Path;
 use std::str::FromStr;
 
 use crate::artifact::gim::{atlas_direction, Gim, EMPTY};
 use crate::io::imageio::{self, srgb_to_linear, PngDepth, RgbImage};
+use crate::math;
 use crate::{Error, Result};
 
 /// What to draw (`show --what`).

@@ -5,12 +5,12 @@
 //! stays within `--memory`. Every tile is a pure function of the quilt: what
 //! the cache holds changes the time a frame takes, never its pixels.
 
-use crate::math;
 use std::sync::{Arc, Mutex};
 
 use crate::artifact::gim::TILE;
 use crate::container::{MemoryBudget, SharedCache, Weighed};
 use crate::io::imageio::{dilate_with, RgbImage};
+use crate::math;
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
 

@@ -4,7 +4,6 @@
 //! patches that share no atlas tile can be computed at once, each over views
 //! of its own tiles ([`super::rounds`]).
 
-use crate::math;
 use std::path::Path;
 use std::time::Instant;
 
@@ -23,6 +22,7 @@ use super::placement::{
 };
 use super::sample::Sample;
 use super::state::{Bfs, State, Surface, WorkPatch};
+use crate::math;
 use crate::progress::Progress;
 use crate::{Error, Result};
 

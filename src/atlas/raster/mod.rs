@@ -1,7 +1,6 @@
 //! Rasterizing the packed charts into the geometry image, tile by tile, and
 //! zippering the chart boundaries (see the [module docs](super)).
 
-use crate::math;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -13,6 +12,7 @@ use crate::atlas::charts::{build_charts, Chart, ChartConfig};
 use crate::atlas::pack::{closest_on_triangle, pack, Shape, COVER_RADIUS};
 use crate::container::{codec, ArrayId, ArraySpec, ContainerWriter, DType, Element, Param};
 use crate::field::{self, FieldKey};
+use crate::math;
 use crate::mesh::io::{self, LoadOptions};
 use crate::mesh::repair::RepairReport;
 use crate::mesh::{unit_or, Mesh, NO_FACE};

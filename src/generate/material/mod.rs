@@ -6,10 +6,10 @@
 //! All fields are periodic over `width × height`; feature sizes are given in
 //! texels, so a larger sample shows more elements of the same size.
 
-use crate::math;
 use glam::Vec3;
 use rayon::prelude::*;
 
+use crate::math;
 use crate::rng::{derive, mix64, GOLDEN};
 
 mod noise;

@@ -4,7 +4,6 @@
 //! write goes to a temporary file in the destination directory that is
 //! renamed into place only once it is complete ([`write_atomic`]).
 
-use crate::math;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::Path;
@@ -15,6 +14,7 @@ use exr::prelude::{ReadChannels, ReadLayers, WritableImage};
 use half::f16;
 use image::{DynamicImage, ImageFormat};
 
+use crate::math;
 use crate::{Error, Result};
 
 /// A linear-light RGB image, row-major, 3 f32 per pixel.

@@ -21,7 +21,6 @@
 //!   ending at seams, against the ends the field forces
 //!   ([`courses`](crate::output::courses)).
 
-use crate::math;
 use std::path::Path;
 
 use serde::Serialize;
@@ -30,6 +29,7 @@ use crate::artifact::gim::{Gim, EMPTY};
 use crate::container::MemoryBudget;
 use crate::factorize::rotate_maps;
 use crate::io::imageio::RgbImage;
+use crate::math;
 use crate::output::band::{diff, ColourBand};
 use crate::output::continuation::{Continuation, ContinuationFigures};
 use crate::output::courses::{CourseCount, CourseFigures};

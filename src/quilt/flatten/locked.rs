@@ -11,10 +11,10 @@
 //!
 //! [`Courses::lock_rows`]: crate::quilt::courses::Courses::lock_rows
 
-use crate::math;
 use std::f64::consts::TAU;
 
 use super::*;
+use crate::math;
 
 /// The orientation of the pattern's phase in a work image: the phase grows
 /// along n = N × f (N the surface normal, f the field), which an

@@ -3,12 +3,12 @@
 //! zipper links and their gaps closed, else the rigid field-based unfolding)
 //! and resampled at one texel per pixel.
 
-use crate::math;
 use faer::{c64, Mat};
 use glam::Vec3;
 
 use super::sample::Sample;
 use super::state::{Bfs, State, Surface, WorkPatch};
+use crate::math;
 
 mod aligned;
 mod locked;
