@@ -331,23 +331,27 @@ impl Kernel for Householder {
                 r[(j + 1 + l) * k + j] = y[0];
             }
         }
-        // Q = H_0 ⋯ H_{k−1} applied to the first k columns of the identity
-        let mut q = vec![0f64; rows * k];
-        for l in 0..k {
-            q[l * rows + l] = 1.0;
-        }
+        // Q = H_0 ⋯ H_{k−1} applied to the first k columns of the identity,
+        // formed in place of the reflectors: from the last one back, column
+        // j's reflector is taken out, the column set to e_j, and H_j applied
+        // to it and to the columns after it (already Q's but for H_0 … H_j)
+        let mut v = vec![0f64; rows];
         for j in (0..k).rev() {
+            let v = &mut v[..rows - j];
+            let cols = &mut a[j * rows..];
+            v.copy_from_slice(&cols[j..rows]);
+            cols[..rows].fill(0.0);
+            cols[j] = 1.0;
             if beta[j] == 0.0 {
                 continue;
             }
-            let v = &a[j * rows + j..(j + 1) * rows];
-            for col in q.chunks_exact_mut(rows).skip(j) {
+            for col in cols.chunks_exact_mut(rows) {
                 let y = &mut col[j..];
                 let f = beta[j] * dot(v, y);
                 sub_scaled(y, f, v);
             }
         }
-        Qr { q, r }
+        Qr { q: a, r }
     }
 }
 

@@ -350,6 +350,23 @@ impl Btf {
         Ok(out)
     }
 
+    /// One pair's values over a rectangle of texels (`x0`, `y0`, `w` × `h`)
+    /// as f32: `[y][x][rgb]`. Decodes only the chunks it touches.
+    pub fn read_pair_rect(
+        &self,
+        pair: usize,
+        (x0, y0, w, h): (usize, usize, usize, usize),
+    ) -> Result<Vec<f32>> {
+        let region: Vec<f16> = self.container.read_region(
+            self.rgb,
+            &[y0 as u64, x0 as u64, pair as u64, 0],
+            &[h as u64, w as u64, 1, 3],
+        )?;
+        let mut values = vec![0f32; region.len()];
+        region.convert_to_f32_slice(&mut values);
+        Ok(values)
+    }
+
     /// Every direction pair of one texel tile: `[y][x][pair][rgb]` over the
     /// tile's clipped extent, with that extent (w, h).
     pub fn read_tile(&self, tx: usize, ty: usize) -> Result<(Vec<f16>, usize, usize)> {

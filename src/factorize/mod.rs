@@ -245,11 +245,14 @@ pub fn factorize(
     let omega = Matrix::from_fn(n, k, |i, j| {
         crate::rng::gaussian(cfg.seed, (i * k + j) as u64) as f32
     });
-    let mut q = orth(&stream.times(&omega, progress)?);
+    // the tall m × k matrices are the dense floor: at most the sketch's
+    // f64 copy and Q in f32 at once (old Q dropped before the next sketch)
+    let mut q = orth(stream.times(&omega, progress)?);
     drop(omega);
     for _ in 0..cfg.power_iterations {
-        let z = orth(&stream.transpose_times(&q, progress)?);
-        q = orth(&stream.times(&z, progress)?);
+        let z = orth(stream.transpose_times(&q, progress)?);
+        drop(q);
+        q = orth(stream.times(&z, progress)?);
     }
     let bt = stream.transpose_times(&q, progress)?; // n × k
     let mut pass_seconds = t_pass.elapsed().as_secs_f64();
@@ -285,10 +288,9 @@ pub fn factorize(
     pass_seconds += t_err.elapsed().as_secs_f64();
     progress.end();
     let relative_error = if norm2 > 0.0 { (err2 / norm2).sqrt() } else { 0.0 };
-    let g = stream.to_image_order(&g);
+    stream.to_image_order(&mut g);
 
     let layout = btf.layout().clone();
-    let preview = preview_image(&btf)?;
     write_svd(
         out,
         cfg,
@@ -299,7 +301,6 @@ pub fn factorize(
         &p,
         &sigma[..terms],
         relative_error,
-        &preview,
         progress,
     )?;
     Ok(FactorizeReport {
@@ -325,11 +326,6 @@ fn preview_pair(l: &BtfLayout) -> usize {
     l.pair(nearest(&l.views), nearest(&l.lights))
 }
 
-fn preview_image(btf: &Btf) -> Result<Vec<f32>> {
-    let p = preview_pair(btf.layout());
-    btf.read_pair_images(p..p + 1)
-}
-
 #[allow(clippy::too_many_arguments)]
 fn write_svd(
     out: &Path,
@@ -341,7 +337,6 @@ fn write_svd(
     p: &Matrix,
     sigma: &[f64],
     relative_error: f64,
-    preview: &[f32],
     progress: &dyn Progress,
 ) -> Result<()> {
     let l = btf.layout();
@@ -390,8 +385,14 @@ fn write_svd(
         &[l.band as u64, 3, terms],
     )?)?;
     c.write_array(id, &p.data)?;
+    // the preview pair's image, read chunk by chunk
     let id = c.add_array(ArraySpec::new("preview", DType::F32, &[h, w, 3], &[t, t, 3])?)?;
-    c.write_array(id, preview)?;
+    let spec = c.spec(id).clone();
+    for k in 0..spec.chunk_count() {
+        let (o, e) = spec.chunk_region(k);
+        let rect = (o[1] as usize, o[0] as usize, e[1] as usize, e[0] as usize);
+        c.write_chunk(id, k, &btf.read_pair_rect(preview_pair(l), rect)?)?;
+    }
     if cfg.rotations > 0 {
         write_rotations(&mut c, cfg, l.width, l.height, sigma.len(), &g.data, progress)?;
     }

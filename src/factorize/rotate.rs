@@ -9,15 +9,16 @@ use crate::math;
 /// preview resampled
 /// ([`crate::io::imageio::resample`]), the appearance functions, singular
 /// values and directions unchanged (the BTF's columns do not depend on the
-/// texel grid), and `rotations` rotated copies made from the resampled maps.
-/// Quilting uses it to give a sample its size on the surface.
+/// texel grid), and `rotations` rotated copies made from the resampled maps
+/// (within `memory`). Quilting uses it to give a sample its size on the
+/// surface.
 pub fn resample_svd(
     src: &SvdArtifact,
     maps: &[f32],
     out: &Path,
-    width: usize,
-    height: usize,
+    (width, height): (usize, usize),
     rotations: usize,
+    memory: MemoryBudget,
     progress: &dyn Progress,
 ) -> Result<()> {
     let (w0, h0, terms) = (src.width, src.height, src.terms);
@@ -28,6 +29,7 @@ pub fn resample_svd(
         rotations,
         tileable: src.tileable(),
         seed: meta.seed.unwrap_or(FactorizeConfig::default().seed),
+        memory,
         ..FactorizeConfig::default()
     };
     let (w, h, t) = (width as u64, height as u64, SVD_TILE);
@@ -87,13 +89,49 @@ pub fn rotate_maps(
     degrees: f64,
     tileable: bool,
 ) -> (Vec<f32>, Vec<u8>) {
+    let whole = Region {
+        x0: 0,
+        y0: 0,
+        w: width,
+        h: height,
+    };
+    rotate_region(maps, width, height, channels, degrees, tileable, whole)
+}
+
+/// A rectangle of texels: its corner and size.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Region {
+    pub(super) x0: usize,
+    pub(super) y0: usize,
+    pub(super) w: usize,
+    pub(super) h: usize,
+}
+
+/// [`rotate_maps`] for the texels of `region` only (`[y][x][c]` within
+/// it): each output texel depends on its position alone, so a copy made
+/// region by region is the same as the whole.
+pub(super) fn rotate_region(
+    maps: &[f32],
+    width: usize,
+    height: usize,
+    channels: usize,
+    degrees: f64,
+    tileable: bool,
+    region: Region,
+) -> (Vec<f32>, Vec<u8>) {
     let (sin, cos) = math::sin_cos(degrees.to_radians());
     let (cx, cy) = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
-    let mut out = vec![0f32; width * height * channels];
-    let mut valid = vec![0u8; width * height];
+    let Region {
+        x0: rx,
+        y0: ry,
+        w: rw,
+        h: rh,
+    } = region;
+    let mut out = vec![0f32; rw * rh * channels];
+    let mut valid = vec![0u8; rw * rh];
     let texel = |x: usize, y: usize| &maps[(y * width + x) * channels..(y * width + x + 1) * channels];
-    for y in 0..height {
-        for x in 0..width {
+    for y in ry..ry + rh {
+        for x in rx..rx + rw {
             let (dx, dy) = (x as f64 - cx, y as f64 - cy);
             let mut sx = cos * dx + sin * dy + cx;
             let mut sy = -sin * dx + cos * dy + cy;
@@ -131,18 +169,24 @@ pub fn rotate_maps(
                 (y0 + 1).min(height - 1)
             };
             let (a, b, c, d) = (texel(x0, y0), texel(x1, y0), texel(x0, y1), texel(x1, y1));
-            let o = &mut out[(y * width + x) * channels..(y * width + x + 1) * channels];
+            let at = (y - ry) * rw + x - rx;
+            let o = &mut out[at * channels..(at + 1) * channels];
             for i in 0..channels {
                 let top = a[i] + (b[i] - a[i]) * fx;
                 let bottom = c[i] + (d[i] - c[i]) * fx;
                 o[i] = top + (bottom - top) * fy;
             }
-            valid[y * width + x] = 1;
+            valid[at] = 1;
         }
     }
     (out, valid)
 }
 
+/// Writes the `rotated_maps` (f16) and `rotated_valid` arrays of `g`'s
+/// copies turned by [`rotate_region`], chunk by chunk: a batch of chunks is
+/// rotated and encoded at once, sized to an eighth of `cfg.memory` (at
+/// least one per thread), and written in the arrays' order, so the file is
+/// the same for any budget and thread count.
 pub(super) fn write_rotations(
     c: &mut ContainerWriter,
     cfg: &FactorizeConfig,
@@ -166,57 +210,47 @@ pub(super) fn write_rotations(
         &[r, h, w],
         &[1, t, t],
     )?)?;
-    let (maps_spec, valid_spec) = (c.spec(maps).clone(), c.spec(valid).clone());
+    let maps_spec = c.spec(maps).clone();
     let per_rotation = maps_spec.chunk_count() / r;
+    // a chunk in flight: its f32 and f16 texels, its validity and encodings
+    let chunk_bytes = (t * t) as usize * (terms * 8 + 2);
+    let batch = (cfg.memory.bytes() as usize / 8 / chunk_bytes)
+        .max(rayon::current_num_threads())
+        .min(per_rotation as usize) as u64;
     progress.begin("rotations", r);
     let level = c.level();
-    let group = 4;
-    for r0 in (0..cfg.rotations).step_by(group) {
-        let r1 = (r0 + group).min(cfg.rotations);
-        let encoded: Vec<(Vec<codec::EncodedChunk>, Vec<codec::EncodedChunk>)> = (r0..r1)
-            .into_par_iter()
-            .map(|ri| {
-                let degrees = 360.0 * ri as f64 / cfg.rotations as f64;
-                let (rot, ok) = rotate_maps(g, width, height, terms, degrees, cfg.tileable);
-                let mut rot16 = vec![f16::ZERO; rot.len()];
-                rot16.convert_from_f32_slice(&rot);
-                // the chunks of rotation ri: origin and extent of each → encoded
-                let chunks = |spec: &ArraySpec, enc: &dyn Fn(&[u64], &[u64]) -> codec::EncodedChunk| {
-                    (0..per_rotation)
-                        .map(|k| {
-                            let (o, e) = spec.chunk_region(ri as u64 * per_rotation + k);
-                            enc(&o, &e)
-                        })
-                        .collect::<Vec<_>>()
-                };
-                let map_chunks = chunks(&maps_spec, &|o, e| {
-                    let mut v = Vec::with_capacity((e[1] * e[2]) as usize * terms);
-                    for y in o[1]..o[1] + e[1] {
-                        let row = (y as usize * width + o[2] as usize) * terms;
-                        v.extend_from_slice(&rot16[row..row + e[2] as usize * terms]);
-                    }
-                    codec::encode(&v, level)
-                });
-                let valid_chunks = chunks(&valid_spec, &|o, e| {
-                    let mut v = Vec::with_capacity((e[1] * e[2]) as usize);
-                    for y in o[1]..o[1] + e[1] {
-                        let row = y as usize * width + o[2] as usize;
-                        v.extend_from_slice(&ok[row..row + e[2] as usize]);
-                    }
-                    codec::encode(&v, level)
-                });
-                (map_chunks, valid_chunks)
-            })
-            .collect();
-        for (ri, (mc, vc)) in (r0..r1).zip(encoded) {
-            for (k, e) in mc.into_iter().enumerate() {
-                c.write_encoded(maps, ri as u64 * per_rotation + k as u64, e)?;
-            }
-            for (k, e) in vc.into_iter().enumerate() {
-                c.write_encoded(valid, ri as u64 * per_rotation + k as u64, e)?;
+    for ri in 0..cfg.rotations as u64 {
+        let degrees = 360.0 * ri as f64 / cfg.rotations as f64;
+        // the validity chunks are written after the rotation's maps (they
+        // compress to a few bytes each)
+        let mut valid_chunks = Vec::with_capacity(per_rotation as usize);
+        for k0 in (0..per_rotation).step_by(batch as usize) {
+            let encoded: Vec<(codec::EncodedChunk, codec::EncodedChunk)> = (k0..(k0 + batch)
+                .min(per_rotation))
+                .into_par_iter()
+                .map(|k| {
+                    let (o, e) = maps_spec.chunk_region(ri * per_rotation + k);
+                    let region = Region {
+                        x0: o[2] as usize,
+                        y0: o[1] as usize,
+                        w: e[2] as usize,
+                        h: e[1] as usize,
+                    };
+                    let (rot, ok) = rotate_region(g, width, height, terms, degrees, cfg.tileable, region);
+                    let mut rot16 = vec![f16::ZERO; rot.len()];
+                    rot16.convert_from_f32_slice(&rot);
+                    (codec::encode(&rot16, level), codec::encode(&ok, level))
+                })
+                .collect();
+            for (k, (mc, vc)) in (k0..).zip(encoded) {
+                c.write_encoded(maps, ri * per_rotation + k, mc)?;
+                valid_chunks.push(vc);
             }
         }
-        progress.advance((r1 - r0) as u64);
+        for (k, vc) in valid_chunks.into_iter().enumerate() {
+            c.write_encoded(valid, ri * per_rotation + k as u64, vc)?;
+        }
+        progress.advance(1);
     }
     progress.end();
     Ok(())

@@ -201,23 +201,44 @@ impl<'a> MatrixStream<'a> {
     }
 
     /// Reorders rows from tile order to image order (y · width + x).
-    pub(super) fn to_image_order(&self, m: &Matrix) -> Matrix {
+    pub(super) fn to_image_order(&self, m: &mut Matrix) {
         let width = self.btf.layout().width;
         let k = m.cols;
-        let mut out = Matrix::zeros(self.rows, k);
-        for t in &self.tiles {
-            for r in 0..t.rows() {
-                let (x, y) = (t.x0 + r % t.w, t.y0 + r / t.w);
-                let to = (y * width + x) * k;
-                out.data[to..to + k].copy_from_slice(m.row(t.row0 + r));
+        // stream row → image row: tiles are in row order, found by their first row
+        let image_row = |s: usize| {
+            let t = &self.tiles[self.tiles.partition_point(|t| t.row0 <= s) - 1];
+            let r = s - t.row0;
+            (t.y0 + r / t.w) * width + t.x0 + r % t.w
+        };
+        // moved in place along the permutation's cycles, a row carried at a time
+        let mut moved = vec![false; self.rows];
+        let mut carry = vec![0f32; k];
+        for start in 0..self.rows {
+            if moved[start] {
+                continue;
+            }
+            carry.copy_from_slice(m.row(start));
+            let mut at = start;
+            loop {
+                let to = image_row(at);
+                moved[to] = true;
+                m.data[to * k..(to + 1) * k].swap_with_slice(&mut carry);
+                if to == start {
+                    break;
+                }
+                at = to;
             }
         }
-        out
     }
 }
 
-/// Orthonormal basis of the columns (thin Householder QR in f64).
-pub(super) fn orth(m: &Matrix) -> Matrix {
-    let q = dense::qr(m.column_major(), m.rows, m.cols).q;
-    Matrix::from_fn(m.rows, m.cols, |r, c| q[c * m.rows + r] as f32)
+/// Orthonormal basis of the columns (thin Householder QR in f64). `m` is
+/// consumed as soon as it is copied: the peak is its f64 copy and the f32
+/// result, 12 bytes per entry.
+pub(super) fn orth(m: Matrix) -> Matrix {
+    let (rows, cols) = (m.rows, m.cols);
+    let a = m.column_major();
+    drop(m);
+    let q = dense::qr(a, rows, cols).q;
+    Matrix::from_fn(rows, cols, |r, c| q[c * rows + r] as f32)
 }

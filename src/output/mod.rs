@@ -59,7 +59,7 @@ fn open_one(quilt: &Quilt, k: usize, path: &Path, budget: MemoryBudget) -> Resul
         format!("sample_{k}")
     };
     quilt.verify(&role, path)?;
-    let (svd_path, tmp) = crate::quilt::sample_svd(path, false, &crate::progress::Silent)?;
+    let (svd_path, tmp) = crate::quilt::sample_svd(path, false, budget, &crate::progress::Silent)?;
     Ok(OpenSample {
         svd: SvdArtifact::open(&svd_path, budget)?,
         _tmp: tmp,

@@ -260,6 +260,7 @@ fn open_synthesis(
         gim.texel_size,
         cfg.sample_size(),
         matching,
+        cfg.memory,
         progress,
     )?;
     let trace = |what: &str| crate::progress::trace(progress, start, what);

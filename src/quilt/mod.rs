@@ -97,7 +97,14 @@ pub(crate) fn tile_refining_by(
     crate::io::staging::check_output(out, &inputs)?;
     // (the surface is read by tiles through a reader of its own)
     let gim = Gim::open(gim_path, MemoryBudget(1 << 20))?;
-    let sized = sample_at_density(sample_path, gim.texel_size, cfg.sample_size(), true, progress)?;
+    let sized = sample_at_density(
+        sample_path,
+        gim.texel_size,
+        cfg.sample_size(),
+        true,
+        cfg.memory,
+        progress,
+    )?;
     let mut syn = Synthesis::open(&gim, sample_path, &sized, out, cfg, true, None)?;
     syn.refine_round = refine_round;
     syn.set_scale(&sized);

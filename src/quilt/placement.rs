@@ -493,7 +493,7 @@ fn match_at_rotation(
     } else {
         None
     };
-    let mask = mask.as_deref().map(|m| &m[..]);
+    let mask = mask.as_deref().map(|m| &m.0[..]);
     let copy = sample.rotation(rot)?;
     let (maps, valid) = (&copy.0, &copy.1);
     let work_in = matching::Work {
@@ -616,7 +616,9 @@ mod tests {
         }
         let png = dir.join("bricks.png");
         imageio::write_rgb(&png, &img).unwrap();
-        let (svd, guard) = super::super::sample::sample_svd(&png, true, &crate::progress::Silent).unwrap();
+        let (svd, guard) =
+            super::super::sample::sample_svd(&png, true, MemoryBudget::default(), &crate::progress::Silent)
+                .unwrap();
         let svd = SvdArtifact::open(&svd, MemoryBudget::default()).unwrap();
         (Sample::from_svd(svd, MemoryBudget::default()).unwrap(), guard)
     }

@@ -16,6 +16,10 @@ use crate::{factorize, Error, Result};
 /// A rotated copy of the sample: its maps and validity as f32.
 pub(super) type RotatedCopy = (Vec<f32>, Vec<f32>);
 
+/// The "downsampling factor" under which the rotated copies' cache keeps
+/// the foreground mask's copies (its maps the mask, one channel).
+const MASK: usize = 0;
+
 /// The sample: unrotated geometry maps, and rotated copies on demand.
 pub(super) struct Sample {
     pub(super) svd: SvdArtifact,
@@ -30,13 +34,11 @@ pub(super) struct Sample {
     /// bounded by the budget given in [`Sample::from_svd`] (shared by the
     /// work patches computed at once), keyed by (rotation, downsampling
     /// factor): factor 1 is the copy itself, f > 1 its f×f block means
-    /// ([`Sample::coarse_rotation`]).
+    /// ([`Sample::coarse_rotation`]), [`MASK`] the foreground mask's copy.
     rotated: Mutex<BoundedCache<(usize, usize), Arc<RotatedCopy>>>,
     /// The foreground mask m_P (`[y][x]`, 0..1), if painting or keeping the
     /// foreground out.
     pub(super) mask: Option<Vec<f32>>,
-    /// Rotated copies of the mask, made lazily like the maps'.
-    rotated_mask: Mutex<Vec<Option<Arc<Vec<f32>>>>>,
     /// The weighted structure channel (`[y][x]`), when it is on: the last of
     /// the `n` feature channels of `maps` and of every rotated copy.
     pub(super) structure: Option<Vec<f32>>,
@@ -65,7 +67,6 @@ impl Sample {
             rotations,
             rotated: Mutex::new(BoundedCache::new(rotated_budget)),
             mask: None,
-            rotated_mask: Mutex::new(vec![None; rotations]),
             structure: None,
             svd,
         })
@@ -171,17 +172,19 @@ impl Sample {
         Ok(copy)
     }
 
-    /// Rotated copy `r` of the foreground mask (turned like the maps).
-    pub(super) fn rotation_mask(&self, r: usize) -> Option<Arc<Vec<f32>>> {
+    /// Rotated copy `r` of the foreground mask (turned like the maps), in
+    /// the rotated copies' cache: its maps are the mask.
+    pub(super) fn rotation_mask(&self, r: usize) -> Option<Arc<RotatedCopy>> {
         let mask = self.mask.as_ref()?;
-        if let Some(m) = &crate::lock(&self.rotated_mask)[r] {
-            return Some(Arc::clone(m));
+        if let Some(copy) = crate::lock(&self.rotated).get(&(r, MASK)) {
+            return Some(Arc::clone(copy));
         }
         let degrees = r as f64 * 360.0 / self.rotations as f64;
         let (m, _) = factorize::rotate_maps(mask, self.width, self.height, 1, degrees, self.tileable);
-        let m = Arc::new(m);
-        crate::lock(&self.rotated_mask)[r] = Some(Arc::clone(&m));
-        Some(m)
+        let copy = Arc::new((m, Vec::new()));
+        let bytes = (copy.0.len() * 4) as u64;
+        crate::lock(&self.rotated).insert((r, MASK), Arc::clone(&copy), bytes);
+        Some(copy)
     }
 
     /// Bilinear foreground mask at unrotated sample coordinates (0 where
@@ -295,10 +298,12 @@ pub(super) fn dist(a: &[f32], b: &[f32]) -> f64 {
 
 /// The sample's `.svd`: the file itself, or a colour image factorized into a
 /// temporary directory (kept alive by the returned guard), with the rotated
-/// copies only if `matching` needs them (they are most of the cost).
+/// copies only if `matching` needs them (they are most of the cost),
+/// within `memory`.
 pub(crate) fn sample_svd(
     sample_path: &Path,
     matching: bool,
+    memory: MemoryBudget,
     progress: &dyn Progress,
 ) -> Result<(PathBuf, Option<tempfile::TempDir>)> {
     if factorize::is_image_path(sample_path) {
@@ -306,6 +311,7 @@ pub(crate) fn sample_svd(
         let p = dir.path().join("sample.svd");
         let cfg = FactorizeConfig {
             rotations: if matching { factorize::DEFAULT_ROTATIONS } else { 0 },
+            memory,
             ..FactorizeConfig::default()
         };
         factorize::factorize(sample_path, &p, &cfg, progress)?;
@@ -354,16 +360,18 @@ pub(crate) struct SizedSample {
 
 /// The sample at `sample_path` sized for an atlas of `texel_size` mesh units
 /// per texel: with a size `on_surface`, resampled so one pixel is one
-/// texel ([`factorize::resample_svd`]); without, as it is.
+/// texel ([`factorize::resample_svd`]); without, as it is. A colour image
+/// is factorized, and the sample resampled, within `memory`.
 pub(crate) fn sample_at_density(
     sample_path: &Path,
     texel_size: f64,
     on_surface: Option<super::config::SampleSize>,
     matching: bool,
+    memory: MemoryBudget,
     progress: &dyn Progress,
 ) -> Result<SizedSample> {
     let mut tmp = Vec::new();
-    let (svd_path, dir) = sample_svd(sample_path, matching && on_surface.is_none(), progress)?;
+    let (svd_path, dir) = sample_svd(sample_path, matching && on_surface.is_none(), memory, progress)?;
     tmp.extend(dir);
     let svd = SvdArtifact::open(&svd_path, MemoryBudget(0))?;
     let size = [svd.width, svd.height];
@@ -403,7 +411,7 @@ pub(crate) fn sample_at_density(
     let out = dir.path().join("sized.svd");
     let rotations = if matching { factorize::DEFAULT_ROTATIONS } else { 0 };
     let maps = svd.geometry_maps()?;
-    factorize::resample_svd(&svd, &maps, &out, to_w, to_h, rotations, progress)?;
+    factorize::resample_svd(&svd, &maps, &out, (to_w, to_h), rotations, memory, progress)?;
     tmp.push(dir);
     let native_reference = neighbour_difference(&maps, svd.width, svd.height, svd.terms);
     Ok(SizedSample {

@@ -133,7 +133,15 @@ fn work_coordinates_alone_equal_the_work_image_s() {
     let gim = Gim::open(&spot_256(dir.path()), MemoryBudget(1 << 24)).unwrap();
     let sample = root.join("data/brick_wall.png");
     let cfg = TileConfig::default();
-    let sized = sample_at_density(&sample, gim.texel_size, None, true, &Silent).unwrap();
+    let sized = sample_at_density(
+        &sample,
+        gim.texel_size,
+        None,
+        true,
+        MemoryBudget::default(),
+        &Silent,
+    )
+    .unwrap();
     let out = dir.path().join("never.quilt");
     let mut syn = Synthesis::open(&gim, &sample, &sized, &out, &cfg, true, None).unwrap();
     let (mut inside, mut across) = (0, 0);
@@ -278,7 +286,15 @@ fn the_loop_settles_its_memory_within_the_budget() {
         memory: MemoryBudget(memory),
         ..TileConfig::default()
     };
-    let sized = sample_at_density(&sample, gim.texel_size, None, true, &Silent).unwrap();
+    let sized = sample_at_density(
+        &sample,
+        gim.texel_size,
+        None,
+        true,
+        MemoryBudget::default(),
+        &Silent,
+    )
+    .unwrap();
     let out = dir.path().join("settled.quilt");
     let mut syn = Synthesis::open(&gim, &sample, &sized, &out, &cfg, true, None).unwrap();
     let maps = 4 * syn.sample.maps.len() as u64;

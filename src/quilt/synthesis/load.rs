@@ -48,7 +48,7 @@ impl Synthesis {
         }
         let active_p = self.sample.svd.appearance()?;
         for k in (0..paths.len()).filter(|&k| used[k] && k != active) {
-            let (svd_path, _tmp) = sample_svd(quilt.sample_file(k)?, false, progress)?;
+            let (svd_path, _tmp) = sample_svd(quilt.sample_file(k)?, false, self.cfg.memory, progress)?;
             let svd = SvdArtifact::open(&svd_path, self.cfg.memory)?;
             crate::artifact::svd::same_directions(&self.sample.svd, &svd)?;
             let projection =
