@@ -31,8 +31,8 @@ use crate::container::{MemoryBudget, Param};
 use crate::progress::Progress;
 pub use crate::quilt::Projection;
 use crate::quilt::{
-    same_file, sample_at_density, sample_pixel_size, CourseMode, Quilt, SizedSample, StoredPattern,
-    Synthesis, TileConfig,
+    foreign_sample_bytes, same_file, sample_at_density, sample_pixel_size, CourseMode, Quilt, SizedSample,
+    StoredPattern, Synthesis, TileConfig,
 };
 use crate::{Error, Result};
 
@@ -245,10 +245,21 @@ fn open_synthesis(
     progress: &dyn Progress,
 ) -> Result<(Synthesis, Gim, SizedSample)> {
     let start = Instant::now();
+    // the other samples the surface draws from keep their maps and
+    // previews while the stroke runs (a sample that cannot be read counts
+    // nothing here: loading names it if the surface still shows it)
+    let others: u64 = (base.samples.iter())
+        .filter(|p| !same_file(p, &stroke.sample))
+        .map(|p| foreign_sample_bytes(p).unwrap_or(0))
+        .sum();
     let cfg = TileConfig {
         sample_mask: Some(stroke.sample_mask.clone()),
-        // what reading the base surface leaves
-        memory: stroke_budgets(stroke.tile.memory)[1],
+        // what reading the base surface and the other samples leave
+        memory: MemoryBudget(
+            stroke_budgets(stroke.tile.memory)[1]
+                .bytes()
+                .saturating_sub(others),
+        ),
         ..stroke.tile.clone()
     };
     // (the synthesis reads the surface by tiles through a reader of its

@@ -324,12 +324,26 @@ pub(crate) fn sample_svd(
 /// A sample's size in pixels, from an image's header or an `.svd`'s
 /// metadata (nothing is decoded).
 pub(crate) fn sample_pixel_size(sample_path: &Path) -> Result<[usize; 2]> {
+    Ok(sample_shape(sample_path)?.0)
+}
+
+/// What a sample other than the one quilting holds while a surface that
+/// draws from it is painted: its unrotated maps and its preview, f32
+/// ([`Synthesis::load`](super::Synthesis::load)).
+pub(crate) fn foreign_sample_bytes(sample_path: &Path) -> Result<u64> {
+    let ([w, h], terms) = sample_shape(sample_path)?;
+    Ok(4 * (w * h * (terms + 3)) as u64)
+}
+
+/// A sample's size in pixels and its number of geometry maps (3 for a
+/// colour image), from an image's header or an `.svd`'s metadata.
+fn sample_shape(sample_path: &Path) -> Result<([usize; 2], usize)> {
     if factorize::is_image_path(sample_path) {
         let (w, h) = crate::io::imageio::image_size(sample_path)?;
-        Ok([w, h])
+        Ok(([w, h], 3))
     } else {
         let svd = SvdArtifact::open(sample_path, MemoryBudget(0))?;
-        Ok([svd.width, svd.height])
+        Ok(([svd.width, svd.height], svd.terms))
     }
 }
 
