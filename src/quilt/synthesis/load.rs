@@ -34,32 +34,8 @@ impl Synthesis {
                 ))
             }
         };
-        // the other samples in use, with their projections into the active basis
         let grid = self.surface.grid();
-        let mut others: Vec<Option<ForeignSample>> = (0..paths.len()).map(|_| None).collect();
-        let mut previews = vec![None; paths.len()];
         let mut used = vec![false; paths.len()];
-        for k in 0..grid.tiles() {
-            let (x0, y0, w, h) = grid.region(k);
-            let region = quilt.texel_region(x0, y0, w, h)?;
-            for (&p, &s) in region.patch.iter().zip(&region.sample) {
-                used[s as usize] |= p != NO_PATCH;
-            }
-        }
-        let active_p = self.sample.svd.appearance()?;
-        for k in (0..paths.len()).filter(|&k| used[k] && k != active) {
-            let (svd_path, _tmp) = sample_svd(quilt.sample_file(k)?, false, self.cfg.memory, progress)?;
-            let svd = SvdArtifact::open(&svd_path, self.cfg.memory)?;
-            crate::artifact::svd::same_directions(&self.sample.svd, &svd)?;
-            let projection =
-                basis_projection(&active_p, self.sample.svd.terms, &svd.appearance()?, svd.terms);
-            previews[k] = Some(svd.preview()?);
-            // only their unrotated maps are read: no rotated copy is cached
-            others[k] = Some(ForeignSample {
-                sample: Sample::from_svd(svd, MemoryBudget(0))?,
-                projection,
-            });
-        }
         let [sx, sy] = self.scale;
         let scaled = self.scale != [1.0, 1.0];
         self.state.active = active as u8;
@@ -69,7 +45,7 @@ impl Synthesis {
             let (x0, y0, w, h) = grid.region(k);
             let q = quilt.texel_region(x0, y0, w, h)?;
             let chart = self.surface.chart_tile(k);
-            let (sample, st) = (&self.sample, &mut self.state);
+            let (sample, st, used) = (&self.sample, &mut self.state, &mut used);
             let loaded = st.tile_mut(k, |s| -> Result<()> {
                 for y in 0..h {
                     for x in 0..w {
@@ -101,8 +77,9 @@ impl Synthesis {
                             ];
                         }
                         s.source[i] = q.sample[j];
+                        used[q.sample[j] as usize] = true;
                         next = next.max(q.patch[j] + 1);
-                        s.mask[i] = if others[q.sample[j] as usize].is_some() {
+                        s.mask[i] = if q.sample[j] as usize != active {
                             0.0
                         } else {
                             sample.mask_at([s.coord[i][0] as f64, s.coord[i][1] as f64])
@@ -113,6 +90,24 @@ impl Synthesis {
             });
             loaded?;
             self.state.refresh_frontier(&self.surface, &[k]);
+        }
+        // the other samples the surface shows, with their projections into
+        // the active basis
+        let mut others: Vec<Option<ForeignSample>> = (0..paths.len()).map(|_| None).collect();
+        let mut previews = vec![None; paths.len()];
+        let active_p = self.sample.svd.appearance()?;
+        for k in (0..paths.len()).filter(|&k| used[k] && k != active) {
+            let (svd_path, _tmp) = sample_svd(quilt.sample_file(k)?, false, self.cfg.memory, progress)?;
+            let svd = SvdArtifact::open(&svd_path, self.cfg.memory)?;
+            crate::artifact::svd::same_directions(&self.sample.svd, &svd)?;
+            let projection =
+                basis_projection(&active_p, self.sample.svd.terms, &svd.appearance()?, svd.terms);
+            previews[k] = Some(svd.preview()?);
+            // only their unrotated maps are read: no rotated copy is cached
+            others[k] = Some(ForeignSample {
+                sample: Sample::from_svd(svd, MemoryBudget(0))?,
+                projection,
+            });
         }
         let st = &mut self.state;
         st.foreign = std::sync::Arc::new(others);
