@@ -49,6 +49,13 @@ impl MemoryBudget {
         self.0
     }
 
+    /// The budget less `held` bytes (what a stage holds besides the caches
+    /// and buffers it budgets: the program itself, data it keeps whole),
+    /// never less than half of it: what those caches and buffers share.
+    pub fn less(self, held: u64) -> MemoryBudget {
+        MemoryBudget(self.0 - held.min(self.0 / 2))
+    }
+
     /// The budget split into shares in proportion to `weights` (each share
     /// `bytes × weight / Σ weights`, rounded down): how a stage divides
     /// `--memory` among its caches and buffers, e.g. `split([1, 1, 1, 1])`

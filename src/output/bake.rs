@@ -22,7 +22,7 @@ const DILATE: usize = 16;
 /// order, an EXR in whatever order its writer asks, a few bands held.
 pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: MemoryBudget) -> Result<()> {
     // decoded chunks of the quilt and of the samples
-    let [quilt_budget, sample_budget] = budget.split([3, 1]);
+    let [quilt_budget, sample_budget] = budget.less(super::PROGRAM_BYTES).split([3, 1]);
     let quilt = Quilt::open(quilt_path, quilt_budget)?;
     quilt.check_output(out)?;
     if let Some(s) = sample {

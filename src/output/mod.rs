@@ -24,6 +24,14 @@ use crate::io::imageio::{self, RgbImage};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::{Error, Result};
 
+/// What `bake`, `render` and `evaluate` hold besides the shares of
+/// `--memory` they divide among their caches: code and libraries (about 12
+/// MB resident on Linux x86-64), a band's or a tile's buffers (about 10 MB
+/// for a band of a 4096² atlas) and the allocator's slack. Taken off
+/// `--memory` first ([`MemoryBudget::less`]), so that from 64 MiB up they
+/// peak within it on Spot 4096² (docs/measurements.md, "Render and export").
+pub(crate) const PROGRAM_BYTES: u64 = 24 << 20;
+
 /// Whether two paths name the same file, or are equal as text.
 fn same_file_or_equal(a: &Path, b: &Path) -> bool {
     a == b || crate::io::staging::same_file(a, b)

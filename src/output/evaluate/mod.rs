@@ -211,7 +211,8 @@ pub fn evaluate_with(
     let budget = cfg.memory;
     // decoded chunks of the quilt, the geometry image and the samples; the
     // rest for the seam steps, zipper links, bands and the stripe solve
-    let [quilt_budget, gim_budget, sample_budget, work] = budget.split([2, 2, 1, 3]);
+    let [quilt_budget, gim_budget, sample_budget, work] =
+        budget.less(crate::output::PROGRAM_BYTES).split([2, 2, 1, 3]);
     let quilt = Quilt::open(quilt_path, quilt_budget)?;
     let gim = quilt.open_gim(gim_path, gim_budget)?;
     let samples = open_samples(&quilt, sample, sample_budget)?;

@@ -81,7 +81,8 @@ impl Scene {
     pub fn open(quilt_path: &Path, budget: MemoryBudget) -> Result<Scene> {
         // a quarter each for the quilt's and the geometry image's decoded
         // chunks, half for the shading tiles
-        let [quilt_budget, gim_budget, tile_budget] = budget.split([1, 1, 2]);
+        let [quilt_budget, gim_budget, tile_budget] =
+            budget.less(crate::output::PROGRAM_BYTES).split([1, 1, 2]);
         let quilt = Quilt::open(quilt_path, quilt_budget)?;
         let gim = quilt.open_gim(None, gim_budget)?;
         if gim.resolution != quilt.resolution {

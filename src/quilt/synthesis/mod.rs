@@ -647,8 +647,7 @@ pub(super) const PROGRAM_BYTES: u64 = 48 << 20;
 /// ([`PROGRAM_BYTES`]) and the sample's unrotated maps (`sample_bytes`),
 /// never less than half of `--memory`.
 fn loop_budget(memory: MemoryBudget, sample_bytes: u64) -> MemoryBudget {
-    let held = (PROGRAM_BYTES + sample_bytes).min(memory.bytes() / 2);
-    MemoryBudget(memory.bytes() - held)
+    memory.less(PROGRAM_BYTES + sample_bytes)
 }
 
 #[cfg(test)]
