@@ -89,27 +89,21 @@ pub fn rotate_maps(
     degrees: f64,
     tileable: bool,
 ) -> (Vec<f32>, Vec<u8>) {
-    let whole = Region {
-        x0: 0,
-        y0: 0,
-        w: width,
-        h: height,
-    };
-    rotate_region(maps, width, height, channels, degrees, tileable, whole)
+    rotate_region(
+        maps,
+        width,
+        height,
+        channels,
+        degrees,
+        tileable,
+        (0, 0, width, height),
+    )
 }
 
-/// A rectangle of texels: its corner and size.
-#[derive(Clone, Copy, Debug)]
-pub(super) struct Region {
-    pub(super) x0: usize,
-    pub(super) y0: usize,
-    pub(super) w: usize,
-    pub(super) h: usize,
-}
-
-/// [`rotate_maps`] for the texels of `region` only (`[y][x][c]` within
-/// it): each output texel depends on its position alone, so a copy made
-/// region by region is the same as the whole.
+/// [`rotate_maps`] for the texels of `region` only (`x0`, `y0`, `w` × `h`;
+/// the output `[y][x][c]` within it): each output texel depends on its
+/// position alone, so a copy made region by region is the same as the
+/// whole.
 pub(super) fn rotate_region(
     maps: &[f32],
     width: usize,
@@ -117,16 +111,10 @@ pub(super) fn rotate_region(
     channels: usize,
     degrees: f64,
     tileable: bool,
-    region: Region,
+    (rx, ry, rw, rh): (usize, usize, usize, usize),
 ) -> (Vec<f32>, Vec<u8>) {
     let (sin, cos) = math::sin_cos(degrees.to_radians());
     let (cx, cy) = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
-    let Region {
-        x0: rx,
-        y0: ry,
-        w: rw,
-        h: rh,
-    } = region;
     let mut out = vec![0f32; rw * rh * channels];
     let mut valid = vec![0u8; rw * rh];
     let texel = |x: usize, y: usize| &maps[(y * width + x) * channels..(y * width + x + 1) * channels];
@@ -230,12 +218,7 @@ pub(super) fn write_rotations(
                 .into_par_iter()
                 .map(|k| {
                     let (o, e) = maps_spec.chunk_region(ri * per_rotation + k);
-                    let region = Region {
-                        x0: o[2] as usize,
-                        y0: o[1] as usize,
-                        w: e[2] as usize,
-                        h: e[1] as usize,
-                    };
+                    let region = (o[2] as usize, o[1] as usize, e[2] as usize, e[1] as usize);
                     let (rot, ok) = rotate_region(g, width, height, terms, degrees, cfg.tileable, region);
                     let mut rot16 = vec![f16::ZERO; rot.len()];
                     rot16.convert_from_f32_slice(&rot);

@@ -321,6 +321,22 @@ pub(crate) fn sample_svd(
     }
 }
 
+/// [`sample_at_density`] as the tiling's tests use it: one sample pixel per
+/// texel, rotated copies for matching, the default budget.
+#[cfg(test)]
+pub(crate) fn sample_as_is(sample_path: &Path, texel_size: f64) -> SizedSample {
+    let silent = crate::progress::Silent;
+    sample_at_density(
+        sample_path,
+        texel_size,
+        None,
+        true,
+        MemoryBudget::default(),
+        &silent,
+    )
+    .unwrap()
+}
+
 /// A sample's size in pixels, from an image's header or an `.svd`'s
 /// metadata (nothing is decoded).
 pub(crate) fn sample_pixel_size(sample_path: &Path) -> Result<[usize; 2]> {

@@ -126,22 +126,14 @@ fn work_coordinates_alone_equal_the_work_image_s() {
     use crate::artifact::gim::Gim;
     use crate::container::MemoryBudget;
     use crate::quilt::flatten::work_coords;
-    use crate::quilt::sample::sample_at_density;
+    use crate::quilt::sample::sample_as_is;
     use crate::quilt::synthesis::Synthesis;
     let dir = tempfile::tempdir().unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let gim = Gim::open(&spot_256(dir.path()), MemoryBudget(1 << 24)).unwrap();
     let sample = root.join("data/brick_wall.png");
     let cfg = TileConfig::default();
-    let sized = sample_at_density(
-        &sample,
-        gim.texel_size,
-        None,
-        true,
-        MemoryBudget::default(),
-        &Silent,
-    )
-    .unwrap();
+    let sized = sample_as_is(&sample, gim.texel_size);
     let out = dir.path().join("never.quilt");
     let mut syn = Synthesis::open(&gim, &sample, &sized, &out, &cfg, true, None).unwrap();
     let (mut inside, mut across) = (0, 0);
@@ -275,7 +267,7 @@ fn refinement_in_rounds_gives_the_quilt_of_one_patch_at_a_time() {
 fn the_loop_settles_its_memory_within_the_budget() {
     use crate::artifact::gim::Gim;
     use crate::container::MemoryBudget;
-    use crate::quilt::sample::sample_at_density;
+    use crate::quilt::sample::sample_as_is;
     use crate::quilt::synthesis::{Synthesis, LOOP_SHARES, PROGRAM_BYTES};
     let dir = tempfile::tempdir().unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -286,15 +278,7 @@ fn the_loop_settles_its_memory_within_the_budget() {
         memory: MemoryBudget(memory),
         ..TileConfig::default()
     };
-    let sized = sample_at_density(
-        &sample,
-        gim.texel_size,
-        None,
-        true,
-        MemoryBudget::default(),
-        &Silent,
-    )
-    .unwrap();
+    let sized = sample_as_is(&sample, gim.texel_size);
     let out = dir.path().join("settled.quilt");
     let mut syn = Synthesis::open(&gim, &sample, &sized, &out, &cfg, true, None).unwrap();
     let maps = 4 * syn.sample.maps.len() as u64;

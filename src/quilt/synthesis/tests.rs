@@ -32,15 +32,7 @@ fn halves(offset: f32, other: impl Fn(f32, f32) -> bool) -> (tempfile::TempDir, 
     let png = d.join("courses.png");
     crate::io::imageio::write_rgb(&png, &img).unwrap();
     let gim = Gim::open(&gim_path, MemoryBudget(1 << 20)).unwrap();
-    let sized = super::super::sample::sample_at_density(
-        &png,
-        gim.texel_size,
-        None,
-        true,
-        MemoryBudget::default(),
-        &Silent,
-    )
-    .unwrap();
+    let sized = super::super::sample::sample_as_is(&png, gim.texel_size);
     let cfg = TileConfig {
         refine_broken: 4,
         ..TileConfig::default()
