@@ -69,7 +69,8 @@ impl MemoryBudget {
 /// A map bounded by a byte budget, least recently used entries evicted
 /// first: the one cache type behind every cache (decoded chunks, the rotated
 /// copies of a sample, the matcher's sample spectra). The newest entry is
-/// always kept, even when it alone exceeds the budget.
+/// always kept, even when it alone exceeds the budget, unless it was put in
+/// with [`BoundedCache::insert_if_fits`].
 pub struct BoundedCache<K, V> {
     budget: u64,
     map: HashMap<K, (V, u64, u64)>,
@@ -143,6 +144,18 @@ impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
         self.by_age.insert(self.tick, key.clone());
         self.map.insert(key, (value, bytes, self.tick));
         self.bytes += bytes;
+    }
+
+    /// [`insert`](Self::insert), unless `bytes` alone exceed the budget: such
+    /// an entry is not kept and evicts nothing (for values made again when
+    /// needed, so that one too large does not empty the cache of the small
+    /// ones). Whether it was kept.
+    pub fn insert_if_fits(&mut self, key: K, value: V, bytes: u64) -> bool {
+        let fits = bytes <= self.budget;
+        if fits {
+            self.insert(key, value, bytes);
+        }
+        fits
     }
 
     /// Sets the budget, evicting the least recently used entries until the
@@ -284,6 +297,21 @@ mod tests {
         assert_eq!(c.len(), 1);
         c.clear();
         assert!(c.is_empty() && c.bytes() == 0);
+    }
+
+    #[test]
+    fn an_entry_larger_than_the_budget_put_in_if_it_fits_is_dropped_and_evicts_nothing() {
+        let mut c = BoundedCache::new(MemoryBudget(30));
+        assert!(c.insert_if_fits(1, "a", 10));
+        assert!(c.insert_if_fits(2, "b", 10));
+        assert!(!c.insert_if_fits(3, "c", 31));
+        assert!(c.contains(&1) && c.contains(&2) && !c.contains(&3));
+        assert_eq!(c.bytes(), 20);
+        // one that fits evicts the least recently used as `insert` does
+        c.get(&1);
+        assert!(c.insert_if_fits(4, "d", 15));
+        assert!(c.contains(&1) && !c.contains(&2) && c.contains(&4));
+        assert_eq!(c.bytes(), 25);
     }
 
     #[test]

@@ -145,7 +145,7 @@ impl Sample {
             Arc::new((m, valid.iter().map(|&v| v as f32).collect::<Vec<f32>>()))
         };
         let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
-        crate::lock(&self.rotated).insert((r, 1), Arc::clone(&copy), bytes);
+        crate::lock(&self.rotated).insert_if_fits((r, 1), Arc::clone(&copy), bytes);
         Ok(copy)
     }
 
@@ -168,7 +168,7 @@ impl Sample {
         let c = Coarse::new(&image, &full.1, &[], 0, f);
         let copy = Arc::new((c.features, c.weight));
         let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
-        crate::lock(&self.rotated).insert((r, f), Arc::clone(&copy), bytes);
+        crate::lock(&self.rotated).insert_if_fits((r, f), Arc::clone(&copy), bytes);
         Ok(copy)
     }
 
@@ -183,7 +183,7 @@ impl Sample {
         let (m, _) = factorize::rotate_maps(mask, self.width, self.height, 1, degrees, self.tileable);
         let copy = Arc::new((m, Vec::new()));
         let bytes = (copy.0.len() * 4) as u64;
-        crate::lock(&self.rotated).insert((r, MASK), Arc::clone(&copy), bytes);
+        crate::lock(&self.rotated).insert_if_fits((r, MASK), Arc::clone(&copy), bytes);
         Some(copy)
     }
 

@@ -509,7 +509,7 @@ impl Matcher {
             None => {
                 let e = Arc::new(self.sample_spectra(&plans, sample, &lay));
                 let bytes = e.bytes() as u64;
-                crate::lock(&self.cache).insert(lay.key, Arc::clone(&e), bytes);
+                crate::lock(&self.cache).insert_if_fits(lay.key, Arc::clone(&e), bytes);
                 e
             }
         };
