@@ -28,7 +28,7 @@ pub fn bake(quilt_path: &Path, sample: Option<&Path>, out: &Path, budget: Memory
     if let Some(s) = sample {
         crate::io::staging::check_output(out, &[("the sample", s)])?;
     }
-    let samples = open_samples(&quilt, sample, sample_budget)?;
+    let samples = open_samples(&quilt, sample, [sample_budget, budget])?;
     let previews = samples
         .iter()
         .map(|s| s.svd.preview())

@@ -44,10 +44,11 @@ pub struct OpenSample {
     _tmp: Option<tempfile::TempDir>,
 }
 
-/// Opens sample `k` of `quilt` from `path` (a colour image is factorized
-/// into a temporary `.svd`); the error names the surface and the sample
-/// when the file is gone.
-fn open_one(quilt: &Quilt, k: usize, path: &Path, budget: MemoryBudget) -> Result<OpenSample> {
+/// Opens sample `k` of `quilt` from `path` with `budget` for its decoded
+/// chunks (a colour image is factorized into a temporary `.svd` within
+/// `memory`, the command's `--memory`: nothing else is cached yet); the
+/// error names the surface and the sample when the file is gone.
+fn open_one(quilt: &Quilt, k: usize, path: &Path, [budget, memory]: [MemoryBudget; 2]) -> Result<OpenSample> {
     if !path.exists() {
         let how = if k == 0 && same_file_or_equal(path, &quilt.samples[0]) {
             "put it back, or give --sample".to_string()
@@ -67,7 +68,7 @@ fn open_one(quilt: &Quilt, k: usize, path: &Path, budget: MemoryBudget) -> Resul
         format!("sample_{k}")
     };
     quilt.verify(&role, path)?;
-    let (svd_path, tmp) = crate::quilt::sample_svd(path, false, budget, &crate::progress::Silent)?;
+    let (svd_path, tmp) = crate::quilt::sample_svd(path, false, memory, &crate::progress::Silent)?;
     Ok(OpenSample {
         svd: SvdArtifact::open(&svd_path, budget)?,
         _tmp: tmp,
@@ -75,21 +76,27 @@ fn open_one(quilt: &Quilt, k: usize, path: &Path, budget: MemoryBudget) -> Resul
 }
 
 /// Opens the sample a quilt was tiled with (`sample` overrides the
-/// recorded path).
-pub fn open_sample(quilt: &Quilt, sample: Option<&Path>, budget: MemoryBudget) -> Result<OpenSample> {
+/// recorded path); `budgets`: its decoded chunks' and the command's
+/// `--memory` ([`open_one`]).
+pub fn open_sample(quilt: &Quilt, sample: Option<&Path>, budgets: [MemoryBudget; 2]) -> Result<OpenSample> {
     let path: PathBuf = sample
         .map(Path::to_path_buf)
         .unwrap_or_else(|| quilt.samples[0].clone());
-    open_one(quilt, 0, &path, budget)
+    open_one(quilt, 0, &path, budgets)
 }
 
 /// Opens every sample a quilt draws from, in [`Quilt::samples`] order
 /// (`first` overrides the tiling's sample), and checks that they share one
-/// direction set, so their values are comparable.
-pub fn open_samples(quilt: &Quilt, first: Option<&Path>, budget: MemoryBudget) -> Result<Vec<OpenSample>> {
-    let mut out = vec![open_sample(quilt, first, budget)?];
+/// direction set, so their values are comparable. `budgets`: each
+/// sample's decoded chunks' and the command's `--memory` ([`open_one`]).
+pub fn open_samples(
+    quilt: &Quilt,
+    first: Option<&Path>,
+    budgets: [MemoryBudget; 2],
+) -> Result<Vec<OpenSample>> {
+    let mut out = vec![open_sample(quilt, first, budgets)?];
     for (k, path) in quilt.samples.iter().enumerate().skip(1) {
-        let s = open_one(quilt, k, path, budget)?;
+        let s = open_one(quilt, k, path, budgets)?;
         crate::artifact::svd::same_directions(&out[0].svd, &s.svd)?;
         out.push(s);
     }

@@ -437,7 +437,7 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
     quilt::tile(&g, &sample, &out, &cfg, &Silent).unwrap();
     // the oracle: the whole atlas's colour, dilated as one image
     let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
-    let samples = btfquilt::output::open_samples(&q, None, MemoryBudget::default()).unwrap();
+    let samples = btfquilt::output::open_samples(&q, None, [MemoryBudget::default(); 2]).unwrap();
     let previews: Vec<_> = samples.iter().map(|s| s.svd.preview().unwrap()).collect();
     let (mut whole, covered) = btfquilt::output::atlas_colour(&q, &previews).unwrap();
     assert!(covered.iter().any(|&c| !c), "no gutter to dilate");

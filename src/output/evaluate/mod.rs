@@ -215,7 +215,7 @@ pub fn evaluate_with(
         budget.less(crate::output::PROGRAM_BYTES).split([2, 2, 1, 3]);
     let quilt = Quilt::open(quilt_path, quilt_budget)?;
     let gim = quilt.open_gim(gim_path, gim_budget)?;
-    let samples = open_samples(&quilt, sample, sample_budget)?;
+    let samples = open_samples(&quilt, sample, [sample_budget, budget])?;
     let previews = samples
         .iter()
         .map(|s| s.svd.preview())

@@ -128,7 +128,7 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
             }
             Some((
                 dir,
-                super::open_samples(quilt, opts.sample.as_deref(), opts.budget)?,
+                super::open_samples(quilt, opts.sample.as_deref(), [opts.budget; 2])?,
             ))
         }
         _ => None,

@@ -109,7 +109,7 @@ impl Scene {
                 ));
             }
         }
-        let opened = open_samples(&quilt, None, gim_budget)?;
+        let opened = open_samples(&quilt, None, [gim_budget, budget])?;
         let svd0 = &opened[0].svd;
         let mut mesh = gim.mesh()?;
         let unit = (1.0 / mesh.normalize_extreme_scale()) as f32;
