@@ -84,9 +84,15 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
             "nothing to export: give -o DIR (with --format obj|gltf) and/or --btf DIR".into(),
         ));
     }
-    let kind = Container::open(file, opts.budget)?.metadata().kind.clone();
+    let kind = Container::open(file, MemoryBudget(0))?.metadata().kind.clone();
     let source = if kind == crate::quilt::KIND {
-        let quilt = Quilt::open(file, opts.budget)?;
+        // the quilt's and the geometry image's decoded chunks share what the
+        // program and the surface BTF's held bands leave (`bake` divides the
+        // whole budget again: it runs before either cache fills)
+        let r = Quilt::open(file, MemoryBudget(0))?.resolution;
+        let held = super::PROGRAM_BYTES + opts.btf.as_ref().map_or(0, |_| held_bytes(r));
+        let [quilt_budget, gim_budget] = opts.budget.less(held).split([1, 1]);
+        let quilt = Quilt::open(file, quilt_budget)?;
         // `--sample` stands in for the tiling's sample only: the others
         // must be where the quilt says
         for (k, path) in quilt.samples.iter().enumerate().skip(1) {
@@ -97,7 +103,7 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
                 ));
             }
         }
-        let gim = quilt.open_gim(None, opts.budget)?;
+        let gim = quilt.open_gim(None, gim_budget)?;
         Source::Quilt {
             path: file,
             quilt,

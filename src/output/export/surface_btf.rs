@@ -144,6 +144,16 @@ pub(super) fn stage_surface_btf(
 /// frame's angle and Jacobian (and, with 8 channels, its sample index); NaN
 /// elsewhere. Computed by bands of rows as the EXR writer asks for them, the
 /// last four held.
+/// Bands of the synthesis image held while its EXR is written (the writer
+/// asks for pixels in any order from several threads).
+const HELD_BANDS: usize = 4;
+
+/// What writing the surface BTF of an `r`² quilt holds besides its caches:
+/// [`HELD_BANDS`] bands of up to 8 f32 channels.
+pub(super) fn held_bytes(r: usize) -> u64 {
+    (HELD_BANDS * BAND_ROWS * r * 8 * 4) as u64
+}
+
 fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names: [&str; N]) -> Result<()> {
     let r = quilt.resolution;
     let band = |y0: usize| -> Result<Vec<f32>> {
@@ -175,7 +185,7 @@ fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names: [&str; N])
         Ok(out)
     };
     let held = Mutex::new(BoundedCache::<usize, Vec<f32>>::new(MemoryBudget(
-        (4 * BAND_ROWS * r * N * 4) as u64,
+        (HELD_BANDS * BAND_ROWS * r * N * 4) as u64,
     )));
     imageio::write_exr_f32_fn(path, r, r, names, |x, y| {
         let mut cache = crate::lock(&held);
