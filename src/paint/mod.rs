@@ -255,11 +255,7 @@ fn open_synthesis(
     let cfg = TileConfig {
         sample_mask: Some(stroke.sample_mask.clone()),
         // what reading the base surface and the other samples leave
-        memory: MemoryBudget(
-            stroke_budgets(stroke.tile.memory)[1]
-                .bytes()
-                .saturating_sub(others),
-        ),
+        memory: stroke_budgets(stroke.tile.memory)[1].less(others),
         ..stroke.tile.clone()
     };
     // (the synthesis reads the surface by tiles through a reader of its

@@ -89,8 +89,11 @@ pub fn export(file: &Path, opts: &ExportOptions) -> Result<Vec<PathBuf>> {
         // the quilt's and the geometry image's decoded chunks share what the
         // program and the surface BTF's held bands leave (`bake` divides the
         // whole budget again: it runs before either cache fills)
-        let r = Quilt::open(file, MemoryBudget(0))?.resolution;
-        let held = super::PROGRAM_BYTES + opts.btf.as_ref().map_or(0, |_| held_bytes(r));
+        let bands = match &opts.btf {
+            Some(_) => held_bytes(Quilt::open(file, MemoryBudget(0))?.resolution),
+            None => 0,
+        };
+        let held = super::PROGRAM_BYTES + bands;
         let [quilt_budget, gim_budget] = opts.budget.less(held).split([1, 1]);
         let quilt = Quilt::open(file, quilt_budget)?;
         // `--sample` stands in for the tiling's sample only: the others

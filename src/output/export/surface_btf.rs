@@ -140,10 +140,6 @@ pub(super) fn stage_surface_btf(
     })
 }
 
-/// `synthesis.exr` of `quilt`: per covered texel its sample coordinate, the
-/// frame's angle and Jacobian (and, with 8 channels, its sample index); NaN
-/// elsewhere. Computed by bands of rows as the EXR writer asks for them, the
-/// last four held.
 /// Bands of the synthesis image held while its EXR is written (the writer
 /// asks for pixels in any order from several threads).
 const HELD_BANDS: usize = 4;
@@ -154,6 +150,10 @@ pub(super) fn held_bytes(r: usize) -> u64 {
     (HELD_BANDS * BAND_ROWS * r * 8 * 4) as u64
 }
 
+/// `synthesis.exr` of `quilt`: per covered texel its sample coordinate, the
+/// frame's angle and Jacobian (and, with 8 channels, its sample index); NaN
+/// elsewhere. Computed by bands of rows as the EXR writer asks for them, the
+/// last [`HELD_BANDS`] held.
 fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names: [&str; N]) -> Result<()> {
     let r = quilt.resolution;
     let band = |y0: usize| -> Result<Vec<f32>> {
