@@ -126,18 +126,24 @@ impl SvdArtifact {
 
     /// Rotated copy `r` (r·360°/R): maps `[y][x][i]` and validity `[y][x]`.
     pub fn rotated(&self, r: usize) -> Result<(Vec<f16>, Vec<u8>)> {
+        self.rotated_rect(r, (0, 0, self.width, self.height))
+    }
+
+    /// The rectangle `(x, y, w, h)` of rotated copy `r`, decoding only the
+    /// chunks it touches.
+    pub fn rotated_rect(&self, r: usize, rect: (usize, usize, usize, usize)) -> Result<(Vec<f16>, Vec<u8>)> {
         if r >= self.rotations {
             return Err(Error::Config(format!("rotation {r} of {}", self.rotations)));
         }
-        let (h, w, n) = (self.height as u64, self.width as u64, self.terms as u64);
+        let (x, y, w, h) = (rect.0 as u64, rect.1 as u64, rect.2 as u64, rect.3 as u64);
         let maps = self.container.read_region(
             self.container.array("rotated_maps")?,
-            &[r as u64, 0, 0, 0],
-            &[1, h, w, n],
+            &[r as u64, y, x, 0],
+            &[1, h, w, self.terms as u64],
         )?;
         let valid = self.container.read_region(
             self.container.array("rotated_valid")?,
-            &[r as u64, 0, 0],
+            &[r as u64, y, x],
             &[1, h, w],
         )?;
         Ok((maps, valid))

@@ -133,51 +133,130 @@ fn coarse_config(cfg: &MatchConfig, f: usize) -> MatchConfig {
 
 /// The full-resolution placements to cost around the best `coarse` ones
 /// (coarse placement c ↦ f·c, then ±(f − 1) a side), inside `range` (the
-/// full match's placements), each once, in (dy, dx) order.
-fn fine_window(coarse: &[matching::Placement], f: usize, range: [(i32, i32); 2]) -> Vec<(i32, i32)> {
+/// full match's placements), each once: a cluster per coarse placement,
+/// without those of an earlier one, each in (dy, dx) order.
+fn fine_windows(coarse: &[matching::Placement], f: usize, range: [(i32, i32); 2]) -> Vec<Vec<(i32, i32)>> {
     let r = f as i32 - 1;
-    let mut out: Vec<(i32, i32)> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    let mut out = Vec::new();
     for p in coarse {
         let (cx, cy) = (p.dx * f as i32, p.dy * f as i32);
+        let mut cluster = Vec::new();
         for dy in (cy - r).max(range[1].0)..=(cy + r).min(range[1].1) {
             for dx in (cx - r).max(range[0].0)..=(cx + r).min(range[0].1) {
-                out.push((dx, dy));
+                if seen.insert((dx, dy)) {
+                    cluster.push((dx, dy));
+                }
             }
         }
+        if !cluster.is_empty() {
+            out.push(cluster);
+        }
     }
-    out.sort_unstable_by_key(|&(x, y)| (y, x));
-    out.dedup();
     out
 }
 
-/// Coarse-to-fine match of `work` against `sample` at factor `f > 1`, given
+/// A rectangle of the full-resolution sample: maps, validity and
+/// constraint channels (empty without), `[y][x]…` over the rectangle.
+pub(super) struct Window {
+    pub(super) maps: Vec<f32>,
+    pub(super) valid: Vec<f32>,
+    pub(super) constraint: Vec<f32>,
+}
+
+/// The full-resolution sample of the exact step, read by rectangles
+/// `(x, y, w, h)`: a large rotated copy is never needed whole.
+pub(super) struct Fine<'a> {
+    pub(super) width: usize,
+    pub(super) height: usize,
+    pub(super) channels: usize,
+    /// Constraint channels per pixel (0: none).
+    pub(super) constraint_channels: usize,
+    /// The whole sample's largest validity ([`matching::direct_costs_in`]).
+    pub(super) max_valid: f64,
+    pub(super) read: &'a dyn Fn((usize, usize, usize, usize)) -> crate::Result<Window>,
+}
+
+/// Coarse-to-fine match of `work` against `fine` at factor `f > 1`, given
 /// their box-averaged copies: the coarse cost map (passed to `penalize`
 /// with its placement step f, as the occurrence penalty must see it), the
-/// best coarse placements, and the exact costs around them as a map over
-/// their bounding box.
+/// best coarse placements, and the exact costs around them, each window
+/// costed against the rectangle of the sample it reads.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn match_coarse_to_fine(
     matcher: &mut Matcher,
     work: &matching::Work,
-    sample: &matching::Sample,
+    fine: &Fine,
     coarse_work: &matching::Work,
     coarse_sample: &matching::Sample,
     cfg: &MatchConfig,
     f: usize,
     penalize: &mut dyn FnMut(&mut CostMap, i32),
-) -> crate::Result<CostMap> {
+) -> crate::Result<Vec<matching::Placement>> {
     let ccfg = coarse_config(cfg, f);
     let mut map = matcher.cost_map(coarse_work, coarse_sample, &ccfg)?;
     penalize(&mut map, f as i32);
     let best = map.best(ccfg.candidates, ccfg.tolerance);
-    let range = matching::placement_range(
-        [work.image.width, work.image.height],
-        [sample.image.width, sample.image.height],
-        cfg.span,
-    );
-    let fine = fine_window(&best, f, range);
-    let placements = matching::direct_costs(work, sample, cfg, &fine)?;
-    Ok(CostMap::from_placements(&placements))
+    let size = [fine.width, fine.height];
+    let range = matching::placement_range([work.image.width, work.image.height], size, cfg.span);
+    let known = matching::known_box(work);
+    let mut placements = Vec::new();
+    for cluster in fine_windows(&best, f, range) {
+        let rect = matching::footprint(known, &cluster, size);
+        let window = (fine.read)(rect)?;
+        let image = |channels, data| Image {
+            width: rect.2,
+            height: rect.3,
+            channels,
+            data,
+        };
+        let sample = matching::Sample {
+            image: image(fine.channels, &window.maps),
+            valid: &window.valid,
+            constraint: (fine.constraint_channels > 0)
+                .then(|| image(fine.constraint_channels, &window.constraint)),
+            key: 0,
+        };
+        let origin = [rect.0, rect.1];
+        placements.extend(matching::direct_costs_in(
+            work,
+            &sample,
+            origin,
+            fine.max_valid,
+            cfg,
+            &cluster,
+        )?);
+    }
+    Ok(placements)
+}
+
+/// A [`Fine`] reader of a whole sample held in memory: its maps, validity
+/// and constraint channels (empty without) cut to each rectangle.
+pub(super) fn cut<'a>(
+    sample: &'a matching::Sample<'a>,
+) -> impl Fn((usize, usize, usize, usize)) -> crate::Result<Window> + 'a {
+    move |(x0, y0, w, h)| {
+        let (sw, n) = (sample.image.width, sample.image.channels);
+        let k = sample.constraint.as_ref().map_or(0, |c| c.channels);
+        let mut window = Window {
+            maps: Vec::with_capacity(w * h * n),
+            valid: Vec::with_capacity(w * h),
+            constraint: Vec::with_capacity(w * h * k),
+        };
+        for y in y0..y0 + h {
+            let row = y * sw + x0;
+            window
+                .maps
+                .extend_from_slice(&sample.image.data[row * n..(row + w) * n]);
+            window.valid.extend_from_slice(&sample.valid[row..row + w]);
+            if let Some(c) = &sample.constraint {
+                window
+                    .constraint
+                    .extend_from_slice(&c.data[row * k..(row + w) * k]);
+            }
+        }
+        Ok(window)
+    }
 }
 
 #[cfg(test)]
@@ -229,11 +308,17 @@ mod tests {
             cost: 0.0,
             overlap: 1.0,
         };
-        let w = fine_window(&[p(0, 0), p(1, 0), p(-3, -3)], 3, [(-8, 3), (-8, 0)]);
-        let mut sorted = w.clone();
-        sorted.sort_unstable_by_key(|&(x, y)| (y, x));
-        sorted.dedup();
-        assert_eq!(w, sorted);
+        let clusters = fine_windows(&[p(0, 0), p(1, 0), p(-3, -3)], 3, [(-8, 3), (-8, 0)]);
+        for c in &clusters {
+            assert!(c.windows(2).all(|a| (a[0].1, a[0].0) < (a[1].1, a[1].0)), "{c:?}");
+        }
+        let w: Vec<(i32, i32)> = clusters.concat();
+        let mut distinct = w.clone();
+        distinct.sort_unstable();
+        distinct.dedup();
+        assert_eq!(w.len(), distinct.len());
+        // (1, 0) keeps only its placements right of (0, 0)'s: x 3
+        assert_eq!(clusters[1], [(3, -2), (3, -1), (3, 0)]);
         assert!(w
             .iter()
             .all(|&(x, y)| (-8..=3).contains(&x) && (-8..=0).contains(&y)));
@@ -299,10 +384,19 @@ mod tests {
             };
             let mut matcher = Matcher::new();
             let mut steps = Vec::new();
-            let map = match_coarse_to_fine(
+            let read = cut(&sample);
+            let fine = Fine {
+                width: sw,
+                height: sh,
+                channels: n,
+                constraint_channels: 0,
+                max_valid: 1.0,
+                read: &read,
+            };
+            let placements = match_coarse_to_fine(
                 &mut matcher,
                 &work,
-                &sample,
+                &fine,
                 &coarse_work,
                 &coarse_sample,
                 &cfg,
@@ -311,13 +405,16 @@ mod tests {
             )
             .unwrap();
             assert_eq!(steps, [3]);
-            let best = map.best(cfg.candidates, cfg.tolerance);
+            let at: Vec<(i32, i32)> = placements.iter().map(|p| (p.dx, p.dy)).collect();
+            let whole = matching::direct_costs(&work, &sample, &cfg, &at).unwrap();
+            assert_eq!(placements, whole, "the windows cost as the whole sample does");
+            let best = matching::best_of(placements.clone(), cfg.candidates, cfg.tolerance);
             assert_eq!((best[0].dx, best[0].dy), (-(ox as i32), -(oy as i32)), "{best:?}");
             assert!(best[0].cost < 1e-9, "{:?}", best[0]);
             let full = matcher.cost_map(&work, &sample, &cfg).unwrap();
             assert_eq!(full.best(1, 0.0)[0].dx, best[0].dx);
             let mut finite = 0;
-            for p in map.placements() {
+            for p in placements.iter().filter(|p| p.cost.is_finite()) {
                 let (cost, overlap) = full.get(p.dx, p.dy).unwrap();
                 assert!(
                     (p.cost - cost).abs() <= 1e-6 * cost.abs() + 1e-9,

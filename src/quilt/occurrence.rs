@@ -12,7 +12,7 @@
 //! copy: a region reused a few degrees turned is still the same features to
 //! the eye.
 
-use super::matching::{near_limit, CostMap};
+use super::matching::{near_limit, CostMap, Placement};
 
 /// Cells along the sample's longer side.
 pub(super) const CELLS: usize = 64;
@@ -25,6 +25,30 @@ pub(super) const CELLS: usize = 64;
 /// but on Spot and Bob at 1024² the seam ratio rose by 2–11 % where at 0.2
 /// it stayed within 4 % of none.
 pub(super) const SLACK: f64 = 0.2;
+
+/// The placement costs the penalty raises: a cost map, or a list of
+/// placements (coarse-to-fine matching's exact costs).
+pub(super) enum Costs<'a> {
+    Map(&'a mut CostMap),
+    List(&'a mut [Placement]),
+}
+
+impl Costs<'_> {
+    /// Calls `f(dx, dy, cost)` on each entry (for a map, in row order).
+    fn for_each(&mut self, mut f: impl FnMut(i32, i32, &mut f64)) {
+        match self {
+            Costs::Map(map) => {
+                for r in 0..map.rows {
+                    for c in 0..map.columns {
+                        let i = r * map.columns + c;
+                        f(map.dx0 + c as i32, map.dy0 + r as i32, &mut map.cost[i]);
+                    }
+                }
+            }
+            Costs::List(list) => list.iter_mut().for_each(|p| f(p.dx, p.dy, &mut p.cost)),
+        }
+    }
+}
 
 /// Texels of the current surface per cell of the unrotated sample.
 #[derive(Clone, Debug)]
@@ -111,19 +135,18 @@ impl Occurrence {
         self.count.iter().filter(|&&c| c <= 0.0).count() as f64 / self.count.len() as f64
     }
 
-    /// Rules out the placements of `map` whose cost exceeds the best by more
+    /// Rules out the placements of `costs` whose cost exceeds the best by more
     /// than [`SLACK`] and adds `weight × ρ` to the others, where ρ is the mean
     /// density of use, relative to the sample's mean, over the sample
     /// pixels the `work_width × work_height` work image covers at that
     /// placement (pixel (x − dx, y − dy) of rotated copy `rotation` lands on
     /// work pixel (x, y)). `to_unrotated` maps a rotated copy's pixel to
-    /// unrotated sample coordinates. Entry (c, r) of the map is placement
-    /// ((dx0 + c)·`step`, (dy0 + r)·`step`): 1 for a full match, f for a
-    /// coarse one ([`super::coarse`]). Nothing changes before the first
-    /// count.
+    /// unrotated sample coordinates. Entry (dx, dy) is placement
+    /// (dx·`step`, dy·`step`): 1 for a full match, f for a coarse one
+    /// ([`super::coarse`]). Nothing changes before the first count.
     pub(crate) fn penalize(
         &mut self,
-        map: &mut CostMap,
+        mut costs: Costs,
         rotation: usize,
         to_unrotated: impl Fn([f64; 2]) -> [f64; 2],
         work_size: [usize; 2],
@@ -159,12 +182,12 @@ impl Occurrence {
             }
             self.tables[slot] = (self.version, sat);
         }
-        let best = map
-            .cost
-            .iter()
-            .copied()
-            .filter(|c| c.is_finite())
-            .fold(f64::INFINITY, f64::min);
+        let mut best = f64::INFINITY;
+        costs.for_each(|_, _, &mut c| {
+            if c.is_finite() {
+                best = best.min(c);
+            }
+        });
         let limit = near_limit(best, SLACK);
         let sat = &self.tables[slot].1;
         let at = |x: usize, y: usize| sat[y * (cols + 1) + x];
@@ -175,28 +198,23 @@ impl Occurrence {
             let b = ((p0 + len as i64).max(0) as usize).div_ceil(cell).min(cells);
             (a, b.max(a))
         };
-        for r in 0..map.rows {
-            let dy = (map.dy0 + r as i32) * step;
-            let (y0, y1) = span(-(dy as i64), wh, rows);
-            for c in 0..map.columns {
-                let i = r * map.columns + c;
-                if !map.cost[i].is_finite() {
-                    continue;
-                }
-                if map.cost[i] > limit {
-                    map.cost[i] = f64::INFINITY;
-                    continue;
-                }
-                let dx = (map.dx0 + c as i32) * step;
-                let (x0, x1) = span(-(dx as i64), ww, cols);
-                let cells = ((x1 - x0) * (y1 - y0)) as f64;
-                if cells == 0.0 {
-                    continue;
-                }
-                let sum = at(x1, y1) - at(x0, y1) - at(x1, y0) + at(x0, y0);
-                map.cost[i] += weight * sum / cells;
+        costs.for_each(|dx, dy, cost| {
+            if !cost.is_finite() {
+                return;
             }
-        }
+            if *cost > limit {
+                *cost = f64::INFINITY;
+                return;
+            }
+            let (y0, y1) = span(-((dy * step) as i64), wh, rows);
+            let (x0, x1) = span(-((dx * step) as i64), ww, cols);
+            let cells = ((x1 - x0) * (y1 - y0)) as f64;
+            if cells == 0.0 {
+                return;
+            }
+            let sum = at(x1, y1) - at(x0, y1) - at(x1, y0) + at(x0, y0);
+            *cost += weight * sum / cells;
+        });
     }
 }
 
@@ -220,7 +238,7 @@ mod tests {
         let mut occ = Occurrence::new(64, 64, false, 4);
         let mut map = flat_map(33, 33, -32, -32);
         let before = map.clone();
-        occ.penalize(&mut map, 0, |p| p, [32, 32], 1.0, 1);
+        occ.penalize(Costs::Map(&mut map), 0, |p| p, [32, 32], 1.0, 1);
         assert_eq!(map, before);
     }
 
@@ -236,7 +254,7 @@ mod tests {
         assert_eq!(occ.total(), 2.0 * 32.0 * 64.0);
         // a 16² work image: dx ∈ [−48, 0]
         let mut map = flat_map(49, 49, -48, -48);
-        occ.penalize(&mut map, 0, |p| p, [16, 16], 0.5, 1);
+        occ.penalize(Costs::Map(&mut map), 0, |p| p, [16, 16], 0.5, 1);
         // the mean use per pixel is 1: density 2 on the left, 0 on the right
         let cost = |dx: i32, dy: i32| map.get(dx, dy).unwrap().0;
         assert!((cost(0, 0) - (1.0 + 0.5 * 2.0)).abs() < 1e-12);
@@ -272,7 +290,7 @@ mod tests {
         }
         let half_turn = |p: [f64; 2]| [127.0 - p[0], 127.0 - p[1]];
         let mut map = flat_map(127, 127, -126, -126);
-        occ.penalize(&mut map, 36, half_turn, [2, 2], 1.0, 1);
+        occ.penalize(Costs::Map(&mut map), 36, half_turn, [2, 2], 1.0, 1);
         let (best_x, best_y) = (0..map.rows * map.columns)
             .max_by(|&a, &b| map.cost[a].total_cmp(&map.cost[b]))
             .map(|i| {
@@ -296,7 +314,7 @@ mod tests {
         map.cost[7] = 1.0 + SLACK + 1e-9;
         map.cost[8] = 1.0 + SLACK;
         map.cost[9] = f64::INFINITY;
-        occ.penalize(&mut map, 0, |p| p, [16, 16], 1.0, 1);
+        occ.penalize(Costs::Map(&mut map), 0, |p| p, [16, 16], 1.0, 1);
         assert!(map.cost[7].is_infinite() && map.cost[9].is_infinite());
         assert!(map.cost[8].is_finite());
         assert_eq!(map.cost.iter().filter(|c| c.is_infinite()).count(), 2);

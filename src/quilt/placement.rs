@@ -6,7 +6,7 @@ use super::config::TileConfig;
 use super::flatten::{rotation_index, WorkImage};
 use super::matching;
 use super::matching::{Image, MatchConfig, Matcher};
-use super::occurrence::Occurrence;
+use super::occurrence::{Costs, Occurrence};
 use super::sample::Sample;
 use crate::math;
 use crate::Result;
@@ -426,7 +426,14 @@ fn choose_rotation(
             key: r as u64 | (fr as u64) << 40,
         };
         let mut map = matcher.cost_map_for(&coarse_work, Some(work_key), &coarse_sample, &mc)?;
-        penalize(penalty.as_deref_mut(), sample, work, &mut map, r, fr as i32);
+        penalize(
+            penalty.as_deref_mut(),
+            sample,
+            work,
+            Costs::Map(&mut map),
+            r,
+            fr as i32,
+        );
         Ok(map
             .cost
             .iter()
@@ -461,14 +468,14 @@ fn penalize(
     penalty: Option<&mut (&mut Occurrence, f64)>,
     sample: &Sample,
     work: &WorkImage,
-    map: &mut matching::CostMap,
+    costs: Costs,
     rot: usize,
     step: i32,
 ) {
     if let Some((occurrence, weight)) = penalty {
         let turn = Turn::new(sample, rot);
         let to_unrotated = |p: [f64; 2]| turn.to_sample(0.0, 0.0, p);
-        occurrence.penalize(map, rot, to_unrotated, [work.width, work.height], *weight, step);
+        occurrence.penalize(costs, rot, to_unrotated, [work.width, work.height], *weight, step);
     }
 }
 
@@ -494,8 +501,13 @@ fn match_at_rotation(
         None
     };
     let mask = mask.as_deref().map(|m| &m.0[..]);
-    let copy = sample.rotation(rot)?;
-    let (maps, valid) = (&copy.0, &copy.1);
+    // the whole copy for a full match, or for the coarse mask (painting);
+    // coarse to fine reads the rectangles it costs
+    let copy = if f == 1 || mask.is_some() {
+        Some(sample.rotation(rot)?)
+    } else {
+        None
+    };
     let work_in = matching::Work {
         image: Image {
             width: work.width,
@@ -512,7 +524,7 @@ fn match_at_rotation(
         }),
     };
     let key = rot as u64 | (constrained as u64) << 32;
-    let sample_in = matching::Sample {
+    let sample_in = copy.as_deref().map(|(maps, valid)| matching::Sample {
         image: Image {
             width: sw,
             height: sh,
@@ -527,7 +539,7 @@ fn match_at_rotation(
             data: m,
         }),
         key,
-    };
+    });
     let mc = MatchConfig {
         min_overlap: (0.5 * known_count).max(1.0),
         candidates: 64,
@@ -535,60 +547,93 @@ fn match_at_rotation(
         constraint_weight,
         ..MatchConfig::default()
     };
-    let mut penalize = |map: &mut matching::CostMap, step: i32| {
-        self::penalize(penalty.as_mut(), sample, work, map, rot, step);
-    };
-    let map = if f == 1 {
+    if f == 1 {
+        let sample_in = sample_in.expect("the whole copy for a full match");
         let mut map = matcher.cost_map(&work_in, &sample_in, &mc)?;
-        penalize(&mut map, 1);
-        map
-    } else {
-        let ccopy = sample.coarse_rotation(rot, f)?;
-        // (the features of the copy are block-averaged once, in the sample)
+        self::penalize(penalty.as_mut(), sample, work, Costs::Map(&mut map), rot, 1);
+        return Ok(map.best(mc.candidates, mc.tolerance));
+    }
+    let ccopy = sample.coarse_rotation(rot, f)?;
+    // (the features of the copy are block-averaged once, in the sample)
+    let cmask = sample_in.as_ref().zip(mask).map(|(s, m)| {
         let no_features = Image {
             channels: 0,
             data: &[],
-            ..sample_in.image
+            ..s.image
         };
-        let cmask = mask.map(|m| Coarse::new(&no_features, valid, m, 1, f).constraint);
-        let work_constraint: &[f32] = if mask.is_some() { &work.constraint } else { &[] };
-        let cwork = Coarse::new(&work_in.image, &work.known, work_constraint, 1, f);
-        let (cw, ch) = (sw.div_ceil(f), sh.div_ceil(f));
-        let coarse_work = matching::Work {
-            image: cwork.image(n),
-            known: &cwork.weight,
-            constraint: cwork.constraint_image(1),
-        };
-        let coarse_sample = matching::Sample {
-            image: Image {
-                width: cw,
-                height: ch,
-                channels: n,
-                data: &ccopy.0,
-            },
-            valid: &ccopy.1,
-            constraint: cmask.as_deref().map(|m| Image {
-                width: cw,
-                height: ch,
-                channels: 1,
-                data: m,
-            }),
-            key: key | (f as u64) << 40,
-        };
-        let mut map = coarse::match_coarse_to_fine(
-            matcher,
-            &work_in,
-            &sample_in,
-            &coarse_work,
-            &coarse_sample,
-            &mc,
-            f,
-            &mut penalize,
-        )?;
-        penalize(&mut map, 1);
-        map
+        Coarse::new(&no_features, s.valid, m, 1, f).constraint
+    });
+    let work_constraint: &[f32] = if mask.is_some() { &work.constraint } else { &[] };
+    let cwork = Coarse::new(&work_in.image, &work.known, work_constraint, 1, f);
+    let (cw, ch) = (sw.div_ceil(f), sh.div_ceil(f));
+    let coarse_work = matching::Work {
+        image: cwork.image(n),
+        known: &cwork.weight,
+        constraint: cwork.constraint_image(1),
     };
-    Ok(map.best(mc.candidates, mc.tolerance))
+    let coarse_sample = matching::Sample {
+        image: Image {
+            width: cw,
+            height: ch,
+            channels: n,
+            data: &ccopy.0,
+        },
+        valid: &ccopy.1,
+        constraint: cmask.as_deref().map(|m| Image {
+            width: cw,
+            height: ch,
+            channels: 1,
+            data: m,
+        }),
+        key: key | (f as u64) << 40,
+    };
+    let from_copy = sample_in.as_ref().map(coarse::cut);
+    let from_svd = |rect| {
+        let (maps, valid) = sample.rotation_rect(rot, rect)?;
+        Ok(coarse::Window {
+            maps,
+            valid,
+            constraint: Vec::new(),
+        })
+    };
+    let fine = coarse::Fine {
+        width: sw,
+        height: sh,
+        channels: n,
+        constraint_channels: mask.map_or(0, |_| 1),
+        // (validity is 0 or 1: 1 if any coarse pixel has some)
+        max_valid: if ccopy.1.iter().any(|&v| v > 0.0) {
+            1.0
+        } else {
+            0.0
+        },
+        read: match &from_copy {
+            Some(cut) => cut,
+            None => &from_svd,
+        },
+    };
+    let mut penalize = |map: &mut matching::CostMap, step: i32| {
+        self::penalize(penalty.as_mut(), sample, work, Costs::Map(map), rot, step);
+    };
+    let mut placements = coarse::match_coarse_to_fine(
+        matcher,
+        &work_in,
+        &fine,
+        &coarse_work,
+        &coarse_sample,
+        &mc,
+        f,
+        &mut penalize,
+    )?;
+    self::penalize(
+        penalty.as_mut(),
+        sample,
+        work,
+        Costs::List(&mut placements),
+        rot,
+        1,
+    );
+    Ok(matching::best_of(placements, mc.candidates, mc.tolerance))
 }
 
 #[cfg(test)]
@@ -621,6 +666,45 @@ mod tests {
                 .unwrap();
         let svd = SvdArtifact::open(&svd, MemoryBudget::default()).unwrap();
         (Sample::from_svd(svd, MemoryBudget::default()).unwrap(), guard)
+    }
+
+    /// A copy too large for its cache is read by rectangles: the same
+    /// rectangles, coarse copies and coarse-to-fine placements as cut from
+    /// the whole copy, and no whole copy kept.
+    #[test]
+    fn rectangles_of_the_stored_copies_equal_the_whole_copy() {
+        let dir = tempfile::tempdir().unwrap();
+        let (whole, _svd) = bricks(dir.path());
+        let svd = SvdArtifact::open(whole.svd.container().path(), MemoryBudget::default()).unwrap();
+        let by_rect = Sample::from_svd(svd, MemoryBudget(0)).unwrap();
+        for (r, rect) in [(0, (0, 0, 64, 64)), (5, (3, 7, 20, 33)), (41, (60, 0, 4, 64))] {
+            let copy = whole.rotation(r).unwrap();
+            let got = by_rect.rotation_rect(r, rect).unwrap();
+            assert_eq!(got, whole.rotation_rect(r, rect).unwrap());
+            let (x0, y0, w, h) = rect;
+            for y in 0..h {
+                let at = (y0 + y) * 64 + x0;
+                assert_eq!(&got.1[y * w..(y + 1) * w], &copy.1[at..at + w]);
+                assert_eq!(
+                    &got.0[y * w * whole.n..(y + 1) * w * whole.n],
+                    &copy.0[at * whole.n..(at + w) * whole.n]
+                );
+            }
+            assert_eq!(
+                by_rect.coarse_rotation(r, 3).unwrap(),
+                whole.coarse_rotation(r, 3).unwrap()
+            );
+        }
+        let mut matcher = Matcher::new();
+        for k in [0usize, 3, 70] {
+            let work = work_showing(&whole, k);
+            let known: f64 = work.known.iter().map(|&m| m as f64).sum();
+            let a = match_at_rotation(&whole, &mut matcher, &work, 0.0, None, k, known, 3).unwrap();
+            let b = match_at_rotation(&by_rect, &mut matcher, &work, 0.0, None, k, known, 3).unwrap();
+            assert_eq!(a, b);
+            assert!(!a.is_empty() && a[0].cost < 1e-9, "{:?}", a.first());
+        }
+        assert_eq!(by_rect.rotated_cache().1, 0, "nothing held by the reading sample");
     }
 
     /// A 24² work image whose left half is known and shows rotated copy

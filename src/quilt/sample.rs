@@ -149,8 +149,46 @@ impl Sample {
         Ok(copy)
     }
 
+    /// The rectangle `(x, y, w, h)` of rotated copy `r` (maps, validity):
+    /// cut from the whole copy if its cache holds it or can hold it (or the
+    /// structure channel is on: it is turned whole), read from the `.svd`
+    /// chunk by chunk otherwise, so that a copy larger than its cache's
+    /// share is never held whole.
+    pub(super) fn rotation_rect(&self, r: usize, rect: (usize, usize, usize, usize)) -> Result<RotatedCopy> {
+        let whole_bytes = (self.width * self.height * (self.n + 1) * 4) as u64;
+        let (cached, budget) = {
+            let mut cache = crate::lock(&self.rotated);
+            (cache.get(&(r, 1)).cloned(), cache.budget())
+        };
+        let whole = match cached {
+            Some(copy) => Some(copy),
+            None if self.structure.is_some() || whole_bytes <= budget => Some(self.rotation(r)?),
+            None => None,
+        };
+        if let Some(copy) = whole {
+            let whole = super::matching::Sample {
+                image: Image {
+                    width: self.width,
+                    height: self.height,
+                    channels: self.n,
+                    data: &copy.0,
+                },
+                valid: &copy.1,
+                constraint: None,
+                key: 0,
+            };
+            let window = super::coarse::cut(&whole)(rect)?;
+            return Ok((window.maps, window.valid));
+        }
+        let (maps, valid) = self.svd.rotated_rect(r, rect)?;
+        let mut m = vec![0f32; maps.len()];
+        half::slice::HalfFloatSliceExt::convert_to_f32_slice(&maps[..], &mut m);
+        Ok((m, valid.iter().map(|&v| v as f32).collect()))
+    }
+
     /// Rotated copy `r` box-averaged by `f` ([`Coarse`]): its maps and mean
-    /// validity, `⌈width/f⌉ × ⌈height/f⌉`, made from the copy on first use.
+    /// validity, `⌈width/f⌉ × ⌈height/f⌉`, made on first use from bands of
+    /// the copy ([`Sample::rotation_rect`]) a multiple of f rows high.
     pub(super) fn coarse_rotation(&self, r: usize, f: usize) -> Result<Arc<RotatedCopy>> {
         if f == 1 {
             return self.rotation(r);
@@ -158,15 +196,22 @@ impl Sample {
         if let Some(copy) = crate::lock(&self.rotated).get(&(r, f)) {
             return Ok(Arc::clone(copy));
         }
-        let full = self.rotation(r)?;
-        let image = Image {
-            width: self.width,
-            height: self.height,
-            channels: self.n,
-            data: &full.0,
-        };
-        let c = Coarse::new(&image, &full.1, &[], 0, f);
-        let copy = Arc::new((c.features, c.weight));
+        let band = f * 64usize.div_ceil(f);
+        let (mut features, mut weight) = (Vec::new(), Vec::new());
+        for y0 in (0..self.height).step_by(band) {
+            let rows = band.min(self.height - y0);
+            let part = self.rotation_rect(r, (0, y0, self.width, rows))?;
+            let image = Image {
+                width: self.width,
+                height: rows,
+                channels: self.n,
+                data: &part.0,
+            };
+            let c = Coarse::new(&image, &part.1, &[], 0, f);
+            features.extend_from_slice(&c.features);
+            weight.extend_from_slice(&c.weight);
+        }
+        let copy = Arc::new((features, weight));
         let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
         crate::lock(&self.rotated).insert_if_fits((r, f), Arc::clone(&copy), bytes);
         Ok(copy)

@@ -119,6 +119,82 @@ pub fn direct_costs(
     cfg: &MatchConfig,
     placements: &[(i32, i32)],
 ) -> Result<Vec<Placement>> {
+    let max_valid = sample.valid.iter().fold(0.0f64, |a, &v| a.max(v as f64));
+    direct_costs_in(work, sample, [0, 0], max_valid, cfg, placements)
+}
+
+/// The bounding box `[x0, y0, x1, y1]` (inclusive) of the work image's
+/// known pixels; `None` if none is known.
+pub fn known_box(work: &Work) -> Option<[i64; 4]> {
+    let w = work.image.width;
+    work.known
+        .iter()
+        .enumerate()
+        .filter(|&(_, &m)| m > 0.0)
+        .fold(None, |b: Option<[i64; 4]>, (p, _)| {
+            let (x, y) = ((p % w) as i64, (p / w) as i64);
+            Some(b.map_or([x, y, x, y], |b| {
+                [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)]
+            }))
+        })
+}
+
+/// The sample pixels the known pixels (`known`, [`known_box`]) land on at
+/// any of `placements`, as the smallest rectangle `(x, y, w, h)` of a
+/// `size` sample holding them; a pixel of the sample where none lands.
+pub fn footprint(
+    known: Option<[i64; 4]>,
+    placements: &[(i32, i32)],
+    size: [usize; 2],
+) -> (usize, usize, usize, usize) {
+    let clip = |v: i64, n: usize| v.clamp(0, n as i64 - 1);
+    let mut rect: Option<[i64; 4]> = None;
+    if let Some([x0, y0, x1, y1]) = known {
+        for &(dx, dy) in placements {
+            let (dx, dy) = (dx as i64, dy as i64);
+            let (a0, a1, b0, b1) = (x0 - dx, x1 - dx, y0 - dy, y1 - dy);
+            if a1 < 0 || b1 < 0 || a0 >= size[0] as i64 || b0 >= size[1] as i64 {
+                continue;
+            }
+            let r = [
+                clip(a0, size[0]),
+                clip(b0, size[1]),
+                clip(a1, size[0]),
+                clip(b1, size[1]),
+            ];
+            rect = Some(rect.map_or(r, |q| {
+                [q[0].min(r[0]), q[1].min(r[1]), q[2].max(r[2]), q[3].max(r[3])]
+            }));
+        }
+    }
+    let [x0, y0, x1, y1] = rect.unwrap_or([0; 4]);
+    (
+        x0 as usize,
+        y0 as usize,
+        (x1 - x0 + 1) as usize,
+        (y1 - y0 + 1) as usize,
+    )
+}
+
+/// [`direct_costs`] against a window of a larger sample: `window` holds the
+/// sample's pixels from `origin` (x, y) on, and `max_valid` is the whole
+/// sample's largest validity (the acceptance rule's tolerance scales with
+/// it). The costs are the whole sample's as long as the window holds the
+/// placements' [`footprint`]: a known pixel that lands outside the window
+/// lands outside the sample.
+pub fn direct_costs_in(
+    work: &Work,
+    window: &Sample,
+    origin: [usize; 2],
+    max_valid: f64,
+    cfg: &MatchConfig,
+    placements: &[(i32, i32)],
+) -> Result<Vec<Placement>> {
+    let sample = window;
+    let (ox, oy) = (origin[0] as i32, origin[1] as i32);
+    // (a placement (dx, dy) of the sample is (dx + ox, dy + oy) of the window)
+    let shifted: Vec<(i32, i32)> = placements.iter().map(|&(dx, dy)| (dx + ox, dy + oy)).collect();
+    let placements = &shifted[..];
     let lay = Layout::new(work, sample, cfg)?;
     let (wi, si) = (&work.image, &sample.image);
     let (n, nc) = (lay.n, lay.nc);
@@ -150,7 +226,6 @@ pub fn direct_costs(
         [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)]
     });
     let mass: f64 = work.known.iter().map(|&m| m as f64).sum();
-    let max_valid = sample.valid.iter().fold(0.0f64, |a, &v| a.max(v as f64));
     let tol = 1e-9 * mass * max_valid;
     let w = if work.constraint.is_some() {
         cfg.constraint_weight
@@ -185,7 +260,7 @@ pub fn direct_costs(
         group
             .iter()
             .enumerate()
-            .map(|(j, &(dx, dy))| scored(dx, dy, ssd[j], overlap[j], cfg.min_overlap, tol))
+            .map(|(j, &(dx, dy))| scored(dx - ox, dy - oy, ssd[j], overlap[j], cfg.min_overlap, tol))
             .collect()
     };
     // placements in groups of neighbours (the list is in (dy, dx) order):

@@ -62,7 +62,8 @@ mod direct;
 mod fft;
 
 pub use direct::{
-    brute_force_cost, brute_force_map, direct_costs, placement_range, valid_to_f32, SampleCopy,
+    brute_force_cost, brute_force_map, direct_costs, direct_costs_in, footprint, known_box, placement_range,
+    valid_to_f32, SampleCopy,
 };
 pub use fft::fast_size;
 use fft::{
@@ -288,18 +289,24 @@ impl CostMap {
     /// The best placements in (cost, dy, dx) order: at most `candidates`
     /// (0 = all) of those with cost ≤ (1 + tolerance) · best.
     pub fn best(&self, candidates: usize, tolerance: f64) -> Vec<Placement> {
-        let mut all: Vec<Placement> = self.placements().collect();
-        if candidates > 0 && candidates < all.len() {
-            all.select_nth_unstable_by(candidates - 1, Placement::order);
-            all.truncate(candidates);
-        }
-        all.sort_unstable_by(Placement::order);
-        if let Some(best) = all.first().map(|p| p.cost) {
-            let limit = near_limit(best, tolerance);
-            all.retain(|p| p.cost <= limit);
-        }
-        all
+        best_of(self.placements().collect(), candidates, tolerance)
     }
+}
+
+/// [`CostMap::best`] of a list of distinct placements (in any order; those
+/// of cost +∞ are left out).
+pub fn best_of(mut all: Vec<Placement>, candidates: usize, tolerance: f64) -> Vec<Placement> {
+    all.retain(|p| p.cost.is_finite());
+    if candidates > 0 && candidates < all.len() {
+        all.select_nth_unstable_by(candidates - 1, Placement::order);
+        all.truncate(candidates);
+    }
+    all.sort_unstable_by(Placement::order);
+    if let Some(best) = all.first().map(|p| p.cost) {
+        let limit = near_limit(best, tolerance);
+        all.retain(|p| p.cost <= limit);
+    }
+    all
 }
 
 /// The near-minimal bound: cost ≤ best + tolerance · |best| (all when the
