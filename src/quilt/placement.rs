@@ -676,7 +676,14 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let (whole, _svd) = bricks(dir.path());
         let svd = SvdArtifact::open(whole.svd.container().path(), MemoryBudget::default()).unwrap();
-        let by_rect = Sample::from_svd(svd, MemoryBudget(0)).unwrap();
+        let mut by_rect = Sample::from_svd(svd, MemoryBudget(0)).unwrap();
+        by_rect.spill_beside(&dir.path().join("out.quilt"));
+        let spilled = || {
+            std::fs::read_dir(dir.path()).unwrap().flatten().any(|e| {
+                let f = e.file_name().to_string_lossy().into_owned();
+                f.starts_with(".out.quilt.coarse.") && f.ends_with(".scratch")
+            })
+        };
         for (r, rect) in [(0, (0, 0, 64, 64)), (5, (3, 7, 20, 33)), (41, (60, 0, 4, 64))] {
             let copy = whole.rotation(r).unwrap();
             let got = by_rect.rotation_rect(r, rect).unwrap();
@@ -690,11 +697,15 @@ mod tests {
                     &copy.0[at * whole.n..(at + w) * whole.n]
                 );
             }
-            assert_eq!(
-                by_rect.coarse_rotation(r, 3).unwrap(),
-                whole.coarse_rotation(r, 3).unwrap()
-            );
+            // made from bands, then read back from the scratch store
+            for _ in 0..2 {
+                assert_eq!(
+                    by_rect.coarse_rotation(r, 3).unwrap(),
+                    whole.coarse_rotation(r, 3).unwrap()
+                );
+            }
         }
+        assert!(spilled(), "the coarse copies are kept beside the output");
         let mut matcher = Matcher::new();
         for k in [0usize, 3, 70] {
             let work = work_showing(&whole, k);
@@ -705,6 +716,8 @@ mod tests {
             assert!(!a.is_empty() && a[0].cost < 1e-9, "{:?}", a.first());
         }
         assert_eq!(by_rect.rotated_cache().1, 0, "nothing held by the reading sample");
+        drop(by_rect);
+        assert!(!spilled(), "the scratch store goes with the sample");
     }
 
     /// A 24² work image whose left half is known and shows rotated copy

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 use super::coarse::Coarse;
 use super::matching::Image;
 use crate::artifact::svd::SvdArtifact;
-use crate::container::{BoundedCache, MemoryBudget};
+use crate::container::{BoundedCache, MemoryBudget, Scratch};
 use crate::factorize::FactorizeConfig;
 use crate::progress::Progress;
 use crate::{factorize, Error, Result};
@@ -36,6 +36,9 @@ pub(super) struct Sample {
     /// factor): factor 1 is the copy itself, f > 1 its f×f block means
     /// ([`Sample::coarse_rotation`]), [`MASK`] the foreground mask's copy.
     rotated: Mutex<BoundedCache<(usize, usize), Arc<RotatedCopy>>>,
+    /// Coarse copies made from a copy too large for the cache, kept on disk
+    /// ([`Sample::spill_beside`]) so that making one again is a read.
+    spill: Mutex<Spill>,
     /// The foreground mask m_P (`[y][x]`, 0..1), if painting or keeping the
     /// foreground out.
     pub(super) mask: Option<Vec<f32>>,
@@ -66,6 +69,7 @@ impl Sample {
             tileable,
             rotations,
             rotated: Mutex::new(BoundedCache::new(rotated_budget)),
+            spill: Mutex::new(Spill::default()),
             mask: None,
             structure: None,
             svd,
@@ -186,15 +190,40 @@ impl Sample {
         Ok((m, valid.iter().map(|&v| v as f32).collect()))
     }
 
+    /// Keeps the coarse copies made from rotated copies too large for their
+    /// cache in a scratch store beside `output` (made on the first one,
+    /// removed with the sample), so that one evicted is read back instead
+    /// of made again from the whole copy.
+    pub(super) fn spill_beside(&mut self, output: &Path) {
+        let name = output
+            .file_name()
+            .map_or("output".into(), |n| n.to_string_lossy());
+        self.spill.get_mut().unwrap_or_else(|e| e.into_inner()).beside =
+            Some(output.with_file_name(format!("{name}.coarse")));
+    }
+
     /// Rotated copy `r` box-averaged by `f` ([`Coarse`]): its maps and mean
     /// validity, `⌈width/f⌉ × ⌈height/f⌉`, made on first use from bands of
-    /// the copy ([`Sample::rotation_rect`]) a multiple of f rows high.
+    /// the copy ([`Sample::rotation_rect`]) a multiple of f rows high, or
+    /// read back from the scratch store ([`Sample::spill_beside`]).
     pub(super) fn coarse_rotation(&self, r: usize, f: usize) -> Result<Arc<RotatedCopy>> {
         if f == 1 {
             return self.rotation(r);
         }
         if let Some(copy) = crate::lock(&self.rotated).get(&(r, f)) {
             return Ok(Arc::clone(copy));
+        }
+        let (cw, ch) = (self.width.div_ceil(f), self.height.div_ceil(f));
+        let pixels = cw * ch;
+        if let Some(bytes) = crate::lock(&self.spill).get((r, f), pixels * (self.n + 1) * 4)? {
+            let values: Vec<f32> = bytes
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
+                .collect();
+            let (features, weight) = values.split_at(pixels * self.n);
+            let copy = Arc::new((features.to_vec(), weight.to_vec()));
+            crate::lock(&self.rotated).insert_if_fits((r, f), Arc::clone(&copy), (values.len() * 4) as u64);
+            return Ok(copy);
         }
         let band = f * 64usize.div_ceil(f);
         let (mut features, mut weight) = (Vec::new(), Vec::new());
@@ -213,7 +242,18 @@ impl Sample {
         }
         let copy = Arc::new((features, weight));
         let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
-        crate::lock(&self.rotated).insert_if_fits((r, f), Arc::clone(&copy), bytes);
+        let whole_bytes = (self.width * self.height * (self.n + 1) * 4) as u64;
+        let budget = {
+            let mut cache = crate::lock(&self.rotated);
+            cache.insert_if_fits((r, f), Arc::clone(&copy), bytes);
+            cache.budget()
+        };
+        // (made from rectangles: making it again would read the whole copy)
+        if whole_bytes > budget && self.structure.is_none() {
+            let values = copy.0.iter().chain(&copy.1).flat_map(|v| v.to_le_bytes());
+            // (the climb's factor and the match's: two per rotation)
+            crate::lock(&self.spill).put((r, f), &values.collect::<Vec<u8>>(), 2 * self.rotations)?;
+        }
         Ok(copy)
     }
 
@@ -271,6 +311,41 @@ impl Sample {
     /// sample's own seam scale, the unit of T_c.
     pub(super) fn neighbour_difference(&self) -> f64 {
         neighbour_difference(&self.maps, self.width, self.height, self.n)
+    }
+}
+
+/// The scratch store of [`Sample::spill_beside`]: where it goes, and once
+/// made, the store and its record key per (rotation, factor).
+#[derive(Default)]
+struct Spill {
+    beside: Option<PathBuf>,
+    store: Option<Scratch>,
+    keys: std::collections::HashMap<(usize, usize), usize>,
+}
+
+impl Spill {
+    /// The record of coarse copy `key`, `len` bytes, if it was stored.
+    fn get(&mut self, key: (usize, usize), len: usize) -> Result<Option<Vec<u8>>> {
+        match (self.keys.get(&key), &mut self.store) {
+            (Some(&k), Some(store)) => store.get(k, len).map(Some),
+            _ => Ok(None),
+        }
+    }
+
+    /// Stores coarse copy `key` (of at most `capacity` records: beyond it,
+    /// or without a place, nothing is stored).
+    fn put(&mut self, key: (usize, usize), bytes: &[u8], capacity: usize) -> Result<()> {
+        let Some(beside) = &self.beside else { return Ok(()) };
+        if self.keys.contains_key(&key) || self.keys.len() >= capacity {
+            return Ok(());
+        }
+        if self.store.is_none() {
+            self.store = Some(Scratch::create_beside(beside, capacity)?);
+        }
+        let k = self.keys.len();
+        self.store.as_mut().expect("made above").put(k, bytes)?;
+        self.keys.insert(key, k);
+        Ok(())
     }
 }
 

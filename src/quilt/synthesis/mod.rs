@@ -215,6 +215,7 @@ impl Synthesis {
         let [tiles, spectra, atlas, patches] = loop_budget.split(LOOP_SHARES);
         let rotated = MemoryBudget(tiles.bytes().max(1 << 20));
         let mut sample = Sample::from_svd(svd, rotated)?;
+        sample.spill_beside(output);
         let [surface_budget, state_budget] = atlas.split([8, 11]);
         // only seam refinement by structure and locked courses read the
         // courses; locked, both read the original sample's
