@@ -154,19 +154,16 @@ impl Sample {
     }
 
     /// The rectangle `(x, y, w, h)` of rotated copy `r` (maps, validity):
-    /// cut from the whole copy if its cache holds it or can hold it (or the
-    /// structure channel is on: it is turned whole), read from the `.svd`
-    /// chunk by chunk otherwise, so that a copy larger than its cache's
-    /// share is never held whole.
+    /// cut from the whole copy if its cache holds it (or the structure
+    /// channel is on: it is turned whole), read from the `.svd` chunk by
+    /// chunk otherwise. Coarse-to-fine matching reads only rectangles, so it
+    /// holds no whole copy: a large sample's copies, a few to a cache's
+    /// share, were each decoded again whenever a patch turned to it.
     pub(super) fn rotation_rect(&self, r: usize, rect: (usize, usize, usize, usize)) -> Result<RotatedCopy> {
-        let whole_bytes = (self.width * self.height * (self.n + 1) * 4) as u64;
-        let (cached, budget) = {
-            let mut cache = crate::lock(&self.rotated);
-            (cache.get(&(r, 1)).cloned(), cache.budget())
-        };
+        let cached = crate::lock(&self.rotated).get(&(r, 1)).cloned();
         let whole = match cached {
             Some(copy) => Some(copy),
-            None if self.structure.is_some() || whole_bytes <= budget => Some(self.rotation(r)?),
+            None if self.structure.is_some() => Some(self.rotation(r)?),
             None => None,
         };
         if let Some(copy) = whole {
