@@ -39,6 +39,9 @@ pub(super) struct Sample {
     /// Coarse copies made from a copy too large for the cache, kept on disk
     /// ([`Sample::spill_beside`]) so that making one again is a read.
     spill: Mutex<Spill>,
+    /// Matched coarse to fine: no whole rotated copy is loaded
+    /// ([`Sample::read_by_rectangles`]).
+    by_rectangles: bool,
     /// The foreground mask m_P (`[y][x]`, 0..1), if painting or keeping the
     /// foreground out.
     pub(super) mask: Option<Vec<f32>>,
@@ -70,6 +73,7 @@ impl Sample {
             rotations,
             rotated: Mutex::new(BoundedCache::new(rotated_budget)),
             spill: Mutex::new(Spill::default()),
+            by_rectangles: false,
             mask: None,
             structure: None,
             svd,
@@ -154,16 +158,19 @@ impl Sample {
     }
 
     /// The rectangle `(x, y, w, h)` of rotated copy `r` (maps, validity):
-    /// cut from the whole copy if its cache holds it (or the structure
-    /// channel is on: it is turned whole), read from the `.svd` chunk by
-    /// chunk otherwise. Coarse-to-fine matching reads only rectangles, so it
-    /// holds no whole copy: a large sample's copies, a few to a cache's
-    /// share, were each decoded again whenever a patch turned to it.
+    /// cut from the whole copy if its cache holds it, or loads it there
+    /// first if the sample is matched at full resolution and the copy fits
+    /// (or the structure channel is on: it is turned whole); read from the
+    /// `.svd` chunk by chunk otherwise. A sample matched coarse to fine
+    /// ([`Sample::read_by_rectangles`]) so holds no whole copy.
     pub(super) fn rotation_rect(&self, r: usize, rect: (usize, usize, usize, usize)) -> Result<RotatedCopy> {
-        let cached = crate::lock(&self.rotated).get(&(r, 1)).cloned();
+        let (cached, fits) = {
+            let mut cache = crate::lock(&self.rotated);
+            (cache.get(&(r, 1)).cloned(), self.whole_bytes() <= cache.budget())
+        };
         let whole = match cached {
             Some(copy) => Some(copy),
-            None if self.structure.is_some() => Some(self.rotation(r)?),
+            None if self.structure.is_some() || (fits && !self.by_rectangles) => Some(self.rotation(r)?),
             None => None,
         };
         if let Some(copy) = whole {
@@ -187,10 +194,25 @@ impl Sample {
         Ok((m, valid.iter().map(|&v| v as f32).collect()))
     }
 
-    /// Keeps the coarse copies made from rotated copies too large for their
-    /// cache in a scratch store beside `output` (made on the first one,
-    /// removed with the sample), so that one evicted is read back instead
-    /// of made again from the whole copy.
+    /// Bytes of one whole rotated copy as f32 (maps and validity).
+    fn whole_bytes(&self) -> u64 {
+        (self.width * self.height * (self.n + 1) * 4) as u64
+    }
+
+    /// The sample is matched coarse to fine: its rotated copies are read
+    /// by rectangles ([`Sample::rotation_rect`]), and the coarse copies made
+    /// from them are kept in the scratch store ([`Sample::spill_beside`]).
+    /// A rotated copy loaded whole stays a few to a cache's share, and a
+    /// patch turned to a rotation the cache had let go decoded it again.
+    pub(super) fn read_by_rectangles(&mut self) {
+        self.by_rectangles = true;
+    }
+
+    /// Keeps the coarse copies made from rectangles in a scratch store
+    /// beside `output` (made on the first one, removed with the sample), so
+    /// that one evicted is read back instead of made again from the whole
+    /// copy: those of a sample read by rectangles, and those of a copy too
+    /// large for its cache.
     pub(super) fn spill_beside(&mut self, output: &Path) {
         let name = output
             .file_name()
@@ -239,14 +261,13 @@ impl Sample {
         }
         let copy = Arc::new((features, weight));
         let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
-        let whole_bytes = (self.width * self.height * (self.n + 1) * 4) as u64;
         let budget = {
             let mut cache = crate::lock(&self.rotated);
             cache.insert_if_fits((r, f), Arc::clone(&copy), bytes);
             cache.budget()
         };
         // (made from rectangles: making it again would read the whole copy)
-        if whole_bytes > budget && self.structure.is_none() {
+        if (self.by_rectangles || self.whole_bytes() > budget) && self.structure.is_none() {
             let values = copy.0.iter().chain(&copy.1).flat_map(|v| v.to_le_bytes());
             // (the climb's factor and the match's: two per rotation)
             crate::lock(&self.spill).put((r, f), &values.collect::<Vec<u8>>(), 2 * self.rotations)?;

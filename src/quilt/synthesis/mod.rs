@@ -216,6 +216,9 @@ impl Synthesis {
         let rotated = MemoryBudget(tiles.bytes().max(1 << 20));
         let mut sample = Sample::from_svd(svd, rotated)?;
         sample.spill_beside(output);
+        if super::coarse::factor(sample.width.max(sample.height), cfg.coarse_above) > 1 {
+            sample.read_by_rectangles();
+        }
         let [surface_budget, state_budget] = atlas.split([8, 11]);
         // only seam refinement by structure and locked courses read the
         // courses; locked, both read the original sample's
