@@ -36,7 +36,7 @@ pub(super) struct Sample {
     /// factor): factor 1 is the copy itself, f > 1 its f×f block means
     /// ([`Sample::coarse_rotation`]), [`MASK`] the foreground mask's copy.
     rotated: Mutex<BoundedCache<(usize, usize), Arc<RotatedCopy>>>,
-    /// Coarse copies made from a copy too large for the cache, kept on disk
+    /// Coarse copies made from rectangles of the copies, kept on disk
     /// ([`Sample::spill_beside`]) so that making one again is a read.
     spill: Mutex<Spill>,
     /// Matched coarse to fine: no whole rotated copy is loaded
@@ -114,6 +114,7 @@ impl Sample {
         self.n = n + 1;
         self.structure = Some(channel);
         crate::lock(&self.rotated).clear();
+        crate::lock(&self.spill).keys.clear();
     }
 
     /// Empties the rotated copies' cache.
@@ -202,8 +203,9 @@ impl Sample {
     /// The sample is matched coarse to fine: its rotated copies are read
     /// by rectangles ([`Sample::rotation_rect`]), and the coarse copies made
     /// from them are kept in the scratch store ([`Sample::spill_beside`]).
-    /// A rotated copy loaded whole stays a few to a cache's share, and a
-    /// patch turned to a rotation the cache had let go decoded it again.
+    /// (Loaded whole, a large sample's copies fit only a few to a cache's
+    /// share, and a patch turned to one the cache has let go would decode
+    /// it again.)
     pub(super) fn read_by_rectangles(&mut self) {
         self.by_rectangles = true;
     }

@@ -3,8 +3,8 @@
 
 use btfquilt::factorize::rotate_maps;
 use btfquilt::quilt::matching::{
-    brute_force_cost, brute_force_map, choose, direct_costs, placement_range, valid_to_f32, CostMap, Image,
-    MatchConfig, Matcher, Placement, Sample, Span, Work,
+    brute_force_cost, brute_force_map, choose, direct_costs, direct_costs_in, footprint, known_box,
+    placement_range, valid_to_f32, CostMap, Image, MatchConfig, Matcher, Placement, Sample, Span, Work,
 };
 
 /// splitmix64 stream → uniform [0, 1).
@@ -203,6 +203,29 @@ fn direct_costs_equal_brute_force() {
             }
         }
         assert!(bf.cost.iter().any(|c| c.is_finite()), "case {k}");
+        // against only the sample pixels a run of placements reads (their
+        // footprint, cut out with its constraint): the same costs bit for bit
+        let known_box = known_box(&work);
+        let max_valid = valid.iter().fold(0.0f64, |a, &v| a.max(v as f64));
+        for run in at.chunks(7) {
+            let (fx, fy, fw, fh) = footprint(known_box, run, [sw, sh]);
+            let cut = |data: &[f32], c: usize| -> Vec<f32> {
+                (fy..fy + fh)
+                    .flat_map(|y| &data[(y * sw + fx) * c..(y * sw + fx + fw) * c])
+                    .copied()
+                    .collect()
+            };
+            let (wmaps, wvalid, wcons) = (cut(&sdata, n), cut(&valid, 1), cut(&sc, nc));
+            let window = Sample {
+                image: img(fw, fh, n, &wmaps),
+                valid: &wvalid,
+                constraint: (nc > 0).then(|| img(fw, fh, nc, &wcons)),
+                key: 99,
+            };
+            let windowed = direct_costs_in(&work, &window, [fx, fy], max_valid, &cfg, run).unwrap();
+            let whole = direct_costs(&work, &sample, &cfg, run).unwrap();
+            assert_eq!(windowed, whole, "case {k}, window {fx},{fy} {fw}×{fh}");
+        }
     }
 }
 

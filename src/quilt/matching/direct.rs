@@ -222,9 +222,7 @@ pub fn direct_costs_in(
         .collect();
     let at_origin: Vec<i64> = xy.iter().map(|&[x, y]| y * si.width as i64 + x).collect();
     // the known pixels' bounding box, to tell placements wholly inside
-    let [x0, y0, x1, y1] = xy.iter().fold([i64::MAX, i64::MAX, 0, 0], |b, &[x, y]| {
-        [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)]
-    });
+    let bbox = known_box(work);
     let mass: f64 = work.known.iter().map(|&m| m as f64).sum();
     let tol = 1e-9 * mass * max_valid;
     let w = if work.constraint.is_some() {
@@ -244,11 +242,12 @@ pub fn direct_costs_in(
         let mut shift = [0i64; DIRECT_GROUP];
         for (j, &(dx, dy)) in group.iter().enumerate() {
             // (x1 − dx ≥ x0 − dx ≥ 0 once the first two hold)
-            inside[j] = !known.is_empty()
-                && x0 - dx as i64 >= 0
-                && y0 - dy as i64 >= 0
-                && x1 - (dx as i64) < si.width as i64
-                && y1 - (dy as i64) < si.height as i64;
+            inside[j] = bbox.is_some_and(|[x0, y0, x1, y1]| {
+                x0 - dx as i64 >= 0
+                    && y0 - dy as i64 >= 0
+                    && x1 - (dx as i64) < si.width as i64
+                    && y1 - (dy as i64) < si.height as i64
+            });
             shift[j] = dy as i64 * si.width as i64 + dx as i64;
         }
         // colour samples (three channels) get the sum unrolled

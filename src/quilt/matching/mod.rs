@@ -238,42 +238,6 @@ impl CostMap {
         Some((self.cost[i], self.overlap[i]))
     }
 
-    /// The map over the bounding box of `placements`, +∞ (overlap 0) where
-    /// none is given; empty without placements.
-    pub fn from_placements(placements: &[Placement]) -> CostMap {
-        if placements.is_empty() {
-            return CostMap {
-                dx0: 0,
-                dy0: 0,
-                columns: 0,
-                rows: 0,
-                cost: Vec::new(),
-                overlap: Vec::new(),
-            };
-        }
-        let (x0, x1) = placements
-            .iter()
-            .fold((i32::MAX, i32::MIN), |a, p| (a.0.min(p.dx), a.1.max(p.dx)));
-        let (y0, y1) = placements
-            .iter()
-            .fold((i32::MAX, i32::MIN), |a, p| (a.0.min(p.dy), a.1.max(p.dy)));
-        let (columns, rows) = ((x1 - x0 + 1) as usize, (y1 - y0 + 1) as usize);
-        let mut map = CostMap {
-            dx0: x0,
-            dy0: y0,
-            columns,
-            rows,
-            cost: vec![f64::INFINITY; columns * rows],
-            overlap: vec![0.0; columns * rows],
-        };
-        for p in placements {
-            let i = (p.dy - y0) as usize * columns + (p.dx - x0) as usize;
-            map.cost[i] = p.cost;
-            map.overlap[i] = p.overlap;
-        }
-        map
-    }
-
     /// All placements with a finite cost, unordered.
     pub fn placements(&self) -> impl Iterator<Item = Placement> + '_ {
         (0..self.rows * self.columns)
