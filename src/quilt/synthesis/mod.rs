@@ -200,8 +200,9 @@ impl Synthesis {
         // f32, the sample spectra of the matcher, the paged atlas (surface
         // and state tiles) and the work patches in flight; the .svd's
         // decoded tiles are only passed through (the loop reads the maps
-        // whole, and each rotated copy whole or, when its cache cannot
-        // hold it, by the rectangles matching costs), so its cache is 2 MiB
+        // whole, and each rotated copy whole when matching at full
+        // resolution, by the rectangles it costs when coarse to fine), so
+        // its cache is 2 MiB
         let svd = SvdArtifact::open(&sized.svd, MemoryBudget(2 << 20))?;
         if matching && svd.rotations == 0 {
             return Err(Error::input(
