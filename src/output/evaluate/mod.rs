@@ -291,7 +291,10 @@ pub fn evaluate_with(
         }
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    let mut sorted = seam.clone();
+    // (the sums in the steps' own order first; then sorted in place)
+    let seam_mean = mean(&seam);
+    let inside_mean = seam.iter().fold(inner_sum, |a, &d| a + d) / (inner_count + seam.len()).max(1) as f64;
+    let mut sorted = seam;
     sorted.sort_by(f64::total_cmp);
     let pct = |p: f64| {
         sorted
@@ -301,7 +304,6 @@ pub fn evaluate_with(
     };
     let zip = zipper.differences(&links);
     let inner_mean = inner_sum / inner_count.max(1) as f64;
-    let inside_mean = seam.iter().fold(inner_sum, |a, &d| a + d) / (inner_count + seam.len()).max(1) as f64;
     let zipper_ratio = mean(&zip) / inside_mean.max(1e-12) + 0.0;
     let steps = match quilt.container().metadata().param("rotations") {
         Some(crate::container::Param::Int(v)) if *v > 0 => *v as usize,
@@ -310,7 +312,7 @@ pub fn evaluate_with(
     let mut coherence = windows.coherence(&previews, steps);
     coherence.sort_by(f64::total_cmp);
     let p95 = super::compare::nearest_rank(&coherence, 0.95);
-    let seams_fraction = seam.len() as f64 / (seam.len() + inner_count).max(1) as f64;
+    let seams_fraction = sorted.len() as f64 / (sorted.len() + inner_count).max(1) as f64;
     let width = previews.first().map_or(0, |p| p.width);
     let scale = scale(&quilt, &gim, width)?;
     let continuation = continuation.figures(&previews, texels);
@@ -329,14 +331,14 @@ pub fn evaluate_with(
         patches: patch_ids.len(),
         painting: painting.map(|p| p.figures()),
         seam: SeamFigures {
-            edges: seam.len(),
+            edges: sorted.len(),
             fraction_of_edges: seams_fraction,
-            mean_colour_difference: mean(&seam),
+            mean_colour_difference: seam_mean,
             median: pct(0.5),
             p95: pct(0.95),
             max: pct(1.0),
             inside_patches_mean: inner_mean,
-            ratio_to_inside: mean(&seam) / inner_mean.max(1e-12),
+            ratio_to_inside: seam_mean / inner_mean.max(1e-12),
         },
         continuation,
         zipper: ZipperFigures {
