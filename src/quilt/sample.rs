@@ -141,9 +141,7 @@ impl Sample {
             return Ok(Arc::clone(copy));
         }
         let copy = {
-            let (maps, valid) = self.svd.rotated(r)?;
-            let mut m = vec![0f32; maps.len()];
-            half::slice::HalfFloatSliceExt::convert_to_f32_slice(&maps[..], &mut m);
+            let (mut m, valid) = self.stored_rect(r, (0, 0, self.width, self.height))?;
             if let Some(channel) = &self.structure {
                 // turned like the stored copies (factorize's rotate_maps)
                 let degrees = r as f64 * 360.0 / self.rotations as f64;
@@ -151,7 +149,7 @@ impl Sample {
                     factorize::rotate_maps(channel, self.width, self.height, 1, degrees, self.tileable);
                 m = interleave(&m, self.n - 1, &turned);
             }
-            Arc::new((m, valid.iter().map(|&v| v as f32).collect::<Vec<f32>>()))
+            Arc::new((m, valid))
         };
         let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
         crate::lock(&self.rotated).insert_if_fits((r, 1), Arc::clone(&copy), bytes);
@@ -189,6 +187,12 @@ impl Sample {
             let window = super::coarse::cut(&whole)(rect)?;
             return Ok((window.maps, window.valid));
         }
+        self.stored_rect(r, rect)
+    }
+
+    /// The rectangle `(x, y, w, h)` of rotated copy `r` as the `.svd` stores
+    /// it (without the structure channel), in f32.
+    fn stored_rect(&self, r: usize, rect: (usize, usize, usize, usize)) -> Result<RotatedCopy> {
         let (maps, valid) = self.svd.rotated_rect(r, rect)?;
         let mut m = vec![0f32; maps.len()];
         half::slice::HalfFloatSliceExt::convert_to_f32_slice(&maps[..], &mut m);
