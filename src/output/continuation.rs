@@ -14,6 +14,7 @@ use crate::artifact::gim::EMPTY;
 use crate::io::imageio::{self, RgbImage};
 use crate::math;
 use crate::output::band::{diff, rgb_distance, ColourBand};
+use crate::output::ranks::{self, Ranked};
 use crate::quilt::NO_PATCH;
 
 /// A sample step longer than this (sample pixels) between two grid
@@ -52,75 +53,94 @@ pub struct ContinuationFigures {
 
 /// The continuation of features across seams, gathered band by band
 /// ([`Continuation::gather`]) in [`super::evaluate`]'s pass over the atlas.
-#[derive(Default)]
 pub(super) struct Continuation {
-    /// Each continuation across a seam edge.
-    seam: Vec<f64>,
-    /// The exposure of the face each of those lands on.
-    seen: Vec<f32>,
+    /// Each continuation across a seam edge (for its 95th percentile).
+    pub(super) seam: Ranked,
+    /// The sample's edge strength ([`ContinuationFigures::sample_edge`]).
+    sample_edge: f64,
+    /// Continuations across seam edges beyond `sample_edge`, and the
+    /// exposure of the faces they land on summed in their order.
+    broken: usize,
+    broken_seen: f64,
     /// Continuations inside patches, summed in the order a list would sum them.
     inner_sum: f64,
     inner_count: usize,
 }
 
 impl Continuation {
-    /// The continuations of the band's own rows: each grid edge from an own
-    /// texel to its right and lower neighbours, each way (the band holds
-    /// one row above its own and two below). `exposure` is per mesh face.
-    pub(super) fn gather(&mut self, b: &ColourBand, previews: &[RgbImage], exposure: &[f32], r: usize) {
-        let rows = b.covered.len() / r;
-        for s in b.own_texels() {
-            let (x, ys) = (s % r, s / r);
-            for (dx, dy) in [(1usize, 0usize), (0, 1)] {
-                let (xt, yt) = (x + dx, ys + dy);
-                if xt >= r || yt >= rows {
-                    continue;
-                }
-                let t = yt * r + xt;
-                let d = dx + dy * r;
-                if !same_surface(b, s, t) {
-                    continue;
-                }
-                let behind_s = (x >= dx && ys >= dy).then(|| s - d);
-                let beyond_t = (xt + dx < r && yt + dy < rows).then(|| t + d);
-                for (from, behind, to) in [(s, behind_s, t), (t, beyond_t, s)] {
-                    let Some(e) = behind.and_then(|k| continued(b, previews, from, k, to)) else {
-                        continue;
-                    };
-                    if b.patch[s] != b.patch[t] {
-                        self.seam.push(e);
-                        self.seen
-                            .push(exposure.get(b.face[to] as usize).copied().unwrap_or(1.0));
-                    } else {
-                        self.inner_sum += e;
-                        self.inner_count += 1;
-                    }
-                }
-            }
+    /// Keeps at most `seam_bytes` of continuations across seams
+    /// ([`Ranked`]); `previews` give the sample's edge strength.
+    pub(super) fn new(previews: &[RgbImage], seam_bytes: u64) -> Continuation {
+        Continuation {
+            seam: Ranked::within(seam_bytes),
+            sample_edge: previews.first().map_or(0.0, edge_strength),
+            broken: 0,
+            broken_seen: 0.0,
+            inner_sum: 0.0,
+            inner_count: 0,
         }
     }
 
-    /// The figures, over `texels` covered texels.
-    pub(super) fn figures(mut self, previews: &[RgbImage], texels: usize) -> ContinuationFigures {
-        let sample_edge = previews.first().map_or(0.0, edge_strength);
-        let seam = &mut self.seam;
-        let broken = seam.iter().filter(|&&e| e > sample_edge).count();
-        let broken_seen: f64 = seam
-            .iter()
-            .zip(&self.seen)
-            .filter(|&(&e, _)| e > sample_edge)
-            .fold(0.0, |a, (_, &x)| a + x as f64);
-        let mean = seam.iter().sum::<f64>() / seam.len().max(1) as f64;
-        seam.sort_by(f64::total_cmp);
+    /// The continuations of the band's own rows ([`each`]); `exposure` is
+    /// per mesh face.
+    pub(super) fn gather(&mut self, b: &ColourBand, previews: &[RgbImage], exposure: &[f32], r: usize) {
+        each(b, previews, r, |across, e, to| {
+            if across {
+                self.seam.push(e);
+                if e > self.sample_edge {
+                    self.broken += 1;
+                    self.broken_seen += exposure.get(b.face[to] as usize).copied().unwrap_or(1.0) as f64;
+                }
+            } else {
+                self.inner_sum += e;
+                self.inner_count += 1;
+            }
+        });
+    }
+
+    /// The figures, over `texels` covered texels; `p95` is the 95th
+    /// percentile (nearest rank, [`super::ranks::nearest_rank_index`]) of
+    /// the continuations across seams.
+    pub(super) fn figures(&self, p95: f64, texels: usize) -> ContinuationFigures {
+        let n = self.seam.len();
         ContinuationFigures {
-            continuations: seam.len(),
-            mean,
-            p95: super::compare::nearest_rank(seam, 0.95),
+            continuations: n,
+            mean: self.seam.mean(),
+            p95,
             inside_patches_mean: self.inner_sum / self.inner_count.max(1) as f64,
-            sample_edge,
-            broken: broken as f64 / seam.len().max(1) as f64,
-            broken_per_1000_texels: 1000.0 * broken as f64 / texels.max(1) as f64,
-            broken_seen_per_1000_texels: 1000.0 * broken_seen / texels.max(1) as f64,
+            sample_edge: self.sample_edge,
+            broken: self.broken as f64 / n.max(1) as f64,
+            broken_per_1000_texels: 1000.0 * self.broken as f64 / texels.max(1) as f64,
+            broken_seen_per_1000_texels: 1000.0 * self.broken_seen / texels.max(1) as f64,
+        }
+    }
+}
+
+/// Calls `f(across a seam, distance, texel continued into)` for each
+/// continuation of the band's own rows: each grid edge from an own texel
+/// to its right and lower neighbours, each way (the band holds one row
+/// above its own and two below), in atlas order.
+pub(super) fn each(b: &ColourBand, previews: &[RgbImage], r: usize, mut f: impl FnMut(bool, f64, usize)) {
+    let rows = b.covered.len() / r;
+    for s in b.own_texels() {
+        let (x, ys) = (s % r, s / r);
+        for (dx, dy) in [(1usize, 0usize), (0, 1)] {
+            let (xt, yt) = (x + dx, ys + dy);
+            if xt >= r || yt >= rows {
+                continue;
+            }
+            let t = yt * r + xt;
+            let d = dx + dy * r;
+            if !same_surface(b, s, t) {
+                continue;
+            }
+            let behind_s = (x >= dx && ys >= dy).then(|| s - d);
+            let beyond_t = (xt + dx < r && yt + dy < rows).then(|| t + d);
+            for (from, behind, to) in [(s, behind_s, t), (t, beyond_t, s)] {
+                if let Some(e) = behind.and_then(|k| continued(b, previews, from, k, to)) {
+                    f(b.patch[s] != b.patch[t], e, to);
+                }
+            }
         }
     }
 }
@@ -155,21 +175,28 @@ fn continued(band: &ColourBand, previews: &[RgbImage], from: usize, behind: usiz
 }
 
 /// The 95th percentile (nearest rank) of an image's RGB differences
-/// between 4-neighbours.
+/// between 4-neighbours, holding at most [`ranks::COLLECT`] of them.
 fn edge_strength(img: &RgbImage) -> f64 {
     let (w, h) = (img.width, img.height);
-    let mut steps = Vec::with_capacity(2 * w * h);
-    for y in 0..h {
-        for x in 0..w {
-            let i = y * w + x;
-            if x + 1 < w {
-                steps.push(diff(&img.data, i, i + 1));
-            }
-            if y + 1 < h {
-                steps.push(diff(&img.data, i, i + w));
+    let steps = |f: &mut dyn FnMut(f64)| {
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                if x + 1 < w {
+                    f(diff(&img.data, i, i + 1));
+                }
+                if y + 1 < h {
+                    f(diff(&img.data, i, i + w));
+                }
             }
         }
-    }
-    steps.sort_by(f64::total_cmp);
-    super::compare::nearest_rank(&steps, 0.95)
+    };
+    let mut lists = [Ranked::new(ranks::COLLECT)];
+    steps(&mut |v| lists[0].push(v));
+    let k = ranks::nearest_rank_index(lists[0].len(), 0.95);
+    let found = ranks::at_ranks(&mut [&mut lists[0]], &[(0, k)], |f| {
+        steps(&mut |v| f(0, v));
+        Ok(())
+    });
+    found.map_or(0.0, |v| v[0])
 }

@@ -12,6 +12,7 @@ pub mod continuation;
 pub mod courses;
 pub mod evaluate;
 pub mod export;
+mod ranks;
 pub mod render;
 pub mod show;
 pub(crate) mod texels;

@@ -468,6 +468,13 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
     let position: Vec<f32> = gim.read("position").unwrap();
     let r = 256;
     let (mut seam_edges, mut scale_edges) = (0, 0);
+    let rgb = |a: usize, b: usize| {
+        (0..3)
+            .map(|k| ((whole.data[a * 3 + k] - whole.data[b * 3 + k]) as f64).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let mut seam_steps = Vec::new();
     for t in 0..r * r {
         for n in [(t % r + 1 < r).then(|| t + 1), (t / r + 1 < r).then(|| t + r)]
             .into_iter()
@@ -475,6 +482,9 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
         {
             if chart[t] != EMPTY && chart[n] == chart[t] && covered[t] && covered[n] {
                 seam_edges += (patch[n] != patch[t]) as usize;
+                if patch[n] != patch[t] {
+                    seam_steps.push(rgb(t, n));
+                }
                 let apart = (0..3).any(|k| position[t * 3 + k] != position[n * 3 + k]);
                 scale_edges += (patch[n] == patch[t] && apart) as usize;
             }
@@ -499,6 +509,14 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
     assert!(links > 0 && seam_edges > 0);
     assert_eq!(small.scale.edges, scale_edges);
     assert_eq!(small.coherence.windows, 200);
+    // percentiles of the seam steps: at 1 MiB the report keeps none of
+    // them and selects by reading the bands again; the same values
+    seam_steps.sort_by(f64::total_cmp);
+    let at = |p: f64| seam_steps[((seam_steps.len() as f64 - 1.0) * p).round() as usize];
+    assert_eq!(
+        (small.seam.median, small.seam.p95, small.seam.max),
+        (at(0.5), at(0.95), at(1.0))
+    );
     // continuation, the oracle over the whole atlas: at each seam edge,
     // each side whose patch holds the texel behind it, that patch's sample
     // continued one texel across against the other side's colour
@@ -545,6 +563,9 @@ fn bake_and_evaluate_in_bands_equal_the_whole_atlas() {
     }
     let c = &small.continuation;
     assert_eq!(c.continuations, seam_continuations.len());
+    let mut sorted = seam_continuations.clone();
+    sorted.sort_by(f64::total_cmp);
+    assert_eq!(c.p95, sorted[(0.95 * sorted.len() as f64).ceil() as usize - 1]);
     let mean = seam_continuations.iter().sum::<f64>() / seam_continuations.len() as f64;
     assert!((c.mean - mean).abs() < 1e-9, "{} vs {mean}", c.mean);
     let inside_mean = inside.iter().sum::<f64>() / inside.len() as f64;

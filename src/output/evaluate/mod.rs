@@ -33,6 +33,7 @@ use crate::math;
 use crate::output::band::{diff, ColourBand};
 use crate::output::continuation::{Continuation, ContinuationFigures};
 use crate::output::courses::{CourseCount, CourseFigures};
+use crate::output::ranks::{self, Ranked};
 use crate::output::{open_samples, OpenSample, BAND_ROWS};
 use crate::quilt::{Quilt, NO_PATCH};
 use crate::Result;
@@ -228,11 +229,14 @@ pub fn evaluate_with(
     let mut painting = Painting::open(&quilt, &samples)?;
     let mut patch_ids = std::collections::HashSet::new();
     let mut texels = 0usize;
-    // seam steps are kept (their percentiles are reported); steps inside
-    // patches only summed, in the order a list would sum them
-    let mut seam = Vec::new();
+    // seam steps and continuations are kept as far as the work share
+    // leaves room (their percentiles are reported; past it the bands are
+    // read again, [`ranks`]); steps inside patches only summed, in the
+    // order a list would sum them
+    let lists = work.0.saturating_sub(windows.bytes() + zipper.bytes()) / 2;
+    let mut seam = Ranked::within(lists);
     let (mut inner_sum, mut inner_count) = (0f64, 0usize);
-    let mut continuation = Continuation::default();
+    let mut continuation = Continuation::new(&previews, lists);
     // mesh units one pixel of each sample spans
     let span = |k: usize| match quilt.sample_span(k) {
         Some(units) => units / previews[k].width as f64,
@@ -242,12 +246,12 @@ pub fn evaluate_with(
     let mut course_count = CourseCount::default();
     let mesh = gim.mesh()?;
     let exposure = crate::mesh::exposure::face_exposure(&mesh);
-    for y0 in (0..r).step_by(BAND_ROWS) {
+    let band = |y0: usize| {
         let y1 = (y0 + BAND_ROWS).min(r);
         // one row above and two below the band's own: a vertical seam edge
         // from the band's first row continues from the row above, one
         // from its last row two rows down
-        let b = ColourBand::read(
+        ColourBand::read(
             &quilt,
             &gim,
             &previews,
@@ -255,30 +259,24 @@ pub fn evaluate_with(
             y0,
             y1,
             (y1 + 2).min(r),
-        )?;
+        )
+    };
+    for y0 in (0..r).step_by(BAND_ROWS) {
+        let b = band(y0)?;
         for t in b.own_texels() {
-            let (x, y) = (t % r, b.y0 + t / r);
             texels += b.covered[t] as usize;
             if b.patch[t] != NO_PATCH {
                 patch_ids.insert(b.patch[t]);
             }
-            if b.chart[t] == EMPTY || !b.covered[t] {
-                continue;
-            }
-            for n in [(x + 1 < r).then(|| t + 1), (y + 1 < r).then(|| t + r)]
-                .into_iter()
-                .flatten()
-            {
-                if b.chart[n] == b.chart[t] && b.covered[n] {
-                    if b.patch[n] != b.patch[t] {
-                        seam.push(diff(&b.colour, t, n));
-                    } else {
-                        inner_sum += diff(&b.colour, t, n);
-                        inner_count += 1;
-                    }
-                }
-            }
         }
+        grid_steps(&b, r, |across, d| {
+            if across {
+                seam.push(d);
+            } else {
+                inner_sum += d;
+                inner_count += 1;
+            }
+        });
         zipper.gather(&b, r);
         windows.gather(&b, r);
         continuation.gather(&b, &previews, &exposure, r);
@@ -290,18 +288,38 @@ pub fn evaluate_with(
             p.count(&quilt, &b, r)?;
         }
     }
+    // the seam steps summed after the steps inside patches, in their order
+    // (read again with the bands if they were not all kept)
+    let mut inside_sum = seam.kept().map(|k| k.iter().fold(inner_sum, |a, &d| a + d));
+    let (edges, seam_mean) = (seam.len(), seam.mean());
+    let q = |p: f64| ((edges as f64 - 1.0) * p).round() as usize;
+    let wanted = [
+        (0, q(0.5)),
+        (0, q(0.95)),
+        (0, q(1.0)),
+        (1, ranks::nearest_rank_index(continuation.seam.len(), 0.95)),
+    ];
+    let found = ranks::at_ranks(&mut [&mut seam, &mut continuation.seam], &wanted, |f| {
+        let mut sum = inner_sum;
+        for y0 in (0..r).step_by(BAND_ROWS) {
+            let b = band(y0)?;
+            grid_steps(&b, r, |across, d| {
+                if across {
+                    sum += d;
+                    f(0, d);
+                }
+            });
+            crate::output::continuation::each(&b, &previews, r, |across, e, _| {
+                if across {
+                    f(1, e)
+                }
+            });
+        }
+        inside_sum.get_or_insert(sum);
+        Ok(())
+    })?;
+    let inside_mean = inside_sum.unwrap_or(inner_sum) / (inner_count + edges).max(1) as f64;
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    // (the sums in the steps' own order first; then sorted in place)
-    let seam_mean = mean(&seam);
-    let inside_mean = seam.iter().fold(inner_sum, |a, &d| a + d) / (inner_count + seam.len()).max(1) as f64;
-    let mut sorted = seam;
-    sorted.sort_by(f64::total_cmp);
-    let pct = |p: f64| {
-        sorted
-            .get(((sorted.len() as f64 - 1.0) * p).round() as usize)
-            .copied()
-            .unwrap_or(0.0)
-    };
     let zip = zipper.differences(&links);
     let inner_mean = inner_sum / inner_count.max(1) as f64;
     let zipper_ratio = mean(&zip) / inside_mean.max(1e-12) + 0.0;
@@ -312,10 +330,10 @@ pub fn evaluate_with(
     let mut coherence = windows.coherence(&previews, steps);
     coherence.sort_by(f64::total_cmp);
     let p95 = super::compare::nearest_rank(&coherence, 0.95);
-    let seams_fraction = sorted.len() as f64 / (sorted.len() + inner_count).max(1) as f64;
+    let seams_fraction = edges as f64 / (edges + inner_count).max(1) as f64;
     let width = previews.first().map_or(0, |p| p.width);
     let scale = scale(&quilt, &gim, width)?;
-    let continuation = continuation.figures(&previews, texels);
+    let continuation = continuation.figures(found[3], texels);
     let courses = match courses.as_ref().and_then(|c| c[0].as_ref()) {
         Some(c) if cfg.forced_ends && scale.sample_pixels_per_unit > 0.0 => {
             let field = gim.face_field()?;
@@ -331,12 +349,12 @@ pub fn evaluate_with(
         patches: patch_ids.len(),
         painting: painting.map(|p| p.figures()),
         seam: SeamFigures {
-            edges: sorted.len(),
+            edges,
             fraction_of_edges: seams_fraction,
             mean_colour_difference: seam_mean,
-            median: pct(0.5),
-            p95: pct(0.95),
-            max: pct(1.0),
+            median: found[0],
+            p95: found[1],
+            max: found[2],
             inside_patches_mean: inner_mean,
             ratio_to_inside: seam_mean / inner_mean.max(1e-12),
         },
@@ -360,6 +378,26 @@ pub fn evaluate_with(
         scale,
         courses,
     })
+}
+
+/// Calls `f(across a seam, colour step)` for each grid edge from an own
+/// texel of the band to its right and lower neighbour inside one chart,
+/// both covered, in atlas order.
+fn grid_steps(b: &ColourBand, r: usize, mut f: impl FnMut(bool, f64)) {
+    for t in b.own_texels() {
+        let (x, y) = (t % r, b.y0 + t / r);
+        if b.chart[t] == EMPTY || !b.covered[t] {
+            continue;
+        }
+        for n in [(x + 1 < r).then(|| t + 1), (y + 1 < r).then(|| t + r)]
+            .into_iter()
+            .flatten()
+        {
+            if b.chart[n] == b.chart[t] && b.covered[n] {
+                f(b.patch[n] != b.patch[t], diff(&b.colour, t, n));
+            }
+        }
+    }
 }
 
 /// Adds the band's covered texels to the use counts of the sample pixels
@@ -419,6 +457,11 @@ impl ZipperEnds {
         }
     }
 
+    /// What the link ends hold.
+    fn bytes(&self) -> u64 {
+        (self.texels.len() * (4 + 12 + 1)) as u64
+    }
+
     fn gather(&mut self, b: &ColourBand, r: usize) {
         let (lo, hi) = ((b.first * r) as u64, (b.first * r + b.own) as u64);
         let first = self.texels.partition_point(|&t| (t as u64) < lo);
@@ -448,15 +491,18 @@ impl ZipperEnds {
 struct Windows {
     /// Each candidate's centre texel, in the seeded order.
     centres: Vec<usize>,
-    /// Per candidate and window texel (row-major 5×5): colour, covered,
-    /// chart, sample index; and the centre's rotation.
+    /// Per candidate and window texel (row-major 5×5): colour.
     colour: Vec<f32>,
-    covered: Vec<bool>,
+    /// Per candidate: the chart and sample index of the first texel
+    /// gathered, and whether every texel so far is covered and in that
+    /// chart and sample (a window inside one chart and one sample).
     chart: Vec<u32>,
     index: Vec<u8>,
+    inside: Vec<bool>,
+    /// The centre's rotation.
     rotation: Vec<u8>,
-    /// `(atlas row, candidate, window row)`, by atlas row.
-    rows: Vec<(usize, usize, usize)>,
+    /// Atlas row, candidate and window row, packed by [`row_key`], ascending.
+    rows: Vec<u64>,
     next_row: usize,
     /// Windows measured at most.
     windows: usize,
@@ -469,11 +515,16 @@ struct Windows {
 const MIN_TRIES: usize = 20_000;
 const TRIES_PER_WINDOW: usize = 4;
 
-/// The most windows `--windows` takes: each place tried holds about 580
-/// bytes of [`Windows`] (its 5×5 colours, flags, charts and sample
-/// indices, its centre and its five rows), 46 MB for the 80 000 places of
-/// the most windows.
+/// The most windows `--windows` takes: each place tried holds about 360
+/// bytes of [`Windows`] (its 5×5 colours, its centre, chart, sample and
+/// five rows), 29 MB for the 80 000 places of the most windows.
 const MAX_WINDOWS: usize = 20_000;
+
+/// `(atlas row, candidate, window row)` as one key in the same order (a
+/// candidate below 2^24 (`MAX_WINDOWS × TRIES_PER_WINDOW`), rows below 2^32).
+fn row_key(y: usize, c: usize, dy: usize) -> u64 {
+    (y as u64) << 32 | (c as u64) << 8 | dy as u64
+}
 
 impl Windows {
     fn new(r: usize, windows: usize) -> Windows {
@@ -484,18 +535,18 @@ impl Windows {
                 !(x < 2 || y < 2 || x + 2 >= r || y + 2 >= r)
             })
             .collect();
-        let mut rows: Vec<(usize, usize, usize)> = centres
+        let mut rows: Vec<u64> = centres
             .iter()
             .enumerate()
-            .flat_map(|(c, &t)| (0..5).map(move |dy| (t / r + dy - 2, c, dy)))
+            .flat_map(|(c, &t)| (0..5).map(move |dy| row_key(t / r + dy - 2, c, dy)))
             .collect();
         rows.sort_unstable();
         let n = centres.len();
         Windows {
             colour: vec![0.0; n * 75],
-            covered: vec![false; n * 25],
-            chart: vec![EMPTY; n * 25],
-            index: vec![0; n * 25],
+            chart: vec![EMPTY; n],
+            index: vec![0; n],
+            inside: vec![true; n],
             rotation: vec![0; n],
             centres,
             rows,
@@ -504,9 +555,19 @@ impl Windows {
         }
     }
 
+    /// What the candidates hold.
+    fn bytes(&self) -> u64 {
+        (self.centres.len() * (8 + 75 * 4 + 4 + 1 + 1 + 1) + self.rows.len() * 8) as u64
+    }
+
     fn gather(&mut self, b: &ColourBand, r: usize) {
         let end = b.first + b.own / r;
-        while let Some(&(y, c, dy)) = self.rows.get(self.next_row) {
+        while let Some(&key) = self.rows.get(self.next_row) {
+            let (y, c, dy) = (
+                (key >> 32) as usize,
+                (key >> 8 & 0xff_ffff) as usize,
+                (key & 0xff) as usize,
+            );
             if y >= end {
                 break;
             }
@@ -515,9 +576,10 @@ impl Windows {
             for dx in 0..5 {
                 let (t, w) = ((y - b.y0) * r + x + dx - 2, c * 25 + dy * 5 + dx);
                 self.colour[w * 3..w * 3 + 3].copy_from_slice(&b.colour[t * 3..t * 3 + 3]);
-                self.covered[w] = b.covered[t];
-                self.chart[w] = b.chart[t];
-                self.index[w] = b.index[t];
+                if dy == 0 && dx == 0 {
+                    (self.chart[c], self.index[c]) = (b.chart[t], b.index[t]);
+                }
+                self.inside[c] &= b.covered[t] && b.chart[t] == self.chart[c] && b.index[t] == self.index[c];
             }
             if dy == 2 {
                 self.rotation[c] = b.rotation[(y - b.y0) * r + x];
@@ -547,13 +609,8 @@ impl Windows {
         };
         // each window inside one chart and one sample, with its (sample, rotation)
         let candidates: Vec<(usize, (u8, u8))> = (0..self.centres.len())
-            .filter_map(|c| {
-                let w = c * 25;
-                let (chart, index) = (self.chart[w + 12], self.index[w + 12]);
-                (w..w + 25)
-                    .all(|i| self.covered[i] && self.chart[i] == chart && self.index[i] == index)
-                    .then_some((c, (index, self.rotation[c])))
-            })
+            .filter(|&c| self.inside[c])
+            .map(|c| (c, (self.index[c], self.rotation[c])))
             .collect();
         let mut keys: Vec<(u8, u8)> = candidates.iter().map(|&(_, k)| k).collect();
         keys.sort_unstable();
@@ -749,63 +806,16 @@ fn scale_ratios(quilt: &Quilt, gim: &Gim, f: &mut dyn FnMut(f64)) -> Result<()> 
     Ok(())
 }
 
-/// Values [`median_of`] sorts once it has narrowed them down to this many.
-const MEDIAN_COLLECT: usize = 1 << 16;
-
-/// How many non-negative values `stream` yields (it yields the same ones on
-/// every call), and the one at rank `len / 2` in ascending order (0 when
-/// there are none): a radix select over their bits, 16 at a time (a
-/// non-negative float orders as its bits), that holds a histogram and at
-/// most [`MEDIAN_COLLECT`] values, not the stream.
+/// How many values `stream` yields (it yields the same ones on every
+/// call), and the one at rank `len / 2` in `f64::total_cmp` order (0 when
+/// there are none), holding at most [`ranks::COLLECT`] of them
+/// ([`ranks::at_ranks`]).
 fn median_of(mut stream: impl FnMut(&mut dyn FnMut(f64)) -> Result<()>) -> Result<(usize, f64)> {
-    let (mut prefix, mut known) = (0u64, 0u32);
-    let (mut len, mut rank) = (0usize, None::<usize>);
-    let matches = |bits: u64, prefix: u64, known: u32| known == 0 || bits >> (64 - known) == prefix;
-    loop {
-        let shift = 64 - known - 16;
-        let mut hist = vec![0usize; 1 << 16];
-        let mut total = 0usize;
-        stream(&mut |v| {
-            let bits = v.to_bits();
-            if matches(bits, prefix, known) {
-                hist[((bits >> shift) & 0xffff) as usize] += 1;
-                total += 1;
-            }
-        })?;
-        let k = match rank {
-            Some(k) => k,
-            None if total == 0 => return Ok((0, 0.0)),
-            None => {
-                len = total;
-                total / 2
-            }
-        };
-        let (mut below, mut bucket) = (0usize, 0usize);
-        for (i, &c) in hist.iter().enumerate() {
-            if below + c > k {
-                bucket = i;
-                break;
-            }
-            below += c;
-        }
-        prefix = (prefix << 16) | bucket as u64;
-        known += 16;
-        let k = k - below;
-        if known == 64 {
-            return Ok((len, f64::from_bits(prefix)));
-        }
-        if hist[bucket] <= MEDIAN_COLLECT {
-            let mut values = Vec::with_capacity(hist[bucket]);
-            stream(&mut |v| {
-                if matches(v.to_bits(), prefix, known) {
-                    values.push(v);
-                }
-            })?;
-            values.sort_by(f64::total_cmp);
-            return Ok((len, values[k]));
-        }
-        rank = Some(k);
-    }
+    let mut lists = [Ranked::new(ranks::COLLECT)];
+    stream(&mut |v| lists[0].push(v))?;
+    let n = lists[0].len();
+    let median = ranks::at_ranks(&mut [&mut lists[0]], &[(0, n / 2)], |f| stream(&mut |v| f(0, v)))?;
+    Ok((n, median[0]))
 }
 
 #[cfg(test)]
