@@ -140,14 +140,22 @@ pub(super) fn stage_surface_btf(
     })
 }
 
-/// Bands of the synthesis image held while its EXR is written (the writer
-/// asks for pixels in any order from several threads).
-const HELD_BANDS: usize = 4;
+/// Rows of a band of the synthesis image: one block of its EXR (ZIP
+/// compression packs 16 scanlines a block), which the writer asks for
+/// pixel by pixel, block after block.
+const SYNTHESIS_ROWS: usize = 16;
+
+/// Bands of the synthesis image held while its EXR is written.
+const HELD_BANDS: usize = 2;
+
+/// Blocks the EXR writer holds at once (its uncompressed and compressed
+/// copies of the blocks in flight).
+const WRITER_BLOCKS: usize = 2;
 
 /// What writing the surface BTF of an `r`² quilt holds besides its caches:
-/// [`HELD_BANDS`] bands of up to 8 f32 channels.
+/// [`HELD_BANDS`] bands and [`WRITER_BLOCKS`] blocks of up to 8 f32 channels.
 pub(super) fn held_bytes(r: usize) -> u64 {
-    (HELD_BANDS * BAND_ROWS * r * 8 * 4) as u64
+    ((HELD_BANDS + WRITER_BLOCKS) * SYNTHESIS_ROWS * r * 8 * 4) as u64
 }
 
 /// `synthesis.exr` of `quilt`: per covered texel its sample coordinate, the
@@ -157,7 +165,7 @@ pub(super) fn held_bytes(r: usize) -> u64 {
 fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names: [&str; N]) -> Result<()> {
     let r = quilt.resolution;
     let band = |y0: usize| -> Result<Vec<f32>> {
-        let h = BAND_ROWS.min(r - y0);
+        let h = SYNTHESIS_ROWS.min(r - y0);
         let coords = quilt.coord_region(0, y0, r, h)?;
         let patches = quilt.patch_region(0, y0, r, h)?;
         let index = quilt.sample_region(0, y0, r, h)?;
@@ -185,18 +193,18 @@ fn write_synthesis<const N: usize>(quilt: &Quilt, path: &Path, names: [&str; N])
         Ok(out)
     };
     let held = Mutex::new(BoundedCache::<usize, Vec<f32>>::new(MemoryBudget(
-        (HELD_BANDS * BAND_ROWS * r * N * 4) as u64,
+        (HELD_BANDS * SYNTHESIS_ROWS * r * N * 4) as u64,
     )));
     imageio::write_exr_f32_fn(path, r, r, names, |x, y| {
         let mut cache = crate::lock(&held);
-        let b = y / BAND_ROWS;
+        let b = y / SYNTHESIS_ROWS;
         if !cache.contains(&b) {
-            let values = band(b * BAND_ROWS)?;
+            let values = band(b * SYNTHESIS_ROWS)?;
             let bytes = (values.len() * 4) as u64;
             cache.insert(b, values, bytes);
         }
         let values = cache.get(&b).expect("just inserted");
-        let i = ((y - b * BAND_ROWS) * r + x) * N;
+        let i = ((y - b * SYNTHESIS_ROWS) * r + x) * N;
         Ok(std::array::from_fn(|c| values[i + c]))
     })
 }
