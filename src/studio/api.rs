@@ -185,7 +185,20 @@ fn route(studio: &Studio, req: &mut Request) -> Answer {
             }))
         }
         (Method::Get, "/api/mesh") => bytes(payload().mesh.clone(), "application/octet-stream"),
-        (Method::Get, "/api/texels") => bytes(payload().texels.clone(), "application/octet-stream"),
+        (Method::Get, "/api/texels") => {
+            let texels = payload().texels.clone();
+            let file = texels.reader().map_err(|e| Refusal(500, e.to_string()))?;
+            Ok(Response::new(
+                StatusCode(200),
+                vec![
+                    header("Content-Type", "application/octet-stream"),
+                    header("Cache-Control", "no-store"),
+                ],
+                Box::new(file) as Box<dyn Read + Send>,
+                Some(texels.len()),
+                None,
+            ))
+        }
         (Method::Get, "/api/basis") => bytes(payload().basis.clone(), "application/octet-stream"),
         (Method::Get, "/api/status") => json(&studio.status_json()),
         (Method::Post, "/api/pick") => {

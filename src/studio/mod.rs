@@ -12,8 +12,11 @@
 //! serves its own page and the current surface's data, nothing from disk by
 //! name; bodies are bounded ([`MAX_BODY`]). `--memory` is shared out: a
 //! quarter for opening a version for the viewer, the rest, less the
-//! viewer's data it holds (32 bytes an atlas texel for a BTF, 16 for
-//! colour), for painting or the preview session, which never run at once. Every painted version is a
+//! viewer's mesh and factorization it holds, for painting or the preview
+//! session, which never run at once. The viewer's per-texel data (32 bytes
+//! an atlas texel for a BTF, 16 for colour) is kept in a hidden file beside
+//! the base, `.STEM.studio-PID-texels-….texels`, one per version shown and
+//! removed when another is shown. Every painted version is a
 //! `.quilt` beside the base (hidden, removed when the studio stops, and by
 //! the next studio on that base if the process died); the base is never
 //! written. A brush stroke is kept beside the base as
@@ -111,6 +114,17 @@ pub struct JobStatus {
 fn scene_budget(memory: MemoryBudget) -> MemoryBudget {
     let [scene, _] = memory.split([1, 3]);
     scene
+}
+
+/// A new file for a version's viewer texels ([`scene::TexelFile`]) beside
+/// the base, `.STEM.studio-PID-texels-RANDOM.texels`: removed when the
+/// version is no longer shown, and as a work file of a process that is gone.
+fn texel_file(folder: &Path, stem: &str) -> Result<tempfile::NamedTempFile> {
+    tempfile::Builder::new()
+        .prefix(&format!(".{stem}.studio-{}-texels-", std::process::id()))
+        .suffix(".texels")
+        .tempfile_in(folder)
+        .map_err(|e| Error::io(folder, e))
 }
 
 /// A [`Progress`] that keeps the last stage and count for the page.
@@ -242,7 +256,7 @@ impl Studio {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "surface".into());
-        let payload = Payload::build(quilt, scene_budget(cfg.memory))?;
+        let payload = Payload::build(quilt, scene_budget(cfg.memory), texel_file(&folder, &stem)?)?;
         let studio = Arc::new(Studio {
             base: quilt.to_path_buf(),
             folder,
@@ -304,7 +318,8 @@ impl Studio {
         h.versions[h.current].clone()
     }
 
-    /// A work file's name for this process: `.STEM.studio-PID-N.EXT`.
+    /// A work file's name for this process: `.STEM.studio-PID-N.EXT` (and
+    /// the viewer's texels: [`texel_file`]).
     fn work_file(&self, n: usize, ext: &str) -> PathBuf {
         self.folder
             .join(format!(".{}.studio-{}-{n}.{ext}", self.stem, std::process::id()))
@@ -337,21 +352,21 @@ impl Studio {
         };
         for e in entries.flatten() {
             let name = e.file_name().to_string_lossy().into_owned();
-            if name.ends_with(".quilt") && doomed(&name) {
+            if (name.ends_with(".quilt") || name.ends_with(".texels")) && doomed(&name) {
                 let _ = std::fs::remove_file(e.path());
             }
         }
     }
 
     /// What a paint, a preview session or an export may use: three
-    /// quarters of `--memory`, less twice the viewer's data (the current
-    /// version's and, while it is rebuilt, the next one's), but at least an
-    /// eighth.
+    /// quarters of `--memory`, less twice the viewer's data held in memory
+    /// (the current version's and, while it is rebuilt, the next one's; its
+    /// texels are in a file), but at least an eighth.
     fn work_budget(&self) -> MemoryBudget {
         let total = self.cfg.memory.bytes();
         let held = {
             let p = self.payload.read().unwrap_or_else(|p| p.into_inner());
-            (p.mesh.len() + p.texels.len() + p.basis.len()) as u64
+            (p.mesh.len() + p.basis.len()) as u64
         };
         MemoryBudget((total / 4 * 3).saturating_sub(2 * held).max(total / 8))
     }
@@ -359,7 +374,8 @@ impl Studio {
     /// Makes `path` (a version in the history) current and rebuilds the
     /// viewer's data.
     fn show(&self, path: &Path) -> Result<()> {
-        let payload = Payload::build(path, scene_budget(self.cfg.memory))?;
+        let file = texel_file(&self.folder, &self.stem)?;
+        let payload = Payload::build(path, scene_budget(self.cfg.memory), file)?;
         *self.payload.write().unwrap_or_else(|p| p.into_inner()) = Arc::new(payload);
         self.version.fetch_add(1, Ordering::SeqCst);
         Ok(())

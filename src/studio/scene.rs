@@ -6,6 +6,7 @@
 //! section II-B) laid out as WebGL2 textures. All arrays are little-endian
 //! `f32`.
 
+use std::io::Write;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -13,7 +14,7 @@ use serde::Serialize;
 
 use crate::container::MemoryBudget;
 use crate::output::render::{Camera, Scene, Shading};
-use crate::Result;
+use crate::{Error, Result};
 
 /// Floats per corner in [`Payload::mesh`]: position, normal, atlas uv,
 /// ∂P/∂X, ∂P/∂Y and whether the face's frame is valid.
@@ -86,12 +87,53 @@ pub struct Payload {
     pub mesh: Arc<Vec<u8>>,
     /// Colour: r² RGBA (dilated linear preview colour, alpha 1). BTF: r²
     /// RGBA (sample x, sample y, sample index, covered) then r² RGBA
-    /// (the Jacobian ∂s/∂X, ∂s/∂Y as the renderer reads it).
-    pub texels: Arc<Vec<u8>>,
+    /// (the Jacobian ∂s/∂X, ∂s/∂Y as the renderer reads it). 16 or 32
+    /// bytes an atlas texel: kept in a file, not in memory.
+    pub texels: Arc<TexelFile>,
     /// BTF only: the geometry texture array (layer, y, x, RGBA; each sample
     /// at its first layer, padded to the largest sample), then the
     /// appearance texture (rows of [`APPEARANCE_WIDTH`] RGBA texels).
     pub basis: Arc<Vec<u8>>,
+}
+
+/// [`Payload::texels`]: a hidden file, removed when dropped.
+pub struct TexelFile {
+    file: tempfile::NamedTempFile,
+    len: usize,
+}
+
+impl TexelFile {
+    /// Bytes in the file.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the file is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// A reader of the file from its start (its own handle).
+    pub fn reader(&self) -> Result<std::fs::File> {
+        self.file.reopen().map_err(|e| Error::io(self.file.path(), e))
+    }
+}
+
+/// Writes `f32`s to a file, counting the bytes.
+struct Floats<'a> {
+    out: std::io::BufWriter<&'a std::fs::File>,
+    path: &'a Path,
+    len: usize,
+}
+
+impl Floats<'_> {
+    fn push(&mut self, v: f32) -> Result<()> {
+        self.out
+            .write_all(&v.to_le_bytes())
+            .map_err(|e| Error::io(self.path, e))?;
+        self.len += 4;
+        Ok(())
+    }
 }
 
 fn push(out: &mut Vec<u8>, v: f32) {
@@ -99,13 +141,14 @@ fn push(out: &mut Vec<u8>, v: f32) {
 }
 
 impl Payload {
-    /// Opens `quilt` as the renderer does and lays out its data.
-    pub fn build(quilt: &Path, budget: MemoryBudget) -> Result<Payload> {
+    /// Opens `quilt` as the renderer does and lays out its data; the
+    /// texels go to `texels`, a new file ([`TexelFile`]).
+    pub fn build(quilt: &Path, budget: MemoryBudget, texels: tempfile::NamedTempFile) -> Result<Payload> {
         let scene = Scene::open(quilt, budget)?;
-        Ok(Payload::from_scene(&scene))
+        Payload::from_scene(&scene, texels)
     }
 
-    fn from_scene(scene: &Scene) -> Payload {
+    fn from_scene(scene: &Scene, texel_file: tempfile::NamedTempFile) -> Result<Payload> {
         let r = scene.resolution;
         let faces = scene.mesh.triangles.len();
         let corner_maps = match &scene.shading {
@@ -127,42 +170,47 @@ impl Payload {
                 push(&mut mesh, if valid { 1.0 } else { 0.0 });
             }
         }
-        let mut texels = Vec::new();
+        let mut texels = Floats {
+            out: std::io::BufWriter::with_capacity(1 << 20, texel_file.as_file()),
+            path: texel_file.path(),
+            len: 0,
+        };
         let mut basis = Vec::new();
         let mut samples = Vec::new();
         let (mut geometry_size, mut appearance_rows) = ([0; 3], 0);
         let (mut views, mut lights, mut view_cos_max, mut light_cos_max) = (Vec::new(), Vec::new(), 1.0, 1.0);
         match &scene.shading {
             Shading::Colour(tiles) => {
-                texels.reserve(r * r * 16);
                 let mut view = tiles.view();
                 for t in 0..r * r {
                     let c = view
                         .with(t, |tile, i| [tile.0[i * 3], tile.0[i * 3 + 1], tile.0[i * 3 + 2]])
                         .unwrap_or([0.0; 3]);
                     for x in c.into_iter().chain([1.0]) {
-                        push(&mut texels, x);
+                        texels.push(x)?;
                     }
                 }
             }
             Shading::Btf(btf) => {
-                texels.reserve(r * r * 32);
+                // the texels' coordinates, then (a second pass over the
+                // tiles) their Jacobians
                 let mut view = btf.tiles.view();
-                let mut jac = Vec::with_capacity(r * r * 16);
                 for t in 0..r * r {
-                    let (c, j, s, cov) = view
-                        .with(t, |tile, i| {
-                            (tile.coord[i], tile.jacobian[i], tile.sample[i], tile.covered[i])
-                        })
-                        .unwrap_or(([0.0; 2], [1.0, 0.0, 0.0, 1.0], 0, false));
+                    let (c, s, cov) = view
+                        .with(t, |tile, i| (tile.coord[i], tile.sample[i], tile.covered[i]))
+                        .unwrap_or(([0.0; 2], 0, false));
                     for x in [c[0], c[1], s as f32, if cov { 1.0 } else { 0.0 }] {
-                        push(&mut texels, x);
-                    }
-                    for x in j {
-                        push(&mut jac, x);
+                        texels.push(x)?;
                     }
                 }
-                texels.extend_from_slice(&jac);
+                for t in 0..r * r {
+                    let j = view
+                        .with(t, |tile, i| tile.jacobian[i])
+                        .unwrap_or([1.0, 0.0, 0.0, 1.0]);
+                    for x in j {
+                        texels.push(x)?;
+                    }
+                }
                 let (w, h) = btf
                     .samples
                     .iter()
@@ -233,11 +281,17 @@ impl Payload {
             view_cos_max,
             light_cos_max,
         };
-        Payload {
+        let len = texels.len;
+        texels.out.flush().map_err(|e| Error::io(texel_file.path(), e))?;
+        drop(texels);
+        Ok(Payload {
             info,
             mesh: Arc::new(mesh),
-            texels: Arc::new(texels),
+            texels: Arc::new(TexelFile {
+                file: texel_file,
+                len,
+            }),
             basis: Arc::new(basis),
-        }
+        })
     }
 }
