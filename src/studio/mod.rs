@@ -119,12 +119,16 @@ fn scene_budget(memory: MemoryBudget) -> MemoryBudget {
 /// A new file for a version's viewer texels ([`scene::TexelFile`]) beside
 /// the base, `.STEM.studio-PID-texels-RANDOM.texels`: removed when the
 /// version is no longer shown, and as a work file of a process that is gone.
+/// In the system's temporary folder when the base's cannot be written (a
+/// surface only viewed).
 fn texel_file(folder: &Path, stem: &str) -> Result<tempfile::NamedTempFile> {
-    tempfile::Builder::new()
-        .prefix(&format!(".{stem}.studio-{}-texels-", std::process::id()))
-        .suffix(".texels")
+    let mut builder = tempfile::Builder::new();
+    let prefix = format!(".{stem}.studio-{}-texels-", std::process::id());
+    builder.prefix(&prefix).suffix(".texels");
+    builder
         .tempfile_in(folder)
-        .map_err(|e| Error::io(folder, e))
+        .or_else(|_| builder.tempfile())
+        .map_err(|e| Error::io(std::env::temp_dir(), e))
 }
 
 /// A [`Progress`] that keeps the last stage and count for the page.

@@ -46,10 +46,39 @@ pub fn raw(addr: SocketAddr, request: &[u8]) -> (u16, Vec<u8>) {
         .and_then(|c| c.parse().ok())
         .unwrap_or_else(|| panic!("no HTTP status in {:?}", &text[..text.len().min(200)]));
     let body = match out.windows(4).position(|w| w == b"\r\n\r\n") {
-        Some(i) => out[i + 4..].to_vec(),
+        Some(i) => {
+            let head = String::from_utf8_lossy(&out[..i]).to_ascii_lowercase();
+            let body = &out[i + 4..];
+            if head
+                .lines()
+                .any(|l| l.starts_with("transfer-encoding:") && l.contains("chunked"))
+            {
+                dechunk(body)
+            } else {
+                body.to_vec()
+            }
+        }
         None => Vec::new(),
     };
     (status, body)
+}
+
+/// The data of a chunked HTTP/1.1 body (hexadecimal size, CRLF, data, CRLF;
+/// a size of 0 ends it).
+fn dechunk(mut body: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    while let Some(eol) = body.windows(2).position(|w| w == b"\r\n") {
+        let line = String::from_utf8_lossy(&body[..eol]);
+        let size = usize::from_str_radix(line.split(';').next().unwrap_or("").trim(), 16)
+            .unwrap_or_else(|_| panic!("a chunk size, not {line:?}"));
+        if size == 0 {
+            break;
+        }
+        let data = &body[eol + 2..];
+        out.extend_from_slice(&data[..size]);
+        body = &data[size + 2..];
+    }
+    out
 }
 
 /// `GET path` with the address as Host: (status, body).

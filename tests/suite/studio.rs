@@ -330,6 +330,15 @@ fn the_studio_paints_undoes_redoes_saves_and_exports() {
         painted_bytes,
         "the same stroke, the same bytes"
     );
+    // the viewer's texels are one file, the shown version's: each version
+    // shown before was removed with it
+    let texel_files: Vec<String> = common::listing(&s.dir)
+        .into_iter()
+        .filter(|n| n.ends_with(".texels"))
+        .collect();
+    assert_eq!(texel_files.len(), 1, "{texel_files:?}");
+    let on_disk = std::fs::read(s.dir.join(&texel_files[0])).unwrap();
+    assert_eq!(on_disk, get(addr, "/api/texels").1);
 
     server.stop();
     assert_eq!(std::fs::read(&s.base).unwrap(), base_bytes);
