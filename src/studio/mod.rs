@@ -127,8 +127,7 @@ fn texel_file(folder: &Path, stem: &str) -> Result<tempfile::NamedTempFile> {
     builder.prefix(&prefix).suffix(".texels");
     builder
         .tempfile_in(folder)
-        .or_else(|_| builder.tempfile())
-        .map_err(|e| Error::io(std::env::temp_dir(), e))
+        .or_else(|e| builder.tempfile().map_err(|_| Error::io(folder, e)))
 }
 
 /// A [`Progress`] that keeps the last stage and count for the page.
