@@ -32,6 +32,7 @@ impl Synthesis {
         let cost = |job: &Job| bytes(job.ball.texels.len());
         // whether a patch of `c` bytes may go with `in_flight` out
         let room = |in_flight: u64, c: u64| in_flight == 0 || in_flight + c <= budget;
+        self.idle_main_matcher();
         let context = round_context!(self);
         let mut ledger = ledger!(self);
         let (bfs, surface, state) = (&mut self.bfs, &self.surface, &mut self.state);

@@ -330,6 +330,11 @@ pub struct Matcher {
     cache: Arc<Mutex<BoundedCache<CacheKey, Arc<SampleSpectra>>>>,
     computed: u64,
     reused: u64,
+    /// The most the buffers held before [`Matcher::release_buffers`].
+    released: usize,
+    /// The most a match held besides the buffers: its cost map, and the
+    /// sample spectra it computed when they did not fit the cache.
+    transient: usize,
 }
 
 impl Default for Matcher {
@@ -360,10 +365,15 @@ impl Matcher {
             cache: Arc::new(Mutex::new(BoundedCache::new(MemoryBudget(bytes as u64)))),
             computed: 0,
             reused: 0,
+            released: 0,
+            transient: 0,
         }
     }
 
-    /// Bytes of this matcher's buffers (sized by the largest match so far).
+    /// Bytes of this matcher's buffers (sized by the largest match so far,
+    /// also when they were released since) and of what the largest match
+    /// held besides them (its cost map, and sample spectra too large for
+    /// the cache).
     pub fn buffer_bytes(&self) -> usize {
         let complex = [
             &self.rows,
@@ -373,8 +383,28 @@ impl Matcher {
             &self.out,
             &self.work_spectra,
         ];
-        complex.iter().map(|b| b.capacity()).sum::<usize>() * std::mem::size_of::<C64>()
-            + self.energy.capacity() * 8
+        let held = complex.iter().map(|b| b.capacity()).sum::<usize>() * std::mem::size_of::<C64>()
+            + self.energy.capacity() * 8;
+        held.max(self.released) + self.transient
+    }
+
+    /// Frees the buffers, for a matcher left idle while memory does not
+    /// hold every matcher's: its next match allocates them again, with the
+    /// same costs (a match never reads what an earlier one left in them).
+    pub fn release_buffers(&mut self) {
+        self.released = self.buffer_bytes() - self.transient;
+        for b in [
+            &mut self.rows,
+            &mut self.spec,
+            &mut self.zm,
+            &mut self.acc,
+            &mut self.out,
+            &mut self.work_spectra,
+        ] {
+            *b = Vec::new();
+        }
+        self.energy = Vec::new();
+        self.work_tag = None;
     }
 
     /// Sets the budget of the spectrum cache (shared with the matchers
@@ -472,6 +502,7 @@ impl Matcher {
             buf.resize(len, ZERO);
         }
         let cached = crate::lock(&self.cache).get(&lay.key).cloned();
+        let mut uncached = 0;
         let entry = match cached {
             Some(e) => {
                 self.reused += 1;
@@ -480,7 +511,9 @@ impl Matcher {
             None => {
                 let e = Arc::new(self.sample_spectra(&plans, sample, &lay));
                 let bytes = e.bytes() as u64;
-                crate::lock(&self.cache).insert_if_fits(lay.key, Arc::clone(&e), bytes);
+                if !crate::lock(&self.cache).insert_if_fits(lay.key, Arc::clone(&e), bytes) {
+                    uncached = bytes as usize;
+                }
                 e
             }
         };
@@ -594,6 +627,7 @@ impl Matcher {
         let mass: f64 = work.known.iter().map(|&m| m as f64).sum();
         let tol = 1e-9 * mass * entry.max_valid;
         let scale = 1.0 / nn as f64;
+        self.transient = self.transient.max(uncached + prow * columns * 16);
         let mut cost = vec![f64::INFINITY; prow * columns];
         let mut overlap = vec![0.0; prow * columns];
         for r in 0..prow {

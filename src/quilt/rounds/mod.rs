@@ -47,6 +47,7 @@ macro_rules! round_context {
             painting: $syn.painting,
             occurrence: (!$syn.painting).then(|| $syn.occurrence.snapshot()),
             spares: std::sync::Mutex::new(std::mem::take(&mut $syn.spares)),
+            release: $syn.release_idle,
             spectra: $syn.matcher.spectra_cache(),
             base: $syn.report.patches as u64,
         }
@@ -65,6 +66,9 @@ pub(super) struct Context<'a> {
     /// The occurrence map as the round found it.
     pub(super) occurrence: Option<Occurrence>,
     pub(super) spares: Mutex<Vec<(Matcher, Bfs)>>,
+    /// Whether a matcher frees its buffers when its patch is done
+    /// ([`Synthesis::release_idle`]).
+    pub(super) release: bool,
     pub(super) spectra: SpectraCache,
     /// Patches accepted before the round.
     pub(super) base: u64,
@@ -105,6 +109,9 @@ impl Context<'_> {
             stats: StepStats::default(),
         };
         let outcome = f(&mut worker, job.v);
+        if self.release {
+            matcher.release_buffers();
+        }
         crate::lock(&self.spares).push((matcher, bfs));
         (!(surface.missed() || state.missed())).then_some(outcome)
     }
@@ -396,6 +403,7 @@ impl Synthesis {
             return (outcomes, alongside(&mut self.bfs, &lent(&self.surface)));
         }
         let (at_once, by_memory) = self.at_once(jobs);
+        self.idle_main_matcher();
         let job = round_context!(self);
         let (outcomes, other): (Vec<Option<Result<Outcome>>>, R) = if at_once <= 1 {
             // one at a time, each over its views all the same (a patch that
@@ -514,6 +522,8 @@ impl Synthesis {
         }
         let [_, _, atlas, patches] = self.loop_budget.split(super::synthesis::LOOP_SHARES);
         let at_once = rayon::current_num_threads().min(self.cfg.round).max(1) as u64;
+        // the loop's own matcher and one per patch at once, all sized
+        self.release_idle = (at_once + 1) * patch(0) > patches.bytes();
         let budget = (at_once * patch(traversal + traversal / 2)).min(patches.bytes());
         if budget == self.patch_budget {
             return;
@@ -526,6 +536,15 @@ impl Synthesis {
         self.sample
             .set_rotated_budget(crate::container::MemoryBudget(caches));
         self.matcher.set_cache_budget(caches as usize);
+    }
+
+    /// Frees the loop's own matcher's buffers before a round's patches
+    /// take matchers of their own, when memory does not hold them all
+    /// ([`Synthesis::release_idle`]).
+    pub(super) fn idle_main_matcher(&mut self) {
+        if self.release_idle {
+            self.matcher.release_buffers();
+        }
     }
 
     /// How many of `jobs` to compute at once: one per thread, fewer when

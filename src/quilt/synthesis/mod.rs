@@ -62,6 +62,10 @@ pub(crate) struct Synthesis {
     /// Matchers (sharing `matcher`'s spectrum cache) and traversals of work
     /// patches computed at once ([`super::rounds`]).
     pub(super) spares: Vec<(Matcher, Bfs)>,
+    /// Whether idle matchers free their buffers: set when the patches'
+    /// share cannot hold the loop's matcher's and one per patch at once
+    /// ([`Synthesis::settle_memory`]).
+    pub(super) release_idle: bool,
     /// Seam refinement's patches per round ([`REFINE_ROUND`]).
     pub(crate) refine_round: usize,
     /// How often each sample region shows on the surface (tiling only).
@@ -266,6 +270,7 @@ impl Synthesis {
             patch_budget: patches.bytes(),
             loop_budget,
             spares: Vec::new(),
+            release_idle: false,
             refine_round: REFINE_ROUND,
             occurrence,
             reference,
