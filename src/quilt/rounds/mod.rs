@@ -495,7 +495,8 @@ impl Synthesis {
     }
 
     /// A work patch's memory in flight by the texels of its traversal: the
-    /// largest matcher's buffers and [`bytes_per_texel`] per texel.
+    /// largest matcher's buffers and what its largest match held besides
+    /// them ([`Matcher::buffer_bytes`]), and [`bytes_per_texel`] per texel.
     pub(super) fn patch_bytes(&self) -> impl Fn(usize) -> u64 {
         let buffers = self
             .spares
