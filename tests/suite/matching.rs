@@ -466,13 +466,13 @@ fn spectrum_cache_is_reused() {
     assert_eq!(tiny.cache_bytes(), 0);
     // a match whose spectra its cache cannot keep holds them besides the
     // buffers, and a patch's memory counts them
-    assert!(tiny.buffer_bytes() > fresh.buffer_bytes());
+    assert!(tiny.match_bytes() > fresh.match_bytes());
     // freed buffers: the figure is kept, the next match gives the same map
-    let held = tiny.buffer_bytes();
+    let held = tiny.match_bytes();
     tiny.release_buffers();
-    assert_eq!(tiny.buffer_bytes(), held);
+    assert_eq!(tiny.match_bytes(), held);
     assert_eq!(tiny.cost_map(&work(&w1, &known), &sample, &cfg).unwrap(), map_a);
-    assert_eq!(tiny.buffer_bytes(), held);
+    assert_eq!(tiny.match_bytes(), held);
 }
 
 #[test]

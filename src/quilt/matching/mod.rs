@@ -374,7 +374,7 @@ impl Matcher {
     /// also when they were released since) and of what the largest match
     /// held besides them (its cost map, and sample spectra too large for
     /// the cache).
-    pub fn buffer_bytes(&self) -> usize {
+    pub fn match_bytes(&self) -> usize {
         let complex = [
             &self.rows,
             &self.spec,
@@ -392,7 +392,7 @@ impl Matcher {
     /// hold every matcher's: its next match allocates them again, with the
     /// same costs (a match never reads what an earlier one left in them).
     pub fn release_buffers(&mut self) {
-        self.released = self.buffer_bytes() - self.transient;
+        self.released = self.match_bytes() - self.transient;
         for b in [
             &mut self.rows,
             &mut self.spec,

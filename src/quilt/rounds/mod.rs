@@ -496,13 +496,13 @@ impl Synthesis {
 
     /// A work patch's memory in flight by the texels of its traversal: the
     /// largest matcher's buffers and what its largest match held besides
-    /// them ([`Matcher::buffer_bytes`]), and [`bytes_per_texel`] per texel.
+    /// them ([`Matcher::match_bytes`]), and [`bytes_per_texel`] per texel.
     pub(super) fn patch_bytes(&self) -> impl Fn(usize) -> u64 {
         let buffers = self
             .spares
             .iter()
-            .map(|(m, _)| m.buffer_bytes())
-            .chain([self.matcher.buffer_bytes()])
+            .map(|(m, _)| m.match_bytes())
+            .chain([self.matcher.match_bytes()])
             .max()
             .unwrap_or(0) as u64;
         let per_texel = bytes_per_texel(self.sample.n);
