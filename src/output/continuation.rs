@@ -190,13 +190,7 @@ fn edge_strength(img: &RgbImage) -> f64 {
                 }
             }
         }
-    };
-    let mut lists = [Ranked::new(ranks::COLLECT)];
-    steps(&mut |v| lists[0].push(v));
-    let k = ranks::nearest_rank_index(lists[0].len(), 0.95);
-    let found = ranks::at_ranks(&mut [&mut lists[0]], &[(0, k)], |f| {
-        steps(&mut |v| f(0, v));
         Ok(())
-    });
-    found.map_or(0.0, |v| v[0])
+    };
+    ranks::rank_of(steps, |n| ranks::nearest_rank_index(n, 0.95)).map_or(0.0, |(_, v)| v)
 }

@@ -105,6 +105,20 @@ pub(super) fn nearest_rank_index(n: usize, q: f64) -> usize {
     ((q * n as f64).ceil() as usize).clamp(1, n.max(1)) - 1
 }
 
+/// How many values `stream` yields (the same ones on every call) and the
+/// one at rank `rank(count)` in `f64::total_cmp` order (0 when there are
+/// none), holding at most [`COLLECT`] of them ([`at_ranks`]).
+pub(super) fn rank_of(
+    mut stream: impl FnMut(&mut dyn FnMut(f64)) -> Result<()>,
+    rank: impl Fn(usize) -> usize,
+) -> Result<(usize, f64)> {
+    let mut list = Ranked::new(COLLECT);
+    stream(&mut |v| list.push(v))?;
+    let n = list.len();
+    let found = at_ranks(&mut [&mut list], &[(0, rank(n))], |f| stream(&mut |v| f(0, v)))?;
+    Ok((n, found[0]))
+}
+
 /// One wanted rank while it is narrowed.
 struct Target {
     list: usize,

@@ -810,12 +810,8 @@ fn scale_ratios(quilt: &Quilt, gim: &Gim, f: &mut dyn FnMut(f64)) -> Result<()> 
 /// call), and the one at rank `len / 2` in `f64::total_cmp` order (0 when
 /// there are none), holding at most [`ranks::COLLECT`] of them
 /// ([`ranks::at_ranks`]).
-fn median_of(mut stream: impl FnMut(&mut dyn FnMut(f64)) -> Result<()>) -> Result<(usize, f64)> {
-    let mut lists = [Ranked::new(ranks::COLLECT)];
-    stream(&mut |v| lists[0].push(v))?;
-    let n = lists[0].len();
-    let median = ranks::at_ranks(&mut [&mut lists[0]], &[(0, n / 2)], |f| stream(&mut |v| f(0, v)))?;
-    Ok((n, median[0]))
+fn median_of(stream: impl FnMut(&mut dyn FnMut(f64)) -> Result<()>) -> Result<(usize, f64)> {
+    ranks::rank_of(stream, |n| n / 2)
 }
 
 #[cfg(test)]
