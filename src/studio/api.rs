@@ -118,10 +118,15 @@ fn header(name: &str, value: &str) -> Header {
 
 fn bytes(data: Arc<Vec<u8>>, kind: &str) -> Answer {
     let len = data.len();
+    body_of(Box::new(Shared(data, 0)), len, kind)
+}
+
+/// A 200 answer of `len` bytes read from `reader`.
+fn body_of(reader: Box<dyn Read + Send>, len: usize, kind: &str) -> Answer {
     Ok(Response::new(
         StatusCode(200),
         vec![header("Content-Type", kind), header("Cache-Control", "no-store")],
-        Box::new(Shared(data, 0)) as Box<dyn Read + Send>,
+        reader,
         Some(len),
         None,
     ))
@@ -188,16 +193,7 @@ fn route(studio: &Studio, req: &mut Request) -> Answer {
         (Method::Get, "/api/texels") => {
             let texels = payload().texels.clone();
             let file = texels.reader().map_err(|e| Refusal(500, e.to_string()))?;
-            Ok(Response::new(
-                StatusCode(200),
-                vec![
-                    header("Content-Type", "application/octet-stream"),
-                    header("Cache-Control", "no-store"),
-                ],
-                Box::new(file) as Box<dyn Read + Send>,
-                Some(texels.len()),
-                None,
-            ))
+            body_of(Box::new(file), texels.len(), "application/octet-stream")
         }
         (Method::Get, "/api/basis") => bytes(payload().basis.clone(), "application/octet-stream"),
         (Method::Get, "/api/status") => json(&studio.status_json()),

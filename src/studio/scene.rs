@@ -6,7 +6,7 @@
 //! section II-B) laid out as WebGL2 textures. All arrays are little-endian
 //! `f32`.
 
-use std::io::Write;
+use std::io::{Seek, Write};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -119,20 +119,40 @@ impl TexelFile {
     }
 }
 
-/// Writes `f32`s to a file, counting the bytes.
+/// Writes `f32`s to a file from a byte offset, counting the bytes.
 struct Floats<'a> {
-    out: std::io::BufWriter<&'a std::fs::File>,
+    out: std::io::BufWriter<std::fs::File>,
     path: &'a Path,
     len: usize,
 }
 
-impl Floats<'_> {
+impl<'a> Floats<'a> {
+    /// A writer of its own (an offset of its own) into `file` at `offset`.
+    fn at(file: &'a tempfile::NamedTempFile, offset: u64) -> Result<Floats<'a>> {
+        let path = file.path();
+        let mut handle = file.reopen().map_err(|e| Error::io(path, e))?;
+        handle
+            .seek(std::io::SeekFrom::Start(offset))
+            .map_err(|e| Error::io(path, e))?;
+        Ok(Floats {
+            out: std::io::BufWriter::with_capacity(1 << 20, handle),
+            path,
+            len: 0,
+        })
+    }
+
     fn push(&mut self, v: f32) -> Result<()> {
         self.out
             .write_all(&v.to_le_bytes())
             .map_err(|e| Error::io(self.path, e))?;
         self.len += 4;
         Ok(())
+    }
+
+    /// Flushes; the bytes written.
+    fn finish(mut self) -> Result<usize> {
+        self.out.flush().map_err(|e| Error::io(self.path, e))?;
+        Ok(self.len)
     }
 }
 
@@ -170,11 +190,9 @@ impl Payload {
                 push(&mut mesh, if valid { 1.0 } else { 0.0 });
             }
         }
-        let mut texels = Floats {
-            out: std::io::BufWriter::with_capacity(1 << 20, texel_file.as_file()),
-            path: texel_file.path(),
-            len: 0,
-        };
+        let mut texels = Floats::at(&texel_file, 0)?;
+        // a BTF's Jacobians, after the other r² RGBA texels
+        let mut jacobians = None;
         let mut basis = Vec::new();
         let mut samples = Vec::new();
         let (mut geometry_size, mut appearance_rows) = ([0; 3], 0);
@@ -192,23 +210,19 @@ impl Payload {
                 }
             }
             Shading::Btf(btf) => {
-                // the texels' coordinates, then (a second pass over the
-                // tiles) their Jacobians
+                let jac = jacobians.insert(Floats::at(&texel_file, (r * r * 16) as u64)?);
                 let mut view = btf.tiles.view();
                 for t in 0..r * r {
-                    let (c, s, cov) = view
-                        .with(t, |tile, i| (tile.coord[i], tile.sample[i], tile.covered[i]))
-                        .unwrap_or(([0.0; 2], 0, false));
+                    let (c, j, s, cov) = view
+                        .with(t, |tile, i| {
+                            (tile.coord[i], tile.jacobian[i], tile.sample[i], tile.covered[i])
+                        })
+                        .unwrap_or(([0.0; 2], [1.0, 0.0, 0.0, 1.0], 0, false));
                     for x in [c[0], c[1], s as f32, if cov { 1.0 } else { 0.0 }] {
                         texels.push(x)?;
                     }
-                }
-                for t in 0..r * r {
-                    let j = view
-                        .with(t, |tile, i| tile.jacobian[i])
-                        .unwrap_or([1.0, 0.0, 0.0, 1.0]);
                     for x in j {
-                        texels.push(x)?;
+                        jac.push(x)?;
                     }
                 }
                 let (w, h) = btf
@@ -281,9 +295,7 @@ impl Payload {
             view_cos_max,
             light_cos_max,
         };
-        let len = texels.len;
-        texels.out.flush().map_err(|e| Error::io(texel_file.path(), e))?;
-        drop(texels);
+        let len = texels.finish()? + jacobians.map_or(Ok(0), Floats::finish)?;
         Ok(Payload {
             info,
             mesh: Arc::new(mesh),
