@@ -15,6 +15,9 @@
 
 use pulp::{Arch, Simd, WithSimd};
 
+mod panel;
+pub(crate) use panel::{qr_by_panels, Columns};
+
 /// A computation to compile for each instruction set: `run` is marked
 /// `#[inline(always)]`, so its body is compiled into each of pulp's
 /// per-instruction-set copies (a closure's body would stay one baseline

@@ -1,5 +1,7 @@
 //! A scratch store beside an output: evicted atlas tiles written back
-//! compressed (zstd) while a long run pages its working set. It is named
+//! compressed (zstd) while a long run pages its working set, or records
+//! kept as they are (the factorization's f64 columns, which do not
+//! compress) while a matrix is taken apart column by column. It is named
 //! after the output and the process (`.NAME.PID-HOST-BOOT.scratch`), removed when
 //! dropped, and removed by the next run beside the same output if the
 //! process that made it died (on Linux, where a dead process is seen in
@@ -30,7 +32,8 @@ pub struct Scratch {
     end: u64,
     extents: Vec<Option<Extent>>,
     written: u64,
-    compressor: zstd::bulk::Compressor<'static>,
+    /// `None` for a store of plain records.
+    compressor: Option<zstd::bulk::Compressor<'static>>,
 }
 
 impl Scratch {
@@ -91,7 +94,7 @@ impl Scratch {
             .truncate(true)
             .open(&path)
             .map_err(|e| Error::io(&path, e))?;
-        let compressor = zstd::bulk::Compressor::new(LEVEL).map_err(|e| Error::io(&path, e))?;
+        let compressor = Some(zstd::bulk::Compressor::new(LEVEL).map_err(|e| Error::io(&path, e))?);
         Ok(Scratch {
             path,
             file,
@@ -100,6 +103,14 @@ impl Scratch {
             written: 0,
             compressor,
         })
+    }
+
+    /// [`Scratch::create_beside`] for records stored as they are, read back
+    /// with [`Scratch::read_plain`].
+    pub fn create_plain_beside(output: &Path, keys: usize) -> Result<Scratch> {
+        let mut s = Self::create_beside(output, keys)?;
+        s.compressor = None;
+        Ok(s)
     }
 
     /// Whether `key` holds a record.
@@ -112,12 +123,12 @@ impl Scratch {
         self.written
     }
 
-    /// Compresses and stores `bytes` under `key`.
+    /// Stores `bytes` under `key`, compressed unless the store is plain.
     pub fn put(&mut self, key: usize, bytes: &[u8]) -> Result<()> {
-        let packed = self
-            .compressor
-            .compress(bytes)
-            .map_err(|e| Error::io(&self.path, e))?;
+        let packed = match &mut self.compressor {
+            Some(c) => std::borrow::Cow::Owned(c.compress(bytes).map_err(|e| Error::io(&self.path, e))?),
+            None => std::borrow::Cow::Borrowed(bytes),
+        };
         let stored = packed.len() as u32;
         let extent = match self.extents[key] {
             Some(e) if e.capacity >= stored => Extent { stored, ..e },
@@ -140,10 +151,37 @@ impl Scratch {
         Ok(())
     }
 
+    fn extent(&self, key: usize) -> Result<Extent> {
+        self.extents[key].ok_or_else(|| Error::Config(format!("scratch record {key} was never written")))
+    }
+
+    /// The plain record under `key` into `out`, which has its length.
+    pub fn read_plain(&mut self, key: usize, out: &mut [u8]) -> Result<()> {
+        let e = self.extent(key)?;
+        if self.compressor.is_some() || e.stored as usize != out.len() {
+            return Err(Error::input(
+                &self.path,
+                format!(
+                    "scratch record {key} holds {} bytes, expected {} plain",
+                    e.stored,
+                    out.len()
+                ),
+            ));
+        }
+        self.file
+            .seek(SeekFrom::Start(e.offset))
+            .and_then(|_| self.file.read_exact(out))
+            .map_err(|err| Error::io(&self.path, err))
+    }
+
     /// The record under `key`, decompressed to `len` bytes.
     pub fn get(&mut self, key: usize, len: usize) -> Result<Vec<u8>> {
-        let e = self.extents[key]
-            .ok_or_else(|| Error::Config(format!("scratch record {key} was never written")))?;
+        let e = self.extent(key)?;
+        if self.compressor.is_none() {
+            let mut out = vec![0u8; len];
+            self.read_plain(key, &mut out)?;
+            return Ok(out);
+        }
         let mut packed = vec![0u8; e.stored as usize];
         self.file
             .seek(SeekFrom::Start(e.offset))

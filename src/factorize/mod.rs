@@ -42,7 +42,7 @@ use crate::{Error, Result};
 mod rotate;
 mod stream;
 pub use rotate::*;
-use stream::{orth, MatrixStream};
+use stream::{orth_within, MatrixStream};
 
 pub use crate::artifact::svd::KIND;
 
@@ -245,14 +245,17 @@ pub fn factorize(
     let omega = Matrix::from_fn(n, k, |i, j| {
         crate::rng::gaussian(cfg.seed, (i * k + j) as u64) as f32
     });
-    // the tall m × k matrices are the dense floor: at most the sketch's
-    // f64 copy and Q in f32 at once (old Q dropped before the next sketch)
-    let mut q = orth(stream.times(&omega, progress)?);
+    // the tall m × k matrices in f32 are the dense floor (old Q dropped
+    // before the next sketch); each QR's f64 copy goes to a scratch file
+    // beside the output when it does not fit what the cache leaves
+    let share = cfg.memory.bytes() - cache.bytes();
+    let orth = |m: Matrix| orth_within(m, share, out);
+    let mut q = orth(stream.times(&omega, progress)?)?;
     drop(omega);
     for _ in 0..cfg.power_iterations {
-        let z = orth(stream.transpose_times(&q, progress)?);
+        let z = orth(stream.transpose_times(&q, progress)?)?;
         drop(q);
-        q = orth(stream.times(&z, progress)?);
+        q = orth(stream.times(&z, progress)?)?;
     }
     let bt = stream.transpose_times(&q, progress)?; // n × k
     let mut pass_seconds = t_pass.elapsed().as_secs_f64();

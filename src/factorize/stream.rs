@@ -2,7 +2,8 @@
 //! direction pairs) for the randomized SVD passes, and small dense helpers.
 
 use super::*;
-use crate::dense::{self, Matrix};
+use crate::container::Scratch;
+use crate::dense::{self, Columns, Matrix};
 
 /// One texel tile's rows of the matrix: rows are ordered tile by tile
 /// (row-major inside each tile), so a tile's rows are contiguous.
@@ -117,24 +118,24 @@ impl<'a> MatrixStream<'a> {
     /// each tile's rows sum the bands in order.
     pub(super) fn times(&self, m: &Matrix, progress: &dyn Progress) -> Result<Matrix> {
         let k = m.cols;
-        let parts: Vec<Vec<f32>> = self
-            .tiles
-            .par_iter()
-            .map(|t| {
-                let mut y = vec![0f32; t.rows() * k];
-                let mut buf = Vec::new();
-                for (b, &(c0, nc)) in self.bands.iter().enumerate() {
-                    let a = self.chunk(t, b, &mut buf)?;
-                    dense::mul_add(&mut y, k, (a, nc), (m.rows_from(c0, nc), k), (t.rows(), nc, k));
-                }
-                progress.advance(1);
-                Ok(y)
-            })
-            .collect::<Result<_>>()?;
         let mut out = Matrix::zeros(self.rows, k);
-        for (t, y) in self.tiles.iter().zip(&parts) {
-            out.data[t.row0 * k..(t.row0 + t.rows()) * k].copy_from_slice(y);
+        // each tile's rows written in place (tiles hold consecutive rows)
+        let mut parts = Vec::with_capacity(self.tiles.len());
+        let mut rest = &mut out.data[..];
+        for t in &self.tiles {
+            let (part, after) = rest.split_at_mut(t.rows() * k);
+            parts.push((t, part));
+            rest = after;
         }
+        parts.into_par_iter().try_for_each(|(t, y)| {
+            let mut buf = Vec::new();
+            for (b, &(c0, nc)) in self.bands.iter().enumerate() {
+                let a = self.chunk(t, b, &mut buf)?;
+                dense::mul_add(y, k, (a, nc), (m.rows_from(c0, nc), k), (t.rows(), nc, k));
+            }
+            progress.advance(1);
+            Ok(())
+        })?;
         Ok(out)
     }
 
@@ -235,10 +236,54 @@ impl<'a> MatrixStream<'a> {
 /// Orthonormal basis of the columns (thin Householder QR in f64). `m` is
 /// consumed as soon as it is copied: the peak is its f64 copy and the f32
 /// result, 12 bytes per entry.
-pub(super) fn orth(m: Matrix) -> Matrix {
+fn orth(m: Matrix) -> Matrix {
     let (rows, cols) = (m.rows, m.cols);
     let a = m.column_major();
     drop(m);
     let q = dense::qr(a, rows, cols).q;
     Matrix::from_fn(rows, cols, |r, c| q[c * rows + r] as f32)
+}
+
+/// [`orth`] within `share` bytes. When its 12 bytes an entry do not fit,
+/// the columns go in f64 to a scratch file beside `beside` and are factored
+/// a panel of columns at a time ([`dense::qr_by_panels`], the same bits):
+/// held then are `m` or the result (4 bytes an entry) and the panel plus
+/// one column, at least two columns.
+pub(super) fn orth_within(m: Matrix, share: u64, beside: &Path) -> Result<Matrix> {
+    let (rows, cols) = (m.rows, m.cols);
+    if 12 * (rows * cols) as u64 <= share {
+        return Ok(orth(m));
+    }
+    let panel = (share / (8 * rows as u64).max(1)).saturating_sub(1).max(1) as usize;
+    let mut store = ScratchColumns(Scratch::create_plain_beside(beside, cols)?);
+    let mut col = vec![0f64; rows];
+    for c in 0..cols {
+        for (v, row) in col.iter_mut().zip(m.data.chunks_exact(cols)) {
+            *v = row[c] as f64;
+        }
+        store.write(c, &col)?;
+    }
+    drop(m);
+    dense::qr_by_panels(&mut store, rows, cols, panel)?;
+    let mut q = Matrix::zeros(rows, cols);
+    for c in 0..cols {
+        store.read(c, &mut col)?;
+        for (row, &v) in q.data.chunks_exact_mut(cols).zip(&col) {
+            row[c] = v as f32;
+        }
+    }
+    Ok(q)
+}
+
+/// A matrix's f64 columns as plain scratch records, one per column.
+struct ScratchColumns(Scratch);
+
+impl dense::Columns for ScratchColumns {
+    type Error = Error;
+    fn read(&mut self, col: usize, out: &mut [f64]) -> Result<()> {
+        self.0.read_plain(col, bytemuck::cast_slice_mut(out))
+    }
+    fn write(&mut self, col: usize, data: &[f64]) -> Result<()> {
+        self.0.put(col, bytemuck::cast_slice(data))
+    }
 }
