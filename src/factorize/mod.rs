@@ -41,8 +41,10 @@ use crate::{Error, Result};
 
 mod rotate;
 mod stream;
+mod tall;
 pub use rotate::*;
-use stream::{orth_within, MatrixStream};
+use stream::MatrixStream;
+use tall::{orth_within, panel_within, Stored, Tall};
 
 pub use crate::artifact::svd::KIND;
 
@@ -50,6 +52,10 @@ pub use crate::artifact::svd::KIND;
 pub const DEFAULT_ROTATIONS: usize = 72;
 /// Edge of the spatial chunks of the `.svd` arrays.
 const SVD_TILE: u64 = 64;
+/// What `factorize` holds besides its chunk cache and the tall matrices
+/// (the program itself, a chunk per worker), taken off `--memory` before
+/// their share (at most half of it).
+const PROGRAM_BYTES: u64 = 24 << 20;
 
 /// Options of [`factorize`].
 #[derive(Clone, Debug)]
@@ -245,19 +251,42 @@ pub fn factorize(
     let omega = Matrix::from_fn(n, k, |i, j| {
         crate::rng::gaussian(cfg.seed, (i * k + j) as u64) as f32
     });
-    // the tall m × k matrices in f32 are the dense floor (old Q dropped
-    // before the next sketch); each QR's f64 copy goes to a scratch file
-    // beside the output when it does not fit what the cache leaves
-    let share = cfg.memory.bytes() - cache.bytes();
-    let orth = |m: Matrix| orth_within(m, share, out);
-    let mut q = orth(stream.times(&omega, progress)?)?;
+    // the tall m × k sketch and its Q are held whole when their QR (12
+    // bytes an entry) fits what the program, Ω or Z (n × k in f32) and the
+    // cache leave, else stored beside the output and factored a panel of
+    // columns at a time; the small n × k ones likewise
+    let share = (cfg.memory)
+        .less(PROGRAM_BYTES + 4 * (n * k) as u64)
+        .bytes()
+        .saturating_sub(cache.bytes());
+    let held = 12 * (m * k) as u64 <= share;
+    let mut store = None;
+    let sketch = |m_: &Matrix, reuse: &mut Option<Stored>| -> Result<Tall> {
+        if held {
+            return Ok(Tall::Held(tall::orth(stream.times(m_, progress)?)));
+        }
+        // a block's rows in f32 and a column piece in f64: an eighth of the share
+        let block_rows = (share / 8 / (4 * k as u64 + 8)) as usize;
+        let mut s = match reuse.take() {
+            Some(s) => s,
+            None => Stored::over_tiles(out, &stream.tiles, k, block_rows)?,
+        };
+        stream.times_into(m_, &mut s, progress)?;
+        s.orthonormalize(panel_within(share - share / 8, m))?;
+        Ok(Tall::Stored(s))
+    };
+    let mut q = sketch(&omega, &mut store)?;
     drop(omega);
     for _ in 0..cfg.power_iterations {
-        let z = orth(stream.transpose_times(&q, progress)?)?;
-        drop(q);
-        q = orth(stream.times(&z, progress)?)?;
+        let z = orth_within(stream.transpose_times(&mut q, progress)?, share, out)?;
+        if let Tall::Stored(s) = q {
+            store = Some(s);
+        } else {
+            drop(q);
+        }
+        q = sketch(&z, &mut store)?;
     }
-    let bt = stream.transpose_times(&q, progress)?; // n × k
+    let bt = stream.transpose_times(&mut q, progress)?; // n × k
     let mut pass_seconds = t_pass.elapsed().as_secs_f64();
     // Bᵀ = U_b S V_bᵀ (column-major U_b: n × k, V_b: k × k)
     let svd = dense::thin_svd(bt.column_major(), n, k);
@@ -283,8 +312,7 @@ pub fn factorize(
             w.data[r * terms + i] = (sign * sigma[i] * svd.v[i * k + r]) as f32;
         }
     }
-    let mut g = Matrix::zeros(m, terms);
-    dense::mul_add(&mut g.data, terms, (&q.data, k), (&w.data, terms), (m, k, terms));
+    let mut g = q.times(&w, stream.tiles.len())?;
     drop(q);
     let t_err = Instant::now();
     let (err2, norm2) = stream.residual(&g, &p, progress)?;

@@ -1,9 +1,9 @@
 //! The data matrix of a BTF streamed by tiles (rows: texels, columns:
 //! direction pairs) for the randomized SVD passes, and small dense helpers.
 
+use super::tall::{Stored, Tall};
 use super::*;
-use crate::container::Scratch;
-use crate::dense::{self, Columns, Matrix};
+use crate::dense::{self, Matrix};
 
 /// One texel tile's rows of the matrix: rows are ordered tile by tile
 /// (row-major inside each tile), so a tile's rows are contiguous.
@@ -15,7 +15,7 @@ pub(super) struct TileRows {
     pub(super) y0: usize,
     pub(super) w: usize,
     pub(super) h: usize,
-    row0: usize,
+    pub(super) row0: usize,
 }
 
 impl TileRows {
@@ -117,12 +117,37 @@ impl<'a> MatrixStream<'a> {
     /// `A M` (rows × k) for `M` (cols × k): one pass, parallel over tiles;
     /// each tile's rows sum the bands in order.
     pub(super) fn times(&self, m: &Matrix, progress: &dyn Progress) -> Result<Matrix> {
+        let mut out = Matrix::zeros(self.rows, m.cols);
+        self.tiles_times(&self.tiles, m, &mut out.data, progress)?;
+        Ok(out)
+    }
+
+    /// [`MatrixStream::times`] into `store`, a block of tiles at a time.
+    pub(super) fn times_into(&self, m: &Matrix, store: &mut Stored, progress: &dyn Progress) -> Result<()> {
+        let mut y = Vec::new();
+        for b in 0..store.block_count() {
+            let tiles = &self.tiles[store.block_tiles(b)];
+            y.clear();
+            y.resize(tiles.iter().map(|t| t.rows()).sum::<usize>() * m.cols, 0.0);
+            self.tiles_times(tiles, m, &mut y, progress)?;
+            store.write_block(b, &y)?;
+        }
+        Ok(())
+    }
+
+    /// The rows of consecutive `tiles` of `A M` into `out` (zeros), each
+    /// tile's rows written in place.
+    fn tiles_times(
+        &self,
+        tiles: &[TileRows],
+        m: &Matrix,
+        out: &mut [f32],
+        progress: &dyn Progress,
+    ) -> Result<()> {
         let k = m.cols;
-        let mut out = Matrix::zeros(self.rows, k);
-        // each tile's rows written in place (tiles hold consecutive rows)
-        let mut parts = Vec::with_capacity(self.tiles.len());
-        let mut rest = &mut out.data[..];
-        for t in &self.tiles {
+        let mut parts = Vec::with_capacity(tiles.len());
+        let mut rest = out;
+        for t in tiles {
             let (part, after) = rest.split_at_mut(t.rows() * k);
             parts.push((t, part));
             rest = after;
@@ -135,37 +160,42 @@ impl<'a> MatrixStream<'a> {
             }
             progress.advance(1);
             Ok(())
-        })?;
-        Ok(out)
+        })
     }
 
-    /// `Aᵀ Q` (cols × k) for `Q` (rows × k): one pass, parallel over bands;
-    /// each band's rows sum the tiles in order.
-    pub(super) fn transpose_times(&self, q: &Matrix, progress: &dyn Progress) -> Result<Matrix> {
-        let k = q.cols;
-        let parts: Vec<Vec<f32>> = (0..self.bands.len())
-            .into_par_iter()
-            .map(|b| {
-                let nc = self.bands[b].1;
-                // (Aᵀ Q)ᵀ = Qᵀ A, so the products run along the chunk's rows;
-                // each output still sums the texels in order
-                let mut zt = vec![0f32; k * nc];
+    /// `Aᵀ Q` (cols × k) for `Q` (rows × k): one pass, a block of `Q`'s
+    /// rows at a time, parallel over bands; each band's rows sum the tiles
+    /// in order.
+    pub(super) fn transpose_times(&self, q: &mut Tall, progress: &dyn Progress) -> Result<Matrix> {
+        let k = q.cols();
+        let blocks = q.blocks();
+        // (Aᵀ Q)ᵀ = Qᵀ A, so the products run along the chunk's rows; each
+        // output still sums the texels in order
+        let mut zts: Vec<Vec<f32>> = self.bands.iter().map(|&(_, nc)| vec![0f32; k * nc]).collect();
+        let mut held = Vec::new();
+        for b in 0..blocks {
+            let (tiles, row0, rows) = q.block(b, self.tiles.len(), &mut held)?;
+            zts.par_iter_mut().enumerate().try_for_each(|(band, zt)| {
+                let nc = self.bands[band].1;
                 let (mut buf, mut qt) = (Vec::new(), Vec::new());
-                for t in &self.tiles {
-                    let a = self.chunk(t, b, &mut buf)?;
-                    let rows = t.rows();
-                    dense::transpose_into(q.rows_from(t.row0, rows), rows, k, &mut qt);
-                    dense::mul_add(&mut zt, nc, (&qt, rows), (a, nc), (k, rows, nc));
+                for t in &self.tiles[tiles.clone()] {
+                    let a = self.chunk(t, band, &mut buf)?;
+                    let n = t.rows();
+                    let r0 = t.row0 - row0;
+                    dense::transpose_into(&rows[r0 * k..(r0 + n) * k], n, k, &mut qt);
+                    dense::mul_add(zt, nc, (&qt, n), (a, nc), (k, n, nc));
                 }
-                progress.advance(1);
-                let mut z = Vec::new();
-                dense::transpose_into(&zt, k, nc, &mut z);
-                Ok(z)
-            })
-            .collect::<Result<_>>()?;
+                if b + 1 == blocks {
+                    progress.advance(1);
+                }
+                Ok::<_, Error>(())
+            })?;
+        }
         let mut out = Matrix::zeros(self.cols, k);
-        for (&(c0, nc), z) in self.bands.iter().zip(&parts) {
-            out.data[c0 * k..(c0 + nc) * k].copy_from_slice(z);
+        let mut z = Vec::new();
+        for (&(c0, nc), zt) in self.bands.iter().zip(&zts) {
+            dense::transpose_into(zt, k, nc, &mut z);
+            out.data[c0 * k..(c0 + nc) * k].copy_from_slice(&z);
         }
         Ok(out)
     }
@@ -230,60 +260,5 @@ impl<'a> MatrixStream<'a> {
                 at = to;
             }
         }
-    }
-}
-
-/// Orthonormal basis of the columns (thin Householder QR in f64). `m` is
-/// consumed as soon as it is copied: the peak is its f64 copy and the f32
-/// result, 12 bytes per entry.
-fn orth(m: Matrix) -> Matrix {
-    let (rows, cols) = (m.rows, m.cols);
-    let a = m.column_major();
-    drop(m);
-    let q = dense::qr(a, rows, cols).q;
-    Matrix::from_fn(rows, cols, |r, c| q[c * rows + r] as f32)
-}
-
-/// [`orth`] within `share` bytes. When its 12 bytes an entry do not fit,
-/// the columns go in f64 to a scratch file beside `beside` and are factored
-/// a panel of columns at a time ([`dense::qr_by_panels`], the same bits):
-/// held then are `m` or the result (4 bytes an entry) and the panel plus
-/// one column, at least two columns.
-pub(super) fn orth_within(m: Matrix, share: u64, beside: &Path) -> Result<Matrix> {
-    let (rows, cols) = (m.rows, m.cols);
-    if 12 * (rows * cols) as u64 <= share {
-        return Ok(orth(m));
-    }
-    let panel = (share / (8 * rows as u64).max(1)).saturating_sub(1).max(1) as usize;
-    let mut store = ScratchColumns(Scratch::create_plain_beside(beside, cols)?);
-    let mut col = vec![0f64; rows];
-    for c in 0..cols {
-        for (v, row) in col.iter_mut().zip(m.data.chunks_exact(cols)) {
-            *v = row[c] as f64;
-        }
-        store.write(c, &col)?;
-    }
-    drop(m);
-    dense::qr_by_panels(&mut store, rows, cols, panel)?;
-    let mut q = Matrix::zeros(rows, cols);
-    for c in 0..cols {
-        store.read(c, &mut col)?;
-        for (row, &v) in q.data.chunks_exact_mut(cols).zip(&col) {
-            row[c] = v as f32;
-        }
-    }
-    Ok(q)
-}
-
-/// A matrix's f64 columns as plain scratch records, one per column.
-struct ScratchColumns(Scratch);
-
-impl dense::Columns for ScratchColumns {
-    type Error = Error;
-    fn read(&mut self, col: usize, out: &mut [f64]) -> Result<()> {
-        self.0.read_plain(col, bytemuck::cast_slice_mut(out))
-    }
-    fn write(&mut self, col: usize, data: &[f64]) -> Result<()> {
-        self.0.put(col, bytemuck::cast_slice(data))
     }
 }

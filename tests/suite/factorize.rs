@@ -135,19 +135,37 @@ fn factorization_is_identical_with_one_or_two_threads() {
     assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
 }
 
-/// A budget below the sketch's QR (480 × 20 in f64, 77 KB, and 12 bytes
-/// an entry in all) takes its columns through a scratch file three at a
-/// time, and Aᵀ Q's (288 × 20) six at a time: the same bytes as in memory
-/// with two threads, and no scratch file left beside the output.
+/// Budgets below the sketch's QR (1920 × 20 values, 12 bytes each, with
+/// `--terms 10`) keep the sketch and its Q in a scratch file beside the
+/// output: at 16 KiB a tile's rows at a time and one column in each QR
+/// panel (Aᵀ Q's 288 × 20 two), at 600 KiB blocks of one and two tiles
+/// and panels of 16 columns. The same bytes as in memory with two
+/// threads, and no scratch file left beside the output.
 #[test]
 fn a_factorization_through_scratch_columns_gives_the_same_bytes() {
     let dir = tempfile::tempdir().unwrap();
-    let src = small_btf(dir.path(), Family::Pebbles);
-    let runs = [(1, MemoryBudget(16 << 10)), (2, MemoryBudget::default())];
-    let outs: Vec<PathBuf> = runs
+    let src = dir.path().join("wide.btf");
+    let cfg = GenerateConfig {
+        family: Family::Pebbles,
+        imperfection: Imperfection::Cracks,
+        width: 48,
+        height: 40,
+        views: btf::grid(4, 2, 60.0),
+        lights: btf::grid(6, 2, 70.0),
+        seed: 5,
+        ..GenerateConfig::default()
+    };
+    generate::generate_btf(&cfg, &src, &Silent).unwrap();
+    let runs = [
+        (1, MemoryBudget(16 << 10)),
+        (1, MemoryBudget(600 << 10)),
+        (2, MemoryBudget::default()),
+    ];
+    let outs: Vec<Vec<u8>> = runs
         .iter()
-        .map(|&(t, memory)| {
-            let out = dir.path().join(format!("t{t}.svd"));
+        .enumerate()
+        .map(|(i, &(t, memory))| {
+            let out = dir.path().join(format!("run{i}.svd"));
             let cfg = FactorizeConfig {
                 terms: Some(10),
                 rotations: 8,
@@ -156,16 +174,19 @@ fn a_factorization_through_scratch_columns_gives_the_same_bytes() {
             };
             let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
             pool.install(|| run(&src, &out, &cfg));
-            out
+            std::fs::read(&out).unwrap()
         })
         .collect();
-    assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
+    assert!(outs[0] == outs[2] && outs[1] == outs[2]);
     let mut names: Vec<String> = std::fs::read_dir(dir.path())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     names.sort();
-    assert_eq!(names, ["pebbles.btf", "pebbles.mask.png", "t1.svd", "t2.svd"]);
+    assert_eq!(
+        names,
+        ["run0.svd", "run1.svd", "run2.svd", "wide.btf", "wide.mask.png"]
+    );
 }
 
 #[test]

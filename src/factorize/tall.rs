@@ -1,0 +1,242 @@
+//! The tall matrices of the randomized SVD: the sketch Y = A M and its
+//! orthonormal basis Q, one row per texel (`m` × `k`). Held whole when
+//! their QR fits its share of `--memory` (12 bytes an entry); otherwise in
+//! a plain scratch file beside the output, as f64 column pieces of blocks
+//! of whole tiles, which the passes over the BTF read and write a block at
+//! a time and the QR a column at a time ([`dense::qr_by_panels`]). The
+//! values are the same either way: a stored row is its f32 value widened,
+//! and read back narrowed, as [`orth`](super::stream) does in memory.
+
+use std::ops::Range;
+
+use super::*;
+use crate::container::Scratch;
+use crate::dense::Columns;
+use stream::TileRows;
+
+/// Y or Q: held whole (row-major, tile order) or stored by blocks.
+pub(super) enum Tall {
+    Held(Matrix),
+    Stored(Stored),
+}
+
+impl Tall {
+    pub(super) fn cols(&self) -> usize {
+        match self {
+            Tall::Held(m) => m.cols,
+            Tall::Stored(s) => s.cols,
+        }
+    }
+
+    /// The blocks of rows the passes take at a time (one, when held).
+    pub(super) fn blocks(&self) -> usize {
+        match self {
+            Tall::Held(_) => 1,
+            Tall::Stored(s) => s.blocks.len(),
+        }
+    }
+
+    /// Block `b`: its tiles, its first row and its rows (row-major f32,
+    /// into `buf` when stored).
+    pub(super) fn block<'a>(
+        &'a mut self,
+        b: usize,
+        tiles: usize,
+        buf: &'a mut Vec<f32>,
+    ) -> Result<(Range<usize>, usize, &'a [f32])> {
+        match self {
+            Tall::Held(m) => Ok((0..tiles, 0, &m.data)),
+            Tall::Stored(s) => {
+                s.read_block(b, buf)?;
+                let block = &s.blocks[b];
+                Ok((block.tiles.clone(), block.row0, &buf[..]))
+            }
+        }
+    }
+
+    /// `self · w` (m × `w.cols`) for `w` (k × `w.cols`), held whole.
+    pub(super) fn times(&mut self, w: &Matrix, tiles: usize) -> Result<Matrix> {
+        let (k, n) = (self.cols(), w.cols);
+        let rows = match self {
+            Tall::Held(m) => m.rows,
+            Tall::Stored(s) => s.rows,
+        };
+        let mut out = Matrix::zeros(rows, n);
+        let mut buf = Vec::new();
+        for b in 0..self.blocks() {
+            let (_, row0, q) = self.block(b, tiles, &mut buf)?;
+            let r = q.len() / k.max(1);
+            let dst = &mut out.data[row0 * n..(row0 + r) * n];
+            dense::mul_add(dst, n, (q, k), (&w.data, n), (r, k, n));
+        }
+        Ok(out)
+    }
+}
+
+/// A block: consecutive tiles and their rows.
+struct Block {
+    tiles: Range<usize>,
+    row0: usize,
+    rows: usize,
+}
+
+/// A tall matrix's f64 columns in a plain scratch file, a record per
+/// (column, block).
+pub(super) struct Stored {
+    scratch: Scratch,
+    blocks: Vec<Block>,
+    rows: usize,
+    cols: usize,
+    /// One block's column piece, widened.
+    piece: Vec<f64>,
+}
+
+impl Stored {
+    /// A store of `cols` columns over `tiles`, in blocks of whole tiles of
+    /// at most `block_rows` rows (at least one tile), beside `beside`.
+    pub(super) fn over_tiles(
+        beside: &Path,
+        tiles: &[TileRows],
+        cols: usize,
+        block_rows: usize,
+    ) -> Result<Stored> {
+        let mut blocks: Vec<Block> = Vec::new();
+        let mut row0 = 0;
+        for (i, t) in tiles.iter().enumerate() {
+            match blocks.last_mut() {
+                Some(b) if b.rows + t.rows() <= block_rows => {
+                    b.tiles.end = i + 1;
+                    b.rows += t.rows();
+                }
+                _ => blocks.push(Block {
+                    tiles: i..i + 1,
+                    row0,
+                    rows: t.rows(),
+                }),
+            }
+            row0 += t.rows();
+        }
+        Self::new(beside, blocks, row0, cols)
+    }
+
+    fn new(beside: &Path, blocks: Vec<Block>, rows: usize, cols: usize) -> Result<Stored> {
+        Ok(Stored {
+            scratch: Scratch::create_plain_beside(beside, cols * blocks.len())?,
+            rows,
+            cols,
+            piece: Vec::new(),
+            blocks,
+        })
+    }
+
+    pub(super) fn block_tiles(&self, b: usize) -> Range<usize> {
+        self.blocks[b].tiles.clone()
+    }
+
+    pub(super) fn block_count(&self) -> usize {
+        self.blocks.len()
+    }
+
+    fn key(&self, col: usize, b: usize) -> usize {
+        col * self.blocks.len() + b
+    }
+
+    /// Stores block `b`'s rows (row-major f32), widened.
+    pub(super) fn write_block(&mut self, b: usize, y: &[f32]) -> Result<()> {
+        let k = self.cols;
+        for c in 0..k {
+            self.piece.clear();
+            self.piece.extend(y.chunks_exact(k).map(|row| row[c] as f64));
+            self.scratch
+                .put(self.key(c, b), bytemuck::cast_slice(&self.piece))?;
+        }
+        Ok(())
+    }
+
+    /// Block `b`'s rows (row-major f32), narrowed, into `out`.
+    fn read_block(&mut self, b: usize, out: &mut Vec<f32>) -> Result<()> {
+        let (k, rows) = (self.cols, self.blocks[b].rows);
+        out.resize(rows * k, 0.0);
+        self.piece.resize(rows, 0.0);
+        for c in 0..k {
+            let key = self.key(c, b);
+            self.scratch
+                .read_plain(key, bytemuck::cast_slice_mut(&mut self.piece))?;
+            for (row, &v) in out.chunks_exact_mut(k).zip(&self.piece) {
+                row[c] = v as f32;
+            }
+        }
+        Ok(())
+    }
+
+    /// Replaces the columns by their Q ([`dense::qr_by_panels`]), `panel`
+    /// columns in memory at a time.
+    pub(super) fn orthonormalize(&mut self, panel: usize) -> Result<()> {
+        let (rows, cols) = (self.rows, self.cols);
+        dense::qr_by_panels(self, rows, cols, panel)?;
+        Ok(())
+    }
+}
+
+impl Columns for Stored {
+    type Error = Error;
+    fn read(&mut self, col: usize, out: &mut [f64]) -> Result<()> {
+        for b in 0..self.blocks.len() {
+            let Block { row0, rows, .. } = self.blocks[b];
+            let key = self.key(col, b);
+            self.scratch
+                .read_plain(key, bytemuck::cast_slice_mut(&mut out[row0..row0 + rows]))?;
+        }
+        Ok(())
+    }
+    fn write(&mut self, col: usize, data: &[f64]) -> Result<()> {
+        for b in 0..self.blocks.len() {
+            let Block { row0, rows, .. } = self.blocks[b];
+            let key = self.key(col, b);
+            self.scratch
+                .put(key, bytemuck::cast_slice(&data[row0..row0 + rows]))?;
+        }
+        Ok(())
+    }
+}
+
+/// [`orth`] of a matrix held whole, within `share` bytes. When its 12
+/// bytes an entry do not fit, its columns go through a plain scratch file
+/// beside `beside` (one block of all its rows) and are factored a panel at
+/// a time: held then are `m` or the result (4 bytes an entry) and the panel
+/// plus one column, at least two columns.
+pub(super) fn orth_within(m: Matrix, share: u64, beside: &Path) -> Result<Matrix> {
+    let (rows, cols) = (m.rows, m.cols);
+    if 12 * (rows * cols) as u64 <= share {
+        return Ok(orth(m));
+    }
+    let block = Block {
+        tiles: 0..0,
+        row0: 0,
+        rows,
+    };
+    let mut store = Stored::new(beside, vec![block], rows, cols)?;
+    store.write_block(0, &m.data)?;
+    drop(m);
+    store.orthonormalize(panel_within(share, rows))?;
+    let mut q = Vec::new();
+    store.read_block(0, &mut q)?;
+    Ok(Matrix { rows, cols, data: q })
+}
+
+/// Columns of `rows` f64 that `share` holds besides the one a reflector is
+/// read into (at least one).
+pub(super) fn panel_within(share: u64, rows: usize) -> usize {
+    (share / (8 * rows as u64).max(1)).saturating_sub(1).max(1) as usize
+}
+
+/// Orthonormal basis of the columns (thin Householder QR in f64). `m` is
+/// consumed as soon as it is copied: the peak is its f64 copy and the f32
+/// result, 12 bytes per entry.
+pub(super) fn orth(m: Matrix) -> Matrix {
+    let (rows, cols) = (m.rows, m.cols);
+    let a = m.column_major();
+    drop(m);
+    let q = dense::qr(a, rows, cols).q;
+    Matrix::from_fn(rows, cols, |r, c| q[c * rows + r] as f32)
+}
