@@ -39,12 +39,14 @@ use crate::math;
 use crate::progress::Progress;
 use crate::{Error, Result};
 
+mod maps;
 mod rotate;
 mod stream;
 mod tall;
+use maps::Maps;
 pub use rotate::*;
 use stream::MatrixStream;
-use tall::{orth_within, panel_within, Stored, Tall};
+use tall::{beside, orth_within, panel_within, Stored, Tall};
 
 pub use crate::artifact::svd::KIND;
 
@@ -269,7 +271,7 @@ pub fn factorize(
         let block_rows = (share / 8 / (4 * k as u64 + 8)) as usize;
         let mut s = match reuse.take() {
             Some(s) => s,
-            None => Stored::over_tiles(out, &stream.tiles, k, block_rows)?,
+            None => Stored::over_tiles(&beside(out, "q"), &stream.tiles, k, block_rows)?,
         };
         stream.times_into(m_, &mut s, progress)?;
         s.orthonormalize(panel_within(share - share / 8, m))?;
@@ -278,7 +280,11 @@ pub fn factorize(
     let mut q = sketch(&omega, &mut store)?;
     drop(omega);
     for _ in 0..cfg.power_iterations {
-        let z = orth_within(stream.transpose_times(&mut q, progress)?, share, out)?;
+        let z = orth_within(
+            stream.transpose_times(&mut q, progress)?,
+            share,
+            &beside(out, "z"),
+        )?;
         if let Tall::Stored(s) = q {
             store = Some(s);
         } else {
@@ -312,14 +318,17 @@ pub fn factorize(
             w.data[r * terms + i] = (sign * sigma[i] * svd.v[i * k + r]) as f32;
         }
     }
-    let mut g = q.times(&w, stream.tiles.len())?;
+    // g = Q W, stored in Q's blocks when Q is
+    let mut g = q.times(&w, &beside(out, "g"))?;
     drop(q);
     let t_err = Instant::now();
-    let (err2, norm2) = stream.residual(&g, &p, progress)?;
+    let (err2, norm2) = stream.residual(&mut g, &p, progress)?;
     pass_seconds += t_err.elapsed().as_secs_f64();
     progress.end();
     let relative_error = if norm2 > 0.0 { (err2 / norm2).sqrt() } else { 0.0 };
-    stream.to_image_order(&mut g);
+    if let Tall::Held(g) = &mut g {
+        stream.to_image_order(g);
+    }
 
     let layout = btf.layout().clone();
     write_svd(
@@ -328,7 +337,8 @@ pub fn factorize(
         &btf,
         input,
         source_kind,
-        &g,
+        g,
+        &stream.tiles,
         &p,
         &sigma[..terms],
         relative_error,
@@ -364,7 +374,8 @@ fn write_svd(
     btf: &Btf,
     input: &Path,
     source_kind: &str,
-    g: &Matrix,
+    mut g: Tall,
+    tiles: &[stream::TileRows],
     p: &Matrix,
     sigma: &[f64],
     relative_error: f64,
@@ -407,7 +418,21 @@ fn write_svd(
         &[h, w, terms],
         &[t, t, terms],
     )?)?;
-    c.write_array(id, &g.data)?;
+    // held maps are in image order; stored ones are written a row of
+    // chunks at a time and kept as chunks for the rotations (their cache
+    // an eighth of the budget, as the batches of turned chunks)
+    let maps = match g {
+        Tall::Held(ref g) => {
+            c.write_array(id, &g.data)?;
+            Maps::Whole(&g.data)
+        }
+        Tall::Stored(_) => {
+            let cache = cfg.memory.split([1, 7])[0];
+            Maps::Chunks(maps::write_stored(
+                &mut c, id, &mut g, tiles, l.width, out, cache,
+            )?)
+        }
+    };
     let pairs = l.pairs() as u64;
     let id = c.add_array(ArraySpec::new(
         "appearance",
@@ -425,7 +450,7 @@ fn write_svd(
         c.write_chunk(id, k, &btf.read_pair_rect(preview_pair(l), rect)?)?;
     }
     if cfg.rotations > 0 {
-        write_rotations(&mut c, cfg, l.width, l.height, sigma.len(), &g.data, progress)?;
+        write_rotations(&mut c, cfg, l.width, l.height, sigma.len(), maps, progress)?;
     }
     c.finish()
 }

@@ -1,6 +1,7 @@
 //! Rotated and resampled copies of a factorization: the geometry maps
 //! turned for each of the field-aligned rotations, and resized to a scale.
 
+use super::maps::Maps;
 use super::*;
 use crate::math;
 
@@ -72,7 +73,7 @@ pub fn resample_svd(
     let id = c.add_array(ArraySpec::new("preview", DType::F32, &[h, w, 3], &[t, t, 3])?)?;
     c.write_array(id, &preview)?;
     if rotations > 0 {
-        write_rotations(&mut c, &cfg, width, height, terms, &g, progress)?;
+        write_rotations(&mut c, &cfg, width, height, terms, Maps::Whole(&g), progress)?;
     }
     c.finish()
 }
@@ -111,13 +112,26 @@ pub(super) fn rotate_region(
     channels: usize,
     degrees: f64,
     tileable: bool,
+    region: (usize, usize, usize, usize),
+) -> (Vec<f32>, Vec<u8>) {
+    let texel = |x: usize, y: usize| &maps[(y * width + x) * channels..(y * width + x + 1) * channels];
+    rotate_from(texel, width, height, channels, degrees, tileable, region)
+}
+
+/// [`rotate_region`] reading the maps' texel (x, y) from `texel`.
+pub(super) fn rotate_from<'a>(
+    texel: impl Fn(usize, usize) -> &'a [f32],
+    width: usize,
+    height: usize,
+    channels: usize,
+    degrees: f64,
+    tileable: bool,
     (rx, ry, rw, rh): (usize, usize, usize, usize),
 ) -> (Vec<f32>, Vec<u8>) {
     let (sin, cos) = math::sin_cos(degrees.to_radians());
     let (cx, cy) = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
     let mut out = vec![0f32; rw * rh * channels];
     let mut valid = vec![0u8; rw * rh];
-    let texel = |x: usize, y: usize| &maps[(y * width + x) * channels..(y * width + x + 1) * channels];
     for y in ry..ry + rh {
         for x in rx..rx + rw {
             let (dx, dy) = (x as f64 - cx, y as f64 - cy);
@@ -174,14 +188,15 @@ pub(super) fn rotate_region(
 /// copies turned by [`rotate_region`], chunk by chunk: a batch of chunks is
 /// rotated and encoded at once, sized to an eighth of `cfg.memory` (at
 /// least one per thread), and written in the arrays' order, so the file is
-/// the same for any budget and thread count.
+/// the same for any budget and thread count. Maps kept as chunks are read a
+/// window per turned chunk, gathered before the batch is turned.
 pub(super) fn write_rotations(
     c: &mut ContainerWriter,
     cfg: &FactorizeConfig,
     width: usize,
     height: usize,
     terms: usize,
-    g: &[f32],
+    mut g: Maps,
     progress: &dyn Progress,
 ) -> Result<()> {
     let r = cfg.rotations as u64;
@@ -200,8 +215,11 @@ pub(super) fn write_rotations(
     )?)?;
     let maps_spec = c.spec(maps).clone();
     let per_rotation = maps_spec.chunk_count() / r;
-    // a chunk in flight: its f32 and f16 texels, its validity and encodings
-    let chunk_bytes = (t * t) as usize * (terms * 8 + 2);
+    // a chunk in flight: its f32 and f16 texels, its validity and encodings,
+    // and the window it reads when the maps are kept as chunks
+    let window = (t as f64 * std::f64::consts::SQRT_2).ceil() as usize + 6;
+    let chunk_bytes = (t * t) as usize * (terms * 8 + 2)
+        + matches!(g, Maps::Chunks(_)) as usize * window * window * terms * 4;
     let batch = (cfg.memory.bytes() as usize / 8 / chunk_bytes)
         .max(rayon::current_num_threads())
         .min(per_rotation as usize) as u64;
@@ -213,13 +231,33 @@ pub(super) fn write_rotations(
         // compress to a few bytes each)
         let mut valid_chunks = Vec::with_capacity(per_rotation as usize);
         for k0 in (0..per_rotation).step_by(batch as usize) {
-            let encoded: Vec<(codec::EncodedChunk, codec::EncodedChunk)> = (k0..(k0 + batch)
-                .min(per_rotation))
+            let region = |k: u64| {
+                let (o, e) = maps_spec.chunk_region(ri * per_rotation + k);
+                (o[2] as usize, o[1] as usize, e[2] as usize, e[1] as usize)
+            };
+            let ks = k0..(k0 + batch).min(per_rotation);
+            let windows = match &mut g {
+                Maps::Whole(_) => Vec::new(),
+                Maps::Chunks(m) => ks
+                    .clone()
+                    .map(|k| m.window(degrees, cfg.tileable, region(k)))
+                    .collect::<Result<Vec<_>>>()?,
+            };
+            let whole = match &g {
+                Maps::Whole(g) => Some(*g),
+                Maps::Chunks(_) => None,
+            };
+            let encoded: Vec<(codec::EncodedChunk, codec::EncodedChunk)> = ks
                 .into_par_iter()
                 .map(|k| {
-                    let (o, e) = maps_spec.chunk_region(ri * per_rotation + k);
-                    let region = (o[2] as usize, o[1] as usize, e[2] as usize, e[1] as usize);
-                    let (rot, ok) = rotate_region(g, width, height, terms, degrees, cfg.tileable, region);
+                    let (rot, ok) = match whole {
+                        Some(g) => rotate_region(g, width, height, terms, degrees, cfg.tileable, region(k)),
+                        None => {
+                            let win = &windows[(k - k0) as usize];
+                            let texel = |x, y| win.texel(x, y);
+                            rotate_from(texel, width, height, terms, degrees, cfg.tileable, region(k))
+                        }
+                    };
                     let mut rot16 = vec![f16::ZERO; rot.len()];
                     rot16.convert_from_f32_slice(&rot);
                     (codec::encode(&rot16, level), codec::encode(&ok, level))

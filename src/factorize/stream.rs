@@ -11,7 +11,7 @@ use crate::dense::{self, Matrix};
 pub(super) struct TileRows {
     tx: usize,
     ty: usize,
-    x0: usize,
+    pub(super) x0: usize,
     pub(super) y0: usize,
     pub(super) w: usize,
     pub(super) h: usize,
@@ -200,32 +200,42 @@ impl<'a> MatrixStream<'a> {
         Ok(out)
     }
 
-    /// (‖A − G Pᵀ‖²_F, ‖A‖²_F): one pass, summed in chunk order.
-    pub(super) fn residual(&self, g: &Matrix, p: &Matrix, progress: &dyn Progress) -> Result<(f64, f64)> {
-        let terms = g.cols;
+    /// (‖A − G Pᵀ‖²_F, ‖A‖²_F): one pass, a block of `G`'s rows at a time,
+    /// summed in chunk order.
+    pub(super) fn residual(&self, g: &mut Tall, p: &Matrix, progress: &dyn Progress) -> Result<(f64, f64)> {
+        let terms = g.cols();
         // Pᵀ (terms × cols), so a band's columns are contiguous in each row
         let mut pt = Vec::new();
         dense::transpose_into(&p.data, self.cols, terms, &mut pt);
-        let per_tile: Vec<(f64, f64)> = self
-            .tiles
-            .par_iter()
-            .map(|t| {
-                let (mut buf, mut r) = (Vec::new(), Vec::new());
-                let minus_g: Vec<f32> = g.rows_from(t.row0, t.rows()).iter().map(|v| -v).collect();
-                let (mut err, mut norm) = (0f64, 0f64);
-                for (b, &(c0, nc)) in self.bands.iter().enumerate() {
-                    let a = self.chunk(t, b, &mut buf)?;
-                    r.clear();
-                    r.extend_from_slice(a);
-                    let mg = (&minus_g[..], terms);
-                    dense::mul_add(&mut r, nc, mg, (&pt[c0..], self.cols), (t.rows(), terms, nc));
-                    err += dense::sum_squares(&r, nc);
-                    norm += dense::sum_squares(a, nc);
-                }
-                progress.advance(1);
-                Ok((err, norm))
-            })
-            .collect::<Result<_>>()?;
+        let mut per_tile: Vec<(f64, f64)> = Vec::with_capacity(self.tiles.len());
+        let mut held = Vec::new();
+        for b in 0..g.blocks() {
+            let (tiles, row0, rows) = g.block(b, self.tiles.len(), &mut held)?;
+            let part: Vec<(f64, f64)> = self.tiles[tiles]
+                .par_iter()
+                .map(|t| {
+                    let (mut buf, mut r) = (Vec::new(), Vec::new());
+                    let r0 = t.row0 - row0;
+                    let minus_g: Vec<f32> = rows[r0 * terms..(r0 + t.rows()) * terms]
+                        .iter()
+                        .map(|v| -v)
+                        .collect();
+                    let (mut err, mut norm) = (0f64, 0f64);
+                    for (b, &(c0, nc)) in self.bands.iter().enumerate() {
+                        let a = self.chunk(t, b, &mut buf)?;
+                        r.clear();
+                        r.extend_from_slice(a);
+                        let mg = (&minus_g[..], terms);
+                        dense::mul_add(&mut r, nc, mg, (&pt[c0..], self.cols), (t.rows(), terms, nc));
+                        err += dense::sum_squares(&r, nc);
+                        norm += dense::sum_squares(a, nc);
+                    }
+                    progress.advance(1);
+                    Ok((err, norm))
+                })
+                .collect::<Result<_>>()?;
+            per_tile.extend(part);
+        }
         Ok(per_tile
             .iter()
             .fold((0.0, 0.0), |acc, x| (acc.0 + x.0, acc.1 + x.1)))

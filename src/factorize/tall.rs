@@ -54,22 +54,60 @@ impl Tall {
         }
     }
 
-    /// `self · w` (m × `w.cols`) for `w` (k × `w.cols`), held whole.
-    pub(super) fn times(&mut self, w: &Matrix, tiles: usize) -> Result<Matrix> {
+    /// `self · w` (m × `w.cols`) for `w` (k × `w.cols`): held whole when
+    /// `self` is, else stored in the same blocks beside `beside`.
+    pub(super) fn times(&mut self, w: &Matrix, beside: &Path) -> Result<Tall> {
         let (k, n) = (self.cols(), w.cols);
-        let rows = match self {
-            Tall::Held(m) => m.rows,
-            Tall::Stored(s) => s.rows,
-        };
-        let mut out = Matrix::zeros(rows, n);
-        let mut buf = Vec::new();
-        for b in 0..self.blocks() {
-            let (_, row0, q) = self.block(b, tiles, &mut buf)?;
-            let r = q.len() / k.max(1);
-            let dst = &mut out.data[row0 * n..(row0 + r) * n];
-            dense::mul_add(dst, n, (q, k), (&w.data, n), (r, k, n));
+        match self {
+            Tall::Held(q) => {
+                let mut out = Matrix::zeros(q.rows, n);
+                dense::mul_add(&mut out.data, n, (&q.data, k), (&w.data, n), (q.rows, k, n));
+                Ok(Tall::Held(out))
+            }
+            Tall::Stored(s) => {
+                let mut out = s.like(beside, n)?;
+                let (mut buf, mut y) = (Vec::new(), Vec::new());
+                for b in 0..s.blocks.len() {
+                    s.read_block(b, &mut buf)?;
+                    let r = s.blocks[b].rows;
+                    y.clear();
+                    y.resize(r * n, 0.0);
+                    dense::mul_add(&mut y, n, (&buf, k), (&w.data, n), (r, k, n));
+                    out.write_block(b, &y)?;
+                }
+                Ok(Tall::Stored(out))
+            }
         }
-        Ok(out)
+    }
+
+    /// The rows of the consecutive tiles `range` of `tiles` (row-major
+    /// f32) into `out`.
+    pub(super) fn tile_rows(
+        &mut self,
+        tiles: &[TileRows],
+        range: Range<usize>,
+        out: &mut Vec<f32>,
+    ) -> Result<()> {
+        let k = self.cols();
+        let last = &tiles[range.end - 1];
+        let (r0, r1) = (tiles[range.start].row0, last.row0 + last.rows());
+        out.clear();
+        match self {
+            Tall::Held(m) => out.extend_from_slice(&m.data[r0 * k..r1 * k]),
+            Tall::Stored(s) => {
+                let mut buf = Vec::new();
+                for b in 0..s.blocks.len() {
+                    let (b0, rows) = (s.blocks[b].row0, s.blocks[b].rows);
+                    if b0 + rows <= r0 || b0 >= r1 {
+                        continue;
+                    }
+                    s.read_block(b, &mut buf)?;
+                    let (lo, hi) = (r0.max(b0) - b0, r1.min(b0 + rows) - b0);
+                    out.extend_from_slice(&buf[lo * k..hi * k]);
+                }
+            }
+        }
+        Ok(())
     }
 }
 
@@ -117,6 +155,17 @@ impl Stored {
             row0 += t.rows();
         }
         Self::new(beside, blocks, row0, cols)
+    }
+
+    /// A store of `cols` columns in the same blocks, beside `beside`.
+    fn like(&self, beside: &Path, cols: usize) -> Result<Stored> {
+        let blocks = (self.blocks.iter())
+            .map(|b| Block {
+                tiles: b.tiles.clone(),
+                ..*b
+            })
+            .collect();
+        Self::new(beside, blocks, self.rows, cols)
     }
 
     fn new(beside: &Path, blocks: Vec<Block>, rows: usize, cols: usize) -> Result<Stored> {
@@ -239,4 +288,15 @@ pub(super) fn orth(m: Matrix) -> Matrix {
     drop(m);
     let q = dense::qr(a, rows, cols).q;
     Matrix::from_fn(rows, cols, |r, c| q[c * rows + r] as f32)
+}
+
+/// Where a store named `what` of the factorization `out` keeps its scratch
+/// file (`.OUT.WHAT.PID-HOST-BOOT.scratch`): one name per store, so stores
+/// alive at once never share a file.
+pub(super) fn beside(out: &Path, what: &str) -> PathBuf {
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    out.with_file_name(format!("{name}.{what}"))
 }

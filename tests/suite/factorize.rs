@@ -139,8 +139,10 @@ fn factorization_is_identical_with_one_or_two_threads() {
 /// `--terms 10`) keep the sketch and its Q in a scratch file beside the
 /// output: at 16 KiB a tile's rows at a time and one column in each QR
 /// panel (Aᵀ Q's 288 × 20 two), at 600 KiB blocks of one and two tiles
-/// and panels of 16 columns. The same bytes as in memory with two
-/// threads, and no scratch file left beside the output.
+/// and panels of 16 columns; the geometry maps then go to the `.svd` a row
+/// of chunks at a time, and the rotated copies read windows of them. The
+/// same bytes as in memory with two threads, on a tileable sample too, and
+/// no scratch file left beside the output.
 #[test]
 fn a_factorization_through_scratch_columns_gives_the_same_bytes() {
     let dir = tempfile::tempdir().unwrap();
@@ -161,32 +163,36 @@ fn a_factorization_through_scratch_columns_gives_the_same_bytes() {
         (1, MemoryBudget(600 << 10)),
         (2, MemoryBudget::default()),
     ];
-    let outs: Vec<Vec<u8>> = runs
-        .iter()
-        .enumerate()
-        .map(|(i, &(t, memory))| {
-            let out = dir.path().join(format!("run{i}.svd"));
-            let cfg = FactorizeConfig {
-                terms: Some(10),
-                rotations: 8,
-                memory,
-                ..FactorizeConfig::default()
-            };
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
-            pool.install(|| run(&src, &out, &cfg));
-            std::fs::read(&out).unwrap()
-        })
-        .collect();
-    assert!(outs[0] == outs[2] && outs[1] == outs[2]);
-    let mut names: Vec<String> = std::fs::read_dir(dir.path())
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    names.sort();
-    assert_eq!(
-        names,
-        ["run0.svd", "run1.svd", "run2.svd", "wide.btf", "wide.mask.png"]
-    );
+    for tileable in [false, true] {
+        let outs: Vec<Vec<u8>> = runs
+            .iter()
+            .enumerate()
+            .map(|(i, &(t, memory))| {
+                let out = dir.path().join(format!("run{i}.svd"));
+                let cfg = FactorizeConfig {
+                    terms: Some(10),
+                    rotations: 8,
+                    tileable,
+                    memory,
+                    ..FactorizeConfig::default()
+                };
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+                pool.install(|| run(&src, &out, &cfg));
+                std::fs::read(&out).unwrap()
+            })
+            .collect();
+        assert!(outs[0] == outs[2], "16 KiB, tileable {tileable}");
+        assert!(outs[1] == outs[2], "600 KiB, tileable {tileable}");
+        let mut names: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(
+            names,
+            ["run0.svd", "run1.svd", "run2.svd", "wide.btf", "wide.mask.png"]
+        );
+    }
 }
 
 #[test]
@@ -217,8 +223,9 @@ fn a_colour_image_is_a_one_pair_btf_factorized_exactly() {
 }
 
 /// A colour image of several 64² chunks: the same bytes with one thread at
-/// 1 MiB (rotated copies made a chunk at a time) as with two threads and
-/// the default budget (a rotation's chunks at once), and the preview,
+/// 1 MiB (its factors stored, rotated copies made a chunk at a time from
+/// windows of the maps) as with two threads and the default budget (a
+/// rotation's chunks at once from the whole maps), tileable or not, and the preview,
 /// written chunk by chunk, is the image as the BTF stores it (f16).
 #[test]
 fn factorizing_an_image_gives_the_same_bytes_for_any_budget() {
@@ -228,20 +235,27 @@ fn factorizing_an_image_gives_the_same_bytes_for_any_budget() {
     let value = |i: usize| (((i * 7919) % 251) as f32 / 250.0).powf(2.2);
     write_rgb_png(&png, w, h, |x, y| [0, 1, 2].map(|c| value((y * w + x) * 3 + c)));
     let runs = [(1, MemoryBudget(1 << 20)), (2, MemoryBudget::default())];
-    let outs: Vec<PathBuf> = runs
-        .iter()
-        .map(|&(t, memory)| {
-            let out = dir.path().join(format!("t{t}.svd"));
-            let cfg = FactorizeConfig {
-                rotations: 8,
-                memory,
-                ..FactorizeConfig::default()
-            };
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
-            pool.install(|| run(&png, &out, &cfg));
-            out
-        })
-        .collect();
+    let factorize = |tileable: bool| -> Vec<PathBuf> {
+        runs.iter()
+            .map(|&(t, memory)| {
+                let out = dir.path().join(format!("t{t}.svd"));
+                let cfg = FactorizeConfig {
+                    rotations: 12,
+                    tileable,
+                    memory,
+                    ..FactorizeConfig::default()
+                };
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap();
+                pool.install(|| run(&png, &out, &cfg));
+                out
+            })
+            .collect()
+    };
+    // at 1 MiB the sketch, Q and the geometry maps are stored beside the
+    // output, and each turned chunk reads a window of the maps' chunks
+    let outs = factorize(true);
+    assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
+    let outs = factorize(false);
     assert_eq!(std::fs::read(&outs[0]).unwrap(), std::fs::read(&outs[1]).unwrap());
     let preview = SvdArtifact::open(&outs[0], MemoryBudget::default())
         .unwrap()
