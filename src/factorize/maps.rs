@@ -15,7 +15,7 @@ use stream::TileRows;
 /// chunk records.
 pub(super) enum Maps<'a> {
     Whole(&'a [f32]),
-    Chunks(ChunkMaps),
+    Chunks(Box<ChunkMaps>),
 }
 
 /// The geometry maps' chunks (`SVD_TILE`² texels × terms, f32, as in the

@@ -428,9 +428,9 @@ fn write_svd(
         }
         Tall::Stored(_) => {
             let cache = cfg.memory.split([1, 7])[0];
-            Maps::Chunks(maps::write_stored(
+            Maps::Chunks(Box::new(maps::write_stored(
                 &mut c, id, &mut g, tiles, l.width, out, cache,
-            )?)
+            )?))
         }
     };
     let pairs = l.pairs() as u64;

@@ -1,11 +1,12 @@
-//! The tall matrices of the randomized SVD: the sketch Y = A M and its
-//! orthonormal basis Q, one row per texel (`m` × `k`). Held whole when
-//! their QR fits its share of `--memory` (12 bytes an entry); otherwise in
-//! a plain scratch file beside the output, as f64 column pieces of blocks
-//! of whole tiles, which the passes over the BTF read and write a block at
-//! a time and the QR a column at a time ([`dense::qr_by_panels`]). The
-//! values are the same either way: a stored row is its f32 value widened,
-//! and read back narrowed, as [`orth`](super::stream) does in memory.
+//! The tall matrices of the randomized SVD, one row per texel: the sketch
+//! Y = A M and its orthonormal basis Q (`m` × `k`), and the geometry maps
+//! G = Q W (`m` × terms). Held whole when the QR fits its share of
+//! `--memory` (12 bytes an entry); otherwise each in a plain scratch file
+//! beside the output ([`beside`]) as f64 column pieces of blocks of whole
+//! tiles, which the passes over the BTF read and write a block at a time
+//! and the QR a column at a time ([`dense::qr_by_panels`]). The values are
+//! the same either way: a stored f32 is widened and narrowed back exactly,
+//! and every sum runs in the same order.
 
 use std::ops::Range;
 
@@ -14,7 +15,7 @@ use crate::container::Scratch;
 use crate::dense::Columns;
 use stream::TileRows;
 
-/// Y or Q: held whole (row-major, tile order) or stored by blocks.
+/// Y, Q or G: held whole (row-major, tile order) or stored by blocks.
 pub(super) enum Tall {
     Held(Matrix),
     Stored(Stored),
