@@ -19,8 +19,10 @@
 //! tile × direction band): `A M` sums over bands inside each tile, `Aᵀ Q` sums
 //! over tiles inside each band. Each sum runs sequentially in a fixed order
 //! inside one task, and tasks are independent, so the result does not depend
-//! on the thread count. Memory: the factors (O((texels + columns)·k)) plus one
-//! chunk per worker; chunks are cached only when the whole BTF fits the budget.
+//! on the thread count. Memory: one chunk per worker (chunks are cached only
+//! when the whole BTF fits half the budget), the factors on the columns' side
+//! (O(columns·k)), and the tall ones (O(texels·k)) held whole only when they
+//! fit what is left, else kept in scratch files beside the output (`tall`).
 //! One extra pass measures ‖A − A_n‖_F / ‖A‖_F.
 
 use std::path::{Path, PathBuf};
@@ -263,9 +265,9 @@ pub fn factorize(
         .saturating_sub(cache.bytes());
     let held = 12 * (m * k) as u64 <= share;
     let mut store = None;
-    let sketch = |m_: &Matrix, reuse: &mut Option<Stored>| -> Result<Tall> {
+    let sketch = |by: &Matrix, reuse: &mut Option<Stored>| -> Result<Tall> {
         if held {
-            return Ok(Tall::Held(tall::orth(stream.times(m_, progress)?)));
+            return Ok(Tall::Held(tall::orth(stream.times(by, progress)?)));
         }
         // a block's rows in f32 and a column piece in f64: an eighth of the share
         let block_rows = (share / 8 / (4 * k as u64 + 8)) as usize;
@@ -273,7 +275,7 @@ pub fn factorize(
             Some(s) => s,
             None => Stored::over_tiles(&beside(out, "q"), &stream.tiles, k, block_rows)?,
         };
-        stream.times_into(m_, &mut s, progress)?;
+        stream.times_into(by, &mut s, progress)?;
         s.orthonormalize(panel_within(share - share / 8, m))?;
         Ok(Tall::Stored(s))
     };

@@ -1,5 +1,6 @@
 //! The data matrix of a BTF streamed by tiles (rows: texels, columns:
-//! direction pairs) for the randomized SVD passes, and small dense helpers.
+//! direction pairs) for the randomized SVD passes, whose tall operands and
+//! results are held whole or stored by blocks of tiles ([`Tall`]).
 
 use super::tall::{Stored, Tall};
 use super::*;
