@@ -16,7 +16,7 @@
 use pulp::{Arch, Simd, WithSimd};
 
 mod panel;
-pub(crate) use panel::{qr_by_panels, Columns};
+pub(crate) use panel::{qr_by_panels, qr_in_rows, Columns};
 
 /// A computation to compile for each instruction set: `run` is marked
 /// `#[inline(always)]`, so its body is compiled into each of pulp's

@@ -158,20 +158,53 @@ impl Scratch {
     /// The plain record under `key` into `out`, which has its length.
     pub fn read_plain(&mut self, key: usize, out: &mut [u8]) -> Result<()> {
         let e = self.extent(key)?;
-        if self.compressor.is_some() || e.stored as usize != out.len() {
+        if e.stored as usize != out.len() {
             return Err(Error::input(
                 &self.path,
                 format!(
-                    "scratch record {key} holds {} bytes, expected {} plain",
+                    "scratch record {key} holds {} bytes, expected {}",
                     e.stored,
                     out.len()
                 ),
             ));
         }
+        self.read_plain_at(key, 0, out)
+    }
+
+    /// Bytes `at..at + out.len()` of the plain record under `key` into `out`.
+    pub fn read_plain_at(&mut self, key: usize, at: usize, out: &mut [u8]) -> Result<()> {
+        let e = self.plain_part(key, at, out.len())?;
         self.file
-            .seek(SeekFrom::Start(e.offset))
+            .seek(SeekFrom::Start(e.offset + at as u64))
             .and_then(|_| self.file.read_exact(out))
             .map_err(|err| Error::io(&self.path, err))
+    }
+
+    /// Overwrites bytes `at..at + data.len()` of the plain record under `key`.
+    pub fn write_plain_at(&mut self, key: usize, at: usize, data: &[u8]) -> Result<()> {
+        let e = self.plain_part(key, at, data.len())?;
+        self.file
+            .seek(SeekFrom::Start(e.offset + at as u64))
+            .and_then(|_| self.file.write_all(data))
+            .map_err(|err| Error::io(&self.path, err))?;
+        self.written += data.len() as u64;
+        Ok(())
+    }
+
+    /// The extent of plain record `key`, which holds bytes `at..at + len`.
+    fn plain_part(&self, key: usize, at: usize, len: usize) -> Result<Extent> {
+        let e = self.extent(key)?;
+        if self.compressor.is_some() || at + len > e.stored as usize {
+            return Err(Error::input(
+                &self.path,
+                format!(
+                    "scratch record {key} holds {} bytes, not bytes {at}..{} plain",
+                    e.stored,
+                    at + len
+                ),
+            ));
+        }
+        Ok(e)
     }
 
     /// The record under `key`, decompressed to `len` bytes.

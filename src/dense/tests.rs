@@ -133,14 +133,14 @@ struct Held {
 
 impl Columns for Held {
     type Error = std::convert::Infallible;
-    fn read(&mut self, col: usize, out: &mut [f64]) -> Result<(), Self::Error> {
+    fn read(&mut self, col: usize, r0: usize, out: &mut [f64]) -> Result<(), Self::Error> {
         self.reads += 1;
-        out.copy_from_slice(&self.cols[col]);
+        out.copy_from_slice(&self.cols[col][r0..r0 + out.len()]);
         Ok(())
     }
-    fn write(&mut self, col: usize, data: &[f64]) -> Result<(), Self::Error> {
+    fn write(&mut self, col: usize, r0: usize, data: &[f64]) -> Result<(), Self::Error> {
         self.writes += 1;
-        self.cols[col].copy_from_slice(data);
+        self.cols[col][r0..r0 + data.len()].copy_from_slice(data);
         Ok(())
     }
 }
@@ -175,6 +175,20 @@ fn qr_by_panels_has_the_bits_of_the_whole_qr() {
             assert_eq!(held.writes, 2 * k);
             let earlier: usize = (0..panels).map(|i| i * p).sum();
             assert_eq!(held.reads, 2 * k + 2 * earlier, "{n} × {k} in panels of {panel}");
+        }
+        // no whole column held: blocks of one row, of fewer rows than the
+        // dot's eight lanes, of a number not dividing them, and of them all
+        for block in [1, 3, 8, 13, n] {
+            let mut held = Held {
+                cols: a.chunks_exact(n).map(|c| c.to_vec()).collect(),
+                reads: 0,
+                writes: 0,
+            };
+            let r = qr_in_rows(&mut held, n, k, block).unwrap();
+            let q: Vec<f64> = held.cols.concat();
+            let same = |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(x, y)| x.to_bits() == y.to_bits());
+            assert!(same(&q, &whole.q), "Q of {n} × {k} in blocks of {block} rows");
+            assert!(same(&r, &whole.r), "R of {n} × {k} in blocks of {block} rows");
         }
     }
 }

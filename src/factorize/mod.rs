@@ -48,7 +48,7 @@ mod tall;
 use maps::Maps;
 pub use rotate::*;
 use stream::MatrixStream;
-use tall::{beside, orth_within, panel_within, Stored, Tall};
+use tall::{beside, orth_within, Stored, Tall};
 
 pub use crate::artifact::svd::KIND;
 
@@ -276,7 +276,7 @@ pub fn factorize(
             None => Stored::over_tiles(&beside(out, "q"), &stream.tiles, k, block_rows)?,
         };
         stream.times_into(by, &mut s, progress)?;
-        s.orthonormalize(panel_within(share - share / 8, m))?;
+        s.orthonormalize(share - share / 8)?;
         Ok(Tall::Stored(s))
     };
     let mut q = sketch(&omega, &mut store)?;

@@ -4,7 +4,8 @@
 //! `--memory` (12 bytes an entry); otherwise each in a plain scratch file
 //! beside the output ([`beside`]) as f64 column pieces of blocks of whole
 //! tiles, which the passes over the BTF read and write a block at a time
-//! and the QR a column at a time ([`dense::qr_by_panels`]). The values are
+//! and the QR a column or a piece of one at a time
+//! ([`Stored::orthonormalize`]). The values are
 //! the same either way: a stored f32 is widened and narrowed back exactly,
 //! and every sum runs in the same order.
 
@@ -219,42 +220,60 @@ impl Stored {
         Ok(())
     }
 
-    /// Replaces the columns by their Q ([`dense::qr_by_panels`]), `panel`
-    /// columns in memory at a time.
-    pub(super) fn orthonormalize(&mut self, panel: usize) -> Result<()> {
+    /// Replaces the columns by their Q within `share` bytes: a panel of as
+    /// many columns as it holds besides one ([`dense::qr_by_panels`]), or,
+    /// when it holds fewer than two, the columns streamed in pieces of
+    /// rows ([`dense::qr_in_rows`], three pieces held).
+    pub(super) fn orthonormalize(&mut self, share: u64) -> Result<()> {
         let (rows, cols) = (self.rows, self.cols);
-        dense::qr_by_panels(self, rows, cols, panel)?;
+        let column = 8 * rows as u64;
+        if share >= 2 * column {
+            let panel = (share / column - 1) as usize;
+            dense::qr_by_panels(self, rows, cols, panel)?;
+        } else {
+            dense::qr_in_rows(self, rows, cols, (share / 24) as usize)?;
+        }
         Ok(())
     }
 }
 
 impl Columns for Stored {
     type Error = Error;
-    fn read(&mut self, col: usize, out: &mut [f64]) -> Result<()> {
-        for b in 0..self.blocks.len() {
-            let Block { row0, rows, .. } = self.blocks[b];
-            let key = self.key(col, b);
+    fn read(&mut self, col: usize, r0: usize, out: &mut [f64]) -> Result<()> {
+        for (b, lo, hi) in self.pieces(r0, out.len()) {
+            let (key, at) = (self.key(col, b), (lo - self.blocks[b].row0) * 8);
+            let part = &mut out[lo - r0..hi - r0];
             self.scratch
-                .read_plain(key, bytemuck::cast_slice_mut(&mut out[row0..row0 + rows]))?;
+                .read_plain_at(key, at, bytemuck::cast_slice_mut(part))?;
         }
         Ok(())
     }
-    fn write(&mut self, col: usize, data: &[f64]) -> Result<()> {
-        for b in 0..self.blocks.len() {
-            let Block { row0, rows, .. } = self.blocks[b];
-            let key = self.key(col, b);
-            self.scratch
-                .put(key, bytemuck::cast_slice(&data[row0..row0 + rows]))?;
+    fn write(&mut self, col: usize, r0: usize, data: &[f64]) -> Result<()> {
+        for (b, lo, hi) in self.pieces(r0, data.len()) {
+            let (key, at) = (self.key(col, b), (lo - self.blocks[b].row0) * 8);
+            let part = &data[lo - r0..hi - r0];
+            self.scratch.write_plain_at(key, at, bytemuck::cast_slice(part))?;
         }
         Ok(())
     }
 }
 
+impl Stored {
+    /// The blocks rows `r0..r0 + n` fall in, each with the rows in it.
+    fn pieces(&self, r0: usize, n: usize) -> Vec<(usize, usize, usize)> {
+        let first = self.blocks.partition_point(|b| b.row0 + b.rows <= r0);
+        (self.blocks[first..].iter().enumerate())
+            .take_while(|(_, b)| b.row0 < r0 + n)
+            .map(|(i, b)| (first + i, b.row0.max(r0), (b.row0 + b.rows).min(r0 + n)))
+            .collect()
+    }
+}
+
 /// [`orth`] of a matrix held whole, within `share` bytes. When its 12
 /// bytes an entry do not fit, its columns go through a plain scratch file
-/// beside `beside` (one block of all its rows) and are factored a panel at
-/// a time: held then are `m` or the result (4 bytes an entry) and the panel
-/// plus one column, at least two columns.
+/// beside `beside` (one block of all its rows) and are factored there
+/// ([`Stored::orthonormalize`]): held then are `m` or the result (4 bytes
+/// an entry) and what the QR holds within `share`.
 pub(super) fn orth_within(m: Matrix, share: u64, beside: &Path) -> Result<Matrix> {
     let (rows, cols) = (m.rows, m.cols);
     if 12 * (rows * cols) as u64 <= share {
@@ -268,16 +287,10 @@ pub(super) fn orth_within(m: Matrix, share: u64, beside: &Path) -> Result<Matrix
     let mut store = Stored::new(beside, vec![block], rows, cols)?;
     store.write_block(0, &m.data)?;
     drop(m);
-    store.orthonormalize(panel_within(share, rows))?;
+    store.orthonormalize(share)?;
     let mut q = Vec::new();
     store.read_block(0, &mut q)?;
     Ok(Matrix { rows, cols, data: q })
-}
-
-/// Columns of `rows` f64 that `share` holds besides the one a reflector is
-/// read into (at least one).
-pub(super) fn panel_within(share: u64, rows: usize) -> usize {
-    (share / (8 * rows as u64).max(1)).saturating_sub(1).max(1) as usize
 }
 
 /// Orthonormal basis of the columns (thin Householder QR in f64). `m` is

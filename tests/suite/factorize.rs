@@ -137,12 +137,13 @@ fn factorization_is_identical_with_one_or_two_threads() {
 
 /// Budgets below the sketch's QR (1920 × 20 values, 12 bytes each, with
 /// `--terms 10`) keep the sketch and its Q in a scratch file beside the
-/// output: at 16 KiB a tile's rows at a time and one column in each QR
-/// panel (Aᵀ Q's 288 × 20 two), at 600 KiB blocks of one and two tiles
-/// and panels of 16 columns; the geometry maps then go to the `.svd` a row
-/// of chunks at a time, and the rotated copies read windows of them. The
-/// same bytes as in memory with two threads, on a tileable sample too, and
-/// no scratch file left beside the output.
+/// output: at 16 KiB a tile's rows at a time, the QR streaming its
+/// columns in pieces of rows (Aᵀ Q's 288 × 20 in panels of two columns),
+/// at 600 KiB blocks of one and two tiles and panels of 16 columns; the
+/// geometry maps then go to the `.svd` a row of chunks at a time, and the
+/// rotated copies read windows of them. The same bytes as in memory with
+/// two threads, on a tileable sample too, and no scratch file left beside
+/// the output.
 #[test]
 fn a_factorization_through_scratch_columns_gives_the_same_bytes() {
     let dir = tempfile::tempdir().unwrap();
