@@ -306,54 +306,34 @@ struct Householder(Vec<f64>, usize, usize);
 impl Kernel for Householder {
     type Output = Qr;
 
+    /// The whole matrix as one panel of [`panel::qr_by_panels`]: the same
+    /// steps, so the panels' QR has these bits by construction.
     #[inline(always)]
     fn run(self) -> Qr {
         let Householder(mut a, rows, k) = self;
         let mut r = vec![0f64; k * k];
         // reflector j: H = I − β v vᵀ, v stored in column j from row j
         let mut beta = vec![0f64; k];
-        for j in 0..k {
-            let (done, rest) = a.split_at_mut((j + 1) * rows);
-            let v = &mut done[j * rows + j..];
-            let tail = dot(&v[1..], &v[1..]);
-            let x0 = v[0];
-            let norm = (x0 * x0 + tail).sqrt();
-            // a zero column keeps H = I (β = 0)
-            if norm > 0.0 {
-                let alpha = if x0 >= 0.0 { -norm } else { norm };
-                v[0] = x0 - alpha;
-                beta[j] = 2.0 / (v[0] * v[0] + tail);
-                r[j * k + j] = alpha;
-            }
-            for (l, col) in rest.chunks_exact_mut(rows).enumerate() {
-                let y = &mut col[j..];
-                if beta[j] != 0.0 {
-                    let f = beta[j] * dot(v, y);
-                    sub_scaled(y, f, v);
-                }
-                r[(j + 1 + l) * k + j] = y[0];
-            }
+        panel::Factor {
+            cols: &mut a,
+            rows,
+            c0: 0,
+            k,
+            r: &mut r,
+            beta: &mut beta,
         }
+        .run();
         // Q = H_0 ⋯ H_{k−1} applied to the first k columns of the identity,
-        // formed in place of the reflectors: from the last one back, column
-        // j's reflector is taken out, the column set to e_j, and H_j applied
-        // to it and to the columns after it (already Q's but for H_0 … H_j)
+        // formed in place of the reflectors
         let mut v = vec![0f64; rows];
-        for j in (0..k).rev() {
-            let v = &mut v[..rows - j];
-            let cols = &mut a[j * rows..];
-            v.copy_from_slice(&cols[j..rows]);
-            cols[..rows].fill(0.0);
-            cols[j] = 1.0;
-            if beta[j] == 0.0 {
-                continue;
-            }
-            for col in cols.chunks_exact_mut(rows) {
-                let y = &mut col[j..];
-                let f = beta[j] * dot(v, y);
-                sub_scaled(y, f, v);
-            }
+        panel::Form {
+            cols: &mut a,
+            rows,
+            c0: 0,
+            beta: &beta,
+            v: &mut v,
         }
+        .run();
         Qr { q: a, r }
     }
 }

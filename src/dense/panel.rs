@@ -2,8 +2,8 @@
 //! (the factorization's sketch in a scratch file), a panel of columns in
 //! memory at a time.
 //!
-//! Each column meets the same reflectors in the same order as in the
-//! right-looking [`qr`](super::qr), and each reflector is applied by the
+//! [`qr`](super::qr) is the whole matrix as one panel. With more, each
+//! column meets the same reflectors in the same order, each applied by the
 //! same `dot` and `sub_scaled`: reflector j is final once column j is
 //! factored (no later step writes rows j.. of column j), so applying it to
 //! a column later, when that column's panel is in memory, gives the same
@@ -136,13 +136,13 @@ impl Kernel for Reflect<'_> {
 
 /// The factoring steps of the panel's own columns (global `c0..`), each
 /// reflector applied to the panel's columns after it.
-struct Factor<'a> {
-    cols: &'a mut [f64],
-    rows: usize,
-    c0: usize,
-    k: usize,
-    r: &'a mut [f64],
-    beta: &'a mut [f64],
+pub(super) struct Factor<'a> {
+    pub(super) cols: &'a mut [f64],
+    pub(super) rows: usize,
+    pub(super) c0: usize,
+    pub(super) k: usize,
+    pub(super) r: &'a mut [f64],
+    pub(super) beta: &'a mut [f64],
 }
 
 impl Kernel for Factor<'_> {
@@ -187,12 +187,12 @@ impl Kernel for Factor<'_> {
 /// the earlier columns: from the panel's last column back, the column's
 /// reflector taken out into `v`, the column set to e_j and the reflector
 /// applied to it and the panel's columns after it.
-struct Form<'a> {
-    cols: &'a mut [f64],
-    rows: usize,
-    c0: usize,
-    beta: &'a [f64],
-    v: &'a mut [f64],
+pub(super) struct Form<'a> {
+    pub(super) cols: &'a mut [f64],
+    pub(super) rows: usize,
+    pub(super) c0: usize,
+    pub(super) beta: &'a [f64],
+    pub(super) v: &'a mut [f64],
 }
 
 impl Kernel for Form<'_> {
@@ -251,25 +251,25 @@ pub(crate) fn qr_in_rows<C: Columns>(
                 y[j - r0] = 1.0;
             }
         };
+        // rows r0.. of the reflector into `v` and of the column into `y`
+        let load = |store: &mut C, r0: usize, v: &mut [f64], y: &mut [f64]| -> Result<(), C::Error> {
+            store.read(j, r0, v)?;
+            match l {
+                Some(l) => store.read(l, r0, y),
+                None => Ok(unit(r0, y)),
+            }
+        };
         let mut lanes = Lanes::new(rows - j);
         for r0 in (j..rows).step_by(block) {
             let n = block.min(rows - r0);
-            store.read(j, r0, &mut v[..n])?;
-            match l {
-                Some(l) => store.read(l, r0, &mut y[..n])?,
-                None => unit(r0, &mut y[..n]),
-            }
+            load(store, r0, &mut v[..n], &mut y[..n])?;
             lanes.feed(&v[..n], &y[..n]);
         }
         let f = beta * lanes.sum();
         let mut first = 0.0;
         for r0 in (j..rows).step_by(block) {
             let n = block.min(rows - r0);
-            store.read(j, r0, &mut v[..n])?;
-            match l {
-                Some(l) => store.read(l, r0, &mut y[..n])?,
-                None => unit(r0, &mut y[..n]),
-            }
+            load(store, r0, &mut v[..n], &mut y[..n])?;
             sub_scaled(&mut y[..n], f, &v[..n]);
             store.write(l.unwrap_or(j), r0, &y[..n])?;
             if r0 == j {
