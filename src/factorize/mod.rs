@@ -170,27 +170,31 @@ pub fn is_image_path(path: &Path) -> bool {
 }
 
 /// Writes a colour image as a BTF with one view and one light (both along
-/// the normal): the path by which colour samples enter every stage.
-/// The image is held to `budget` decoded (see [`imageio::read_rgb_within`]).
+/// the normal): the path by which colour samples enter every stage. The
+/// image is read a row of tiles at a time ([`imageio::each_rgb_band`]: an
+/// 8- or 16-bit PNG is never held whole; other images are held to
+/// `budget` decoded).
 pub fn image_to_btf(image: &Path, out: &Path, budget: MemoryBudget) -> Result<()> {
-    let img = imageio::read_rgb_within(image, budget.bytes())?;
+    let (width, height) = imageio::declared_rgb_size(image)?;
     let head_on = Angles { theta: 0.0, phi: 0.0 };
-    let layout = BtfLayout::new(img.width, img.height, vec![head_on], vec![head_on]);
+    let layout = BtfLayout::new(width, height, vec![head_on], vec![head_on]);
     let mut w = BtfWriter::create(out, layout.clone())?;
-    let (ntx, nty) = layout.tiles();
-    for ty in 0..nty {
+    let (ntx, tile) = (layout.tiles().0, layout.tile);
+    imageio::each_rgb_band(image, budget.bytes(), tile, |y0, rows| {
+        let h = rows.len() / (width * 3);
         for tx in 0..ntx {
-            let (x0, y0) = (tx * layout.tile, ty * layout.tile);
+            let x0 = tx * tile;
             let mut v = Vec::new();
-            for y in y0..(y0 + layout.tile).min(img.height) {
-                for x in x0..(x0 + layout.tile).min(img.width) {
-                    let i = (y * img.width + x) * 3;
-                    v.extend(img.data[i..i + 3].iter().map(|&c| f16::from_f32(c)));
+            for y in 0..h {
+                for x in x0..(x0 + tile).min(width) {
+                    let i = (y * width + x) * 3;
+                    v.extend(rows[i..i + 3].iter().map(|&c| f16::from_f32(c)));
                 }
             }
-            w.write_tile_band(tx, ty, 0, &v)?;
+            w.write_tile_band(tx, y0 / tile, 0, &v)?;
         }
-    }
+        Ok(())
+    })?;
     w.finish()
 }
 

@@ -500,6 +500,102 @@ pub fn read_rgb_within(path: &Path, max_bytes: u64) -> Result<RgbImage> {
     }
 }
 
+/// The size an image declares, checked as [`read_rgb_within`] checks it
+/// but for the budget, which [`each_rgb_band`] applies only where it
+/// decodes the whole image.
+pub fn declared_rgb_size(path: &Path) -> Result<(usize, usize)> {
+    let (w, h) = declared_size(path, kind_of(path)?)?;
+    check_declared(path, w, h, u64::MAX)?;
+    Ok((w, h))
+}
+
+/// [`read_rgb_within`] a band of `band` rows at a time: `f(y0, rgb)` gets
+/// rows `y0..` (fewer at the bottom), linear RGB, in order, the same values.
+/// An 8- or 16-bit non-interlaced PNG is decoded a row at a time and never
+/// held whole (no budget applies); other images are decoded whole within
+/// `max_bytes`. Returns the size.
+pub fn each_rgb_band(
+    path: &Path,
+    max_bytes: u64,
+    band: usize,
+    mut f: impl FnMut(usize, &[f32]) -> Result<()>,
+) -> Result<(usize, usize)> {
+    let band = band.max(1);
+    let (w, h) = declared_rgb_size(path)?;
+    if kind_of(path)? == Kind::Raster(ImageFormat::Png) && each_png_rgb_band(path, (w, h), band, &mut f)? {
+        return Ok((w, h));
+    }
+    let img = read_rgb_within(path, max_bytes)?;
+    for (i, rows) in img.data.chunks(band * img.width * 3).enumerate() {
+        f(i * band, rows)?;
+    }
+    Ok((img.width, img.height))
+}
+
+/// The PNG part of [`each_rgb_band`]: `false`, having called `f` on
+/// nothing, for the layouts it leaves to the whole-image path (interlaced,
+/// or a colour type it does not expand to grey or RGB). The codes map as
+/// the image crate's `to_rgb8` and `to_rgb16` map them (grey to all three
+/// channels, alpha dropped), through the same tables.
+fn each_png_rgb_band(
+    path: &Path,
+    (width, height): (usize, usize),
+    band: usize,
+    f: &mut impl FnMut(usize, &[f32]) -> Result<()>,
+) -> Result<bool> {
+    let png_err = |e: png::DecodingError| match e {
+        png::DecodingError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => ends_early(path),
+        png::DecodingError::IoError(io) => Error::io(path, io),
+        other => Error::input(path, format!("cannot decode image: {other}")),
+    };
+    let mut decoder = png::Decoder::new(open(path)?);
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let mut reader = decoder.read_info().map_err(png_err)?;
+    let (colour, depth) = reader.output_color_type();
+    let bytes = match depth {
+        png::BitDepth::Eight => 1,
+        png::BitDepth::Sixteen => 2,
+        _ => return Ok(false),
+    };
+    if reader.info().interlaced {
+        return Ok(false);
+    }
+    let (w, h) = (reader.info().width as usize, reader.info().height as usize);
+    if (w, h) != (width, height) {
+        return Err(decoded_size_differs(path, (w, h), (width, height)));
+    }
+    let channels = match colour {
+        png::ColorType::Grayscale => 1,
+        png::ColorType::GrayscaleAlpha => 2,
+        png::ColorType::Rgb => 3,
+        png::ColorType::Rgba => 4,
+        png::ColorType::Indexed => return Ok(false),
+    };
+    let (t8, t16) = (srgb8_table(), srgb16_table());
+    let mut rgb = Vec::with_capacity(band.min(h) * w * 3);
+    for y in 0..h {
+        let row = reader
+            .next_row()
+            .map_err(png_err)?
+            .ok_or_else(|| ends_early(path))?;
+        for p in row.data()[..w * channels * bytes].chunks_exact(channels * bytes) {
+            for c in 0..3 {
+                // grey (with or without alpha) to all three channels
+                let at = if channels < 3 { 0 } else { c } * bytes;
+                rgb.push(match bytes {
+                    1 => t8[p[at] as usize],
+                    _ => t16[u16::from_be_bytes([p[at], p[at + 1]]) as usize],
+                });
+            }
+        }
+        if (y + 1) % band == 0 || y + 1 == h {
+            f(y + 1 - rgb.len() / (w * 3), &rgb)?;
+            rgb.clear();
+        }
+    }
+    Ok(true)
+}
+
 /// Reads the first valid layer of an EXR with all its channels.
 /// Before reading, every layer's declared samples (all its channels, as
 /// stored) are held to `max_bytes`, as the whole layer is decoded at once.

@@ -620,3 +620,127 @@ fn a_mask_cut_short_is_refused_by_name() {
         .to_string();
     assert!(e.contains("region.png") && e.contains("ends early"), "{e}");
 }
+
+#[test]
+fn rgb_bands_of_every_png_layout_are_the_whole_image() {
+    // 8- and 16-bit grey, grey with alpha, RGB and RGBA, palettes with and
+    // without transparency, low-bit grey (all read a row at a time), and a
+    // JPEG (read whole): band after band, the values of the whole-image
+    // path, in bands of 1, 4 and 16 rows
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (13u32, 9u32);
+    let n = (w * h) as usize;
+    let code = |k: usize, c: usize| ((k * 37 + c * 101) % 256) as u8;
+    let wide = |k: usize, c: usize| ((k * 9973 + c * 12345) % 65536) as u16;
+    let eight = |ch: usize| -> Vec<u8> { (0..n).flat_map(|k| (0..ch).map(move |c| code(k, c))).collect() };
+    let sixteen = |ch: usize| -> Vec<u8> {
+        (0..n)
+            .flat_map(|k| (0..ch).flat_map(move |c| wide(k, c).to_be_bytes()))
+            .collect()
+    };
+    let grey2: Vec<u8> = (0..h)
+        .flat_map(|y| {
+            let mut row = vec![0u8; (w as usize * 2).div_ceil(8)];
+            for x in 0..w as usize {
+                row[x * 2 / 8] |= (((x + y as usize) % 4) as u8) << (6 - x * 2 % 8);
+            }
+            row
+        })
+        .collect();
+    let palette = [0u8, 0, 0, 200, 10, 10, 40, 250, 90, 128, 128, 128];
+    let indices: Vec<u8> = (0..n).map(|k| (k % 4) as u8).collect();
+    use png::{BitDepth as D, ColorType as C};
+    let cases: Vec<(&str, C, D, Option<&[u8]>, bool, Vec<u8>)> = vec![
+        ("grey8", C::Grayscale, D::Eight, None, false, eight(1)),
+        ("grey16", C::Grayscale, D::Sixteen, None, false, sixteen(1)),
+        ("greyalpha8", C::GrayscaleAlpha, D::Eight, None, false, eight(2)),
+        ("rgb8", C::Rgb, D::Eight, None, false, eight(3)),
+        ("rgba8", C::Rgba, D::Eight, None, false, eight(4)),
+        ("rgb16", C::Rgb, D::Sixteen, None, false, sixteen(3)),
+        ("rgba16", C::Rgba, D::Sixteen, None, false, sixteen(4)),
+        ("grey2", C::Grayscale, D::Two, None, false, grey2),
+        (
+            "palette",
+            C::Indexed,
+            D::Eight,
+            Some(&palette),
+            false,
+            indices.clone(),
+        ),
+        (
+            "palette_trns",
+            C::Indexed,
+            D::Eight,
+            Some(&palette),
+            true,
+            indices,
+        ),
+    ];
+    let mut paths = Vec::new();
+    for (name, colour, depth, palette, trns, data) in cases {
+        let path = dir.path().join(format!("{name}.png"));
+        let mut enc = png::Encoder::new(std::fs::File::create(&path).unwrap(), w, h);
+        enc.set_color(colour);
+        enc.set_depth(depth);
+        if let Some(p) = palette {
+            enc.set_palette(p.to_vec());
+        }
+        if trns {
+            enc.set_trns(vec![255u8, 0, 128, 255]);
+        }
+        enc.write_header().unwrap().write_image_data(&data).unwrap();
+        paths.push((name, path));
+    }
+    let jpeg = dir.path().join("photo.jpg");
+    image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 19) as u8, (y * 27) as u8, 90]))
+        .save(&jpeg)
+        .unwrap();
+    paths.push(("jpeg", jpeg));
+    for (name, path) in paths {
+        let whole = read_rgb_within(&path, 1 << 20).unwrap();
+        for band in [1, 4, 16] {
+            let mut got = Vec::new();
+            let mut next = 0;
+            let size = each_rgb_band(&path, 1 << 20, band, |y0, rows| {
+                assert_eq!(y0, next, "{name}: bands in order");
+                next += rows.len() / (w as usize * 3);
+                got.extend_from_slice(rows);
+                Ok(())
+            })
+            .unwrap();
+            assert_eq!(size, (w as usize, h as usize), "{name}");
+            let same = got.len() == whole.data.len()
+                && got
+                    .iter()
+                    .zip(&whole.data)
+                    .all(|(a, b)| a.to_bits() == b.to_bits());
+            assert!(same, "{name} in bands of {band}");
+        }
+    }
+}
+
+#[test]
+fn a_png_read_in_bands_needs_no_budget_and_names_a_truncated_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("big.png");
+    let img = image::DynamicImage::ImageRgb8(image::ImageBuffer::from_fn(300, 200, |x, y| {
+        image::Rgb([(x % 256) as u8, (y % 256) as u8, ((x * y) % 256) as u8])
+    }));
+    img.save(&path).unwrap();
+    // 300 × 200 × 12 bytes decoded is over 64 KiB: the whole-image path
+    // refuses it, the bands read it
+    assert!(read_rgb_within(&path, 64 << 10).is_err());
+    let mut rows = 0;
+    each_rgb_band(&path, 64 << 10, 16, |_, band| {
+        rows += band.len() / (300 * 3);
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(rows, 200);
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+    let e = each_rgb_band(&path, 64 << 10, 16, |_, _| Ok(()))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("big.png") && e.contains("ends early"), "{e}");
+}
