@@ -501,8 +501,7 @@ pub fn read_rgb_within(path: &Path, max_bytes: u64) -> Result<RgbImage> {
 }
 
 /// The size an image declares, checked as [`read_rgb_within`] checks it
-/// but for the budget, which [`each_rgb_band`] applies only where it
-/// decodes the whole image.
+/// but for the budget.
 pub fn declared_rgb_size(path: &Path) -> Result<(usize, usize)> {
     let (w, h) = declared_size(path, kind_of(path)?)?;
     check_declared(path, w, h, u64::MAX)?;
@@ -512,8 +511,11 @@ pub fn declared_rgb_size(path: &Path) -> Result<(usize, usize)> {
 /// [`read_rgb_within`] a band of `band` rows at a time: `f(y0, rgb)` gets
 /// rows `y0..` (fewer at the bottom), linear RGB, in order, the same values.
 /// An 8- or 16-bit non-interlaced PNG is decoded a row at a time and never
-/// held whole (no budget applies); other images are decoded whole within
-/// `max_bytes`. Returns the size.
+/// held whole; other images are decoded whole. Either way an image whose
+/// decoded size exceeds `max_bytes` is refused, as [`read_rgb_within`]
+/// refuses it (a colour sample is held whole by the stages that quilt
+/// with it, and a small file declaring a huge image is a bomb). Returns
+/// the size.
 pub fn each_rgb_band(
     path: &Path,
     max_bytes: u64,
@@ -522,6 +524,7 @@ pub fn each_rgb_band(
 ) -> Result<(usize, usize)> {
     let band = band.max(1);
     let (w, h) = declared_rgb_size(path)?;
+    check_declared(path, w, h, max_bytes)?;
     if kind_of(path)? == Kind::Raster(ImageFormat::Png) && each_png_rgb_band(path, (w, h), band, &mut f)? {
         return Ok((w, h));
     }

@@ -720,18 +720,26 @@ fn rgb_bands_of_every_png_layout_are_the_whole_image() {
 }
 
 #[test]
-fn a_png_read_in_bands_needs_no_budget_and_names_a_truncated_file() {
+fn a_png_read_in_bands_keeps_the_budget_and_names_a_truncated_file() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("big.png");
     let img = image::DynamicImage::ImageRgb8(image::ImageBuffer::from_fn(300, 200, |x, y| {
         image::Rgb([(x % 256) as u8, (y % 256) as u8, ((x * y) % 256) as u8])
     }));
     img.save(&path).unwrap();
-    // 300 × 200 × 12 bytes decoded is over 64 KiB: the whole-image path
-    // refuses it, the bands read it
-    assert!(read_rgb_within(&path, 64 << 10).is_err());
+    // 300 × 200 × 12 bytes decoded: refused over 64 KiB as the whole-image
+    // path refuses it, read in bands within 1 MiB
+    let over = each_rgb_band(&path, 64 << 10, 16, |_, _| Ok(()))
+        .unwrap_err()
+        .to_string();
+    let whole = read_rgb_within(&path, 64 << 10).unwrap_err().to_string();
+    assert_eq!(over, whole);
+    assert!(
+        over.contains("big.png") && over.contains("memory budget"),
+        "{over}"
+    );
     let mut rows = 0;
-    each_rgb_band(&path, 64 << 10, 16, |_, band| {
+    each_rgb_band(&path, 1 << 20, 16, |_, band| {
         rows += band.len() / (300 * 3);
         Ok(())
     })
@@ -739,7 +747,7 @@ fn a_png_read_in_bands_needs_no_budget_and_names_a_truncated_file() {
     assert_eq!(rows, 200);
     let bytes = std::fs::read(&path).unwrap();
     std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
-    let e = each_rgb_band(&path, 64 << 10, 16, |_, _| Ok(()))
+    let e = each_rgb_band(&path, 1 << 20, 16, |_, _| Ok(()))
         .unwrap_err()
         .to_string();
     assert!(e.contains("big.png") && e.contains("ends early"), "{e}");
