@@ -365,6 +365,23 @@ fn each_mask_value(
     Ok(())
 }
 
+/// A PNG opened to be read a row at a time, palette and low-bit grey
+/// expanded to 8 bits as the image crate expands them.
+fn png_rows(path: &Path) -> Result<png::Reader<BufReader<File>>> {
+    let mut decoder = png::Decoder::new(open(path)?);
+    decoder.set_transformations(png::Transformations::EXPAND);
+    decoder.read_info().map_err(|e| png_err(path, e))
+}
+
+/// Maps a `png` error as [`image_err`] maps the image crate's.
+fn png_err(path: &Path, e: png::DecodingError) -> Error {
+    match e {
+        png::DecodingError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => ends_early(path),
+        png::DecodingError::IoError(io) => Error::io(path, io),
+        other => Error::input(path, format!("cannot decode image: {other}")),
+    }
+}
+
 /// An 8-bit, non-interlaced PNG mask (the usual ones, palette and low-bit
 /// grey expanded to 8 bits as the image crate expands them) read a row at a
 /// time, calling `f` per pixel as [`each_mask_value`] does: a region mask at
@@ -372,14 +389,8 @@ fn each_mask_value(
 /// nothing, for the layouts it leaves to the whole-image path (16-bit or
 /// interlaced).
 fn each_png_mask_row(path: &Path, (width, height): (usize, usize), f: &mut impl FnMut(f32)) -> Result<bool> {
-    let png_err = |e: png::DecodingError| match e {
-        png::DecodingError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => ends_early(path),
-        png::DecodingError::IoError(io) => Error::io(path, io),
-        other => Error::input(path, format!("cannot decode image: {other}")),
-    };
-    let mut decoder = png::Decoder::new(open(path)?);
-    decoder.set_transformations(png::Transformations::EXPAND);
-    let mut reader = decoder.read_info().map_err(png_err)?;
+    let png_err = |e| png_err(path, e);
+    let mut reader = png_rows(path)?;
     let (colour, depth) = reader.output_color_type();
     if depth != png::BitDepth::Eight || reader.info().interlaced {
         return Ok(false);
@@ -546,14 +557,8 @@ fn each_png_rgb_band(
     band: usize,
     f: &mut impl FnMut(usize, &[f32]) -> Result<()>,
 ) -> Result<bool> {
-    let png_err = |e: png::DecodingError| match e {
-        png::DecodingError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => ends_early(path),
-        png::DecodingError::IoError(io) => Error::io(path, io),
-        other => Error::input(path, format!("cannot decode image: {other}")),
-    };
-    let mut decoder = png::Decoder::new(open(path)?);
-    decoder.set_transformations(png::Transformations::EXPAND);
-    let mut reader = decoder.read_info().map_err(png_err)?;
+    let png_err = |e| png_err(path, e);
+    let mut reader = png_rows(path)?;
     let (colour, depth) = reader.output_color_type();
     let bytes = match depth {
         png::BitDepth::Eight => 1,

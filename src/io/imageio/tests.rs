@@ -519,6 +519,27 @@ fn eight_bit_masks_read_as_their_float_conversion() {
     }
 }
 
+/// Writes a PNG of `data` (rows packed as the layout packs them) with an
+/// optional palette and transparency.
+fn encode_png(
+    path: &Path,
+    (w, h): (u32, u32),
+    (colour, depth): (png::ColorType, png::BitDepth),
+    (palette, trns): (Option<&[u8]>, Option<&[u8]>),
+    data: &[u8],
+) {
+    let mut enc = png::Encoder::new(std::fs::File::create(path).unwrap(), w, h);
+    enc.set_color(colour);
+    enc.set_depth(depth);
+    if let Some(p) = palette {
+        enc.set_palette(p.to_vec());
+    }
+    if let Some(t) = trns {
+        enc.set_trns(t.to_vec());
+    }
+    enc.write_header().unwrap().write_image_data(data).unwrap();
+}
+
 #[test]
 fn masks_of_every_png_layout_read_as_the_image_crate_decodes_them() {
     // palette and low-bit grey are expanded row by row as the image crate
@@ -529,13 +550,7 @@ fn masks_of_every_png_layout_read_as_the_image_crate_decodes_them() {
     let write =
         |name: &str, colour: png::ColorType, depth: png::BitDepth, palette: Option<&[u8]>, data: &[u8]| {
             let path = dir.path().join(format!("{name}.png"));
-            let mut enc = png::Encoder::new(std::fs::File::create(&path).unwrap(), w, h);
-            enc.set_color(colour);
-            enc.set_depth(depth);
-            if let Some(p) = palette {
-                enc.set_palette(p.to_vec());
-            }
-            enc.write_header().unwrap().write_image_data(data).unwrap();
+            encode_png(&path, (w, h), (colour, depth), (palette, None), data);
             path
         };
     let bits = |per_px: usize, f: &dyn Fn(u32, u32) -> u8| -> Vec<u8> {
@@ -679,16 +694,8 @@ fn rgb_bands_of_every_png_layout_are_the_whole_image() {
     let mut paths = Vec::new();
     for (name, colour, depth, palette, trns, data) in cases {
         let path = dir.path().join(format!("{name}.png"));
-        let mut enc = png::Encoder::new(std::fs::File::create(&path).unwrap(), w, h);
-        enc.set_color(colour);
-        enc.set_depth(depth);
-        if let Some(p) = palette {
-            enc.set_palette(p.to_vec());
-        }
-        if trns {
-            enc.set_trns(vec![255u8, 0, 128, 255]);
-        }
-        enc.write_header().unwrap().write_image_data(&data).unwrap();
+        let trns = trns.then_some(&[255u8, 0, 128, 255][..]);
+        encode_png(&path, (w, h), (colour, depth), (palette, trns), &data);
         paths.push((name, path));
     }
     let jpeg = dir.path().join("photo.jpg");
