@@ -157,17 +157,20 @@ fn qr_by_panels_has_the_bits_of_the_whole_qr() {
             a[(k - 1) * n..k * n].copy_from_slice(&copy);
         }
         let whole = qr(a.clone(), n, k);
+        let held = || Held {
+            cols: a.chunks_exact(n).map(|c| c.to_vec()).collect(),
+            reads: 0,
+            writes: 0,
+        };
+        // Q (left in the columns) and R bit for bit
+        let same = |held: &Held, r: &[f64]| {
+            let bits = |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(x, y)| x.to_bits() == y.to_bits());
+            bits(&held.cols.concat(), &whole.q) && bits(r, &whole.r)
+        };
         for panel in 1..=k + 1 {
-            let mut held = Held {
-                cols: a.chunks_exact(n).map(|c| c.to_vec()).collect(),
-                reads: 0,
-                writes: 0,
-            };
+            let mut held = held();
             let r = qr_by_panels(&mut held, n, k, panel).unwrap();
-            let q: Vec<f64> = held.cols.concat();
-            let same = |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(x, y)| x.to_bits() == y.to_bits());
-            assert!(same(&q, &whole.q), "Q of {n} × {k} in panels of {panel}");
-            assert!(same(&r, &whole.r), "R of {n} × {k} in panels of {panel}");
+            assert!(same(&held, &r), "{n} × {k} in panels of {panel}");
             // each column written twice (factored, then Q); read twice, plus
             // once for each later panel in each of the two sweeps
             let p = panel.min(k);
@@ -179,16 +182,9 @@ fn qr_by_panels_has_the_bits_of_the_whole_qr() {
         // no whole column held: blocks of one row, of fewer rows than the
         // dot's eight lanes, of a number not dividing them, and of them all
         for block in [1, 3, 8, 13, n] {
-            let mut held = Held {
-                cols: a.chunks_exact(n).map(|c| c.to_vec()).collect(),
-                reads: 0,
-                writes: 0,
-            };
+            let mut held = held();
             let r = qr_in_rows(&mut held, n, k, block).unwrap();
-            let q: Vec<f64> = held.cols.concat();
-            let same = |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(x, y)| x.to_bits() == y.to_bits());
-            assert!(same(&q, &whole.q), "Q of {n} × {k} in blocks of {block} rows");
-            assert!(same(&r, &whole.r), "R of {n} × {k} in blocks of {block} rows");
+            assert!(same(&held, &r), "{n} × {k} in blocks of {block} rows");
         }
     }
 }
