@@ -220,15 +220,22 @@ pub fn factorize(
     } else {
         (input.to_path_buf(), "btf")
     };
-    // cache chunks across passes only if the whole BTF fits half the budget
     let raw = Container::open(&btf_path, MemoryBudget(0))?
         .metadata()
         .arrays
         .iter()
         .map(|a| a.raw_bytes())
         .sum::<u64>();
+    // cache chunks across passes only if the whole BTF fits half the
+    // budget and the tall factors (12 bytes per texel per sketch column,
+    // k estimated as below) fit the rest: a cache that would push them to
+    // scratch in small pieces costs more than it saves
     let [half, _] = cfg.memory.split([1, 1]);
-    let cache = if raw <= half.bytes() {
+    let layout = Btf::open(&btf_path, MemoryBudget(0))?.layout().clone();
+    let (rows, cols) = ((layout.width * layout.height) as u64, layout.pairs() as u64 * 3);
+    let k = (cfg.terms.unwrap_or(40) as u64 + cfg.oversampling as u64).min(rows.min(cols));
+    let rest = (cfg.memory.less(PROGRAM_BYTES + 4 * cols * k).bytes()).saturating_sub(half.bytes());
+    let cache = if raw <= half.bytes() && 12 * rows * k <= rest {
         half
     } else {
         MemoryBudget(0)

@@ -224,7 +224,7 @@ fn a_colour_image_is_a_one_pair_btf_factorized_exactly() {
 }
 
 /// A colour image of several 64² chunks: the same bytes with one thread at
-/// 1 MiB (the image read by rows, its factors stored, rotated copies made
+/// 256 KiB (the image read by rows, its factors stored, rotated copies made
 /// a chunk at a time from windows of the maps) as with two threads and the
 /// default budget (a rotation's chunks at once from the whole maps),
 /// tileable or not, and the preview,
@@ -236,7 +236,7 @@ fn factorizing_an_image_gives_the_same_bytes_for_any_budget() {
     let (w, h) = (150, 70);
     let value = |i: usize| (((i * 7919) % 251) as f32 / 250.0).powf(2.2);
     write_rgb_png(&png, w, h, |x, y| [0, 1, 2].map(|c| value((y * w + x) * 3 + c)));
-    let runs = [(1, MemoryBudget(1 << 20)), (2, MemoryBudget::default())];
+    let runs = [(1, MemoryBudget(256 << 10)), (2, MemoryBudget::default())];
     let factorize = |tileable: bool| -> Vec<PathBuf> {
         runs.iter()
             .enumerate()
@@ -254,7 +254,7 @@ fn factorizing_an_image_gives_the_same_bytes_for_any_budget() {
             })
             .collect()
     };
-    // at 1 MiB the sketch, Q and the geometry maps are stored beside the
+    // at 256 KiB the sketch, Q and the geometry maps are stored beside the
     // output, and each turned chunk reads a window of the maps' chunks
     let mut outs = Vec::new();
     for tileable in [true, false] {
