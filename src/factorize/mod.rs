@@ -34,7 +34,7 @@ use rayon::prelude::*;
 
 use crate::artifact::btf::{Angles, Btf, BtfLayout, BtfWriter};
 use crate::artifact::svd::SvdArtifact;
-use crate::container::{codec, ArrayId, ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
+use crate::container::{codec, ArrayId, ArraySpec, ContainerWriter, DType, MemoryBudget, Param};
 use crate::dense::{self, Matrix};
 use crate::io::imageio::{self, RgbImage};
 use crate::math;
@@ -220,29 +220,15 @@ pub fn factorize(
     } else {
         (input.to_path_buf(), "btf")
     };
-    let raw = Container::open(&btf_path, MemoryBudget(0))?
+    let btf = Btf::open(&btf_path, MemoryBudget(0))?;
+    let raw: u64 = btf
+        .container()
         .metadata()
         .arrays
         .iter()
         .map(|a| a.raw_bytes())
-        .sum::<u64>();
-    // cache chunks across passes only if the whole BTF fits half the
-    // budget and the tall factors (12 bytes per texel per sketch column,
-    // k estimated as below) fit the rest: a cache that would push them to
-    // scratch in small pieces costs more than it saves
-    let [half, _] = cfg.memory.split([1, 1]);
-    let layout = Btf::open(&btf_path, MemoryBudget(0))?.layout().clone();
-    let (rows, cols) = ((layout.width * layout.height) as u64, layout.pairs() as u64 * 3);
-    let k = (cfg.terms.unwrap_or(40) as u64 + cfg.oversampling as u64).min(rows.min(cols));
-    let rest = (cfg.memory.less(PROGRAM_BYTES + 4 * cols * k).bytes()).saturating_sub(half.bytes());
-    let cache = if raw <= half.bytes() && 12 * rows * k <= rest {
-        half
-    } else {
-        MemoryBudget(0)
-    };
-    let btf = Btf::open(&btf_path, cache)?;
-    let stream = MatrixStream::new(&btf)?;
-    let (m, n) = (stream.rows, stream.cols);
+        .sum();
+    let (m, n) = (btf.layout().width * btf.layout().height, btf.layout().pairs() * 3);
     let max_rank = m.min(n);
     let terms = match cfg.terms {
         Some(t) if t == 0 || t > max_rank => {
@@ -255,6 +241,31 @@ pub fn factorize(
         None => 40.min(max_rank),
     };
     let k = (terms + cfg.oversampling).min(max_rank);
+    // the tall m × k sketch and its Q are held whole when their QR (12
+    // bytes an entry) fits what the program, Ω or Z (n × k in f32) and the
+    // chunk cache leave, else stored beside the output and factored a panel
+    // of columns at a time; the small n × k ones likewise
+    let share_beside = |cache: MemoryBudget| {
+        (cfg.memory)
+            .less(PROGRAM_BYTES + 4 * (n * k) as u64)
+            .bytes()
+            .saturating_sub(cache.bytes())
+    };
+    // chunks are cached across passes only if the whole BTF fits half the
+    // budget and the tall factors fit beside it: a cache that would push
+    // them to scratch in small pieces costs more than it saves
+    let [half, _] = cfg.memory.split([1, 1]);
+    let cache = if raw <= half.bytes() && 12 * (m * k) as u64 <= share_beside(half) {
+        half
+    } else {
+        MemoryBudget(0)
+    };
+    let btf = if cache.bytes() > 0 {
+        Btf::open(&btf_path, cache)?
+    } else {
+        btf
+    };
+    let stream = MatrixStream::new(&btf)?;
     let passes = 3 + 2 * cfg.power_iterations;
     let pass_jobs = |rowwise: bool| if rowwise { stream.tiles.len() } else { stream.bands.len() } as u64;
     progress.begin(
@@ -266,14 +277,7 @@ pub fn factorize(
     let omega = Matrix::from_fn(n, k, |i, j| {
         crate::rng::gaussian(cfg.seed, (i * k + j) as u64) as f32
     });
-    // the tall m × k sketch and its Q are held whole when their QR (12
-    // bytes an entry) fits what the program, Ω or Z (n × k in f32) and the
-    // cache leave, else stored beside the output and factored a panel of
-    // columns at a time; the small n × k ones likewise
-    let share = (cfg.memory)
-        .less(PROGRAM_BYTES + 4 * (n * k) as u64)
-        .bytes()
-        .saturating_sub(cache.bytes());
+    let share = share_beside(cache);
     let held = 12 * (m * k) as u64 <= share;
     let mut store = None;
     let sketch = |by: &Matrix, reuse: &mut Option<Stored>| -> Result<Tall> {

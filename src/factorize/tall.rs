@@ -93,27 +93,19 @@ impl Tall {
         let k = self.cols();
         let last = &tiles[range.end - 1];
         let (r0, r1) = (tiles[range.start].row0, last.row0 + last.rows());
-        out.clear();
         match self {
-            Tall::Held(m) => out.extend_from_slice(&m.data[r0 * k..r1 * k]),
-            Tall::Stored(s) => {
-                let mut buf = Vec::new();
-                for b in 0..s.blocks.len() {
-                    let (b0, rows) = (s.blocks[b].row0, s.blocks[b].rows);
-                    if b0 + rows <= r0 || b0 >= r1 {
-                        continue;
-                    }
-                    s.read_block(b, &mut buf)?;
-                    let (lo, hi) = (r0.max(b0) - b0, r1.min(b0 + rows) - b0);
-                    out.extend_from_slice(&buf[lo * k..hi * k]);
-                }
+            Tall::Held(m) => {
+                out.clear();
+                out.extend_from_slice(&m.data[r0 * k..r1 * k]);
+                Ok(())
             }
+            Tall::Stored(s) => s.read_rows(r0, r1 - r0, out),
         }
-        Ok(())
     }
 }
 
 /// A block: consecutive tiles and their rows.
+#[derive(Clone)]
 struct Block {
     tiles: Range<usize>,
     row0: usize,
@@ -161,13 +153,7 @@ impl Stored {
 
     /// A store of `cols` columns in the same blocks, beside `beside`.
     fn like(&self, beside: &Path, cols: usize) -> Result<Stored> {
-        let blocks = (self.blocks.iter())
-            .map(|b| Block {
-                tiles: b.tiles.clone(),
-                ..*b
-            })
-            .collect();
-        Self::new(beside, blocks, self.rows, cols)
+        Self::new(beside, self.blocks.clone(), self.rows, cols)
     }
 
     fn new(beside: &Path, blocks: Vec<Block>, rows: usize, cols: usize) -> Result<Stored> {
@@ -206,17 +192,24 @@ impl Stored {
 
     /// Block `b`'s rows (row-major f32), narrowed, into `out`.
     fn read_block(&mut self, b: usize, out: &mut Vec<f32>) -> Result<()> {
-        let (k, rows) = (self.cols, self.blocks[b].rows);
-        out.resize(rows * k, 0.0);
-        self.piece.resize(rows, 0.0);
+        let Block { row0, rows, .. } = self.blocks[b];
+        self.read_rows(row0, rows, out)
+    }
+
+    /// Rows `r0..r0 + n` (row-major f32), narrowed, into `out`: of each
+    /// column, only the pieces of the blocks they fall in.
+    fn read_rows(&mut self, r0: usize, n: usize, out: &mut Vec<f32>) -> Result<()> {
+        let k = self.cols;
+        out.resize(n * k, 0.0);
+        let mut piece = std::mem::take(&mut self.piece);
+        piece.resize(n, 0.0);
         for c in 0..k {
-            let key = self.key(c, b);
-            self.scratch
-                .read_plain(key, bytemuck::cast_slice_mut(&mut self.piece))?;
-            for (row, &v) in out.chunks_exact_mut(k).zip(&self.piece) {
+            self.read(c, r0, &mut piece)?;
+            for (row, &v) in out.chunks_exact_mut(k).zip(&piece) {
                 row[c] = v as f32;
             }
         }
+        self.piece = piece;
         Ok(())
     }
 

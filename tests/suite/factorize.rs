@@ -12,7 +12,7 @@ use btfquilt::io::imageio;
 use btfquilt::progress::Silent;
 use faer::Mat;
 
-use crate::common::write_rgb_png;
+use crate::common::{listing, write_rgb_png};
 use half::f16;
 
 /// A small generated BTF: 24×20 texels (ragged tiles), 8 views × 12 lights.
@@ -184,13 +184,8 @@ fn a_factorization_through_scratch_columns_gives_the_same_bytes() {
             .collect();
         assert!(outs[0] == outs[2], "16 KiB, tileable {tileable}");
         assert!(outs[1] == outs[2], "600 KiB, tileable {tileable}");
-        let mut names: Vec<String> = std::fs::read_dir(dir.path())
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        names.sort();
         assert_eq!(
-            names,
+            listing(dir.path()),
             ["run0.svd", "run1.svd", "run2.svd", "wide.btf", "wide.mask.png"]
         );
     }

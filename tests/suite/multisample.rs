@@ -482,13 +482,8 @@ fn btf_surface_shades_each_texel_in_its_own_basis() {
     // export --btf: the index channel and B's factors beside A's
     let out = d.join("btf");
     ok(&["export", s(&q.mixed), "--btf", s(&out)]);
-    let mut names: Vec<String> = std::fs::read_dir(&out)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    names.sort();
     assert_eq!(
-        names,
+        common::listing(&out),
         [
             "FORMAT.md",
             "appearance.csv",

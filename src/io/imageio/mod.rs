@@ -534,9 +534,10 @@ pub fn each_rgb_band(
     mut f: impl FnMut(usize, &[f32]) -> Result<()>,
 ) -> Result<(usize, usize)> {
     let band = band.max(1);
-    let (w, h) = declared_rgb_size(path)?;
+    let kind = kind_of(path)?;
+    let (w, h) = declared_size(path, kind)?;
     check_declared(path, w, h, max_bytes)?;
-    if kind_of(path)? == Kind::Raster(ImageFormat::Png) && each_png_rgb_band(path, (w, h), band, &mut f)? {
+    if kind == Kind::Raster(ImageFormat::Png) && each_png_rgb_band(path, (w, h), band, &mut f)? {
         return Ok((w, h));
     }
     let img = read_rgb_within(path, max_bytes)?;
