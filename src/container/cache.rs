@@ -191,6 +191,12 @@ pub trait Weighed {
     fn weight(&self) -> u64;
 }
 
+impl Weighed for Vec<f32> {
+    fn weight(&self) -> u64 {
+        self.len() as u64 * 4
+    }
+}
+
 impl Weighed for ChunkData {
     fn weight(&self) -> u64 {
         self.byte_len() as u64

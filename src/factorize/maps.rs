@@ -4,11 +4,11 @@
 //! read each turned chunk's source window through a bounded cache
 //! ([`rotate_from`] reads the same texels as from the whole maps).
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use super::tall::{beside, Tall};
 use super::*;
-use crate::container::{BoundedCache, Scratch};
+use crate::container::{Scratch, SharedCache};
 use stream::TileRows;
 
 /// The geometry maps the rotated copies read: whole (image order) or as
@@ -19,11 +19,12 @@ pub(super) enum Maps<'a> {
 }
 
 /// The geometry maps' chunks (`SVD_TILE`² texels × terms, f32, as in the
-/// `.svd`) in a plain scratch file, read through a cache.
+/// `.svd`) in a plain scratch file, read through a cache shared by the
+/// threads that turn chunks.
 pub(super) struct ChunkMaps {
-    store: Scratch,
+    store: Mutex<Scratch>,
     spec: ArraySpec,
-    cache: BoundedCache<u64, Arc<Vec<f32>>>,
+    cache: SharedCache<u64, Vec<f32>>,
 }
 
 /// The texels of the maps a turned region reads: along each axis `len`
@@ -38,8 +39,17 @@ pub(super) struct Window {
 
 impl Window {
     /// Texel (x, y) of the maps, which must lie in the window.
+    #[inline]
     pub(super) fn texel(&self, x: usize, y: usize) -> &[f32] {
-        let at = |i: usize, v: usize| (v as i64 - self.lo[i]).rem_euclid(self.size[i] as i64) as usize;
+        // wrapped only on a tileable sample, and then rarely
+        let at = |i: usize, v: usize| {
+            let (d, n) = (v as i64 - self.lo[i], self.size[i] as i64);
+            if (0..n).contains(&d) {
+                d as usize
+            } else {
+                d.rem_euclid(n) as usize
+            }
+        };
         let t = at(1, y) * self.len[0] + at(0, x);
         &self.data[t * self.channels..(t + 1) * self.channels]
     }
@@ -95,9 +105,9 @@ pub(super) fn write_stored(
         }
     }
     Ok(ChunkMaps {
-        store,
+        store: Mutex::new(store),
         spec,
-        cache: BoundedCache::new(cache),
+        cache: SharedCache::new(cache),
     })
 }
 
@@ -107,7 +117,7 @@ impl ChunkMaps {
     /// texels wider each way than the bilinear reads (clamped to the maps,
     /// or wrapped when `tileable`).
     pub(super) fn window(
-        &mut self,
+        &self,
         degrees: f64,
         tileable: bool,
         (rx, ry, rw, rh): (usize, usize, usize, usize),
@@ -149,8 +159,10 @@ impl ChunkMaps {
                 (a, (b - a + 1).max(0) as usize)
             };
         }
-        let mut data = vec![0f32; len[0] * len[1] * channels];
+        // filled in order, a run of texels at a time
+        let mut data = Vec::with_capacity(len[0] * len[1] * channels);
         let t = SVD_TILE as usize;
+        let mut held: Vec<(u64, Arc<Vec<f32>>)> = Vec::new();
         for ly in 0..len[1] {
             let y = (from[1] + ly as i64).rem_euclid(h as i64) as usize;
             let mut lx = 0;
@@ -160,10 +172,17 @@ impl ChunkMaps {
                 let run = (t - x % t).min(w - x).min(len[0] - lx);
                 let k = self.spec.chunk_index(&[(y / t) as u64, (x / t) as u64, 0]);
                 let (o, e) = self.spec.chunk_region(k);
-                let chunk = self.chunk(k)?;
+                // each chunk is looked up once per window
+                let chunk = match held.iter().find(|(key, _)| *key == k) {
+                    Some((_, c)) => c.clone(),
+                    None => {
+                        let c = self.chunk(k)?;
+                        held.push((k, c.clone()));
+                        c
+                    }
+                };
                 let at = ((y - o[0] as usize) * e[1] as usize + x - o[1] as usize) * channels;
-                let d = (ly * len[0] + lx) * channels;
-                data[d..d + run * channels].copy_from_slice(&chunk[at..at + run * channels]);
+                data.extend_from_slice(&chunk[at..at + run * channels]);
                 lx += run;
             }
         }
@@ -176,15 +195,11 @@ impl ChunkMaps {
         })
     }
 
-    fn chunk(&mut self, k: u64) -> Result<Arc<Vec<f32>>> {
-        if let Some(c) = self.cache.get(&k) {
-            return Ok(c.clone());
-        }
-        let mut c = vec![0f32; self.spec.chunk_len(k)];
-        self.store
-            .read_plain(k as usize, bytemuck::cast_slice_mut(&mut c))?;
-        let c = Arc::new(c);
-        self.cache.insert(k, c.clone(), c.len() as u64 * 4);
-        Ok(c)
+    fn chunk(&self, k: u64) -> Result<Arc<Vec<f32>>> {
+        self.cache.get_or_load(k, || {
+            let mut c = vec![0f32; self.spec.chunk_len(k)];
+            crate::lock(&self.store).read_plain(k as usize, bytemuck::cast_slice_mut(&mut c))?;
+            Ok(c)
+        })
     }
 }

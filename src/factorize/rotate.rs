@@ -157,7 +157,8 @@ pub(super) fn rotate_from<'a>(
                     continue;
                 }
             }
-            let (x0, y0) = (sx.floor() as usize, sy.floor() as usize);
+            // sx, sy ≥ 0 here, so truncation is the floor (and no libm call)
+            let (x0, y0) = (sx as usize, sy as usize);
             let (fx, fy) = ((sx - x0 as f64) as f32, (sy - y0 as f64) as f32);
             let (x0, y0) = (x0.min(width - 1), y0.min(height - 1));
             let x1 = if tileable {
@@ -189,14 +190,15 @@ pub(super) fn rotate_from<'a>(
 /// rotated and encoded at once, sized to an eighth of `cfg.memory` (at
 /// least one per thread), and written in the arrays' order, so the file is
 /// the same for any budget and thread count. Maps kept as chunks are read a
-/// window per turned chunk, gathered before the batch is turned.
+/// window per turned chunk, by the thread that turns it (through the
+/// chunks' shared cache).
 pub(super) fn write_rotations(
     c: &mut ContainerWriter,
     cfg: &FactorizeConfig,
     width: usize,
     height: usize,
     terms: usize,
-    mut g: Maps,
+    g: Maps,
     progress: &dyn Progress,
 ) -> Result<()> {
     let r = cfg.rotations as u64;
@@ -236,33 +238,24 @@ pub(super) fn write_rotations(
                 (o[2] as usize, o[1] as usize, e[2] as usize, e[1] as usize)
             };
             let ks = k0..(k0 + batch).min(per_rotation);
-            let windows = match &mut g {
-                Maps::Whole(_) => Vec::new(),
-                Maps::Chunks(m) => ks
-                    .clone()
-                    .map(|k| m.window(degrees, cfg.tileable, region(k)))
-                    .collect::<Result<Vec<_>>>()?,
-            };
-            let whole = match &g {
-                Maps::Whole(g) => Some(*g),
-                Maps::Chunks(_) => None,
-            };
             let encoded: Vec<(codec::EncodedChunk, codec::EncodedChunk)> = ks
                 .into_par_iter()
                 .map(|k| {
-                    let (rot, ok) = match whole {
-                        Some(g) => rotate_region(g, width, height, terms, degrees, cfg.tileable, region(k)),
-                        None => {
-                            let win = &windows[(k - k0) as usize];
+                    let (rot, ok) = match &g {
+                        Maps::Whole(g) => {
+                            rotate_region(g, width, height, terms, degrees, cfg.tileable, region(k))
+                        }
+                        Maps::Chunks(m) => {
+                            let win = m.window(degrees, cfg.tileable, region(k))?;
                             let texel = |x, y| win.texel(x, y);
                             rotate_from(texel, width, height, terms, degrees, cfg.tileable, region(k))
                         }
                     };
                     let mut rot16 = vec![f16::ZERO; rot.len()];
                     rot16.convert_from_f32_slice(&rot);
-                    (codec::encode(&rot16, level), codec::encode(&ok, level))
+                    Ok((codec::encode(&rot16, level), codec::encode(&ok, level)))
                 })
-                .collect();
+                .collect::<Result<_>>()?;
             for (k, (mc, vc)) in (k0..).zip(encoded) {
                 c.write_encoded(maps, ri * per_rotation + k, mc)?;
                 valid_chunks.push(vc);
