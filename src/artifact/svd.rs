@@ -129,6 +129,13 @@ impl SvdArtifact {
         self.rotated_rect(r, (0, 0, self.width, self.height))
     }
 
+    /// Rows of the rotated copies' chunks: a rectangle read in bands of
+    /// whole chunk rows decodes each chunk once.
+    pub fn rotated_band_rows(&self) -> Result<usize> {
+        let id = self.container.array("rotated_maps")?;
+        Ok(self.container.spec(id).chunk_shape[1].max(1) as usize)
+    }
+
     /// The rectangle `(x, y, w, h)` of rotated copy `r`, decoding only the
     /// chunks it touches.
     pub fn rotated_rect(&self, r: usize, rect: (usize, usize, usize, usize)) -> Result<(Vec<f16>, Vec<u8>)> {

@@ -3,6 +3,7 @@
 //! on the fly.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use super::coarse::Coarse;
@@ -36,6 +37,10 @@ pub(super) struct Sample {
     /// factor): factor 1 is the copy itself, f > 1 its f×f block means
     /// ([`Sample::coarse_rotation`]), [`MASK`] the foreground mask's copy.
     rotated: Mutex<BoundedCache<(usize, usize), Arc<RotatedCopy>>>,
+    /// The largest whole rotated copy loaded that its cache could not
+    /// hold: the match that loaded it holds it alone
+    /// ([`Sample::uncached_bytes`]).
+    uncached: AtomicU64,
     /// Coarse copies made from rectangles of the copies, kept on disk
     /// ([`Sample::spill_beside`]) so that making one again is a read.
     spill: Mutex<Spill>,
@@ -72,6 +77,7 @@ impl Sample {
             tileable,
             rotations,
             rotated: Mutex::new(BoundedCache::new(rotated_budget)),
+            uncached: AtomicU64::new(0),
             spill: Mutex::new(Spill::default()),
             by_rectangles: false,
             mask: None,
@@ -117,6 +123,13 @@ impl Sample {
         crate::lock(&self.spill).keys.clear();
     }
 
+    /// The largest whole rotated copy a match loaded that the copies'
+    /// cache could not hold (0 if none): each work patch matching at full
+    /// resolution then holds one of its own while it matches.
+    pub(super) fn uncached_bytes(&self) -> u64 {
+        self.uncached.load(Ordering::Relaxed)
+    }
+
     /// Empties the rotated copies' cache.
     pub(super) fn drop_rotations(&self) {
         crate::lock(&self.rotated).clear();
@@ -152,7 +165,9 @@ impl Sample {
             Arc::new((m, valid))
         };
         let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
-        crate::lock(&self.rotated).insert_if_fits((r, 1), Arc::clone(&copy), bytes);
+        if !crate::lock(&self.rotated).insert_if_fits((r, 1), Arc::clone(&copy), bytes) {
+            self.uncached.fetch_max(bytes, Ordering::Relaxed);
+        }
         Ok(copy)
     }
 
@@ -191,12 +206,27 @@ impl Sample {
     }
 
     /// The rectangle `(x, y, w, h)` of rotated copy `r` as the `.svd` stores
-    /// it (without the structure channel), in f32.
+    /// it (without the structure channel), in f32: read and widened a band
+    /// of chunk rows at a time, so that the stored f16 values are never
+    /// held whole beside their f32 copy.
     fn stored_rect(&self, r: usize, rect: (usize, usize, usize, usize)) -> Result<RotatedCopy> {
-        let (maps, valid) = self.svd.rotated_rect(r, rect)?;
-        let mut m = vec![0f32; maps.len()];
-        half::slice::HalfFloatSliceExt::convert_to_f32_slice(&maps[..], &mut m);
-        Ok((m, valid.iter().map(|&v| v as f32).collect()))
+        let (x, y, w, h) = rect;
+        let band = self.svd.rotated_band_rows()?;
+        let row = w * self.svd.terms;
+        let mut m = vec![0f32; row * h];
+        let mut valid = Vec::with_capacity(w * h);
+        let mut y0 = y;
+        while y0 < y + h {
+            let y1 = ((y0 / band + 1) * band).min(y + h);
+            let (maps, v) = self.svd.rotated_rect(r, (x, y0, w, y1 - y0))?;
+            half::slice::HalfFloatSliceExt::convert_to_f32_slice(
+                &maps[..],
+                &mut m[(y0 - y) * row..(y1 - y) * row],
+            );
+            valid.extend(v.iter().map(|&v| v as f32));
+            y0 = y1;
+        }
+        Ok((m, valid))
     }
 
     /// Bytes of one whole rotated copy as f32 (maps and validity).

@@ -464,9 +464,12 @@ fn spectrum_cache_is_reused() {
     assert_eq!((tiny.spectra_computed(), tiny.spectra_reused()), (3, 0));
     tiny.clear_cache();
     assert_eq!(tiny.cache_bytes(), 0);
-    // a match whose spectra its cache cannot keep holds them besides the
-    // buffers, and a patch's memory counts them
+    // a match whose spectra its cache cannot keep transforms them a pair
+    // at a time as the sum reaches them: two buffers more than a cached
+    // match, far less than the spectra, and the same map bit for bit
     assert!(tiny.match_bytes() > fresh.match_bytes());
+    assert!(tiny.match_bytes() < fresh.match_bytes() + fresh.cache_bytes() / 2);
+    assert_eq!(tiny.cost_map(&work(&w1, &known), &sample, &cfg).unwrap(), map_a);
     // freed buffers: the figure is kept, the next match gives the same map
     let held = tiny.match_bytes();
     tiny.release_buffers();
@@ -619,6 +622,9 @@ fn kept_work_spectra_give_the_same_costs_bit_for_bit() {
             constraint: constrained.then(|| img(ww, wh, nc, &wc)),
         };
         let mut kept = Matcher::new();
+        // spectra too large for their cache: streamed, a pair at a time,
+        // with the work spectra kept (the samples after the first) and not
+        let mut streamed = [Matcher::with_cache_budget(1), Matcher::with_cache_budget(1)];
         for weight in [0.5, 2.0] {
             let cfg = MatchConfig {
                 constraint_weight: weight,
@@ -645,6 +651,14 @@ fn kept_work_spectra_give_the_same_costs_bit_for_bit() {
                     bits(&b),
                     "sample {k}, constrained {constrained}, weight {weight}"
                 );
+                for (m, key) in streamed.iter_mut().zip([Some(7), None]) {
+                    let c = m.cost_map_for(&work, key, &sample, &cfg).unwrap();
+                    assert_eq!(
+                        bits(&c),
+                        bits(&b),
+                        "streamed spectra, work key {key:?}, sample {k}, constrained {constrained}, weight {weight}"
+                    );
+                }
                 assert!(a.cost.iter().any(|c| c.is_finite()));
             }
         }

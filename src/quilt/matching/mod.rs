@@ -32,7 +32,9 @@
 //! spectrum F(M)·conj F(V) rides in the imaginary part of the same, single
 //! inverse FFT. Per match: ⌈lanes/2⌉ forward 2D FFTs of the work image and one
 //! inverse; the sample's spectra depend only on the sample and the FFT size
-//! and are cached by [`Matcher`] under the caller's `key`.
+//! and are cached by [`Matcher`] under the caller's `key`; spectra larger
+//! than the cache's budget are transformed a pair at a time as the sum
+//! reaches them, never held together (the same costs, bit for bit).
 //!
 //! FFT size: for [`Span::Contained`] (one image inside the other, as in the
 //! paper) no index ever wraps for a wanted placement once the transform is at
@@ -322,6 +324,10 @@ pub struct Matcher {
     zm: Vec<C64>,
     acc: Vec<C64>,
     out: Vec<C64>,
+    /// A sample pair's spectrum and F(V), for sample spectra too large for
+    /// the cache ([`SampleSide::Streamed`]).
+    ys: Vec<C64>,
+    fv: Vec<C64>,
     energy: Vec<f64>,
     /// The spectra Z_j of the last keyed work image ([`Matcher::cost_map_for`]).
     work_spectra: Vec<C64>,
@@ -333,7 +339,8 @@ pub struct Matcher {
     /// The most the buffers held before [`Matcher::release_buffers`].
     released: usize,
     /// The most a match held besides the buffers: its cost map, and the
-    /// sample spectra it computed when they did not fit the cache.
+    /// sample spectra it computed whole when the cache, shrunk meanwhile,
+    /// could not keep them.
     transient: usize,
 }
 
@@ -359,6 +366,8 @@ impl Matcher {
             zm: Vec::new(),
             acc: Vec::new(),
             out: Vec::new(),
+            ys: Vec::new(),
+            fv: Vec::new(),
             energy: Vec::new(),
             work_spectra: Vec::new(),
             work_tag: None,
@@ -372,8 +381,8 @@ impl Matcher {
 
     /// Bytes of this matcher's buffers (sized by the largest match so far,
     /// also when they were released since) and of what the largest match
-    /// held besides them (its cost map, and sample spectra too large for
-    /// the cache).
+    /// held besides them (its cost map; sample spectra too large for the
+    /// cache are transformed a pair at a time into two of the buffers).
     pub fn match_bytes(&self) -> usize {
         let complex = [
             &self.rows,
@@ -381,6 +390,8 @@ impl Matcher {
             &self.zm,
             &self.acc,
             &self.out,
+            &self.ys,
+            &self.fv,
             &self.work_spectra,
         ];
         let held = complex.iter().map(|b| b.capacity()).sum::<usize>() * std::mem::size_of::<C64>()
@@ -399,6 +410,8 @@ impl Matcher {
             &mut self.zm,
             &mut self.acc,
             &mut self.out,
+            &mut self.ys,
+            &mut self.fv,
             &mut self.work_spectra,
         ] {
             *b = Vec::new();
@@ -501,23 +514,35 @@ impl Matcher {
         ] {
             buf.resize(len, ZERO);
         }
-        let cached = crate::lock(&self.cache).get(&lay.key).cloned();
+        // the sample side: cached spectra, or spectra computed whole and
+        // cached when they fit the cache, or else streamed a pair at a time
+        let whole = (lay.pairs + 1) * nn * std::mem::size_of::<C64>();
+        let (cached, fits) = {
+            let mut cache = crate::lock(&self.cache);
+            (cache.get(&lay.key).cloned(), whole as u64 <= cache.budget())
+        };
         let mut uncached = 0;
-        let entry = match cached {
+        let side = match cached {
             Some(e) => {
                 self.reused += 1;
-                e
+                SampleSide::Held(e)
             }
-            None => {
+            None if fits => {
                 let e = Arc::new(self.sample_spectra(&plans, sample, &lay));
                 let bytes = e.bytes() as u64;
                 if !crate::lock(&self.cache).insert_if_fits(lay.key, Arc::clone(&e), bytes) {
                     uncached = bytes as usize;
                 }
-                e
+                SampleSide::Held(e)
+            }
+            None => {
+                self.computed += 1;
+                for buf in [&mut self.ys, &mut self.fv] {
+                    buf.resize(nn, ZERO);
+                }
+                SampleSide::Streamed(SampleEnergy::new(sample, &lay))
             }
         };
-
         // work side: Σ_j Z_j conj(Y_j), keeping the pair that holds M
         let w = if work.constraint.is_some() {
             cfg.constraint_weight
@@ -537,10 +562,22 @@ impl Matcher {
             // Z_j kept from the last match of this work image
             self.acc.fill(ZERO);
             for j in 0..lay.pairs {
-                let (zs, ys) = (
-                    &self.work_spectra[j * nn..(j + 1) * nn],
-                    &entry.pairs[j * nn..(j + 1) * nn],
-                );
+                let ys: &[C64] = match &side {
+                    SampleSide::Held(e) => &e.pairs[j * nn..(j + 1) * nn],
+                    SampleSide::Streamed(en) => {
+                        en.pair(
+                            &plans,
+                            &mut self.rows,
+                            sample,
+                            &lay,
+                            j,
+                            &mut self.ys,
+                            &mut self.fv,
+                        );
+                        &self.ys
+                    }
+                };
+                let zs = &self.work_spectra[j * nn..(j + 1) * nn];
                 self.acc
                     .par_chunks_mut(TASK_ELEMS)
                     .zip(zs.par_chunks(TASK_ELEMS))
@@ -564,6 +601,21 @@ impl Matcher {
             let energy = &self.energy;
             self.acc.fill(ZERO);
             for j in 0..lay.pairs {
+                let ys: &[C64] = match &side {
+                    SampleSide::Held(e) => &e.pairs[j * nn..(j + 1) * nn],
+                    SampleSide::Streamed(en) => {
+                        en.pair(
+                            &plans,
+                            &mut self.rows,
+                            sample,
+                            &lay,
+                            j,
+                            &mut self.ys,
+                            &mut self.fv,
+                        );
+                        &self.ys
+                    }
+                };
                 pack_pair(&mut self.rows, nx, wi.width, wi.height, lay.lanes, j, |c, i| {
                     work_lane(work, &lay, w, energy, c, i)
                 });
@@ -574,7 +626,6 @@ impl Matcher {
                 } else {
                     &mut self.spec
                 };
-                let ys = &entry.pairs[j * nn..(j + 1) * nn];
                 forward_2d(
                     &plans,
                     &mut self.rows,
@@ -591,7 +642,11 @@ impl Matcher {
         }
 
         // Hermitian part of the sum (→ SSD) + i F(M) conj F(V) (→ overlap)
-        let (acc, zm, fv) = (&self.acc, &self.zm, &entry.fv);
+        let (fv, max_valid) = match &side {
+            SampleSide::Held(e) => (&e.fv, e.max_valid),
+            SampleSide::Streamed(en) => (&self.fv, en.max_valid),
+        };
+        let (acc, zm) = (&self.acc, &self.zm);
         let m_part = m_lane(lay.n) % 2;
         let per = cols_per_task(ny) * ny;
         self.spec.par_chunks_mut(per).enumerate().for_each(|(ci, chunk)| {
@@ -625,7 +680,7 @@ impl Matcher {
         fft_rows(&plans.ix, nx, &mut self.out);
 
         let mass: f64 = work.known.iter().map(|&m| m as f64).sum();
-        let tol = 1e-9 * mass * entry.max_valid;
+        let tol = 1e-9 * mass * max_valid;
         let scale = 1.0 / nn as f64;
         self.transient = self.transient.max(uncached + prow * columns * 16);
         let mut cost = vec![f64::INFINITY; prow * columns];
@@ -654,29 +709,81 @@ impl Matcher {
     /// The packed lane spectra of the sample and F(V).
     fn sample_spectra(&mut self, plans: &Plans, sample: &Sample, lay: &Layout) -> SampleSpectra {
         self.computed += 1;
-        let (nx, ny, nn) = (lay.nx, lay.ny, lay.nx * lay.ny);
+        let nn = lay.nx * lay.ny;
+        let en = SampleEnergy::new(sample, lay);
+        let mut pairs = vec![ZERO; lay.pairs * nn];
+        let mut fv = vec![ZERO; nn];
+        for (j, spec) in pairs.chunks_exact_mut(nn).enumerate() {
+            en.pair(plans, &mut self.rows, sample, lay, j, spec, &mut fv);
+        }
+        SampleSpectra {
+            pairs,
+            fv,
+            max_valid: en.max_valid,
+        }
+    }
+}
+
+/// The sample's side of a match (the Y_j and F(V)).
+enum SampleSide {
+    /// All pairs' spectra, cached or to be.
+    Held(Arc<SampleSpectra>),
+    /// Spectra too large for the cache: each pair transformed into the
+    /// matcher's buffer as the sum over pairs reaches it, F(V) with its
+    /// pair, so that no more than one pair is held (the same values).
+    Streamed(SampleEnergy),
+}
+
+/// Per-pixel sums the sample's lanes need (V‖S‖², V‖mP‖²) and its largest
+/// validity.
+struct SampleEnergy {
+    energy: Vec<f64>,
+    cenergy: Vec<f64>,
+    max_valid: f64,
+}
+
+impl SampleEnergy {
+    fn new(sample: &Sample, lay: &Layout) -> SampleEnergy {
         let si = &sample.image;
-        let energy: Vec<f64> = (0..si.pixels())
+        let energy = (0..si.pixels())
             .map(|i| sample.valid[i] as f64 * sq_norm(&si.data[i * lay.n..(i + 1) * lay.n]))
             .collect();
-        let cenergy: Vec<f64> = match &sample.constraint {
+        let cenergy = match &sample.constraint {
             Some(c) => (0..si.pixels())
                 .map(|i| sample.valid[i] as f64 * sq_norm(&c.data[i * lay.nc..(i + 1) * lay.nc]))
                 .collect(),
             None => Vec::new(),
         };
-        let mut pairs = vec![ZERO; lay.pairs * nn];
-        for (j, spec) in pairs.chunks_exact_mut(nn).enumerate() {
-            pack_pair(&mut self.rows, nx, si.width, si.height, lay.lanes, j, |c, i| {
-                sample_lane(sample, lay, &energy, &cenergy, c, i)
-            });
-            forward_2d(plans, &mut self.rows, si.height, spec, None);
-        }
-        let mut fv = vec![ZERO; nn];
-        let vl = v_lane(lay.n);
-        unpack_lane(nx, ny, &pairs[vl / 2 * nn..(vl / 2 + 1) * nn], vl % 2, &mut fv);
         let max_valid = sample.valid.iter().fold(0.0f64, |a, &v| a.max(v as f64));
-        SampleSpectra { pairs, fv, max_valid }
+        SampleEnergy {
+            energy,
+            cenergy,
+            max_valid,
+        }
+    }
+
+    /// Transforms the sample's lane pair `j` into `spec` (through `rows`),
+    /// and F(V) into `fv` when the pair holds V.
+    #[allow(clippy::too_many_arguments)]
+    fn pair(
+        &self,
+        plans: &Plans,
+        rows: &mut [C64],
+        sample: &Sample,
+        lay: &Layout,
+        j: usize,
+        spec: &mut [C64],
+        fv: &mut [C64],
+    ) {
+        let si = &sample.image;
+        pack_pair(rows, lay.nx, si.width, si.height, lay.lanes, j, |c, i| {
+            sample_lane(sample, lay, &self.energy, &self.cenergy, c, i)
+        });
+        forward_2d(plans, rows, si.height, spec, None);
+        let vl = v_lane(lay.n);
+        if j == vl / 2 {
+            unpack_lane(lay.nx, lay.ny, spec, vl % 2, fv);
+        }
     }
 }
 

@@ -496,7 +496,9 @@ impl Synthesis {
 
     /// A work patch's memory in flight by the texels of its traversal: the
     /// largest matcher's buffers and what its largest match held besides
-    /// them ([`Matcher::match_bytes`]), and [`bytes_per_texel`] per texel.
+    /// them ([`Matcher::match_bytes`]), a whole rotated copy too large for
+    /// its cache ([`Sample::uncached_bytes`](super::sample::Sample::uncached_bytes)),
+    /// and [`bytes_per_texel`] per texel.
     pub(super) fn patch_bytes(&self) -> impl Fn(usize) -> u64 {
         let buffers = self
             .spares
@@ -504,7 +506,8 @@ impl Synthesis {
             .map(|(m, _)| m.match_bytes())
             .chain([self.matcher.match_bytes()])
             .max()
-            .unwrap_or(0) as u64;
+            .unwrap_or(0) as u64
+            + self.sample.uncached_bytes();
         let per_texel = bytes_per_texel(self.sample.n);
         move |texels| buffers + per_texel * texels as u64
     }
