@@ -73,6 +73,9 @@ impl MemoryBudget {
 /// with [`BoundedCache::insert_if_fits`].
 pub struct BoundedCache<K, V> {
     budget: u64,
+    /// Users that may each hold an entry after the cache evicted it
+    /// ([`BoundedCache::set_holders`]).
+    holders: u64,
     map: HashMap<K, (V, u64, u64)>,
     by_age: BTreeMap<u64, K>,
     bytes: u64,
@@ -84,6 +87,7 @@ impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
     pub fn new(budget: MemoryBudget) -> Self {
         BoundedCache {
             budget: budget.0,
+            holders: 1,
             map: HashMap::new(),
             by_age: BTreeMap::new(),
             bytes: 0,
@@ -146,12 +150,26 @@ impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
         self.bytes += bytes;
     }
 
-    /// [`insert`](Self::insert), unless `bytes` alone exceed the budget: such
-    /// an entry is not kept and evicts nothing (for values made again when
+    /// Whether [`insert_if_fits`](Self::insert_if_fits) keeps an entry of
+    /// `bytes`: as many as the cache has holders fit its budget.
+    pub fn fits(&self, bytes: u64) -> bool {
+        bytes.saturating_mul(self.holders) <= self.budget
+    }
+
+    /// Sets how many users may each hold an entry at once (1 to begin
+    /// with): an entry one of them holds may be evicted for another's and
+    /// live on outside the cache, so the budget keeps only entries of
+    /// which that many fit ([`fits`](Self::fits)).
+    pub fn set_holders(&mut self, holders: usize) {
+        self.holders = holders.max(1) as u64;
+    }
+
+    /// [`insert`](Self::insert), unless the entry does not [`fit`](Self::fits):
+    /// it is then not kept and evicts nothing (for values made again when
     /// needed, so that one too large does not empty the cache of the small
     /// ones). Whether it was kept.
     pub fn insert_if_fits(&mut self, key: K, value: V, bytes: u64) -> bool {
-        let fits = bytes <= self.budget;
+        let fits = self.fits(bytes);
         if fits {
             self.insert(key, value, bytes);
         }

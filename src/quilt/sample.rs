@@ -142,9 +142,13 @@ impl Sample {
         (cache.budget(), cache.bytes())
     }
 
-    /// Sets the budget of the rotated copies' cache, evicting down to it.
-    pub(super) fn set_rotated_budget(&self, budget: MemoryBudget) {
-        crate::lock(&self.rotated).set_budget(budget);
+    /// Sets the budget of the rotated copies' cache, evicting down to it,
+    /// and how many work patches at once may hold one of its copies
+    /// ([`BoundedCache::set_holders`]).
+    pub(super) fn set_rotated_budget(&self, budget: MemoryBudget, holders: usize) {
+        let mut cache = crate::lock(&self.rotated);
+        cache.set_holders(holders);
+        cache.set_budget(budget);
     }
 
     /// Rotated copy `r` (maps, validity), loaded on first use (two threads
@@ -180,7 +184,7 @@ impl Sample {
     pub(super) fn rotation_rect(&self, r: usize, rect: (usize, usize, usize, usize)) -> Result<RotatedCopy> {
         let (cached, fits) = {
             let mut cache = crate::lock(&self.rotated);
-            (cache.get(&(r, 1)).cloned(), self.whole_bytes() <= cache.budget())
+            (cache.get(&(r, 1)).cloned(), cache.fits(self.whole_bytes()))
         };
         let whole = match cached {
             Some(copy) => Some(copy),
@@ -297,13 +301,13 @@ impl Sample {
         }
         let copy = Arc::new((features, weight));
         let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
-        let budget = {
+        let whole_fits = {
             let mut cache = crate::lock(&self.rotated);
             cache.insert_if_fits((r, f), Arc::clone(&copy), bytes);
-            cache.budget()
+            cache.fits(self.whole_bytes())
         };
         // (made from rectangles: making it again would read the whole copy)
-        if (self.by_rectangles || self.whole_bytes() > budget) && self.structure.is_none() {
+        if (self.by_rectangles || !whole_fits) && self.structure.is_none() {
             let values = copy.0.iter().chain(&copy.1).flat_map(|v| v.to_le_bytes());
             // (the climb's factor and the match's: two per rotation)
             crate::lock(&self.spill).put((r, f), &values.collect::<Vec<u8>>(), 2 * self.rotations)?;

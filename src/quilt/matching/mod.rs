@@ -426,6 +426,13 @@ impl Matcher {
         crate::lock(&self.cache).set_budget(MemoryBudget(bytes as u64));
     }
 
+    /// Sets how many matches at once may hold an entry of the spectrum
+    /// cache ([`BoundedCache::set_holders`]): spectra of which that many do
+    /// not fit its budget are streamed, never kept.
+    pub fn set_cache_holders(&self, holders: usize) {
+        crate::lock(&self.cache).set_holders(holders);
+    }
+
     /// This matcher's spectrum cache, to share with [`Matcher::sharing`].
     pub fn spectra_cache(&self) -> SpectraCache {
         SpectraCache(Arc::clone(&self.cache))
@@ -519,7 +526,7 @@ impl Matcher {
         let whole = (lay.pairs + 1) * nn * std::mem::size_of::<C64>();
         let (cached, fits) = {
             let mut cache = crate::lock(&self.cache);
-            (cache.get(&lay.key).cloned(), whole as u64 <= cache.budget())
+            (cache.get(&lay.key).cloned(), cache.fits(whole as u64))
         };
         let mut uncached = 0;
         let side = match cached {
