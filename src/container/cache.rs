@@ -339,6 +339,26 @@ mod tests {
     }
 
     #[test]
+    fn with_holders_only_entries_that_many_of_which_fit_are_kept() {
+        let mut c = BoundedCache::new(MemoryBudget(30));
+        c.set_holders(2);
+        // two of 15 fit 30, two of 16 do not
+        assert!(c.fits(15) && !c.fits(16));
+        assert!(!c.insert_if_fits(1, "a", 16));
+        assert!(c.insert_if_fits(2, "b", 15));
+        assert!(!c.contains(&1) && c.contains(&2));
+        c.set_holders(3);
+        assert!(c.fits(10) && !c.fits(11));
+        assert!(!c.insert_if_fits(3, "c", 11));
+        assert_eq!(c.bytes(), 15);
+        // zero holders count as one
+        c.set_holders(0);
+        assert!(c.fits(30) && !c.fits(31));
+        assert!(c.insert_if_fits(4, "d", 30));
+        assert!(c.contains(&4) && !c.contains(&2));
+    }
+
+    #[test]
     fn cache_stays_within_budget_and_evicts_oldest() {
         let cache = ChunkCache::new(MemoryBudget(4000));
         let mut loads = 0;
