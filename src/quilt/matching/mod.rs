@@ -569,21 +569,15 @@ impl Matcher {
             // Z_j kept from the last match of this work image
             self.acc.fill(ZERO);
             for j in 0..lay.pairs {
-                let ys: &[C64] = match &side {
-                    SampleSide::Held(e) => &e.pairs[j * nn..(j + 1) * nn],
-                    SampleSide::Streamed(en) => {
-                        en.pair(
-                            &plans,
-                            &mut self.rows,
-                            sample,
-                            &lay,
-                            j,
-                            &mut self.ys,
-                            &mut self.fv,
-                        );
-                        &self.ys
-                    }
-                };
+                let ys = side.pair(
+                    j,
+                    &plans,
+                    &mut self.rows,
+                    sample,
+                    &lay,
+                    &mut self.ys,
+                    &mut self.fv,
+                );
                 let zs = &self.work_spectra[j * nn..(j + 1) * nn];
                 self.acc
                     .par_chunks_mut(TASK_ELEMS)
@@ -608,21 +602,15 @@ impl Matcher {
             let energy = &self.energy;
             self.acc.fill(ZERO);
             for j in 0..lay.pairs {
-                let ys: &[C64] = match &side {
-                    SampleSide::Held(e) => &e.pairs[j * nn..(j + 1) * nn],
-                    SampleSide::Streamed(en) => {
-                        en.pair(
-                            &plans,
-                            &mut self.rows,
-                            sample,
-                            &lay,
-                            j,
-                            &mut self.ys,
-                            &mut self.fv,
-                        );
-                        &self.ys
-                    }
-                };
+                let ys = side.pair(
+                    j,
+                    &plans,
+                    &mut self.rows,
+                    sample,
+                    &lay,
+                    &mut self.ys,
+                    &mut self.fv,
+                );
                 pack_pair(&mut self.rows, nx, wi.width, wi.height, lay.lanes, j, |c, i| {
                     work_lane(work, &lay, w, energy, c, i)
                 });
@@ -739,6 +727,33 @@ enum SampleSide {
     /// matcher's buffer as the sum over pairs reaches it, F(V) with its
     /// pair, so that no more than one pair is held (the same values).
     Streamed(SampleEnergy),
+}
+
+impl SampleSide {
+    /// Y_j: the held pair's spectrum, or pair `j` transformed into `ys`
+    /// (and F(V) into `fv` with its pair).
+    #[allow(clippy::too_many_arguments)]
+    fn pair<'a>(
+        &'a self,
+        j: usize,
+        plans: &Plans,
+        rows: &mut [C64],
+        sample: &Sample,
+        lay: &Layout,
+        ys: &'a mut [C64],
+        fv: &mut [C64],
+    ) -> &'a [C64] {
+        match self {
+            SampleSide::Held(e) => {
+                let nn = lay.nx * lay.ny;
+                &e.pairs[j * nn..(j + 1) * nn]
+            }
+            SampleSide::Streamed(en) => {
+                en.pair(plans, rows, sample, lay, j, ys, fv);
+                ys
+            }
+        }
+    }
 }
 
 /// Per-pixel sums the sample's lanes need (V‖S‖², V‖mP‖²) and its largest
