@@ -565,27 +565,9 @@ impl Matcher {
             lanes: lay.lanes,
             weight: w.to_bits(),
         });
-        if tag.is_some() && tag == self.work_tag {
-            // Z_j kept from the last match of this work image
-            self.acc.fill(ZERO);
-            for j in 0..lay.pairs {
-                let ys = side.pair(
-                    j,
-                    &plans,
-                    &mut self.rows,
-                    sample,
-                    &lay,
-                    &mut self.ys,
-                    &mut self.fv,
-                );
-                let zs = &self.work_spectra[j * nn..(j + 1) * nn];
-                self.acc
-                    .par_chunks_mut(TASK_ELEMS)
-                    .zip(zs.par_chunks(TASK_ELEMS))
-                    .zip(ys.par_chunks(TASK_ELEMS))
-                    .for_each(|((acc, zs), ys)| accumulate(acc, zs, ys));
-            }
-        } else {
+        // Z_j kept from the last match of this work image, or transformed
+        let kept = tag.is_some() && tag == self.work_tag;
+        if !kept {
             self.work_tag = None;
             if tag.is_some() {
                 self.work_spectra.resize(lay.pairs * nn, ZERO);
@@ -599,36 +581,45 @@ impl Matcher {
                 }
                 m * e
             }));
-            let energy = &self.energy;
-            self.acc.fill(ZERO);
-            for j in 0..lay.pairs {
-                let ys = side.pair(
-                    j,
-                    &plans,
-                    &mut self.rows,
-                    sample,
-                    &lay,
-                    &mut self.ys,
-                    &mut self.fv,
-                );
-                pack_pair(&mut self.rows, nx, wi.width, wi.height, lay.lanes, j, |c, i| {
-                    work_lane(work, &lay, w, energy, c, i)
-                });
-                let target = if tag.is_some() {
-                    &mut self.work_spectra[j * nn..(j + 1) * nn]
-                } else if j == m_pair {
-                    &mut self.zm
-                } else {
-                    &mut self.spec
-                };
-                forward_2d(
-                    &plans,
-                    &mut self.rows,
-                    wi.height,
-                    target,
-                    Some((&mut self.acc, ys)),
-                );
+        }
+        let energy = &self.energy;
+        self.acc.fill(ZERO);
+        for j in 0..lay.pairs {
+            let ys = side.pair(
+                j,
+                &plans,
+                &mut self.rows,
+                sample,
+                &lay,
+                &mut self.ys,
+                &mut self.fv,
+            );
+            if kept {
+                let zs = &self.work_spectra[j * nn..(j + 1) * nn];
+                self.acc
+                    .par_chunks_mut(TASK_ELEMS)
+                    .zip(zs.par_chunks(TASK_ELEMS))
+                    .zip(ys.par_chunks(TASK_ELEMS))
+                    .for_each(|((acc, zs), ys)| accumulate(acc, zs, ys));
+                continue;
             }
+            pack_pair(&mut self.rows, nx, wi.width, wi.height, lay.lanes, j, |c, i| {
+                work_lane(work, &lay, w, energy, c, i)
+            });
+            let target = if tag.is_some() {
+                &mut self.work_spectra[j * nn..(j + 1) * nn]
+            } else if j == m_pair {
+                &mut self.zm
+            } else {
+                &mut self.spec
+            };
+            forward_2d(
+                &plans,
+                &mut self.rows,
+                wi.height,
+                target,
+                Some((&mut self.acc, ys)),
+            );
         }
         if tag.is_some() {
             // F(M) of the kept spectra, where the unkept path transforms it
