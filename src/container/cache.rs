@@ -66,32 +66,64 @@ impl MemoryBudget {
     }
 }
 
+/// Whether a cache's value is also held outside the cache: its memory
+/// lives on when the cache lets it go ([`BoundedCache`] counts it until it
+/// is dropped).
+pub trait Held {
+    fn held_elsewhere(&self) -> bool;
+}
+
+impl<T: ?Sized> Held for Arc<T> {
+    fn held_elsewhere(&self) -> bool {
+        Arc::strong_count(self) > 1
+    }
+}
+
+impl<T> Held for Vec<T> {
+    fn held_elsewhere(&self) -> bool {
+        false
+    }
+}
+
+impl<T: ?Sized> Held for &T {
+    fn held_elsewhere(&self) -> bool {
+        false
+    }
+}
+
 /// A map bounded by a byte budget, least recently used entries evicted
 /// first: the one cache type behind every cache (decoded chunks, the rotated
 /// copies of a sample, the matcher's sample spectra). The newest entry is
 /// always kept, even when it alone exceeds the budget, unless it was put in
-/// with [`BoundedCache::insert_if_fits`].
+/// with [`BoundedCache::insert_if_fits`] or [`BoundedCache::reserve`]d.
+///
+/// An entry a user still holds ([`Held`]) frees nothing when evicted, so it
+/// is not: entries in use stay, and count against the budget until their
+/// users drop them, as do those [`clear`](BoundedCache::clear)ed while held
+/// and the room [`reserve`](BoundedCache::reserve)d for entries being made.
 pub struct BoundedCache<K, V> {
     budget: u64,
-    /// Users that may each hold an entry after the cache evicted it
-    /// ([`BoundedCache::set_holders`]).
-    holders: u64,
     map: HashMap<K, (V, u64, u64)>,
     by_age: BTreeMap<u64, K>,
     bytes: u64,
     tick: u64,
+    /// Room promised to entries being made ([`BoundedCache::reserve`]).
+    reserved: u64,
+    /// Entries cleared while held elsewhere, until their users drop them.
+    out: Vec<(V, u64)>,
 }
 
-impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
+impl<K: Hash + Eq + Clone, V: Held> BoundedCache<K, V> {
     /// An empty cache of at most `budget` bytes.
     pub fn new(budget: MemoryBudget) -> Self {
         BoundedCache {
             budget: budget.0,
-            holders: 1,
             map: HashMap::new(),
             by_age: BTreeMap::new(),
             bytes: 0,
             tick: 0,
+            reserved: 0,
+            out: Vec::new(),
         }
     }
 
@@ -137,31 +169,39 @@ impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
     }
 
     /// Inserts (or replaces) `key` holding `bytes`, first evicting the least
-    /// recently used entries until it fits (or nothing else is left).
+    /// recently used entries not in use until it fits (or none is left).
     pub fn insert(&mut self, key: K, value: V, bytes: u64) {
-        if let Some((_, old, age)) = self.map.remove(&key) {
+        if let Some((old, b, age)) = self.map.remove(&key) {
             self.by_age.remove(&age);
-            self.bytes -= old;
+            self.bytes -= b;
+            self.let_go(old, b);
         }
-        while self.bytes + bytes > self.budget && self.evict_oldest() {}
+        self.reap();
+        while self.bytes + self.pinned_out() + bytes > self.budget && self.evict_oldest() {}
         self.tick += 1;
         self.by_age.insert(self.tick, key.clone());
         self.map.insert(key, (value, bytes, self.tick));
         self.bytes += bytes;
     }
 
-    /// Whether [`insert_if_fits`](Self::insert_if_fits) keeps an entry of
-    /// `bytes`: as many as the cache has holders fit its budget.
-    pub fn fits(&self, bytes: u64) -> bool {
-        bytes.saturating_mul(self.holders) <= self.budget
+    /// Bytes that evicting entries cannot free: entries in use, entries let
+    /// go while in use, and the room reserved.
+    pub fn pinned(&mut self) -> u64 {
+        self.reap();
+        let in_use: u64 = self
+            .map
+            .values()
+            .filter(|(v, _, _)| v.held_elsewhere())
+            .map(|&(_, b, _)| b)
+            .sum();
+        in_use + self.pinned_out()
     }
 
-    /// Sets how many users may each hold an entry at once (1 to begin
-    /// with): an entry one of them holds may be evicted for another's and
-    /// live on outside the cache, so the budget keeps only entries of
-    /// which that many fit ([`fits`](Self::fits)).
-    pub fn set_holders(&mut self, holders: usize) {
-        self.holders = holders.max(1) as u64;
+    /// Whether [`insert_if_fits`](Self::insert_if_fits) keeps an entry of
+    /// `bytes` now: it fits the budget beside the [`pinned`](Self::pinned)
+    /// bytes.
+    pub fn fits(&mut self, bytes: u64) -> bool {
+        bytes.saturating_add(self.pinned()) <= self.budget
     }
 
     /// [`insert`](Self::insert), unless the entry does not [`fit`](Self::fits):
@@ -176,29 +216,86 @@ impl<K: Hash + Eq + Clone, V> BoundedCache<K, V> {
         fits
     }
 
-    /// Sets the budget, evicting the least recently used entries until the
-    /// rest fit (the newest kept whatever its size).
-    pub fn set_budget(&mut self, budget: MemoryBudget) {
-        self.budget = budget.0;
-        while self.bytes > self.budget && self.map.len() > 1 && self.evict_oldest() {}
+    /// Reserves room for an entry of `bytes` about to be made, if it
+    /// [`fits`](Self::fits): the room counts as in use until the entry is
+    /// put in with [`insert_reserved`](Self::insert_reserved) or the room
+    /// given back with [`unreserve`](Self::unreserve), so that users making
+    /// entries at once do not each count on the same room. Whether it was
+    /// reserved.
+    pub fn reserve(&mut self, bytes: u64) -> bool {
+        let fits = self.fits(bytes);
+        if fits {
+            self.reserved += bytes;
+        }
+        fits
     }
 
-    /// Evicts the least recently used entry; `false` when there was none.
+    /// Gives back room [`reserve`](Self::reserve)d for `bytes`.
+    pub fn unreserve(&mut self, bytes: u64) {
+        self.reserved -= bytes.min(self.reserved);
+    }
+
+    /// Puts in an entry of `bytes` made in the room reserved for `reserved`
+    /// bytes ([`reserve`](Self::reserve)), as
+    /// [`insert_if_fits`](Self::insert_if_fits) does (it fits unless the
+    /// budget shrank meanwhile). Whether it was kept.
+    pub fn insert_reserved(&mut self, key: K, value: V, reserved: u64, bytes: u64) -> bool {
+        self.unreserve(reserved);
+        self.insert_if_fits(key, value, bytes)
+    }
+
+    /// Sets the budget, evicting the least recently used entries not in use
+    /// until the rest fit (the newest kept whatever its size).
+    pub fn set_budget(&mut self, budget: MemoryBudget) {
+        self.budget = budget.0;
+        self.reap();
+        while self.bytes + self.pinned_out() > self.budget && self.map.len() > 1 && self.evict_oldest() {}
+    }
+
+    /// Evicts the least recently used entry not in use; `false` when there
+    /// was none.
     fn evict_oldest(&mut self) -> bool {
-        let Some((_, oldest)) = self.by_age.pop_first() else {
+        let Some((&age, _)) = self
+            .by_age
+            .iter()
+            .find(|(_, k)| self.map.get(*k).is_some_and(|(v, _, _)| !v.held_elsewhere()))
+        else {
             return false;
         };
-        if let Some((_, b, _)) = self.map.remove(&oldest) {
+        let key = self.by_age.remove(&age).expect("found above");
+        if let Some((_, b, _)) = self.map.remove(&key) {
             self.bytes -= b;
         }
         true
     }
 
-    /// Drops every entry.
+    /// Keeps counting `value` while its users hold it.
+    fn let_go(&mut self, value: V, bytes: u64) {
+        if value.held_elsewhere() {
+            self.out.push((value, bytes));
+        }
+    }
+
+    /// Drops the entries let go whose users have dropped them.
+    fn reap(&mut self) {
+        self.out.retain(|(v, _)| v.held_elsewhere());
+    }
+
+    /// Bytes of the entries let go but still held, and the room reserved.
+    fn pinned_out(&self) -> u64 {
+        self.out.iter().map(|&(_, b)| b).sum::<u64>() + self.reserved
+    }
+
+    /// Drops every entry (those still in use count until their users drop
+    /// them).
     pub fn clear(&mut self) {
-        self.map.clear();
         self.by_age.clear();
+        let map = std::mem::take(&mut self.map);
+        for (_, (v, b, _)) in map {
+            self.let_go(v, b);
+        }
         self.bytes = 0;
+        self.reap();
     }
 }
 
@@ -339,23 +436,57 @@ mod tests {
     }
 
     #[test]
-    fn with_holders_only_entries_that_many_of_which_fit_are_kept() {
+    fn entries_in_use_stay_and_count_until_their_users_drop_them() {
         let mut c = BoundedCache::new(MemoryBudget(30));
-        c.set_holders(2);
-        // two of 15 fit 30, two of 16 do not
-        assert!(c.fits(15) && !c.fits(16));
-        assert!(!c.insert_if_fits(1, "a", 16));
-        assert!(c.insert_if_fits(2, "b", 15));
+        c.insert(1, Arc::new("a"), 10);
+        c.insert(2, Arc::new("b"), 10);
+        let held = Arc::clone(c.get(&1).unwrap()); // 1 in use, and the newest
+        c.get(&2);
+        // evicting must free room: 2, not the older 1 in use, goes
+        assert_eq!(c.pinned(), 10);
+        assert!(c.fits(20) && !c.fits(21));
+        assert!(c.insert_if_fits(3, Arc::new("c"), 20));
+        assert!(c.contains(&1) && !c.contains(&2) && c.contains(&3));
+        assert!(!c.insert_if_fits(4, Arc::new("d"), 21));
+        // a cleared entry in use counts until dropped
+        c.clear();
+        assert!(c.is_empty() && c.bytes() == 0);
+        assert_eq!(c.pinned(), 10);
+        assert!(!c.fits(21));
+        drop(held);
+        assert_eq!(c.pinned(), 0);
+        assert!(c.fits(30));
+        // as does one replaced while in use, and a shrunk budget keeps it
+        c.insert(5, Arc::new("a"), 10);
+        let held = Arc::clone(c.get(&5).unwrap());
+        c.insert(5, Arc::new("e"), 5);
+        assert_eq!((c.bytes(), c.pinned()), (5, 10));
+        c.insert(6, Arc::new("f"), 10);
+        c.set_budget(MemoryBudget(20));
+        assert!(!c.contains(&5) && c.contains(&6), "the oldest not in use goes");
+        drop(held);
+        assert_eq!(c.pinned(), 0);
+    }
+
+    #[test]
+    fn reserved_room_counts_until_filled_or_given_back() {
+        let mut c = BoundedCache::new(MemoryBudget(30));
+        assert!(c.reserve(20));
+        assert!(!c.reserve(11), "two users cannot count on the same room");
+        assert!(c.reserve(10));
+        assert_eq!(c.pinned(), 30);
+        c.unreserve(10);
+        assert!(c.insert_reserved(1, Arc::new("a"), 20, 18));
+        assert_eq!((c.bytes(), c.pinned()), (18, 0));
+        // an unused entry gives way to a reservation
+        assert!(c.reserve(25));
+        assert!(c.insert_reserved(2, Arc::new("b"), 25, 25));
         assert!(!c.contains(&1) && c.contains(&2));
-        c.set_holders(3);
-        assert!(c.fits(10) && !c.fits(11));
-        assert!(!c.insert_if_fits(3, "c", 11));
-        assert_eq!(c.bytes(), 15);
-        // zero holders count as one
-        c.set_holders(0);
-        assert!(c.fits(30) && !c.fits(31));
-        assert!(c.insert_if_fits(4, "d", 30));
-        assert!(c.contains(&4) && !c.contains(&2));
+        // a budget shrunk meanwhile keeps what no longer fits out
+        assert!(c.reserve(30));
+        c.set_budget(MemoryBudget(20));
+        assert!(!c.insert_reserved(3, Arc::new("c"), 30, 30));
+        assert!(!c.contains(&3) && c.pinned() == 0);
     }
 
     #[test]

@@ -31,7 +31,7 @@ use std::sync::Arc;
 use bincode::{Decode, Encode};
 
 use cache::ChunkCache;
-pub use cache::{BoundedCache, MemoryBudget, SharedCache, Weighed};
+pub use cache::{BoundedCache, Held, MemoryBudget, SharedCache, Weighed};
 pub use codec::{ChunkData, DType, Element, EncodedChunk};
 use mmap::ByteSource;
 pub use scratch::Scratch;

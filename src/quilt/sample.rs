@@ -142,22 +142,23 @@ impl Sample {
         (cache.budget(), cache.bytes())
     }
 
-    /// Sets the budget of the rotated copies' cache, evicting down to it,
-    /// and how many work patches at once may hold one of its copies
-    /// ([`BoundedCache::set_holders`]).
-    pub(super) fn set_rotated_budget(&self, budget: MemoryBudget, holders: usize) {
-        let mut cache = crate::lock(&self.rotated);
-        cache.set_holders(holders);
-        cache.set_budget(budget);
+    /// Sets the budget of the rotated copies' cache, evicting down to it.
+    pub(super) fn set_rotated_budget(&self, budget: MemoryBudget) {
+        crate::lock(&self.rotated).set_budget(budget);
     }
 
     /// Rotated copy `r` (maps, validity), loaded on first use (two threads
     /// may both load it; they get equal copies).
     pub(super) fn rotation(&self, r: usize) -> Result<Arc<RotatedCopy>> {
-        if let Some(copy) = crate::lock(&self.rotated).get(&(r, 1)) {
-            return Ok(Arc::clone(copy));
-        }
-        let copy = {
+        let whole = self.whole_bytes();
+        let room = {
+            let mut cache = crate::lock(&self.rotated);
+            if let Some(copy) = cache.get(&(r, 1)) {
+                return Ok(Arc::clone(copy));
+            }
+            cache.reserve(whole)
+        };
+        let load = || -> Result<Arc<RotatedCopy>> {
             let (mut m, valid) = self.stored_rect(r, (0, 0, self.width, self.height))?;
             if let Some(channel) = &self.structure {
                 // turned like the stored copies (factorize's rotate_maps)
@@ -166,10 +167,21 @@ impl Sample {
                     factorize::rotate_maps(channel, self.width, self.height, 1, degrees, self.tileable);
                 m = interleave(&m, self.n - 1, &turned);
             }
-            Arc::new((m, valid))
+            Ok(Arc::new((m, valid)))
+        };
+        let copy = match load() {
+            Ok(copy) => copy,
+            Err(e) => {
+                if room {
+                    crate::lock(&self.rotated).unreserve(whole);
+                }
+                return Err(e);
+            }
         };
         let bytes = ((copy.0.len() + copy.1.len()) * 4) as u64;
-        if !crate::lock(&self.rotated).insert_if_fits((r, 1), Arc::clone(&copy), bytes) {
+        let kept =
+            room && crate::lock(&self.rotated).insert_reserved((r, 1), Arc::clone(&copy), whole, bytes);
+        if !kept {
             self.uncached.fetch_max(bytes, Ordering::Relaxed);
         }
         Ok(copy)

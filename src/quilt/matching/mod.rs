@@ -426,13 +426,6 @@ impl Matcher {
         crate::lock(&self.cache).set_budget(MemoryBudget(bytes as u64));
     }
 
-    /// Sets how many matches at once may hold an entry of the spectrum
-    /// cache ([`BoundedCache::set_holders`]): spectra of which that many do
-    /// not fit its budget are streamed, never kept.
-    pub fn set_cache_holders(&self, holders: usize) {
-        crate::lock(&self.cache).set_holders(holders);
-    }
-
     /// This matcher's spectrum cache, to share with [`Matcher::sharing`].
     pub fn spectra_cache(&self) -> SpectraCache {
         SpectraCache(Arc::clone(&self.cache))
@@ -523,10 +516,12 @@ impl Matcher {
         }
         // the sample side: cached spectra, or spectra computed whole and
         // cached when they fit the cache, or else streamed a pair at a time
-        let whole = (lay.pairs + 1) * nn * std::mem::size_of::<C64>();
-        let (cached, fits) = {
+        let whole = ((lay.pairs + 1) * nn * std::mem::size_of::<C64>()) as u64;
+        let (cached, room) = {
             let mut cache = crate::lock(&self.cache);
-            (cache.get(&lay.key).cloned(), cache.fits(whole as u64))
+            let cached = cache.get(&lay.key).cloned();
+            let room = cached.is_none() && cache.reserve(whole);
+            (cached, room)
         };
         let mut uncached = 0;
         let side = match cached {
@@ -534,10 +529,10 @@ impl Matcher {
                 self.reused += 1;
                 SampleSide::Held(e)
             }
-            None if fits => {
+            None if room => {
                 let e = Arc::new(self.sample_spectra(&plans, sample, &lay));
                 let bytes = e.bytes() as u64;
-                if !crate::lock(&self.cache).insert_if_fits(lay.key, Arc::clone(&e), bytes) {
+                if !crate::lock(&self.cache).insert_reserved(lay.key, Arc::clone(&e), whole, bytes) {
                     uncached = bytes as usize;
                 }
                 SampleSide::Held(e)

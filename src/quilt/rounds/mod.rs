@@ -537,13 +537,9 @@ impl Synthesis {
             .saturating_sub(atlas.bytes() + budget)
             .max(2 << 20)
             / 2;
-        // each patch at once may hold a copy and a spectrum the caches
-        // evicted for another's: only entries of which as many fit are kept
-        let holders = (budget / patch(traversal + traversal / 2).max(1)).clamp(1, at_once) as usize;
         self.sample
-            .set_rotated_budget(crate::container::MemoryBudget(caches), holders);
+            .set_rotated_budget(crate::container::MemoryBudget(caches));
         self.matcher.set_cache_budget(caches as usize);
-        self.matcher.set_cache_holders(holders);
     }
 
     /// Frees the loop's own matcher's buffers before a round's patches
