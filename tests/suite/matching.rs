@@ -456,7 +456,7 @@ fn spectrum_cache_is_reused() {
     m.cost_map(&work(&w1, &known), &sample, &over).unwrap();
     assert_eq!(m.spectra_computed(), 3);
     assert!(m.cache_bytes() > 0);
-    // a budget of one byte keeps only the newest entry
+    // a budget of one byte keeps none
     let mut tiny = Matcher::with_cache_budget(1);
     tiny.cost_map(&work(&w1, &known), &sample, &cfg).unwrap();
     tiny.cost_map(&work(&w1, &known), &other, &cfg).unwrap();

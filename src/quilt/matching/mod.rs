@@ -315,8 +315,8 @@ fn accept(overlap: f64, min_overlap: f64, tol: f64) -> bool {
 pub struct SpectraCache(Arc<Mutex<BoundedCache<CacheKey, Arc<SampleSpectra>>>>);
 
 /// Entire-patch matcher: owns the FFT planner, reusable buffers and a cache
-/// of sample spectra (least recently used entries are dropped beyond the
-/// budget; the newest entry is always kept).
+/// of sample spectra (kept when they fit its budget beside the entries in
+/// use, least recently used ones dropped first).
 pub struct Matcher {
     planner: FftPlanner<f64>,
     rows: Vec<C64>,
@@ -356,8 +356,8 @@ impl Matcher {
         Matcher::with_cache_budget(DEFAULT_CACHE_BYTES)
     }
 
-    /// A matcher whose spectrum cache holds up to `bytes` (at least one
-    /// entry is always kept).
+    /// A matcher whose spectrum cache holds up to `bytes` (spectra larger
+    /// than that are streamed a pair at a time, never kept).
     pub fn with_cache_budget(bytes: usize) -> Matcher {
         Matcher {
             planner: FftPlanner::new(),
@@ -514,8 +514,9 @@ impl Matcher {
         ] {
             buf.resize(len, ZERO);
         }
-        // the sample side: cached spectra, or spectra computed whole and
-        // cached when they fit the cache, or else streamed a pair at a time
+        // the sample side: cached spectra, or spectra computed whole in
+        // room reserved in the cache beside the entries in use, or else
+        // streamed a pair at a time
         let whole = ((lay.pairs + 1) * nn * std::mem::size_of::<C64>()) as u64;
         let (cached, room) = {
             let mut cache = crate::lock(&self.cache);
