@@ -300,6 +300,11 @@ fn compress(raw: &[u8], level: i32) -> Vec<u8> {
         if cell.as_ref().map(|(l, _)| *l) != Some(level) {
             *cell = Some((level, zstd::bulk::Compressor::new(level).expect(MSG)));
         }
-        cell.as_mut().expect("made above").1.compress(raw).expect(MSG)
+        let mut out = cell.as_mut().expect("made above").1.compress(raw).expect(MSG);
+        // (made with room for the bound on the compressed size, about the
+        // raw size: chunks held in batches before they are written would
+        // keep it)
+        out.shrink_to_fit();
+        out
     })
 }

@@ -98,7 +98,8 @@ impl Synthesis {
         let active_p = self.sample.svd.appearance()?;
         for k in (0..paths.len()).filter(|&k| used[k] && k != active) {
             let (svd_path, _tmp) = sample_svd(quilt.sample_file(k)?, false, self.cfg.memory, progress)?;
-            let svd = SvdArtifact::open(&svd_path, self.cfg.memory)?;
+            // (its arrays are read whole, once: no chunk is worth caching)
+            let svd = SvdArtifact::open(&svd_path, MemoryBudget(0))?;
             crate::artifact::svd::same_directions(&self.sample.svd, &svd)?;
             let projection =
                 basis_projection(&active_p, self.sample.svd.terms, &svd.appearance()?, svd.terms);
