@@ -234,6 +234,27 @@ mod tests {
     use super::*;
 
     #[test]
+    fn an_encoded_chunk_holds_about_its_compressed_bytes() {
+        // a 64² tile of f32 that compresses well: chunks wait in batches
+        // before they are written, and must not keep zstd's room for the
+        // bound on their size (about the raw size)
+        let values: Vec<f32> = (0..64 * 64).map(|i| (i / 64) as f32).collect();
+        let e = encode(&values, 3);
+        let raw = values.len() * 4;
+        assert!(e.bytes.len() < raw / 20, "{} of {raw} bytes", e.bytes.len());
+        assert!(
+            e.bytes.capacity() < raw / 10,
+            "{} bytes held for {} compressed",
+            e.bytes.capacity(),
+            e.bytes.len()
+        );
+        assert_eq!(
+            decode(&e.bytes, DType::F32, values.len(), e.checksum).unwrap(),
+            ChunkData::F32(values)
+        );
+    }
+
+    #[test]
     fn shuffle_round_trips_and_groups_bytes() {
         let raw: Vec<u8> = (0..40u8).collect();
         let s = shuffle(&raw, 4);
