@@ -17,6 +17,13 @@ use crate::{factorize, Error, Result};
 /// A rotated copy of the sample: its maps and validity as f32.
 pub(super) type RotatedCopy = (Vec<f32>, Vec<f32>);
 
+/// A whole rotated copy to match against ([`Sample::rotation_to_match`]).
+pub(super) enum WholeCopy {
+    F32(Arc<RotatedCopy>),
+    /// The stored f16 maps and the validity as f32.
+    F16(Vec<half::f16>, Vec<f32>),
+}
+
 /// The "downsampling factor" under which the rotated copies' cache keeps
 /// the foreground mask's copies (its maps the mask, one channel).
 const MASK: usize = 0;
@@ -150,14 +157,44 @@ impl Sample {
     /// Rotated copy `r` (maps, validity), loaded on first use (two threads
     /// may both load it; they get equal copies).
     pub(super) fn rotation(&self, r: usize) -> Result<Arc<RotatedCopy>> {
-        let whole = self.whole_bytes();
-        let room = {
-            let mut cache = crate::lock(&self.rotated);
-            if let Some(copy) = cache.get(&(r, 1)) {
-                return Ok(Arc::clone(copy));
+        match self.cached_or_room(r) {
+            Ok(copy) => Ok(copy),
+            Err(room) => self.load_rotation(r, room),
+        }
+    }
+
+    /// Rotated copy `r` for a match at full resolution: the f32 copy if
+    /// its cache holds it or has room for it (or the structure channel is
+    /// on); otherwise the f16 copy as the `.svd` stores it, half the
+    /// bytes, held by the match alone (the same values).
+    pub(super) fn rotation_to_match(&self, r: usize) -> Result<WholeCopy> {
+        match self.cached_or_room(r) {
+            Ok(copy) => Ok(WholeCopy::F32(copy)),
+            Err(room) if room || self.structure.is_some() => Ok(WholeCopy::F32(self.load_rotation(r, room)?)),
+            Err(_) => {
+                let (maps, valid) = self.svd.rotated_rect(r, (0, 0, self.width, self.height))?;
+                let valid: Vec<f32> = valid.iter().map(|&v| v as f32).collect();
+                self.uncached
+                    .fetch_max((maps.len() * 2 + valid.len() * 4) as u64, Ordering::Relaxed);
+                Ok(WholeCopy::F16(maps, valid))
             }
-            cache.reserve(whole)
-        };
+        }
+    }
+
+    /// Whole copy `r` from the cache, or else whether room for one was
+    /// reserved there.
+    fn cached_or_room(&self, r: usize) -> std::result::Result<Arc<RotatedCopy>, bool> {
+        let mut cache = crate::lock(&self.rotated);
+        if let Some(copy) = cache.get(&(r, 1)) {
+            return Ok(Arc::clone(copy));
+        }
+        Err(cache.reserve(self.whole_bytes()))
+    }
+
+    /// Loads whole copy `r` in f32, into the room reserved for it if
+    /// `room`.
+    fn load_rotation(&self, r: usize, room: bool) -> Result<Arc<RotatedCopy>> {
+        let whole = self.whole_bytes();
         let load = || -> Result<Arc<RotatedCopy>> {
             let (mut m, valid) = self.stored_rect(r, (0, 0, self.width, self.height))?;
             if let Some(channel) = &self.structure {

@@ -679,3 +679,64 @@ fn kept_work_spectra_give_the_same_costs_bit_for_bit() {
         assert_eq!(a.cost, b.cost);
     }
 }
+
+#[test]
+fn a_sample_matched_from_its_f16_values_gives_the_f32_costs_bit_for_bit() {
+    // a rotated copy is stored in f16; matched from those values (half the
+    // bytes) it must cost every placement as its f32 copy does, with its
+    // spectra cached or streamed a pair at a time, and with the work
+    // image's spectra kept between matches or not
+    let (sw, sh, ww, wh, n) = (29, 31, 13, 10, 5);
+    let mut rng = Rng(11);
+    let half: Vec<half::f16> = rng
+        .vec(sw * sh * n)
+        .into_iter()
+        .map(half::f16::from_f32)
+        .collect();
+    let widened: Vec<f32> = half.iter().map(|x| x.to_f32()).collect();
+    assert!(widened.iter().any(|&x| x != 0.0));
+    let valid = holey_valid(&mut rng, sw, sh);
+    let wdata = rng.vec(ww * wh * n);
+    let known = rng.mask(ww * wh, 0.6);
+    let work = Work {
+        image: img(ww, wh, n, &wdata),
+        known: &known,
+        constraint: None,
+    };
+    let f32_sample = Sample {
+        image: img(sw, sh, n, &widened),
+        valid: &valid,
+        constraint: None,
+        key: 5,
+    };
+    let f16_sample = Sample {
+        image: Image {
+            width: sw,
+            height: sh,
+            channels: n,
+            data: &[],
+        },
+        ..f32_sample
+    };
+    for span in [Span::Contained, Span::Overlapping] {
+        let cfg = MatchConfig {
+            span,
+            ..MatchConfig::default()
+        };
+        let want = Matcher::new().cost_map(&work, &f32_sample, &cfg).unwrap();
+        for budget in [usize::MAX >> 1, 1] {
+            let mut m = Matcher::with_cache_budget(budget);
+            for work_key in [None, Some(3), Some(3)] {
+                let got = m
+                    .cost_map_half(&work, work_key, &f16_sample, &half, &cfg)
+                    .unwrap();
+                assert_eq!(got, want, "{span:?}, cache {budget}, work key {work_key:?}");
+            }
+        }
+    }
+    // the values must be the image's size
+    let short = &half[..half.len() - 1];
+    assert!(Matcher::new()
+        .cost_map_half(&work, None, &f16_sample, short, &MatchConfig::default())
+        .is_err());
+}

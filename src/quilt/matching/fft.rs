@@ -67,9 +67,20 @@ pub fn fast_size(n: usize) -> usize {
 
 impl Layout {
     pub(super) fn new(work: &Work, sample: &Sample, cfg: &MatchConfig) -> Result<Layout> {
+        Layout::with_values(work, sample, sample.image.data.len(), cfg)
+    }
+
+    /// [`Layout::new`] for a sample whose values (`values` of them) may be
+    /// held apart from its image ([`SampleIn`]).
+    pub(super) fn with_values(
+        work: &Work,
+        sample: &Sample,
+        values: usize,
+        cfg: &MatchConfig,
+    ) -> Result<Layout> {
         let (wi, si) = (&work.image, &sample.image);
         wi.check("work image")?;
-        si.check("sample")?;
+        Image { data: &[], ..*si }.check_len("sample", values)?;
         if wi.channels != si.channels {
             return Err(Error::Config(format!(
                 "work image has {} channels, sample {}",
@@ -170,21 +181,70 @@ pub(super) fn work_lane(work: &Work, lay: &Layout, w: f64, energy: &[f64], c: us
     }
 }
 
+/// A sample's feature values as a match reads them: f32, or the f16 a
+/// rotated copy is stored in, widened as they are read (the same values).
+#[derive(Clone, Copy)]
+pub(super) enum Values<'a> {
+    F32(&'a [f32]),
+    F16(&'a [half::f16]),
+}
+
+impl Values<'_> {
+    pub(super) fn len(&self) -> usize {
+        match self {
+            Values::F32(d) => d.len(),
+            Values::F16(d) => d.len(),
+        }
+    }
+
+    /// Value `k`, as f64.
+    #[inline]
+    pub(super) fn at(&self, k: usize) -> f64 {
+        match self {
+            Values::F32(d) => d[k] as f64,
+            Values::F16(d) => d[k].to_f32() as f64,
+        }
+    }
+
+    /// ‖values `range`‖², summed as [`sq_norm`] sums.
+    #[inline]
+    pub(super) fn sq_norm(&self, range: std::ops::Range<usize>) -> f64 {
+        match self {
+            Values::F32(d) => sq_norm(&d[range]),
+            Values::F16(d) => d[range]
+                .iter()
+                .map(|&x| {
+                    let x = x.to_f32() as f64;
+                    x * x
+                })
+                .sum(),
+        }
+    }
+}
+
+/// A sample with its feature values ([`Values`]): `sample.image.data` is
+/// not read.
+#[derive(Clone, Copy)]
+pub(super) struct SampleIn<'a> {
+    pub(super) sample: Sample<'a>,
+    pub(super) values: Values<'a>,
+}
+
 /// Value of sample-side lane `c` at pixel `i`; `energy[i]` = V‖S‖²,
 /// `cenergy[i]` = V‖mP‖².
 #[inline]
 pub(super) fn sample_lane(
-    sample: &Sample,
+    sample: &SampleIn,
     lay: &Layout,
     energy: &[f64],
     cenergy: &[f64],
     c: usize,
     i: usize,
 ) -> f64 {
-    let n = lay.n;
+    let (n, values, sample) = (lay.n, sample.values, &sample.sample);
     let v = sample.valid[i] as f64;
     if c < n {
-        v * sample.image.data[i * n + c] as f64
+        v * values.at(i * n + c)
     } else if c == n {
         v
     } else if c == n + 1 {

@@ -70,7 +70,8 @@ pub use direct::{
 pub use fft::fast_size;
 use fft::{
     accumulate, axis, cols_per_task, fft_rows, forward_2d, m_lane, neg_index, pack_pair, sample_lane,
-    sq_norm, unpack_lane, v_lane, work_lane, CacheKey, Layout, Plans, SampleSpectra, WorkTag,
+    sq_norm, unpack_lane, v_lane, work_lane, CacheKey, Layout, Plans, SampleIn, SampleSpectra, Values,
+    WorkTag,
 };
 
 type C64 = Complex<f64>;
@@ -110,19 +111,21 @@ impl<'a> Image<'a> {
     }
 
     fn check(&self, what: &str) -> Result<()> {
+        self.check_len(what, self.data.len())
+    }
+
+    /// [`Image::check`] for `len` values held elsewhere.
+    fn check_len(&self, what: &str, len: usize) -> Result<()> {
         if self.width == 0 || self.height == 0 {
             return Err(Error::Config(format!(
                 "{what}: empty ({}×{})",
                 self.width, self.height
             )));
         }
-        if self.data.len() != self.pixels() * self.channels {
+        if len != self.pixels() * self.channels {
             return Err(Error::Config(format!(
                 "{what}: {} values for {}×{}×{}",
-                self.data.len(),
-                self.width,
-                self.height,
-                self.channels
+                len, self.width, self.height, self.channels
             )));
         }
         Ok(())
@@ -494,7 +497,52 @@ impl Matcher {
         sample: &Sample,
         cfg: &MatchConfig,
     ) -> Result<CostMap> {
-        let lay = Layout::new(work, sample, cfg)?;
+        let values = Values::F32(sample.image.data);
+        self.cost_map_in(
+            work,
+            work_key,
+            &SampleIn {
+                sample: *sample,
+                values,
+            },
+            cfg,
+        )
+    }
+
+    /// [`Matcher::cost_map_for`] of a sample whose feature values are the
+    /// f16 `values` (a rotated copy as the `.svd` stores it, half the
+    /// bytes of its f32 copy): the costs of the f32 copy of the same
+    /// values, bit for bit. `sample.image.data` is not read (it may be
+    /// empty).
+    pub fn cost_map_half(
+        &mut self,
+        work: &Work,
+        work_key: Option<u64>,
+        sample: &Sample,
+        values: &[half::f16],
+        cfg: &MatchConfig,
+    ) -> Result<CostMap> {
+        let values = Values::F16(values);
+        self.cost_map_in(
+            work,
+            work_key,
+            &SampleIn {
+                sample: *sample,
+                values,
+            },
+            cfg,
+        )
+    }
+
+    fn cost_map_in(
+        &mut self,
+        work: &Work,
+        work_key: Option<u64>,
+        sample_in: &SampleIn,
+        cfg: &MatchConfig,
+    ) -> Result<CostMap> {
+        let sample = &sample_in.sample;
+        let lay = Layout::with_values(work, sample, sample_in.values.len(), cfg)?;
         let (nx, ny, nn) = (lay.nx, lay.ny, lay.nx * lay.ny);
         let plans = Plans {
             nx,
@@ -531,7 +579,7 @@ impl Matcher {
                 SampleSide::Held(e)
             }
             None if room => {
-                let e = Arc::new(self.sample_spectra(&plans, sample, &lay));
+                let e = Arc::new(self.sample_spectra(&plans, sample_in, &lay));
                 let bytes = e.bytes() as u64;
                 if !crate::lock(&self.cache).insert_reserved(lay.key, Arc::clone(&e), whole, bytes) {
                     uncached = bytes as usize;
@@ -543,7 +591,7 @@ impl Matcher {
                 for buf in [&mut self.ys, &mut self.fv] {
                     buf.resize(nn, ZERO);
                 }
-                SampleSide::Streamed(SampleEnergy::new(sample, &lay))
+                SampleSide::Streamed(SampleEnergy::new(sample_in, &lay))
             }
         };
         // work side: Σ_j Z_j conj(Y_j), keeping the pair that holds M
@@ -585,7 +633,7 @@ impl Matcher {
                 j,
                 &plans,
                 &mut self.rows,
-                sample,
+                sample_in,
                 &lay,
                 &mut self.ys,
                 &mut self.fv,
@@ -689,7 +737,7 @@ impl Matcher {
     }
 
     /// The packed lane spectra of the sample and F(V).
-    fn sample_spectra(&mut self, plans: &Plans, sample: &Sample, lay: &Layout) -> SampleSpectra {
+    fn sample_spectra(&mut self, plans: &Plans, sample: &SampleIn, lay: &Layout) -> SampleSpectra {
         self.computed += 1;
         let nn = lay.nx * lay.ny;
         let en = SampleEnergy::new(sample, lay);
@@ -725,7 +773,7 @@ impl SampleSide {
         j: usize,
         plans: &Plans,
         rows: &mut [C64],
-        sample: &Sample,
+        sample: &SampleIn,
         lay: &Layout,
         ys: &'a mut [C64],
         fv: &mut [C64],
@@ -752,10 +800,11 @@ struct SampleEnergy {
 }
 
 impl SampleEnergy {
-    fn new(sample: &Sample, lay: &Layout) -> SampleEnergy {
+    fn new(sample_in: &SampleIn, lay: &Layout) -> SampleEnergy {
+        let (sample, values) = (&sample_in.sample, sample_in.values);
         let si = &sample.image;
         let energy = (0..si.pixels())
-            .map(|i| sample.valid[i] as f64 * sq_norm(&si.data[i * lay.n..(i + 1) * lay.n]))
+            .map(|i| sample.valid[i] as f64 * values.sq_norm(i * lay.n..(i + 1) * lay.n))
             .collect();
         let cenergy = match &sample.constraint {
             Some(c) => (0..si.pixels())
@@ -778,13 +827,13 @@ impl SampleEnergy {
         &self,
         plans: &Plans,
         rows: &mut [C64],
-        sample: &Sample,
+        sample: &SampleIn,
         lay: &Layout,
         j: usize,
         spec: &mut [C64],
         fv: &mut [C64],
     ) {
-        let si = &sample.image;
+        let si = &sample.sample.image;
         pack_pair(rows, lay.nx, si.width, si.height, lay.lanes, j, |c, i| {
             sample_lane(sample, lay, &self.energy, &self.cenergy, c, i)
         });

@@ -7,7 +7,7 @@ use super::flatten::{rotation_index, WorkImage};
 use super::matching;
 use super::matching::{Image, MatchConfig, Matcher};
 use super::occurrence::{Costs, Occurrence};
-use super::sample::Sample;
+use super::sample::{Sample, WholeCopy};
 use crate::math;
 use crate::Result;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -501,20 +501,70 @@ fn match_at_rotation(
         None
     };
     let mask = mask.as_deref().map(|m| &m.0[..]);
-    // the whole copy for a full match, or for the coarse mask (painting);
-    // coarse to fine reads the rectangles it costs
+    let mc = MatchConfig {
+        min_overlap: (0.5 * known_count).max(1.0),
+        candidates: 64,
+        tolerance: f64::INFINITY,
+        constraint_weight,
+        ..MatchConfig::default()
+    };
+    let work_image = Image {
+        width: work.width,
+        height: work.height,
+        channels: n,
+        data: &work.features,
+    };
+    if f == 1 && mask.is_none() {
+        // a full match: the f32 copy, or the f16 one when memory has no
+        // room for the f32 (the same costs)
+        let work_in = matching::Work {
+            image: work_image,
+            known: &work.known,
+            constraint: None,
+        };
+        let key = rot as u64;
+        let mut map = match sample.rotation_to_match(rot)? {
+            WholeCopy::F32(copy) => {
+                let sample_in = matching::Sample {
+                    image: Image {
+                        width: sw,
+                        height: sh,
+                        channels: n,
+                        data: &copy.0,
+                    },
+                    valid: &copy.1,
+                    constraint: None,
+                    key,
+                };
+                matcher.cost_map(&work_in, &sample_in, &mc)?
+            }
+            WholeCopy::F16(values, valid) => {
+                let sample_in = matching::Sample {
+                    image: Image {
+                        width: sw,
+                        height: sh,
+                        channels: n,
+                        data: &[],
+                    },
+                    valid: &valid,
+                    constraint: None,
+                    key,
+                };
+                matcher.cost_map_half(&work_in, None, &sample_in, &values, &mc)?
+            }
+        };
+        self::penalize(penalty.as_mut(), sample, work, Costs::Map(&mut map), rot, 1);
+        return Ok(map.best(mc.candidates, mc.tolerance));
+    }
+    // the whole copy for a full match with the foreground mask, or for the
+    // coarse mask (painting); coarse to fine reads the rectangles it costs
     let copy = if f == 1 || mask.is_some() {
         Some(sample.rotation(rot)?)
     } else {
         None
     };
     let work_in = matching::Work {
-        image: Image {
-            width: work.width,
-            height: work.height,
-            channels: n,
-            data: &work.features,
-        },
+        image: work_image,
         known: &work.known,
         constraint: mask.map(|_| Image {
             width: work.width,
@@ -540,13 +590,6 @@ fn match_at_rotation(
         }),
         key,
     });
-    let mc = MatchConfig {
-        min_overlap: (0.5 * known_count).max(1.0),
-        candidates: 64,
-        tolerance: f64::INFINITY,
-        constraint_weight,
-        ..MatchConfig::default()
-    };
     if f == 1 {
         let sample_in = sample_in.expect("the whole copy for a full match");
         let mut map = matcher.cost_map(&work_in, &sample_in, &mc)?;
