@@ -109,7 +109,8 @@ pub struct BoundedCache<K, V> {
     tick: u64,
     /// Room promised to entries being made ([`BoundedCache::reserve`]).
     reserved: u64,
-    /// Entries cleared while held elsewhere, until their users drop them.
+    /// Entries cleared or replaced while held elsewhere, until their
+    /// users drop them.
     out: Vec<(V, u64)>,
 }
 

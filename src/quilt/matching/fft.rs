@@ -80,7 +80,7 @@ impl Layout {
     ) -> Result<Layout> {
         let (wi, si) = (&work.image, &sample.image);
         wi.check("work image")?;
-        Image { data: &[], ..*si }.check_len("sample", values)?;
+        si.check_len("sample", values)?;
         if wi.channels != si.channels {
             return Err(Error::Config(format!(
                 "work image has {} channels, sample {}",
@@ -206,18 +206,12 @@ impl Values<'_> {
         }
     }
 
-    /// ‖values `range`‖², summed as [`sq_norm`] sums.
+    /// ‖values `range`‖² ([`sum_of_squares`], as [`sq_norm`] sums).
     #[inline]
     pub(super) fn sq_norm(&self, range: std::ops::Range<usize>) -> f64 {
         match self {
             Values::F32(d) => sq_norm(&d[range]),
-            Values::F16(d) => d[range]
-                .iter()
-                .map(|&x| {
-                    let x = x.to_f32() as f64;
-                    x * x
-                })
-                .sum(),
+            Values::F16(d) => sum_of_squares(d[range].iter().map(|x| x.to_f32() as f64)),
         }
     }
 }
@@ -258,7 +252,14 @@ pub(super) fn sample_lane(
 }
 
 pub(super) fn sq_norm(v: &[f32]) -> f64 {
-    v.iter().map(|&x| x as f64 * x as f64).sum()
+    sum_of_squares(v.iter().map(|&x| x as f64))
+}
+
+/// Σ x², in order: the one sum every energy of a match uses, so that
+/// f32 and f16 values give the same bits.
+#[inline]
+fn sum_of_squares(v: impl Iterator<Item = f64>) -> f64 {
+    v.map(|x| x * x).sum()
 }
 
 /// Packs lanes (2j, 2j+1) of a `width`×`height` image into the first

@@ -514,6 +514,7 @@ fn match_at_rotation(
         channels: n,
         data: &work.features,
     };
+    let key = rot as u64 | (constrained as u64) << 32;
     if f == 1 && mask.is_none() {
         // a full match: the f32 copy, or the f16 one when memory has no
         // room for the f32 (the same costs)
@@ -522,36 +523,25 @@ fn match_at_rotation(
             known: &work.known,
             constraint: None,
         };
-        let key = rot as u64;
-        let mut map = match sample.rotation_to_match(rot)? {
-            WholeCopy::F32(copy) => {
-                let sample_in = matching::Sample {
-                    image: Image {
-                        width: sw,
-                        height: sh,
-                        channels: n,
-                        data: &copy.0,
-                    },
-                    valid: &copy.1,
-                    constraint: None,
-                    key,
-                };
-                matcher.cost_map(&work_in, &sample_in, &mc)?
-            }
-            WholeCopy::F16(values, valid) => {
-                let sample_in = matching::Sample {
-                    image: Image {
-                        width: sw,
-                        height: sh,
-                        channels: n,
-                        data: &[],
-                    },
-                    valid: &valid,
-                    constraint: None,
-                    key,
-                };
-                matcher.cost_map_half(&work_in, None, &sample_in, &values, &mc)?
-            }
+        let whole = sample.rotation_to_match(rot)?;
+        let (data, valid): (&[f32], &[f32]) = match &whole {
+            WholeCopy::F32(copy) => (&copy.0, &copy.1),
+            WholeCopy::F16(_, valid) => (&[], valid),
+        };
+        let sample_in = matching::Sample {
+            image: Image {
+                width: sw,
+                height: sh,
+                channels: n,
+                data,
+            },
+            valid,
+            constraint: None,
+            key,
+        };
+        let mut map = match &whole {
+            WholeCopy::F32(_) => matcher.cost_map(&work_in, &sample_in, &mc)?,
+            WholeCopy::F16(values, _) => matcher.cost_map_half(&work_in, None, &sample_in, values, &mc)?,
         };
         self::penalize(penalty.as_mut(), sample, work, Costs::Map(&mut map), rot, 1);
         return Ok(map.best(mc.candidates, mc.tolerance));
@@ -573,7 +563,6 @@ fn match_at_rotation(
             data: &work.constraint,
         }),
     };
-    let key = rot as u64 | (constrained as u64) << 32;
     let sample_in = copy.as_deref().map(|(maps, valid)| matching::Sample {
         image: Image {
             width: sw,
