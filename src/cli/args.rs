@@ -142,6 +142,11 @@ pub(super) struct Tiling {
     /// resolution). Part of the recipe like the seed.
     #[arg(long, default_value_t = TileConfig::default().coarse_above)]
     coarse_above: usize,
+    /// Match on this many leading geometry-map terms of a BTF sample; the
+    /// seams' cut cost and every output keep all of them (0: every term).
+    /// Part of the recipe like the seed.
+    #[arg(long, default_value_t = TileConfig::default().match_terms)]
+    match_terms: usize,
 }
 
 impl Tiling {
@@ -161,6 +166,7 @@ impl Tiling {
             field_turn: self.field_turn,
             courses: self.courses,
             coarse_above: self.coarse_above,
+            match_terms: self.match_terms,
             ..base
         }
     }

@@ -167,6 +167,14 @@ pub struct TileConfig {
     /// any atlas size without `--sample-width`) are matched exactly as
     /// before.
     pub coarse_above: usize,
+    /// Matching reads only this many leading geometry-map terms of a BTF
+    /// sample (plus the structure channel when it is on); the cut cost,
+    /// seam refinement and every output keep all of them. The terms are
+    /// g_i = σ_i u_i in decreasing σ_i, so the leading ones carry most of
+    /// the variation, and the placement search, whose transforms grow with
+    /// the terms, costs a fraction. 0 (or at least the sample's terms)
+    /// reads every term.
+    pub match_terms: usize,
 }
 
 /// How the courses of a sample whose features run in rows are laid
@@ -209,6 +217,7 @@ impl Default for TileConfig {
             sample_width: None,
             sample_pixel: None,
             coarse_above: 512,
+            match_terms: 0,
         }
     }
 }

@@ -34,6 +34,9 @@ pub(super) struct Sample {
     pub(super) width: usize,
     pub(super) height: usize,
     pub(super) n: usize,
+    /// The leading geometry-map terms matching reads ([`Sample::set_match_terms`]);
+    /// every stored term unless fewer were asked for.
+    pub(super) match_terms: usize,
     pub(super) maps: Vec<f32>,
     pub(super) tileable: bool,
     /// How many rotated copies there are (5° steps for 72).
@@ -80,6 +83,7 @@ impl Sample {
             width: svd.width,
             height: svd.height,
             n: svd.terms,
+            match_terms: svd.terms,
             maps: svd.geometry_maps()?,
             tileable,
             rotations,
@@ -130,6 +134,36 @@ impl Sample {
         crate::lock(&self.spill).keys.clear();
     }
 
+    /// Matching reads the leading `terms` geometry-map terms (0, or as many
+    /// as the sample has: all of them), plus the structure channel when it
+    /// is on; the cut cost and seam refinement read every term. The terms
+    /// are g_i = σ_i u_i in decreasing σ_i, so the leading ones carry most
+    /// of a BTF's variation (§III-A) and the placement search costs a
+    /// fraction of all 40. Call it before anything is matched.
+    pub(super) fn set_match_terms(&mut self, terms: usize) {
+        let stored = self.svd.terms;
+        self.match_terms = if terms == 0 { stored } else { terms.min(stored) };
+        crate::lock(&self.rotated).clear();
+        crate::lock(&self.spill).keys.clear();
+    }
+
+    /// The channels matching reads: the leading terms, then the structure
+    /// channel when it is on.
+    pub(super) fn match_channels(&self) -> usize {
+        self.match_terms + usize::from(self.structure.is_some())
+    }
+
+    /// Features of `n` channels per pixel (the sample's own) as matching
+    /// reads them ([`Sample::match_channels`]): `features` itself when that
+    /// is every channel.
+    pub(super) fn match_features<'a>(&self, features: &'a [f32]) -> std::borrow::Cow<'a, [f32]> {
+        if self.match_terms == self.svd.terms {
+            return std::borrow::Cow::Borrowed(features);
+        }
+        let structure = self.structure.is_some();
+        std::borrow::Cow::Owned(select_channels(features, self.n, self.match_terms, structure))
+    }
+
     /// The largest whole rotated copy a match loaded that the copies'
     /// cache could not hold (0 if none): each work patch matching at full
     /// resolution then holds one of its own while it matches.
@@ -172,7 +206,7 @@ impl Sample {
             Ok(copy) => Ok(WholeCopy::F32(copy)),
             Err(room) if room || self.structure.is_some() => Ok(WholeCopy::F32(self.load_rotation(r, room)?)),
             Err(_) => {
-                let (maps, valid) = self.svd.rotated_rect(r, (0, 0, self.width, self.height))?;
+                let (maps, valid) = self.stored_f16(r)?;
                 let valid: Vec<f32> = valid.iter().map(|&v| v as f32).collect();
                 self.uncached
                     .fetch_max((maps.len() * 2 + valid.len() * 4) as u64, Ordering::Relaxed);
@@ -202,7 +236,7 @@ impl Sample {
                 let degrees = r as f64 * 360.0 / self.rotations as f64;
                 let (turned, _) =
                     factorize::rotate_maps(channel, self.width, self.height, 1, degrees, self.tileable);
-                m = interleave(&m, self.n - 1, &turned);
+                m = interleave(&m, self.match_terms, &turned);
             }
             Ok(Arc::new((m, valid)))
         };
@@ -245,7 +279,7 @@ impl Sample {
                 image: Image {
                     width: self.width,
                     height: self.height,
-                    channels: self.n,
+                    channels: self.match_channels(),
                     data: &copy.0,
                 },
                 valid: &copy.1,
@@ -259,32 +293,70 @@ impl Sample {
     }
 
     /// The rectangle `(x, y, w, h)` of rotated copy `r` as the `.svd` stores
-    /// it (without the structure channel), in f32: read and widened a band
-    /// of chunk rows at a time, so that the stored f16 values are never
-    /// held whole beside their f32 copy.
+    /// it (without the structure channel), its leading terms matching reads,
+    /// in f32: read and widened a band of chunk rows at a time, so that the
+    /// stored f16 values are never held whole beside their f32 copy.
     fn stored_rect(&self, r: usize, rect: (usize, usize, usize, usize)) -> Result<RotatedCopy> {
+        let (w, h) = (rect.2, rect.3);
+        let (terms, k) = (self.svd.terms, self.match_terms);
+        let mut m = vec![0f32; w * h * k];
+        let mut valid = Vec::with_capacity(w * h);
+        self.stored_bands(r, rect, |rows, maps, v| {
+            let out = &mut m[rows.start * w * k..rows.end * w * k];
+            if k == terms {
+                half::slice::HalfFloatSliceExt::convert_to_f32_slice(maps, out);
+            } else {
+                for (px, o) in maps.chunks_exact(terms).zip(out.chunks_exact_mut(k)) {
+                    half::slice::HalfFloatSliceExt::convert_to_f32_slice(&px[..k], o);
+                }
+            }
+            valid.extend(v.iter().map(|&v| v as f32));
+        })?;
+        Ok((m, valid))
+    }
+
+    /// Whole rotated copy `r` as the `.svd` stores it, in f16, its leading
+    /// terms matching reads, and its validity.
+    fn stored_f16(&self, r: usize) -> Result<(Vec<half::f16>, Vec<u8>)> {
+        let (terms, k) = (self.svd.terms, self.match_terms);
+        let whole = (0, 0, self.width, self.height);
+        if k == terms {
+            return self.svd.rotated_rect(r, whole);
+        }
+        let (mut m, mut valid) = (Vec::with_capacity(self.width * self.height * k), Vec::new());
+        self.stored_bands(r, whole, |_, maps, v| {
+            for px in maps.chunks_exact(terms) {
+                m.extend_from_slice(&px[..k]);
+            }
+            valid.extend_from_slice(v);
+        })?;
+        Ok((m, valid))
+    }
+
+    /// Reads the rectangle `(x, y, w, h)` of stored copy `r` a band of
+    /// chunk rows at a time: `each(rows, maps, validity)` with the band's
+    /// rows counted from `y`.
+    fn stored_bands(
+        &self,
+        r: usize,
+        rect: (usize, usize, usize, usize),
+        mut each: impl FnMut(std::ops::Range<usize>, &[half::f16], &[u8]),
+    ) -> Result<()> {
         let (x, y, w, h) = rect;
         let band = self.svd.rotated_band_rows()?;
-        let row = w * self.svd.terms;
-        let mut m = vec![0f32; row * h];
-        let mut valid = Vec::with_capacity(w * h);
         let mut y0 = y;
         while y0 < y + h {
             let y1 = ((y0 / band + 1) * band).min(y + h);
             let (maps, v) = self.svd.rotated_rect(r, (x, y0, w, y1 - y0))?;
-            half::slice::HalfFloatSliceExt::convert_to_f32_slice(
-                &maps[..],
-                &mut m[(y0 - y) * row..(y1 - y) * row],
-            );
-            valid.extend(v.iter().map(|&v| v as f32));
+            each(y0 - y..y1 - y, &maps, &v);
             y0 = y1;
         }
-        Ok((m, valid))
+        Ok(())
     }
 
     /// Bytes of one whole rotated copy as f32 (maps and validity).
     fn whole_bytes(&self) -> u64 {
-        (self.width * self.height * (self.n + 1) * 4) as u64
+        (self.width * self.height * (self.match_channels() + 1) * 4) as u64
     }
 
     /// The sample is matched coarse to fine: its rotated copies are read
@@ -323,12 +395,13 @@ impl Sample {
         }
         let (cw, ch) = (self.width.div_ceil(f), self.height.div_ceil(f));
         let pixels = cw * ch;
-        if let Some(bytes) = crate::lock(&self.spill).get((r, f), pixels * (self.n + 1) * 4)? {
+        let n = self.match_channels();
+        if let Some(bytes) = crate::lock(&self.spill).get((r, f), pixels * (n + 1) * 4)? {
             let values: Vec<f32> = bytes
                 .chunks_exact(4)
                 .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
                 .collect();
-            let (features, weight) = values.split_at(pixels * self.n);
+            let (features, weight) = values.split_at(pixels * n);
             let copy = Arc::new((features.to_vec(), weight.to_vec()));
             crate::lock(&self.rotated).insert_if_fits((r, f), Arc::clone(&copy), (values.len() * 4) as u64);
             return Ok(copy);
@@ -341,7 +414,7 @@ impl Sample {
             let image = Image {
                 width: self.width,
                 height: rows,
-                channels: self.n,
+                channels: n,
                 data: &part.0,
             };
             let c = Coarse::new(&image, &part.1, &[], 0, f);
@@ -462,6 +535,19 @@ fn interleave(maps: &[f32], n: usize, extra: &[f32]) -> Vec<f32> {
     for (px, &e) in maps.chunks_exact(n).zip(extra) {
         out.extend_from_slice(px);
         out.push(e);
+    }
+    out
+}
+
+/// The leading `k` of each pixel's `n` values, and its last one too if
+/// `last`.
+fn select_channels<T: Copy>(values: &[T], n: usize, k: usize, last: bool) -> Vec<T> {
+    let mut out = Vec::with_capacity(values.len() / n * (k + usize::from(last)));
+    for px in values.chunks_exact(n) {
+        out.extend_from_slice(&px[..k]);
+        if last {
+            out.push(px[n - 1]);
+        }
     }
     out
 }

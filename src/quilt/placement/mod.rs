@@ -386,12 +386,13 @@ fn choose_rotation(
         offset(rotation_index(a, sample.rotations)).clamp(-limit, limit)
     });
     let fr = RANK_FACTOR * f;
-    let n = sample.n;
+    let n = sample.match_channels();
+    let features = sample.match_features(&work.features);
     let image = Image {
         width: work.width,
         height: work.height,
         channels: n,
-        data: &work.features,
+        data: &features,
     };
     let cwork = Coarse::new(&image, &work.known, &[], 1, fr);
     let known: f64 = cwork.weight.iter().map(|&k| k as f64).sum();
@@ -493,7 +494,7 @@ fn match_at_rotation(
     known_count: f64,
     f: usize,
 ) -> Result<Vec<matching::Placement>> {
-    let (sw, sh, n) = (sample.width, sample.height, sample.n);
+    let (sw, sh, n) = (sample.width, sample.height, sample.match_channels());
     let constrained = !work.constraint.is_empty() && sample.mask.is_some();
     let mask = if constrained {
         sample.rotation_mask(rot)
@@ -508,11 +509,12 @@ fn match_at_rotation(
         constraint_weight,
         ..MatchConfig::default()
     };
+    let features = sample.match_features(&work.features);
     let work_image = Image {
         width: work.width,
         height: work.height,
         channels: n,
-        data: &work.features,
+        data: &features,
     };
     let key = rot as u64 | (constrained as u64) << 32;
     if f == 1 && mask.is_none() {

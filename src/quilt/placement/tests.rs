@@ -2,6 +2,7 @@ use super::*;
 use crate::artifact::svd::SvdArtifact;
 use crate::container::MemoryBudget;
 use crate::io::imageio::{self, RgbImage};
+use crate::quilt::sample::RotatedCopy;
 
 /// A 64² sample of running-bond bricks (courses 8 px high, bricks 16
 /// long, mortar 2 px), factorized with its 72 rotated copies.
@@ -141,4 +142,88 @@ fn the_rotation_climb_follows_what_is_already_there() {
     flat.field_spread = 0.0;
     assert_eq!(turn_limit(&flat, 4), 0);
     assert_eq!(turn_limit(&work, 4), 4);
+}
+
+/// Σ M V ‖I − S‖² / Σ M V over the leading `k` channels of placement
+/// (dx, dy) of whole copy `copy` (`n` channels, `sw` wide) over `work`:
+/// the matching cost summed texel by texel.
+fn brute_cost(work: &WorkImage, copy: &RotatedCopy, n: usize, k: usize, sw: usize, d: (i32, i32)) -> f64 {
+    let sh = copy.1.len() / sw;
+    let (mut ssd, mut overlap) = (0f64, 0f64);
+    for y in 0..work.height {
+        for x in 0..work.width {
+            let (sx, sy) = (x as i32 - d.0, y as i32 - d.1);
+            if sx < 0 || sy < 0 || sx as usize >= sw || sy as usize >= sh {
+                continue;
+            }
+            let (p, s) = (y * work.width + x, sy as usize * sw + sx as usize);
+            let mv = work.known[p] as f64 * copy.1[s] as f64;
+            overlap += mv;
+            for c in 0..k {
+                let e = work.features[p * n + c] as f64 - copy.0[s * n + c] as f64;
+                ssd += mv * e * e;
+            }
+        }
+    }
+    ssd / overlap
+}
+
+/// With fewer match terms, the copies matching reads hold the leading
+/// terms of the stored ones (whole, by rectangles, coarse, and the f16
+/// copy of a full match), and every path's costs are those of the
+/// leading terms alone, summed texel by texel; every term is the default.
+#[test]
+fn matching_reads_only_the_leading_terms() {
+    let dir = tempfile::tempdir().unwrap();
+    let (full, _svd) = bricks(dir.path());
+    let n = full.n;
+    assert!(n >= 3, "a colour sample has three terms");
+    let open = |budget| SvdArtifact::open(full.svd.container().path(), MemoryBudget(budget)).unwrap();
+    let mut lead = Sample::from_svd(open(1 << 30), MemoryBudget::default()).unwrap();
+    lead.set_match_terms(2);
+    assert_eq!(lead.match_channels(), 2);
+    let mut lead_f16 = Sample::from_svd(open(1 << 30), MemoryBudget(0)).unwrap();
+    lead_f16.set_match_terms(2);
+    let mut every = Sample::from_svd(open(1 << 30), MemoryBudget::default()).unwrap();
+    every.set_match_terms(0);
+    assert_eq!(every.match_channels(), n);
+    let leading = |v: &[f32]| -> Vec<f32> { v.chunks_exact(n).flat_map(|p| p[..2].to_vec()).collect() };
+    let mut matcher = Matcher::new();
+    let mut differs = false;
+    for r in [0usize, 5, 41] {
+        let copy = full.rotation(r).unwrap();
+        assert_eq!(every.rotation(r).unwrap(), copy);
+        let got = lead.rotation(r).unwrap();
+        assert_eq!((&got.0, &got.1), (&leading(&copy.0), &copy.1));
+        let rect = (3, 7, 20, 33);
+        let (m, v) = full.rotation_rect(r, rect).unwrap();
+        assert_eq!(lead_f16.rotation_rect(r, rect).unwrap(), (leading(&m), v));
+        assert_eq!(
+            lead_f16.coarse_rotation(r, 3).unwrap(),
+            lead.coarse_rotation(r, 3).unwrap()
+        );
+        match lead_f16.rotation_to_match(r).unwrap() {
+            WholeCopy::F16(values, valid) => {
+                let widened: Vec<f32> = values.iter().map(|v| v.to_f32()).collect();
+                assert_eq!((&widened, &valid), (&got.0, &got.1));
+            }
+            WholeCopy::F32(_) => panic!("no room for an f32 copy: the f16 one"),
+        }
+        let work = work_showing(&full, r);
+        let known: f64 = work.known.iter().map(|&m| m as f64).sum();
+        for (sample, f) in [(&lead, 1), (&lead_f16, 1), (&lead, 3), (&lead_f16, 3)] {
+            let placements = match_at_rotation(sample, &mut matcher, &work, 0.0, None, r, known, f).unwrap();
+            assert!(!placements.is_empty());
+            for p in &placements {
+                let want = brute_cost(&work, &copy, n, 2, full.width, (p.dx, p.dy));
+                assert!(
+                    (p.cost - want).abs() <= 1e-6 * want.abs().max(1e-3),
+                    "{p:?} against {want}"
+                );
+                let all = brute_cost(&work, &copy, n, n, full.width, (p.dx, p.dy));
+                differs |= (all - want).abs() > 1e-4 * all.abs();
+            }
+        }
+    }
+    assert!(differs, "the last term changes some cost");
 }

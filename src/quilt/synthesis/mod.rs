@@ -220,6 +220,7 @@ impl Synthesis {
         let [tiles, spectra, atlas, patches] = loop_budget.split(LOOP_SHARES);
         let rotated = MemoryBudget(tiles.bytes().max(1 << 20));
         let mut sample = Sample::from_svd(svd, rotated)?;
+        sample.set_match_terms(cfg.match_terms);
         sample.spill_beside(output);
         if super::coarse::factor(sample.width.max(sample.height), cfg.coarse_above) > 1 {
             sample.read_by_rectangles();
