@@ -9,7 +9,11 @@ use std::path::{Path, PathBuf};
 pub mod cdp;
 use std::process::{Command, Output};
 
+use btfquilt::artifact::btf;
+use btfquilt::factorize::{self, FactorizeConfig};
+use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
 use btfquilt::io::imageio::{self, PngDepth, RgbImage};
+use btfquilt::progress::Silent;
 
 /// Quads per side of the flat square.
 pub const SQUARE_QUADS: usize = 8;
@@ -180,4 +184,30 @@ pub fn channel<'a>(channels: &'a [(String, Vec<f32>)], name: &str) -> &'a [f32] 
         .find(|(n, _)| n == name)
         .unwrap_or_else(|| panic!("no channel {name}"))
         .1
+}
+
+/// A 32² generated BTF on the 4φ×3θ grid (up to `theta`), factorized to
+/// `terms` terms: the `.svd` path.
+pub fn btf_sample(dir: &Path, name: &str, family: Family, seed: u64, terms: usize, phis: usize) -> PathBuf {
+    let btf_path = dir.join(format!("{name}.btf"));
+    let grid = btf::grid(phis, 3, 75.0);
+    let g = GenerateConfig {
+        family,
+        imperfection: Imperfection::None,
+        width: 32,
+        height: 32,
+        views: grid.clone(),
+        lights: grid,
+        seed,
+        block: 32,
+        ..GenerateConfig::default()
+    };
+    generate::generate_btf(&g, &btf_path, &Silent).unwrap();
+    let svd = dir.join(format!("{name}.svd"));
+    let f = FactorizeConfig {
+        terms: Some(terms),
+        ..FactorizeConfig::default()
+    };
+    factorize::factorize(&btf_path, &svd, &f, &Silent).unwrap();
+    svd
 }

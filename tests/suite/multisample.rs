@@ -25,7 +25,7 @@ use btfquilt::output::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
 use btfquilt::progress::Silent;
 use btfquilt::quilt::{self, Quilt, TileConfig, NO_PATCH};
 
-use crate::common::{self, btfquilt, channel, fails_clearly, ok, read_exr, s, write_mask_png};
+use crate::common::{self, btf_sample, btfquilt, channel, fails_clearly, ok, read_exr, s, write_mask_png};
 
 const ATLAS: usize = 64;
 /// Rendered image edge (pixels).
@@ -194,32 +194,6 @@ fn tinted(dir: &Path, name: &str, origin: (usize, usize), tint: [f32; 3]) -> Pat
     };
     imageio::write_png(&p, &img, PngDepth::Eight).unwrap();
     p
-}
-
-/// A 32² generated BTF on the 4φ×3θ grid (up to `theta`), factorized to
-/// `terms` terms: the `.svd` path.
-fn btf_sample(dir: &Path, name: &str, family: Family, seed: u64, terms: usize, phis: usize) -> PathBuf {
-    let btf_path = dir.join(format!("{name}.btf"));
-    let grid = btf::grid(phis, 3, 75.0);
-    let g = GenerateConfig {
-        family,
-        imperfection: Imperfection::None,
-        width: 32,
-        height: 32,
-        views: grid.clone(),
-        lights: grid,
-        seed,
-        block: 32,
-        ..GenerateConfig::default()
-    };
-    generate::generate_btf(&g, &btf_path, &Silent).unwrap();
-    let svd = dir.join(format!("{name}.svd"));
-    let f = FactorizeConfig {
-        terms: Some(terms),
-        ..FactorizeConfig::default()
-    };
-    factorize::factorize(&btf_path, &svd, &f, &Silent).unwrap();
-    svd
 }
 
 /// Looking straight down at the square, which fills ¾ of the frame (a

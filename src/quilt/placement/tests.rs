@@ -226,4 +226,16 @@ fn matching_reads_only_the_leading_terms() {
         }
     }
     assert!(differs, "the last term changes some cost");
+    // with the structure channel: the leading terms, then the channel
+    let mut with_structure = Sample::from_svd(open(1 << 30), MemoryBudget::default()).unwrap();
+    with_structure.add_structure(0.5);
+    lead.set_match_terms(2);
+    lead.add_structure(0.5);
+    assert_eq!(lead.match_channels(), 3);
+    let (m1, k) = (n + 1, [0usize, 1, n]);
+    let pick = |v: &[f32]| -> Vec<f32> { v.chunks_exact(m1).flat_map(|p| k.map(|c| p[c])).collect() };
+    let copy = with_structure.rotation(7).unwrap();
+    assert_eq!(lead.rotation(7).unwrap().0, pick(&copy.0));
+    let features: Vec<f32> = (0..4 * m1).map(|i| i as f32).collect();
+    assert_eq!(lead.match_features(&features).as_ref(), &pick(&features)[..]);
 }
