@@ -795,6 +795,7 @@ fn every_parameter_reaching_an_output_changes_the_key() {
     assert_eq!(k0, key("[tile]\nfeature_align = 0.09\n"));
     assert_eq!(k0, key("[tile]\nrefine_broken = 0\nrefine_passes = 1\n"));
     assert_eq!(k0, key("[tile]\ncourses = \"free\"\n"));
+    assert_eq!(k0, key("[tile]\nmatch_terms = 0\n"));
     // a choice that is not one is refused, naming what it expected
     let bad = btfquilt::batch::Plan::parse(
         &d.path().join("plan.toml"),
@@ -816,6 +817,7 @@ fn every_parameter_reaching_an_output_changes_the_key() {
         "[tile]\nrefine_broken = 4\n",
         "[tile]\nrefine_broken = 4\nrefine_passes = 3\n",
         "[tile]\ncourses = \"locked\"\n",
+        "[tile]\nmatch_terms = 16\n",
         "[factorize]\nterms = 8\n",
         "[render]\nwidth = 320\n",
         "[render]\nlights = [\"0,1,0\"]\n",

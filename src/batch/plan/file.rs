@@ -88,6 +88,8 @@ pub(super) struct TileSection {
     pub(super) refine_passes: Option<usize>,
     /// "free" or "locked", as `tile --courses`.
     pub(super) courses: Option<CourseMode>,
+    /// As `tile --match-terms` (0: every term).
+    pub(super) match_terms: Option<usize>,
 }
 
 fn default_seeds() -> Vec<u64> {
@@ -109,6 +111,7 @@ impl Default for TileSection {
             refine_broken: None,
             refine_passes: None,
             courses: None,
+            match_terms: None,
         }
     }
 }

@@ -196,6 +196,9 @@ pub struct TileParams {
     /// Left out of the key when free, as `feature_align` at 0.
     #[serde(skip_serializing_if = "is_free")]
     pub courses: CourseMode,
+    /// Left out of the key at 0 (every term), as `feature_align` at 0.
+    #[serde(skip_serializing_if = "is_zero_count")]
+    pub match_terms: usize,
 }
 
 fn is_free(v: &CourseMode) -> bool {
@@ -437,6 +440,7 @@ impl Plan {
             refine_broken: t.refine_broken.unwrap_or(defaults.refine_broken),
             refine_passes: t.refine_passes.unwrap_or(defaults.refine_passes),
             courses: t.courses.unwrap_or(defaults.courses),
+            match_terms: t.match_terms.unwrap_or(defaults.match_terms),
         };
         let sample_widths: Vec<Option<f64>> = if t.sample_widths.is_empty() {
             vec![None]
@@ -649,6 +653,7 @@ pub fn tile_config(p: &TileParams, seed: u64, sample_width: Option<f64>) -> Tile
         refine_broken: p.refine_broken,
         refine_passes: p.refine_passes,
         courses: p.courses,
+        match_terms: p.match_terms,
         seed,
         sample_width,
         ..TileConfig::default()
