@@ -38,6 +38,15 @@ fn spot_atlas(dir: &Path, r: usize) -> PathBuf {
     g
 }
 
+/// `evaluate`'s seam ratio (seam colour difference over that inside
+/// patches) of the quilt at `p`.
+fn seam_ratio(p: &Path) -> f64 {
+    btfquilt::output::evaluate::evaluate(p, None, None, MemoryBudget::default())
+        .unwrap()
+        .seam
+        .ratio_to_inside
+}
+
 /// Tiles with 1 and 2 worker threads into `dir/PREFIX1.quilt` and
 /// `dir/PREFIX2.quilt`, checking each report.
 fn tile_with_threads(
@@ -411,13 +420,7 @@ fn coarse_to_fine_matching_is_deterministic_and_as_seamless() {
     let report = quilt::tile(&g, &sample, &exact, &cfg, &Silent).unwrap();
     assert_eq!(report.coarse_factor, 1);
     assert!(std::fs::read(&outs[0]).unwrap() != std::fs::read(&exact).unwrap());
-    let ratio = |p: &Path| {
-        btfquilt::output::evaluate::evaluate(p, None, None, MemoryBudget::default())
-            .unwrap()
-            .seam
-            .ratio_to_inside
-    };
-    let (coarse, full) = (ratio(&outs[0]), ratio(&exact));
+    let (coarse, full) = (seam_ratio(&outs[0]), seam_ratio(&exact));
     eprintln!("seam ratio: coarse to fine {coarse:.3}, full resolution {full:.3}");
     assert!(coarse <= 1.1 * full, "{coarse} vs {full}");
 }
@@ -464,13 +467,7 @@ fn matching_on_the_leading_terms_is_deterministic_and_as_seamless() {
     let every = dir.path().join("every.quilt");
     quilt::tile(&g, &sample, &every, &TileConfig::default(), &Silent).unwrap();
     assert!(bytes(&outs[0]) != bytes(&every));
-    let ratio = |p: &Path| {
-        btfquilt::output::evaluate::evaluate(p, None, None, MemoryBudget::default())
-            .unwrap()
-            .seam
-            .ratio_to_inside
-    };
-    let (lead, all) = (ratio(&outs[0]), ratio(&every));
+    let (lead, all) = (seam_ratio(&outs[0]), seam_ratio(&every));
     eprintln!("seam ratio: 3 of 8 terms {lead:.3}, every term {all:.3}");
     assert!(lead <= 1.15 * all, "{lead} vs {all}");
 }
