@@ -160,8 +160,15 @@ impl Sample {
         if self.match_terms == self.svd.terms {
             return std::borrow::Cow::Borrowed(features);
         }
-        let structure = self.structure.is_some();
-        std::borrow::Cow::Owned(select_channels(features, self.n, self.match_terms, structure))
+        let mut out = Vec::new();
+        select_channels(
+            features,
+            self.n,
+            self.match_terms,
+            self.structure.is_some(),
+            &mut out,
+        );
+        std::borrow::Cow::Owned(out)
     }
 
     /// The largest whole rotated copy a match loaded that the copies'
@@ -325,9 +332,7 @@ impl Sample {
         }
         let (mut m, mut valid) = (Vec::with_capacity(self.width * self.height * k), Vec::new());
         self.stored_bands(r, whole, |_, maps, v| {
-            for px in maps.chunks_exact(terms) {
-                m.extend_from_slice(&px[..k]);
-            }
+            select_channels(maps, terms, k, false, &mut m);
             valid.extend_from_slice(v);
         })?;
         Ok((m, valid))
@@ -539,17 +544,16 @@ fn interleave(maps: &[f32], n: usize, extra: &[f32]) -> Vec<f32> {
     out
 }
 
-/// The leading `k` of each pixel's `n` values, and its last one too if
-/// `last`.
-fn select_channels<T: Copy>(values: &[T], n: usize, k: usize, last: bool) -> Vec<T> {
-    let mut out = Vec::with_capacity(values.len() / n * (k + usize::from(last)));
+/// Appends to `out` the leading `k` of each pixel's `n` values, and its
+/// last one too if `last`.
+fn select_channels<T: Copy>(values: &[T], n: usize, k: usize, last: bool, out: &mut Vec<T>) {
+    out.reserve(values.len() / n * (k + usize::from(last)));
     for px in values.chunks_exact(n) {
         out.extend_from_slice(&px[..k]);
         if last {
             out.push(px[n - 1]);
         }
     }
-    out
 }
 
 /// Mean ‖g(x) − g(x + 1)‖ over horizontal and vertical neighbours of `n`-term
