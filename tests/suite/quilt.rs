@@ -38,6 +38,20 @@ fn spot_atlas(dir: &Path, r: usize) -> PathBuf {
     g
 }
 
+/// Tiles with `cfg` at a 1 MiB budget, which pages the atlas to scratch
+/// and computes one patch at a time, into `dir/small.quilt`, and asserts
+/// it pages and gives the bytes of the quilt at `want`.
+fn same_quilt_when_paged(g: &Path, sample: &Path, cfg: &TileConfig, dir: &Path, want: &Path) {
+    let small = dir.join("small.quilt");
+    let cfg_small = TileConfig {
+        memory: MemoryBudget(1 << 20),
+        ..cfg.clone()
+    };
+    let report = quilt::tile(g, sample, &small, &cfg_small, &Silent).unwrap();
+    assert!(report.scratch_bytes > 0, "{report}");
+    assert!(std::fs::read(want).unwrap() == std::fs::read(&small).unwrap());
+}
+
 /// `evaluate`'s seam ratio (seam colour difference over that inside
 /// patches) of the quilt at `p`.
 fn seam_ratio(p: &Path) -> f64 {
@@ -403,15 +417,7 @@ fn coarse_to_fine_matching_is_deterministic_and_as_seamless() {
         assert!(r.to_string().contains("coarse to fine at 1/3"), "{r}");
     });
     assert!(std::fs::read(&outs[0]).unwrap() == std::fs::read(&outs[1]).unwrap());
-    // a budget that pages the atlas and computes one patch at a time
-    let small = dir.path().join("small.quilt");
-    let cfg_small = TileConfig {
-        memory: MemoryBudget(1 << 20),
-        ..cfg.clone()
-    };
-    let report = quilt::tile(&g, &sample, &small, &cfg_small, &Silent).unwrap();
-    assert!(report.scratch_bytes > 0, "{report}");
-    assert!(std::fs::read(&outs[0]).unwrap() == std::fs::read(&small).unwrap());
+    same_quilt_when_paged(&g, &sample, &cfg, dir.path(), &outs[0]);
     let exact = dir.path().join("exact.quilt");
     let cfg = TileConfig {
         coarse_above: 0,
@@ -441,14 +447,7 @@ fn matching_on_the_leading_terms_is_deterministic_and_as_seamless() {
     let outs = tile_with_threads(&g, &sample, &cfg, dir.path(), "m", |_| ());
     let bytes = |p: &Path| std::fs::read(p).unwrap();
     assert!(bytes(&outs[0]) == bytes(&outs[1]));
-    let small = dir.path().join("small.quilt");
-    let cfg_small = TileConfig {
-        memory: MemoryBudget(1 << 20),
-        ..cfg.clone()
-    };
-    let report = quilt::tile(&g, &sample, &small, &cfg_small, &Silent).unwrap();
-    assert!(report.scratch_bytes > 0, "{report}");
-    assert!(bytes(&outs[0]) == bytes(&small));
+    same_quilt_when_paged(&g, &sample, &cfg, dir.path(), &outs[0]);
     let cli = dir.path().join("cli.quilt");
     let s = crate::common::s;
     crate::common::ok(&[
