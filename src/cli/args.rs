@@ -95,7 +95,7 @@ pub(super) struct Tiling {
     /// Seam refinement also visits seams where a feature ends (a mortar
     /// line or strand one side would carry on), whatever their colour
     /// step, fits this many placements there and keeps the one that ends
-    /// fewest features; 0: off.
+    /// fewest features; 0: off (one pass, whatever --refine-passes says).
     #[arg(long, default_value_t = TileConfig::default().refine_broken)]
     refine_broken: usize,
     /// With --refine-broken: passes over the seams where features still

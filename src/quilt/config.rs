@@ -121,21 +121,21 @@ pub struct TileConfig {
     /// more than [`BROKEN_CONTINUATION`] × the sample's neighbour
     /// difference), whatever the colour step there, and fits this many
     /// placements at such seams: the cut that ends fewest features at the
-    /// patch's seams is kept ([`ends`](super::ends), [`ENDS_DEARER`]); 0 (the default)
-    /// turns it off. At 4 on Spot and Bob at 1024² with the brick wall at
-    /// the size of a 4096² close-up, `evaluate`'s broken continuations fell
-    /// by 35–40 % (seeds 1–3) for about a fifth more time; with
-    /// [`TileConfig::refine_passes`] 3 by 76–88 % at about twice the
-    /// time. It is off by default for its time (docs/measurements.md,
-    /// "Structure across seams").
+    /// patch's seams is kept ([`ends`](super::ends), [`ENDS_DEARER`]); 0
+    /// turns it off. Default 4 (with [`TileConfig::refine_passes`] 2): on
+    /// Spot and Bob at 1024² with the brick wall, the plaster and the wood
+    /// (seeds 1 and 2, against 0) broken continuations fell by 36–50 % and
+    /// the coherence's 95th percentile by 1–21 %, for 0.6–2.5 s more
+    /// (docs/measurements.md, "Refinement where features end by default").
     pub refine_broken: usize,
     /// Passes of seam refinement where features end: with
-    /// [`TileConfig::refine_broken`], after the first refinement this many
-    /// − 1 more passes visit the seams where features still end (the
+    /// [`TileConfig::refine_broken`] ≥ 1, after the first refinement this
+    /// many − 1 more passes visit the seams where features still end (the
     /// refinements kept make new seams), stopping early when a pass keeps
-    /// no patch. Default 1. On Spot at 1024² with the brick wall at the
-    /// size of a 4096² close-up and `refine_broken` 4, the second, third
-    /// and fourth passes kept 104, 44 and 20 patches (seed 1);
+    /// no patch; with `refine_broken` 0 there is one pass whatever this
+    /// says. Default 2. On Spot at 1024² with the brick wall at the size
+    /// of a 4096² close-up and `refine_broken` 4, the second, third and
+    /// fourth passes kept 104, 44 and 20 patches (seed 1);
     /// docs/measurements.md, "Structure across seams".
     pub refine_passes: usize,
     /// Work patches per round of the quilting loop (section III-B's loop,
@@ -211,8 +211,8 @@ impl Default for TileConfig {
             constraint_weight: 16.0,
             refine: Some(2.0),
             refine_placements: REFINE_PLACEMENTS,
-            refine_broken: 0,
-            refine_passes: 1,
+            refine_broken: 4,
+            refine_passes: 2,
             round: 4,
             sample_width: None,
             sample_pixel: None,
@@ -345,12 +345,6 @@ impl TileConfig {
             return Err(Error::Config(
                 "--refine-passes 0: must be at least 1 (passes of seam refinement)".into(),
             ));
-        }
-        if self.refine_passes > 1 && self.refine_broken == 0 {
-            return Err(Error::Config(format!(
-                "--refine-passes {} repeats refinement where features end: it needs --refine-broken P with P ≥ 1",
-                self.refine_passes
-            )));
         }
         if self.round == 0 {
             return Err(Error::Config(

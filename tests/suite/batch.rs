@@ -401,8 +401,8 @@ fn bad_plans_are_refused_naming_the_plan_and_the_fault_with_nothing_written() {
             vec!["[tile]", "--sample-width -1"],
         ),
         (
-            text.replace("seeds = [1, 2]", "seeds = [1]\nrefine_passes = 2"),
-            vec!["[tile]", "--refine-passes 2", "--refine-broken"],
+            text.replace("seeds = [1, 2]", "seeds = [1]\nrefine_passes = 0"),
+            vec!["[tile]", "--refine-passes 0"],
         ),
         (
             text.replace("lights = [", "cameras = [\"1,2\"]\nlights = ["),
@@ -793,7 +793,16 @@ fn every_parameter_reaching_an_output_changes_the_key() {
     // the defaults written out are the same job
     assert_eq!(k0, key("[atlas]\nresolutions = [1024]\n[tile]\nseeds = [1]\n"));
     assert_eq!(k0, key("[tile]\nfeature_align = 0.09\n"));
-    assert_eq!(k0, key("[tile]\nrefine_broken = 0\nrefine_passes = 1\n"));
+    assert_eq!(k0, key("[tile]\nrefine_broken = 4\nrefine_passes = 2\n"));
+    // passes count only with refinement where features end, and that only
+    // with seam refinement: what does nothing leaves the key alone
+    let off = key("[tile]\nrefine_broken = 0\n");
+    assert_eq!(off, key("[tile]\nrefine_broken = 0\nrefine_passes = 3\n"));
+    let no_refine = key("[tile]\nrefine = 0\n");
+    assert_eq!(
+        no_refine,
+        key("[tile]\nrefine = 0\nrefine_broken = 2\nrefine_passes = 3\n")
+    );
     assert_eq!(k0, key("[tile]\ncourses = \"free\"\n"));
     assert_eq!(k0, key("[tile]\nmatch_terms = 0\n"));
     // a choice that is not one is refused, naming what it expected
@@ -814,8 +823,9 @@ fn every_parameter_reaching_an_output_changes_the_key() {
         "[tile]\noccurrence_weight = 0.5\n",
         "[tile]\ntolerance = 0.1\n",
         "[tile]\nfeature_align = 0\n",
-        "[tile]\nrefine_broken = 4\n",
-        "[tile]\nrefine_broken = 4\nrefine_passes = 3\n",
+        "[tile]\nrefine_broken = 0\n",
+        "[tile]\nrefine_passes = 3\n",
+        "[tile]\nrefine_broken = 2\n",
         "[tile]\ncourses = \"locked\"\n",
         "[tile]\nmatch_terms = 16\n",
         "[factorize]\nterms = 8\n",

@@ -215,6 +215,32 @@ fn spot_is_covered_and_baked_and_rendered() {
     )
     .unwrap();
     assert!(rs.refined > 0 && total_step(&several) < before, "{rs}");
+    // refinement where features end (on by default) leaves fewer features
+    // ending at seams than seam refinement by colour step alone; with it
+    // off, its passes have nothing to repeat
+    let broken = |q: &Path| {
+        btfquilt::output::evaluate::evaluate(q, None, None, MemoryBudget::default())
+            .unwrap()
+            .continuation
+            .broken_per_1000_texels
+    };
+    let by_step = |name: &str, refine_passes: usize| {
+        let out = dir.path().join(name);
+        let cfg = TileConfig {
+            refine_broken: 0,
+            refine_passes,
+            ..TileConfig::default()
+        };
+        quilt::tile(&g, &sample, &out, &cfg, &Silent).unwrap();
+        out
+    };
+    let (step1, step3) = (by_step("step1.quilt", 1), by_step("step3.quilt", 3));
+    assert!(std::fs::read(&step1).unwrap() == std::fs::read(&step3).unwrap());
+    let (ends_default, ends_step) = (broken(&refined), broken(&step1));
+    assert!(
+        ends_default < 0.9 * ends_step,
+        "broken per 1000 texels: {ends_default} by default, {ends_step} by colour step alone"
+    );
     let q = Quilt::open(&out, MemoryBudget::default()).unwrap();
     assert!(q.patches().unwrap().iter().filter(|&&p| p != NO_PATCH).count() == report.texels);
     // the stored seams are exactly the mesh edges whose ends took different
@@ -767,9 +793,12 @@ fn views_made_when_a_thread_takes_the_patch_change_no_byte() {
     let sample = brick_crop(dir.path(), 64, None);
     let run = |memory: u64, threads: usize| {
         let out = dir.path().join(format!("v{memory}.quilt"));
+        // the loop's rounds alone: refinement where features end takes
+        // rounds of more patches than a thread each
         let cfg = TileConfig {
             memory: MemoryBudget(memory),
             seed: 3,
+            refine_broken: 0,
             ..TileConfig::default()
         };
         let pool = rayon::ThreadPoolBuilder::new()
@@ -858,10 +887,12 @@ fn feature_alignment_ends_fewer_courses_at_seams_and_leaves_a_flat_square_alone(
     };
     let (mut rigid, mut aligned) = (0.0, 0.0);
     for seed in [1, 2] {
-        // bent patches are the default
+        // bent patches are the default; what they do alone, without the
+        // refinement where features end that mends rigid ones' too
         let cfg = TileConfig {
             seed,
             sample_width: Some(1.07),
+            refine_broken: 0,
             ..TileConfig::default()
         };
         assert!(cfg.feature_align > 0.0);

@@ -425,6 +425,18 @@ impl Plan {
             .map_err(|e| bad(format!("[factorize] {e}")))?;
         let defaults = TileConfig::default();
         let t = &file.tile;
+        let refine = match t.refine {
+            Some(r) if r == 0.0 => None,
+            Some(r) => Some(r),
+            None => defaults.refine,
+        };
+        // refinement where features end is a part of seam refinement, and
+        // its passes count only when it is on: what does nothing is left
+        // at its off value, the same job with the same key
+        let refine_broken = match refine {
+            Some(_) => t.refine_broken.unwrap_or(defaults.refine_broken),
+            None => 0,
+        };
         let tile = TileParams {
             seam_threshold: t.seam_threshold.unwrap_or(defaults.seam_threshold),
             occurrence_weight: t.occurrence_weight.unwrap_or(defaults.occurrence_weight),
@@ -432,13 +444,13 @@ impl Plan {
             structure_weight: t.structure_weight.unwrap_or(defaults.structure_weight),
             feature_align: t.feature_align.unwrap_or(defaults.feature_align),
             field_turn: t.field_turn.unwrap_or(defaults.field_turn),
-            refine: match t.refine {
-                Some(r) if r == 0.0 => None,
-                Some(r) => Some(r),
-                None => defaults.refine,
+            refine,
+            refine_broken,
+            refine_passes: if refine_broken == 0 {
+                1
+            } else {
+                t.refine_passes.unwrap_or(defaults.refine_passes)
             },
-            refine_broken: t.refine_broken.unwrap_or(defaults.refine_broken),
-            refine_passes: t.refine_passes.unwrap_or(defaults.refine_passes),
             courses: t.courses.unwrap_or(defaults.courses),
             match_terms: t.match_terms.unwrap_or(defaults.match_terms),
         };

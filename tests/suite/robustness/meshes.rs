@@ -313,8 +313,6 @@ fn mesh_float_flags_must_be_finite() {
         ("--feature-align", "0.6"),
         ("--field-turn", "-1"),
         ("--refine-passes", "0"),
-        // more passes repeat refinement where features end: none asked for
-        ("--refine-passes", "2"),
     ] {
         let arg = format!("{flag}={value}");
         refuses(
