@@ -454,7 +454,12 @@ pub const BROKEN_CONTINUATION: f64 = 4.0;
 /// Seam refinement where features end ([`TileConfig::refine_broken`])
 /// keeps a patch that ends fewer features than the seams it replaces if
 /// its cut costs less than this × what they cost (any patch is kept whose
-/// cut costs under 0.9× as much and ends no more features). At 1 on Spot
-/// at 1024² with the brick wall at the size of a 4096² close-up, 0.42
-/// broken continuations per 1000 texels were left, at 1.5 and 3 0.36.
-pub const ENDS_DEARER: f64 = 1.5;
+/// cut costs under 0.9× as much and ends no more features). 1: never a
+/// stronger colour seam. On eleven 400² flat-square quilts (seeds 1–3,
+/// `benches/quality_2d.py`) the coherence's 95th percentile (geometric
+/// mean) was 0.0337 at 1, 0.0348 at 1.25 and 0.0355 at 1.5, against
+/// 0.0340 without refinement where features end; on Spot and Bob at 1024²
+/// with the wall, the plaster and the wood, 1.5 left 6–27 % fewer broken
+/// continuations than 1 (docs/measurements.md, "Refinement where features
+/// end by default").
+pub const ENDS_DEARER: f64 = 1.0;
