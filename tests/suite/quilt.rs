@@ -793,8 +793,9 @@ fn views_made_when_a_thread_takes_the_patch_change_no_byte() {
     let sample = brick_crop(dir.path(), 64, None);
     let run = |memory: u64, threads: usize| {
         let out = dir.path().join(format!("v{memory}.quilt"));
-        // the loop's rounds alone: refinement where features end takes
-        // rounds of more patches than a thread each
+        // the loop's rounds alone: with refinement where features end, a
+        // few rounds of refinement hold more patches than the roomy
+        // budget, sized for a patch per thread, makes views for at once
         let cfg = TileConfig {
             memory: MemoryBudget(memory),
             seed: 3,
