@@ -35,6 +35,13 @@ pub struct TileConfig {
     /// the sample's mean use, of the sample pixels it covers, so work
     /// patches spread over the sample's whole variety instead of returning
     /// to the region that matches best (Kaspar et al. 2015). 0 turns it off.
+    /// Default 0.5: against 1, on eleven 400² flat-square quilts the
+    /// coherence's 95th percentile (geometric mean) fell from 0.0337 to
+    /// 0.0330 and completeness rose from 0.0117 to 0.0122 (23 → 24 % of
+    /// the sample never used); on Spot and Bob at 1024² with the wall, the
+    /// plaster and the wood the 95th percentile fell by 0–14 % with 1–5
+    /// points more of the sample never used (docs/measurements.md,
+    /// "Refinement where features end by default").
     pub occurrence_weight: f64,
     /// Weight of the structure channel (each sample pixel's distance to the
     /// nearest strong edge of the sample, 0..1; see `src/quilt/structure.rs`)
@@ -199,7 +206,7 @@ impl Default for TileConfig {
             min_radius: 4,
             seam_threshold: 3.0,
             tolerance: 0.0,
-            occurrence_weight: 1.0,
+            occurrence_weight: 0.5,
             structure_weight: 0.0,
             feature_align: 0.09,
             field_turn: 2,

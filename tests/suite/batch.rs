@@ -820,7 +820,7 @@ fn every_parameter_reaching_an_output_changes_the_key() {
         "[tile]\nseeds = [2]\n",
         "[tile]\nsample_widths = [0.5]\n",
         "[tile]\nrefine = 0\n",
-        "[tile]\noccurrence_weight = 0.5\n",
+        "[tile]\noccurrence_weight = 0.25\n",
         "[tile]\ntolerance = 0.1\n",
         "[tile]\nfeature_align = 0\n",
         "[tile]\nrefine_broken = 0\n",
