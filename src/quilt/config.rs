@@ -132,10 +132,10 @@ pub struct TileConfig {
     /// turns it off. Default 4 (with [`TileConfig::refine_passes`] 2): on
     /// Spot and Bob at 1024² with the brick wall, the plaster and the wood
     /// (seeds 1 and 2, against 0, occurrence weight 1) broken
-    /// continuations fell by 18–38 %
-    /// and the coherence's 95th percentile moved by −10 % to +1 %, for
-    /// 1.9× the time of 0 on Spot with the wall (10.5 s against 5.4 s;
-    /// docs/measurements.md, "Refinement where features end by default").
+    /// continuations fell by 18–38 % and the coherence's 95th percentile
+    /// moved by −10 % to +1 %, for 1.9× the time of 0 on Spot with the
+    /// wall (10.5 s against 5.4 s; docs/measurements.md, "Refinement where
+    /// features end by default").
     pub refine_broken: usize,
     /// Passes of seam refinement where features end: with
     /// [`TileConfig::refine_broken`] ≥ 1, after the first refinement this

@@ -13,13 +13,11 @@
 
 use std::path::{Path, PathBuf};
 
-use btfquilt::artifact::btf;
 use btfquilt::artifact::gim::Gim;
 use btfquilt::artifact::svd::SvdArtifact;
 use btfquilt::atlas::{self, AtlasConfig};
 use btfquilt::container::{ArraySpec, Container, ContainerWriter, DType, MemoryBudget, Param};
-use btfquilt::factorize::{self, FactorizeConfig};
-use btfquilt::generate::{self, Family, GenerateConfig, Imperfection};
+use btfquilt::generate::Family;
 use btfquilt::io::imageio::{self, PngDepth, RgbImage};
 use btfquilt::output::render::{Camera, Light, RenderConfig, Scene, BACKGROUND};
 use btfquilt::progress::Silent;
