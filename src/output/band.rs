@@ -1,6 +1,6 @@
 //! A band of atlas rows of a decorated surface as the figures read it
 //! (`evaluate` and the continuation figures): preview colour, coverage,
-//! patches, samples, charts and stored coordinates.
+//! patches, samples, charts, stored coordinates and Jacobians.
 
 use crate::artifact::gim::Gim;
 use crate::io::imageio::RgbImage;
@@ -21,7 +21,7 @@ pub(super) fn rgb_distance(a: &[f32], b: &[f32]) -> f64 {
 /// Atlas rows `y0..hi` read for the band's own rows `first..first +
 /// own / r` (the rows around them are there for the neighbours of its
 /// texels): preview colour, covered mask, patch, sample index, chart,
-/// rotation and stored sample coordinates, row-major from `y0`.
+/// rotation, stored sample coordinates and Jacobians, row-major from `y0`.
 pub(super) struct ColourBand {
     pub(super) y0: usize,
     /// The band's first own row.
@@ -40,6 +40,9 @@ pub(super) struct ColourBand {
     pub(super) rotation: Vec<u8>,
     /// Stored sample coordinates (sample pixels).
     pub(super) coords: Vec<[f32; 2]>,
+    /// Stored Jacobians (sample offset per atlas step, as
+    /// [`Quilt::jacobians`]); `None` for a quilt that stores none.
+    pub(super) jacobian: Option<Vec<[f32; 4]>>,
 }
 
 impl ColourBand {
@@ -69,6 +72,7 @@ impl ColourBand {
             face,
             rotation: quilt.rotation_region(0, y0, r, h)?,
             coords: quilt.coord_region(0, y0, r, h)?,
+            jacobian: quilt.jacobian_region(0, y0, r, h)?,
         })
     }
 
@@ -101,6 +105,7 @@ impl ColourBand {
             face: vec![0; n],
             rotation: vec![0; n],
             coords,
+            jacobian: None,
         }
     }
 

@@ -426,6 +426,13 @@ fn tile_bake_evaluate_render_export_a_square() {
     assert!((never - hist[0] as f64 / usage["pixels"].as_f64().unwrap()).abs() < 1e-12);
     let c = &doc["coherence"];
     assert!(c["p95_rgb_distance_to_nearest_sample_window"].as_f64().unwrap() >= 0.0);
+    // a new quilt stores Jacobians: every window has its own frame
+    for key in ["mean_rgb_distance_in_own_frame", "p95_rgb_distance_in_own_frame"] {
+        assert!(
+            c[key].as_f64().is_some_and(|v| v.is_finite() && v >= 0.0),
+            "{key}: {c}"
+        );
+    }
     assert_eq!(c["windows"].as_u64().unwrap(), 200);
     // more windows: the same figures but the coherence, measured on more
     let more = btfquilt(&["evaluate", s(&quilt), "--windows", "600"]);

@@ -131,6 +131,14 @@ pub struct CoherenceFigures {
     pub mean_rgb_distance_to_nearest_sample_window: f64,
     /// 95th percentile (nearest rank) of the same distances.
     pub p95_rgb_distance_to_nearest_sample_window: f64,
+    /// The same windows against the sample read in each window's own frame
+    /// (the rotation, scale and sub-pixel position of its centre texel,
+    /// moved by whole sample pixels; [`framed_distance`]): resampling at
+    /// another phase or scale no longer counts, seams, bends and content
+    /// do. `None` for a quilt that stores no Jacobians.
+    pub mean_rgb_distance_in_own_frame: Option<f64>,
+    /// 95th percentile (nearest rank) of the same distances.
+    pub p95_rgb_distance_in_own_frame: Option<f64>,
 }
 
 /// The painting measures of a painted surface (§IV).
@@ -327,9 +335,11 @@ pub fn evaluate_with(
         Some(crate::container::Param::Int(v)) if *v > 0 => *v as usize,
         _ => 72,
     };
-    let mut coherence = windows.coherence(&previews, steps);
+    let (mut coherence, mut framed) = windows.coherence(&previews, steps);
     coherence.sort_by(f64::total_cmp);
+    framed.sort_by(f64::total_cmp);
     let p95 = super::compare::nearest_rank(&coherence, 0.95);
+    let framed_p95 = (!framed.is_empty()).then(|| super::compare::nearest_rank(&framed, 0.95));
     let seams_fraction = edges as f64 / (edges + inner_count).max(1) as f64;
     let width = previews.first().map_or(0, |p| p.width);
     let scale = scale(&quilt, &gim, width)?;
@@ -369,6 +379,8 @@ pub fn evaluate_with(
             windows: coherence.len(),
             mean_rgb_distance_to_nearest_sample_window: mean(&coherence),
             p95_rgb_distance_to_nearest_sample_window: p95,
+            mean_rgb_distance_in_own_frame: (!framed.is_empty()).then(|| mean(&framed)),
+            p95_rgb_distance_in_own_frame: framed_p95,
         },
         usage: usage
             .iter()
@@ -501,6 +513,9 @@ struct Windows {
     inside: Vec<bool>,
     /// The centre's rotation.
     rotation: Vec<u8>,
+    /// The centre's stored sample coordinate and Jacobian (its frame), if
+    /// the quilt stores Jacobians.
+    frame: Vec<Option<Frame>>,
     /// Atlas row, candidate and window row, packed by [`row_key`], ascending.
     rows: Vec<u64>,
     next_row: usize,
@@ -515,9 +530,9 @@ struct Windows {
 const MIN_TRIES: usize = 20_000;
 const TRIES_PER_WINDOW: usize = 4;
 
-/// The most windows `--windows` takes: each place tried holds about 360
-/// bytes of [`Windows`] (its 5×5 colours, its centre, chart, sample and
-/// five rows), 29 MB for the 80 000 places of the most windows.
+/// The most windows `--windows` takes: each place tried holds about 390
+/// bytes of [`Windows`] (its 5×5 colours, its centre, chart, sample,
+/// frame and five rows), 31 MB for the 80 000 places of the most windows.
 const MAX_WINDOWS: usize = 20_000;
 
 /// `(atlas row, candidate, window row)` as one key in the same order (a
@@ -548,6 +563,7 @@ impl Windows {
             index: vec![0; n],
             inside: vec![true; n],
             rotation: vec![0; n],
+            frame: vec![None; n],
             centres,
             rows,
             next_row: 0,
@@ -557,7 +573,8 @@ impl Windows {
 
     /// What the candidates hold.
     fn bytes(&self) -> u64 {
-        (self.centres.len() * (8 + 75 * 4 + 4 + 1 + 1 + 1) + self.rows.len() * 8) as u64
+        (self.centres.len() * (8 + 75 * 4 + 4 + 1 + 1 + 1 + std::mem::size_of::<Option<Frame>>())
+            + self.rows.len() * 8) as u64
     }
 
     fn gather(&mut self, b: &ColourBand, r: usize) {
@@ -582,7 +599,12 @@ impl Windows {
                 self.inside[c] &= b.covered[t] && b.chart[t] == self.chart[c] && b.index[t] == self.index[c];
             }
             if dy == 2 {
-                self.rotation[c] = b.rotation[(y - b.y0) * r + x];
+                let t = (y - b.y0) * r + x;
+                self.rotation[c] = b.rotation[t];
+                self.frame[c] = b.jacobian.as_ref().map(|j| Frame {
+                    centre: b.coords[t],
+                    jacobian: j[t],
+                });
             }
         }
     }
@@ -594,7 +616,9 @@ impl Windows {
     /// 5×5 window. The windows are measured grouped by sample and rotation,
     /// one turned preview held per thread at a time (not every rotation at
     /// once: a large sample's 72 turned previews would not fit `--memory`).
-    fn coherence(&self, previews: &[RgbImage], steps: usize) -> Vec<f64> {
+    /// Second, the same windows' distances in their own frames
+    /// ([`framed_distance`]), for those that have one.
+    fn coherence(&self, previews: &[RgbImage], steps: usize) -> (Vec<f64>, Vec<f64>) {
         use rayon::prelude::*;
         let turned = |index: u8, rot: u8| {
             let p = &previews[index as usize];
@@ -639,7 +663,7 @@ impl Windows {
         {
             groups.entry(key).or_default().push(c);
         }
-        let mut measured: Vec<(usize, f64)> = groups
+        let mut measured: Vec<(usize, f64, Option<f64>)> = groups
             .into_par_iter()
             .flat_map_iter(|((index, rot), windows)| {
                 let p = &previews[index as usize];
@@ -672,14 +696,98 @@ impl Windows {
                                 }
                             }
                         }
-                        (c, (best / 25.0).sqrt())
+                        let framed = self.frame[c].and_then(|f| framed_distance(p, window, f));
+                        (c, (best / 25.0).sqrt(), framed)
                     })
                     .collect::<Vec<_>>()
             })
             .collect();
-        measured.sort_unstable_by_key(|&(c, _)| c);
-        measured.into_iter().map(|(_, d)| d).collect()
+        measured.sort_unstable_by_key(|&(c, _, _)| c);
+        (
+            measured.iter().map(|&(_, d, _)| d).collect(),
+            measured.iter().filter_map(|&(_, _, f)| f).collect(),
+        )
     }
+}
+
+/// A window centre's stored sample coordinate and Jacobian (sample offset
+/// per atlas step, as [`Quilt::jacobians`]).
+#[derive(Clone, Copy, Debug)]
+struct Frame {
+    centre: [f32; 2],
+    jacobian: [f32; 4],
+}
+
+/// The RGB distance from a 5×5 output `window` (row-major, 3 values a
+/// texel) to the nearest window of the preview `p` read in the window's own
+/// frame: texel (dx, dy) of the window at `centre + S·(dx, dy) + t`, with
+/// S the similarity nearest the centre's Jacobian (its rotation, or
+/// reflection, and its scale √|det|) and t any whole-pixel move that keeps
+/// every read inside the preview. A window copied from one rigid patch is
+/// at distance 0 whatever its rotation, scale or sub-pixel position, so
+/// what remains is seams, bends (stretch that S does not follow) and
+/// content. `None` for a degenerate Jacobian or a frame larger than the
+/// preview.
+fn framed_distance(p: &RgbImage, window: &[f32], frame: Frame) -> Option<f64> {
+    let [a, b, c, d] = frame.jacobian.map(f64::from);
+    let det = a * d - b * c;
+    if !(det.abs() > 1e-12) || !frame.centre.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let scale = det.abs().sqrt();
+    // the columns of S: the sample offset of one atlas step along +X and +Y
+    let (x_step, y_step) = if det > 0.0 {
+        let phi = (b - c).atan2(a + d);
+        let (sin, cos) = phi.sin_cos();
+        ([cos, sin], [-sin, cos])
+    } else {
+        let phi = (b + c).atan2(a - d);
+        let (sin, cos) = phi.sin_cos();
+        ([cos, sin], [sin, -cos])
+    };
+    // each window texel's pixel and bilinear fractions (the same for every
+    // whole-pixel move)
+    let mut base = [[0i64; 2]; 25];
+    let mut frac = [[0f32; 2]; 25];
+    for i in 0..25 {
+        let (dx, dy) = ((i % 5) as f64 - 2.0, (i / 5) as f64 - 2.0);
+        for k in 0..2 {
+            let v = frame.centre[k] as f64 + scale * (x_step[k] * dx + y_step[k] * dy);
+            let f = v.floor();
+            base[i][k] = f as i64;
+            frac[i][k] = (v - f) as f32;
+        }
+    }
+    let (w, h) = (p.width as i64, p.height as i64);
+    let lo = |k: usize| base.iter().map(|q| q[k]).min().unwrap_or(0);
+    let hi = |k: usize| base.iter().map(|q| q[k]).max().unwrap_or(0);
+    // t keeps every read (pixel and pixel + 1) inside the preview
+    let (tx0, tx1, ty0, ty1) = (-lo(0), w - 2 - hi(0), -lo(1), h - 2 - hi(1));
+    if tx0 > tx1 || ty0 > ty1 {
+        return None;
+    }
+    let px = |x: i64, y: i64| &p.data[(y * w + x) as usize * 3..(y * w + x) as usize * 3 + 3];
+    let mut best = f64::INFINITY;
+    for ty in ty0..=ty1 {
+        for tx in tx0..=tx1 {
+            let mut ssd = 0f64;
+            for i in 0..25 {
+                let (x, y) = (base[i][0] + tx, base[i][1] + ty);
+                let (fx, fy) = (frac[i][0], frac[i][1]);
+                let (p00, p10, p01, p11) = (px(x, y), px(x + 1, y), px(x, y + 1), px(x + 1, y + 1));
+                for k in 0..3 {
+                    let top = p00[k] + (p10[k] - p00[k]) * fx;
+                    let bottom = p01[k] + (p11[k] - p01[k]) * fx;
+                    ssd += ((top + (bottom - top) * fy - window[i * 3 + k]) as f64).powi(2);
+                }
+                if ssd >= best {
+                    break;
+                }
+            }
+            best = best.min(ssd);
+        }
+    }
+    Some((best / 25.0).sqrt())
 }
 
 /// The painting measures of a painted surface (§IV), counted band by band:
