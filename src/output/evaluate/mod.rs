@@ -737,12 +737,10 @@ fn framed_distance(p: &RgbImage, window: &[f32], frame: Frame) -> Option<f64> {
     let scale = det.abs().sqrt();
     // the columns of S: the sample offset of one atlas step along +X and +Y
     let (x_step, y_step) = if det > 0.0 {
-        let phi = (b - c).atan2(a + d);
-        let (sin, cos) = phi.sin_cos();
+        let (sin, cos) = math::sin_cos(math::atan2(b - c, a + d));
         ([cos, sin], [-sin, cos])
     } else {
-        let phi = (b + c).atan2(a - d);
-        let (sin, cos) = phi.sin_cos();
+        let (sin, cos) = math::sin_cos(math::atan2(b + c, a - d));
         ([cos, sin], [sin, -cos])
     };
     // each window texel's pixel and bilinear fractions (the same for every
