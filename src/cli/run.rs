@@ -347,8 +347,10 @@ pub(crate) fn run(cli: Cli) -> Result<()> {
                 samples,
             };
             let server = btfquilt::studio::Studio::start(&file, &cfg)?;
+            stop_on_signal(server.stop_handle())?;
             println!("studio for {} at {}", file.display(), server.url());
             server.wait();
+            eprintln!("studio stopped; its work files are removed");
         }
         Command::Paint {
             file,
@@ -488,5 +490,34 @@ pub(crate) fn run(cli: Cli) -> Result<()> {
             say!("{report}");
         }
     }
+    Ok(())
+}
+
+/// Ctrl-C (SIGINT), SIGTERM or SIGHUP stops the studio the way its own stop
+/// does: requests being answered finish and the work files beside the
+/// surface go. A second signal ends the process at once (its work files
+/// are then removed by the next studio on that surface).
+#[cfg(unix)]
+fn stop_on_signal(handle: btfquilt::studio::StopHandle) -> Result<()> {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let mut signals =
+        signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP]).context("cannot watch for Ctrl-C")?;
+    std::thread::spawn(move || {
+        let mut received = signals.forever();
+        if received.next().is_some() {
+            eprintln!("stopping the studio (again to quit at once)");
+            handle.stop();
+        }
+        if received.next().is_some() {
+            std::process::exit(130);
+        }
+    });
+    Ok(())
+}
+
+/// (Elsewhere the process ends as the system ends it; the next studio on
+/// the surface removes the work files.)
+#[cfg(not(unix))]
+fn stop_on_signal(_: btfquilt::studio::StopHandle) -> Result<()> {
     Ok(())
 }

@@ -203,11 +203,23 @@ impl Server {
         self.studio.current()
     }
 
-    /// Answers requests until the process ends.
+    /// A handle that stops the studio from another thread (the one that
+    /// waits for a signal in `btfquilt serve`).
+    pub fn stop_handle(&self) -> StopHandle {
+        StopHandle {
+            http: self.http.clone(),
+            stop: self.stop.clone(),
+            workers: self.workers.len(),
+        }
+    }
+
+    /// Answers requests until a [`StopHandle`] stops the studio (or the
+    /// process ends), then removes the work files.
     pub fn wait(mut self) {
         for w in self.workers.drain(..) {
             let _ = w.join();
         }
+        // (dropped here: the work files go)
     }
 
     /// Stops answering, waits for the request threads and removes the work
@@ -225,6 +237,24 @@ impl Server {
             let _ = w.join();
         }
         self.studio.remove_work_files(std::process::id());
+    }
+}
+
+/// Stops a running studio: its request threads finish the request they
+/// are answering and end, and [`Server::wait`] returns.
+#[derive(Clone)]
+pub struct StopHandle {
+    http: Arc<tiny_http::Server>,
+    stop: Arc<AtomicBool>,
+    workers: usize,
+}
+
+impl StopHandle {
+    pub fn stop(&self) {
+        self.stop.store(true, Ordering::SeqCst);
+        for _ in 0..self.workers {
+            self.http.unblock();
+        }
     }
 }
 

@@ -744,3 +744,50 @@ fn the_binary_runs_with_one_malloc_arena_unless_the_user_chose() {
         );
     }
 }
+
+/// Ctrl-C (SIGINT) or SIGTERM stops `serve` cleanly: it exits with
+/// success and the hidden work files beside the surface (here the viewer's
+/// texels, there from the start) are gone.
+#[cfg(unix)]
+#[test]
+fn serve_stopped_by_a_signal_removes_its_work_files() {
+    use std::io::BufRead;
+    let dir = tempfile::tempdir().unwrap();
+    let (gim, quilt) = (dir.path().join("s.gim"), dir.path().join("s.quilt"));
+    let obj = crate::common::square_obj(dir.path());
+    let brick = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png");
+    crate::common::ok(&["atlas", s(&obj), "--resolution", "64", "-q", "-o", s(&gim)]);
+    let (g, b, q) = (s(&gim), s(&brick), s(&quilt));
+    crate::common::ok(&["tile", "--gim", g, "--sample", b, "-q", "-o", q]);
+    let work_files = || -> Vec<String> {
+        std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with(".s.studio-"))
+            .collect()
+    };
+    for signal in ["-INT", "-TERM"] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_btfquilt"))
+            .args(["serve", q, "--port", "0"])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        std::io::BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        assert!(line.contains("http://127.0.0.1:"), "{line}");
+        assert_eq!(work_files().len(), 1, "{signal}: {:?}", work_files());
+        let kill = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(kill.success());
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{signal}: {:?} {err}", out.status);
+        assert!(err.contains("studio stopped"), "{err}");
+        assert!(work_files().is_empty(), "{signal}: left {:?}", work_files());
+    }
+}
