@@ -698,6 +698,19 @@ fn outputs_do_not_depend_on_threads_or_memory() {
     }
 }
 
+/// `s.quilt` in `dir`: a 64² flat square tiled with the small brick sample
+/// (for the tests that run `serve`).
+#[cfg(unix)]
+fn small_square_quilt(dir: &Path) -> std::path::PathBuf {
+    let (gim, quilt) = (dir.join("s.gim"), dir.join("s.quilt"));
+    let obj = crate::common::square_obj(dir);
+    let brick = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png");
+    crate::common::ok(&["atlas", s(&obj), "--resolution", "64", "-q", "-o", s(&gim)]);
+    let (g, b, q) = (s(&gim), s(&brick), s(&quilt));
+    crate::common::ok(&["tile", "--gim", g, "--sample", b, "-q", "-o", q]);
+    quilt
+}
+
 /// With glibc the binary runs with one allocator arena unless the user set
 /// `MALLOC_ARENA_MAX` (it re-executes itself once): read from the
 /// environment of a running `serve`.
@@ -706,12 +719,7 @@ fn outputs_do_not_depend_on_threads_or_memory() {
 fn the_binary_runs_with_one_malloc_arena_unless_the_user_chose() {
     use std::io::BufRead;
     let dir = tempfile::tempdir().unwrap();
-    let (gim, quilt) = (dir.path().join("s.gim"), dir.path().join("s.quilt"));
-    let obj = crate::common::square_obj(dir.path());
-    let brick = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png");
-    crate::common::ok(&["atlas", s(&obj), "--resolution", "64", "-q", "-o", s(&gim)]);
-    let (g, b, q) = (s(&gim), s(&brick), s(&quilt));
-    crate::common::ok(&["tile", "--gim", g, "--sample", b, "-q", "-o", q]);
+    let quilt = small_square_quilt(dir.path());
     for (set, want) in [(None, "MALLOC_ARENA_MAX=1"), (Some("3"), "MALLOC_ARENA_MAX=3")] {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_btfquilt"));
         cmd.args(["serve", s(&quilt), "--port", "0"])
@@ -753,12 +761,8 @@ fn the_binary_runs_with_one_malloc_arena_unless_the_user_chose() {
 fn serve_stopped_by_a_signal_removes_its_work_files() {
     use std::io::BufRead;
     let dir = tempfile::tempdir().unwrap();
-    let (gim, quilt) = (dir.path().join("s.gim"), dir.path().join("s.quilt"));
-    let obj = crate::common::square_obj(dir.path());
-    let brick = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/brick.png");
-    crate::common::ok(&["atlas", s(&obj), "--resolution", "64", "-q", "-o", s(&gim)]);
-    let (g, b, q) = (s(&gim), s(&brick), s(&quilt));
-    crate::common::ok(&["tile", "--gim", g, "--sample", b, "-q", "-o", q]);
+    let quilt = small_square_quilt(dir.path());
+    let q = s(&quilt);
     let work_files = || -> Vec<String> {
         std::fs::read_dir(dir.path())
             .unwrap()
