@@ -765,24 +765,35 @@ fn framed_distance(p: &RgbImage, window: &[f32], frame: Frame) -> Option<f64> {
         return None;
     }
     let px = |x: i64, y: i64| &p.data[(y * w + x) as usize * 3..(y * w + x) as usize * 3 + 3];
+    // the squared distance at move t, given up (any value ≥ `best`) once
+    // it reaches `best`
+    let ssd_at = |tx: i64, ty: i64, best: f64| {
+        let mut ssd = 0f64;
+        for i in 0..25 {
+            let (x, y) = (base[i][0] + tx, base[i][1] + ty);
+            let (fx, fy) = (frac[i][0], frac[i][1]);
+            let (p00, p10, p01, p11) = (px(x, y), px(x + 1, y), px(x, y + 1), px(x + 1, y + 1));
+            for k in 0..3 {
+                let top = p00[k] + (p10[k] - p00[k]) * fx;
+                let bottom = p01[k] + (p11[k] - p01[k]) * fx;
+                ssd += ((top + (bottom - top) * fy - window[i * 3 + k]) as f64).powi(2);
+            }
+            if ssd >= best {
+                break;
+            }
+        }
+        ssd
+    };
+    // the window's own place first (no move): a window from one patch is
+    // near 0 there, and every other move is then given up early; the
+    // minimum is the same in any order
     let mut best = f64::INFINITY;
+    if (tx0..=tx1).contains(&0) && (ty0..=ty1).contains(&0) {
+        best = ssd_at(0, 0, best);
+    }
     for ty in ty0..=ty1 {
         for tx in tx0..=tx1 {
-            let mut ssd = 0f64;
-            for i in 0..25 {
-                let (x, y) = (base[i][0] + tx, base[i][1] + ty);
-                let (fx, fy) = (frac[i][0], frac[i][1]);
-                let (p00, p10, p01, p11) = (px(x, y), px(x + 1, y), px(x, y + 1), px(x + 1, y + 1));
-                for k in 0..3 {
-                    let top = p00[k] + (p10[k] - p00[k]) * fx;
-                    let bottom = p01[k] + (p11[k] - p01[k]) * fx;
-                    ssd += ((top + (bottom - top) * fy - window[i * 3 + k]) as f64).powi(2);
-                }
-                if ssd >= best {
-                    break;
-                }
-            }
-            best = best.min(ssd);
+            best = best.min(ssd_at(tx, ty, best));
         }
     }
     Some((best / 25.0).sqrt())
