@@ -229,10 +229,7 @@ impl Server {
     }
 
     fn shutdown(&mut self) {
-        self.stop.store(true, Ordering::SeqCst);
-        for _ in 0..self.workers.len() {
-            self.http.unblock();
-        }
+        self.stop_handle().stop();
         for w in self.workers.drain(..) {
             let _ = w.join();
         }

@@ -339,7 +339,9 @@ pub fn evaluate_with(
     coherence.sort_by(f64::total_cmp);
     framed.sort_by(f64::total_cmp);
     let p95 = super::compare::nearest_rank(&coherence, 0.95);
-    let framed_p95 = (!framed.is_empty()).then(|| super::compare::nearest_rank(&framed, 0.95));
+    // (none for a quilt that stores no Jacobians)
+    let framed_figures =
+        (!framed.is_empty()).then(|| (mean(&framed), super::compare::nearest_rank(&framed, 0.95)));
     let seams_fraction = edges as f64 / (edges + inner_count).max(1) as f64;
     let width = previews.first().map_or(0, |p| p.width);
     let scale = scale(&quilt, &gim, width)?;
@@ -379,8 +381,8 @@ pub fn evaluate_with(
             windows: coherence.len(),
             mean_rgb_distance_to_nearest_sample_window: mean(&coherence),
             p95_rgb_distance_to_nearest_sample_window: p95,
-            mean_rgb_distance_in_own_frame: (!framed.is_empty()).then(|| mean(&framed)),
-            p95_rgb_distance_in_own_frame: framed_p95,
+            mean_rgb_distance_in_own_frame: framed_figures.map(|f| f.0),
+            p95_rgb_distance_in_own_frame: framed_figures.map(|f| f.1),
         },
         usage: usage
             .iter()
